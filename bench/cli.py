@@ -1,0 +1,59 @@
+"""``arva-bench``: the bench's command line.
+
+Each sub-command lives in its own module exposing ``register(subparsers)`` (adds its
+parser and sets ``func``) and a ``run(args) -> int``. ``parse_args`` is separate from
+``main`` so tests can check argument handling without running anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from firmware_proto.errors import InputError, LinkError
+
+from . import __version__
+
+#: Sub-command modules, in the order ``--help`` lists them.
+SUBCOMMANDS: tuple[str, ...] = ()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="arva-bench",
+        description="Log, replay, export and fit ARVA receivers and their ground truth.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        importlib.import_module(f"bench.{name}").register(sub)
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help(sys.stderr)
+        parser.exit(2)
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_args(argv)
+    logging.basicConfig(
+        level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-bench: %(message)s"
+    )
+    try:
+        return int(args.func(args) or 0)
+    except (InputError, LinkError) as exc:
+        print(f"arva-bench: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
