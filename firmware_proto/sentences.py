@@ -99,3 +99,45 @@ def encode_epoch(
         if fields is not None and fields[k - 1] is not None:
             parts.append(encode_parvh(seq, k, tx_id, fields[k - 1]))
     return b"".join(parts)
+
+
+def _as_lists(x):
+    return x.tolist() if hasattr(x, "tolist") else [list(row) for row in x]
+
+
+def encode_epochs(
+    k0: int,
+    ids: Sequence[Sequence[int]],
+    d: Sequence[Sequence[int]],
+    delta: Sequence[Sequence[int]],
+    fields: Sequence[Sequence[Sequence[float]]] | None = None,
+) -> bytes:
+    """Consecutive epochs ``k0, k0 + 1, ...`` at once; rows are epochs, columns slots.
+
+    Accepts nested sequences or numpy arrays (anything with ``tolist``). Fields, when
+    given, add a ``$PARVH`` after every non-empty slot. Same bytes as calling
+    :func:`encode_epoch` per epoch, but checks values once per batch and reuses the
+    slot formatting in one loop, which keeps the emulator's hot path fast.
+    """
+    ids_l, d_l, delta_l = (_as_lists(x) for x in (ids, d, delta))
+    n_epochs = len(ids_l)
+    if n_epochs == 0:
+        return b""
+    n = len(ids_l[0])
+    if not 1 <= n <= MAX_CHANNELS:
+        raise ProtocolError(f"n {n} outside 1..{MAX_CHANNELS}")
+    for row_ids, row_d, row_delta in zip(ids_l, d_l, delta_l):
+        for slot in zip(row_ids, row_d, row_delta):
+            check_slot(*slot)
+    fields_l = None if fields is None else _as_lists(fields)
+    out = []
+    append = out.append
+    for e in range(n_epochs):
+        seq = (k0 + e) % SEQ_MODULO
+        for k in range(n):
+            tx_id = ids_l[e][k]
+            body = f"PARVA,{seq},{n},{k + 1},{tx_id},{d_l[e][k]},{delta_l[e][k]}".encode()
+            append(b"$%s*%02X\r\n" % (body, reduce(xor, body, 0)))
+            if fields_l is not None and tx_id != -1:
+                append(encode_parvh(seq, k + 1, tx_id, fields_l[e][k]))
+    return b"".join(out)

@@ -1,0 +1,32 @@
+"""Effects a scene may enable (BRIEF 3.1). Each is off unless asked for; the receiver
+pipeline is assembled once per scene from the enabled ones, so a disabled effect draws
+no random numbers and allocates nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+class NoiseEffect:
+    """EMI noise (BRIEF 3.2): one point uniform in the unit ball per (epoch, transmitter),
+    in the world frame; the model scales it by w_en and maps it by Q R_r^T.
+
+    A uniform point of the 3-ball is drawn as the first three coordinates of a uniform
+    point on the 4-sphere in R^5 (five standard normals, normalised). That uses a single
+    ``standard_normal`` call per batch, so drawing N epochs at once or one at a time gives
+    the same stream: output does not depend on how the scheduler chunks epochs.
+    """
+
+    name = "noise"
+
+    def __init__(self, seed: int, stream: int = 0) -> None:
+        # One independent stream per receiver, derived from the scene seed.
+        self._rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(stream,))))
+
+    def draw(self, n_epochs: int, n_transmitters: int) -> NDArray[np.float64]:
+        """(n_epochs, n_transmitters, 3) points uniform in the unit ball, epoch-major."""
+        z = self._rng.standard_normal((n_epochs, n_transmitters, 5))
+        norm = np.sqrt(np.einsum("...i,...i->...", z, z))[..., None]
+        # A zero 5-vector has probability 0; guard anyway so no NaN can ever appear.
+        return np.divide(z[..., :3], norm, out=np.zeros(z.shape[:-1] + (3,)), where=norm > 0)

@@ -1,0 +1,279 @@
+"""Scene files (BRIEF 5): versioned TOML describing transmitters, a receiver and effects.
+
+Validation is strict, in the pyvisa-sim manner: every key is known, every value has its
+type, length and range checked, and the first problem raises :class:`SceneError` whose
+text is ``FILE: key.path: reason`` (one line, naming the exact key).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from firmware_proto.errors import InputError, PoseError, SceneError
+from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
+
+from .model import ModelParams
+from .rotation import normalize_quaternions
+from .trajectory import IDENTITY, Trajectory
+
+#: The newest scene format this program reads.
+SPEC_VERSION = 1
+DEFAULT_SCENE = "default.toml"
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Which effects the scene enables; all off by default (BRIEF 3.1)."""
+
+    noise: bool = False
+    research_sentences: bool = False
+
+
+@dataclass(frozen=True)
+class Transmitter:
+    id: int
+    trajectory: Trajectory
+
+
+@dataclass(frozen=True)
+class ReceiverSpec:
+    channels: int
+    trajectory: Trajectory
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene. Transmitters are sorted by ascending id."""
+
+    source: str
+    spec: int
+    seed: int
+    rate_hz: float
+    model: ModelParams
+    effects: Effects
+    transmitters: tuple[Transmitter, ...]
+    receiver: ReceiverSpec
+    name: str = ""
+
+    @property
+    def transmitter_ids(self) -> np.ndarray:
+        return np.array([tx.id for tx in self.transmitters], dtype=np.int64)
+
+
+class _Reader:
+    """Typed access to a TOML table that reports errors as ``FILE: key.path: reason``."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, key: str, reason: str) -> SceneError:
+        return SceneError(self.source, key, reason)
+
+    def table(self, data: dict, key: str, path: str, allowed: set[str], required: bool = False) -> dict:
+        value = data.get(key)
+        if value is None:
+            if required:
+                raise self.fail(path, "missing table")
+            return {}
+        if not isinstance(value, dict):
+            raise self.fail(path, f"expected a table, got {_type_name(value)}")
+        self.known_keys(value, path, allowed)
+        return value
+
+    def known_keys(self, data: dict, path: str, allowed: set[str]) -> None:
+        for key in data:
+            if key not in allowed:
+                raise self.fail(_join(path, key), "unknown key")
+
+    def integer(self, data: dict, key: str, path: str, default: int | None, lo: int, hi: int) -> int:
+        value = data.get(key, default)
+        if value is None:
+            raise self.fail(path, "missing")
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(path, f"expected an integer, got {_type_name(value)}")
+        if not lo <= value <= hi:
+            raise self.fail(path, f"must be in {lo}..{hi}, got {value}")
+        return value
+
+    def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False) -> float:
+        value = data.get(key, default)
+        if value is None:
+            raise self.fail(path, "missing")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.fail(path, f"expected a number, got {_type_name(value)}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise self.fail(path, f"must be finite, got {value}")
+        if positive and not value > 0:
+            raise self.fail(path, f"must be > 0, got {value:g}")
+        return value
+
+    def boolean(self, data: dict, key: str, path: str, default: bool) -> bool:
+        value = data.get(key, default)
+        if not isinstance(value, bool):
+            raise self.fail(path, f"expected true or false, got {_type_name(value)}")
+        return value
+
+    def vector(self, value: Any, path: str, length: int) -> list[float]:
+        if not isinstance(value, list):
+            raise self.fail(path, f"expected an array of {length} numbers, got {_type_name(value)}")
+        if len(value) != length:
+            raise self.fail(path, f"expected {length} numbers, got {len(value)}")
+        out = []
+        for i, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise self.fail(f"{path}[{i}]", f"expected a number, got {_type_name(v)}")
+            if not math.isfinite(v):
+                raise self.fail(f"{path}[{i}]", f"must be finite, got {v}")
+            out.append(float(v))
+        return out
+
+    def quaternion(self, value: Any, path: str) -> list[float]:
+        q = self.vector(value, path, 4)
+        try:
+            return normalize_quaternions(q, path).tolist()
+        except PoseError as exc:
+            raise self.fail(path, exc.reason) from None
+
+    def trajectory(self, data: dict, path: str) -> Trajectory:
+        has_static = "position" in data or "orientation" in data
+        if "path" in data:
+            if has_static:
+                raise self.fail(_join(path, "path"), "give either position/orientation or path, not both")
+            return self._path(data["path"], _join(path, "path"))
+        if "position" not in data:
+            raise self.fail(_join(path, "position"), "missing")
+        position = self.vector(data["position"], _join(path, "position"), 3)
+        orientation = self.quaternion(data.get("orientation", list(IDENTITY)), _join(path, "orientation"))
+        return Trajectory.static(position, orientation)
+
+    def _path(self, value: Any, path: str) -> Trajectory:
+        if not isinstance(value, list) or not value:
+            raise self.fail(path, "expected a non-empty array of waypoint tables")
+        times, positions, orientations = [], [], []
+        for i, wp in enumerate(value):
+            wp_path = f"{path}[{i}]"
+            if not isinstance(wp, dict):
+                raise self.fail(wp_path, f"expected a table, got {_type_name(wp)}")
+            self.known_keys(wp, wp_path, {"t", "position", "orientation"})
+            t = self.number(wp, "t", f"{wp_path}.t", None)
+            if times and not t > times[-1]:
+                raise self.fail(f"{wp_path}.t", f"times must increase strictly, {t:g} follows {times[-1]:g}")
+            if "position" not in wp:
+                raise self.fail(f"{wp_path}.position", "missing")
+            times.append(t)
+            positions.append(self.vector(wp["position"], f"{wp_path}.position", 3))
+            orientations.append(self.quaternion(wp.get("orientation", list(IDENTITY)), f"{wp_path}.orientation"))
+        return Trajectory(np.array(times), np.array(positions), np.array(orientations))
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def _type_name(value: Any) -> str:
+    return {
+        bool: "a boolean",
+        int: "an integer",
+        float: "a number",
+        str: "a string",
+        list: "an array",
+        dict: "a table",
+    }.get(type(value), type(value).__name__)
+
+
+_TOP_KEYS = {"spec", "seed", "rate_hz", "name", "description", "model", "effects", "transmitters", "receiver"}
+_MODEL_KEYS = {"kappa_eq", "moment", "r_inner", "r_outer", "r_en", "q"}
+_EFFECT_KEYS = {"noise", "research_sentences"}
+_TX_KEYS = {"id", "position", "orientation", "path"}
+_RX_KEYS = {"channels", "position", "orientation", "path"}
+
+
+def parse_scene(data: dict, source: str) -> Scene:
+    """Validate a decoded TOML document; ``source`` names it in error messages."""
+    rd = _Reader(source)
+    if "spec" not in data:
+        raise rd.fail("spec", f"missing (this program reads spec = {SPEC_VERSION})")
+    spec = rd.integer(data, "spec", "spec", None, 1, 2**31)
+    if spec > SPEC_VERSION:
+        raise rd.fail("spec", f"version {spec} is newer than this program supports ({SPEC_VERSION})")
+    rd.known_keys(data, "", _TOP_KEYS)
+    seed = rd.integer(data, "seed", "seed", 0, 0, 2**63 - 1)
+    rate_hz = rd.number(data, "rate_hz", "rate_hz", 1.0, positive=True)
+    name = data.get("name", "")
+    if not isinstance(name, str):
+        raise rd.fail("name", f"expected a string, got {_type_name(name)}")
+    if not isinstance(data.get("description", ""), str):
+        raise rd.fail("description", f"expected a string, got {_type_name(data['description'])}")
+
+    m = rd.table(data, "model", "model", _MODEL_KEYS)
+    defaults = ModelParams()
+    q = tuple(rd.vector(m["q"], "model.q", 3)) if "q" in m else defaults.q
+    for i, qi in enumerate(q):
+        if not 0 < qi <= 1:
+            raise rd.fail(f"model.q[{i}]", f"must be in (0, 1], got {qi:g}")
+    values = {k: rd.number(m, k, f"model.{k}", getattr(defaults, k), positive=True) for k in sorted(_MODEL_KEYS - {"q"})}
+    try:
+        model = ModelParams(q=q, **values)
+    except InputError as exc:
+        raise rd.fail("model", str(exc)) from None
+
+    e = rd.table(data, "effects", "effects", _EFFECT_KEYS)
+    effects = Effects(**{k: rd.boolean(e, k, f"effects.{k}", False) for k in sorted(_EFFECT_KEYS)})
+
+    raw_txs = data.get("transmitters", [])
+    if not isinstance(raw_txs, list):
+        raise rd.fail("transmitters", f"expected an array of tables ([[transmitters]]), got {_type_name(raw_txs)}")
+    transmitters = []
+    seen: dict[int, int] = {}
+    for i, tx in enumerate(raw_txs):
+        path = f"transmitters[{i}]"
+        if not isinstance(tx, dict):
+            raise rd.fail(path, f"expected a table, got {_type_name(tx)}")
+        rd.known_keys(tx, path, _TX_KEYS)
+        tx_id = rd.integer(tx, "id", f"{path}.id", None, 0, MAX_ID)
+        if tx_id in seen:
+            raise rd.fail(f"{path}.id", f"duplicate id {tx_id} (also transmitters[{seen[tx_id]}].id)")
+        seen[tx_id] = i
+        transmitters.append(Transmitter(tx_id, rd.trajectory(tx, path)))
+    transmitters.sort(key=lambda tx: tx.id)
+
+    r = rd.table(data, "receiver", "receiver", _RX_KEYS, required=True)
+    channels = rd.integer(r, "channels", "receiver.channels", 1, 1, MAX_CHANNELS)
+    receiver = ReceiverSpec(channels, rd.trajectory(r, "receiver"))
+    return Scene(source, spec, seed, rate_hz, model, effects, tuple(transmitters), receiver, name)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file. Every failure is a one-line :class:`SceneError`."""
+    source = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as exc:
+        raise SceneError(source, "", f"cannot read: {exc.strerror or exc}") from None
+    return loads_scene(raw, source)
+
+
+def loads_scene(raw: bytes | str, source: str) -> Scene:
+    try:
+        text = raw.decode("utf-8") if isinstance(raw, bytes) else raw
+    except UnicodeDecodeError as exc:
+        raise SceneError(source, "", f"not UTF-8 text (byte offset {exc.start})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(source, "", f"TOML syntax: {exc}") from None
+    return parse_scene(data, source)
+
+
+def default_scene() -> Scene:
+    """The embedded default: the paper's four case-study transmitters, 4 channels."""
+    ref = resources.files("emulator") / "scenes" / DEFAULT_SCENE
+    return loads_scene(ref.read_bytes(), f"<embedded {DEFAULT_SCENE}>")

@@ -1,0 +1,58 @@
+"""Poses over time: a static pose, or waypoints interpolated linearly in position and by
+slerp in orientation, held before the first and after the last waypoint (BRIEF 5)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation, Slerp
+
+IDENTITY = (1.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Waypoints ``times`` (K,) in seconds, strictly increasing; ``positions`` (K, 3) in
+    ENU metres; ``orientations`` (K, 4) unit quaternions [w, x, y, z]. K = 1 is static."""
+
+    times: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    orientations: NDArray[np.float64]
+
+    @classmethod
+    def static(cls, position: ArrayLike, orientation: ArrayLike = IDENTITY) -> "Trajectory":
+        return cls(
+            np.zeros(1),
+            np.asarray(position, dtype=np.float64).reshape(1, 3),
+            np.asarray(orientation, dtype=np.float64).reshape(1, 4),
+        )
+
+    @property
+    def is_static(self) -> bool:
+        return len(self.times) == 1
+
+    def at(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Positions (N, 3) and orientations (N, 4) at times ``t`` (N,) in seconds."""
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        if self.is_static:
+            return (
+                np.broadcast_to(self.positions[0], (t.size, 3)),
+                np.broadcast_to(self.orientations[0], (t.size, 4)),
+            )
+        # np.interp holds the end values outside [t0, tK], as a held pose should.
+        pos = np.stack([np.interp(t, self.times, self.positions[:, i]) for i in range(3)], axis=1)
+        clipped = np.clip(t, self.times[0], self.times[-1])
+        quat = self._slerp(clipped).as_quat(scalar_first=True)
+        return pos, quat
+
+    @property
+    def _slerp(self) -> Slerp:
+        # Built lazily and cached: Slerp precomputes the relative rotations once.
+        cached = self.__dict__.get("_slerp_cache")
+        if cached is None:
+            rotations = Rotation.from_quat(self.orientations, scalar_first=True)
+            cached = Slerp(self.times, rotations)
+            object.__setattr__(self, "_slerp_cache", cached)
+        return cached
