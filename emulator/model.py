@@ -41,6 +41,7 @@ MAX_DELTA_DEG = 89
 FIELD_SATURATION = float(np.finfo(np.float64).max)
 #: Transmitters are processed in chunks of this many pairs so temporaries stay in cache.
 CHUNK_PAIRS = 1 << 15
+_HUGE = 2.0**1020  # ~1.1e307
 
 
 @dataclass(frozen=True)
@@ -184,17 +185,23 @@ def _measure_chunk(rx_p, rx_r, tx_p, tx_r, params, noise, d_out, delta_out, zone
         tx = tx_p
     rr = lambda i, j: rx_r[:, None, i, j]  # noqa: E731
 
-    dx = rx_p[:, None, 0] - tx[..., 0]
-    dy = rx_p[:, None, 1] - tx[..., 1]
-    dz = rx_p[:, None, 2] - tx[..., 2]
+    # Coordinates beyond ~1e307 could overflow the difference; such pairs are scaled by
+    # an exact power of two first and the distance is scaled back (to inf: outer).
+    huge = (np.max(np.abs(rx_p), axis=-1)[:, None] > _HUGE) | (np.max(np.abs(tx), axis=-1) > _HUGE)
+    f = np.where(huge, 0.25, 1.0)
+    dx = rx_p[:, None, 0] * f - tx[..., 0] * f
+    dy = rx_p[:, None, 1] * f - tx[..., 1] * f
+    dz = rx_p[:, None, 2] * f - tx[..., 2] * f
     # p = R_t^T (p_r - p_t): transmitter-frame position of the receiver.
     px = t(0, 0) * dx + t(1, 0) * dy + t(2, 0) * dz
     py = t(0, 1) * dx + t(1, 1) * dy + t(2, 1) * dz
     pz = t(0, 2) * dx + t(1, 2) * dy + t(2, 2) * dz
-    r = _hypot3(px, py, pz)
-    at_tx = r == 0.0
-    r_safe = np.where(at_tx, 1.0, r)
-    x, y, z = px / r_safe, py / r_safe, pz / r_safe
+    r_scaled = _hypot3(px, py, pz)
+    at_tx = r_scaled == 0.0
+    r_dir = np.where(at_tx, 1.0, r_scaled)
+    x, y, z = px / r_dir, py / r_dir, pz / r_dir
+    with np.errstate(over="ignore"):
+        r_safe = r_dir / f  # true distance; inf only for pairs ~1e308 m apart
     # Unit-free dipole term in the transmitter frame, rotated into world, then receiver.
     ut0 = 2.0 * x * x - y * y - z * z
     ut1 = 3.0 * x * y
@@ -208,7 +215,7 @@ def _measure_chunk(rx_p, rx_r, tx_p, tx_r, params, noise, d_out, delta_out, zone
 
     with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
         if noise is None:
-            dist_scale = r * params.distance_scale
+            dist_scale = r_safe * params.distance_scale
             field_scale = None
             if field_out is not None:
                 field_scale = (params.moment / (4.0 * math.pi)) / r_safe**3

@@ -28,10 +28,10 @@ def normalize_quaternions(q: ArrayLike, field: str = "orientation") -> NDArray[n
     if not np.all(np.isfinite(q)):
         raise PoseError(field, "quaternion has a non-finite component")
     scale = np.max(np.abs(q), axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         unit = q / scale
         norm_scaled = np.sqrt(np.sum(unit * unit, axis=-1, keepdims=True))
-    norm = scale * norm_scaled
+        norm = scale * norm_scaled  # may be inf for components near 1e308: still valid
     if np.any(~(norm >= MIN_QUATERNION_NORM)):
         bad = float(np.min(np.where(np.isnan(norm), 0.0, norm)))
         raise PoseError(field, f"quaternion norm {bad:.3g} is below {MIN_QUATERNION_NORM:g}")
