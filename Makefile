@@ -21,8 +21,9 @@ run: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests
 
+# Benchmarks: each script prints its table and rewrites its section of docs/performance.md.
 bench: $(STAMP)
-	$(BIN)/python tests/perf/bench_model.py
+	@for f in tests/perf/bench_*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 
 clean:
 	rm -rf $(VENV) build *.egg-info
