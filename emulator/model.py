@@ -43,7 +43,7 @@ MAX_DELTA_DEG = 89
 #: saturate here rather than print ``inf``.
 FIELD_SATURATION = float(np.finfo(np.float64).max)
 #: Transmitters are processed in chunks of this many pairs so temporaries stay in cache.
-CHUNK_PAIRS = 1 << 13
+CHUNK_PAIRS = 1 << 15
 _HUGE = 2.0**1020  # ~1.1e307
 
 
