@@ -1,0 +1,152 @@
+"""Epoch assembly: group decoded sentences into epochs (all slots of one seq).
+
+Rules (identical in the C codec, ``arva_codec.c``):
+
+* A ``$PARVA`` joins the epoch being assembled when it has the same ``seq`` and ``n`` and a
+  ``k`` above the last slot received; otherwise that epoch is emitted first and the
+  sentence starts a new one (a seq change, a repeated or backward ``k``, a different ``n``).
+* An epoch is emitted when its slot ``k = n`` arrives. Once a ``$PARVH`` has been seen in
+  the stream (or ``expect_fields`` is set), the decoder instead *holds* it for one more
+  sentence, because the research sentence of the last slot comes right after it; the next
+  sentence, the next error, :meth:`idle` or :meth:`flush` releases it.
+* A rejected sentence between the first and the last slot makes the epoch incomplete,
+  as does any missing slot (reported as ``None``). Garbage bytes between sentences do not.
+* A ``$PARVH`` attaches to slot ``k`` of the epoch being assembled when seq, k and id
+  match a slot that arrived and has no field yet; otherwise it is counted as orphaned.
+* When an epoch starts, ``gap = (seq - previous_seq - 1) mod 65536`` (0 for the first
+  epoch and for a repeated seq); a non-zero gap is counted in ``seq_gaps`` and summed in
+  ``seqs_missing``. The wrap 65535 -> 0 is not a gap.
+"""
+
+from __future__ import annotations
+
+from .events import DecodeError, DecoderStats, Epoch, Event, Field, Parva, Parvh, Slot
+from .sentences import SEQ_MODULO
+
+
+class _Pending:
+    __slots__ = ("seq", "n", "slots", "fields", "last_k", "tainted", "gap")
+
+    def __init__(self, seq: int, n: int, gap: int) -> None:
+        self.seq = seq
+        self.n = n
+        self.slots: list[Slot | None] = [None] * n
+        self.fields: list[Field | None] | None = None
+        self.last_k = 0
+        self.tainted = False
+        self.gap = gap
+
+
+class EpochAssembler:
+    """Turns the sentence-level events of one stream into :class:`Epoch` events.
+
+    Each ``on_*`` method appends to ``out``, in stream order, the events it produces:
+    the event itself plus any epoch it completes or releases.
+    """
+
+    def __init__(self, stats: DecoderStats | None = None, expect_fields: bool = False) -> None:
+        self.stats = stats if stats is not None else DecoderStats()
+        self.expect_fields = expect_fields
+        self._cur: _Pending | None = None
+        self._holding = False
+        self._last_seq: int | None = None
+
+    # -- events ------------------------------------------------------------------------
+
+    def on_parva(self, p: Parva, out: list[Event]) -> None:
+        cur = self._cur
+        if cur is not None:
+            if not self._holding and p.seq == cur.seq and p.n == cur.n and p.k > cur.last_k:
+                cur.slots[p.k - 1] = (p.id, p.d, p.delta)
+                cur.last_k = p.k
+                out.append(p)
+                if p.k == cur.n:
+                    if self.expect_fields:
+                        self._holding = True
+                    else:
+                        self._emit(out)
+                return
+            self._emit(out)
+        out.append(p)
+        self._start(p, out)
+
+    def on_parvh(self, h: Parvh, out: list[Event]) -> None:
+        self.expect_fields = True
+        cur = self._cur
+        attach = False
+        if cur is not None and h.seq == cur.seq and h.k <= cur.n:
+            slot = cur.slots[h.k - 1]
+            if slot is not None and slot[0] == h.id:
+                if cur.fields is None:
+                    cur.fields = [None] * cur.n
+                    attach = True
+                elif cur.fields[h.k - 1] is None:
+                    attach = True
+        if attach:
+            cur.fields[h.k - 1] = h.h  # type: ignore[union-attr, index]
+            out.append(h)
+            if self._holding:
+                self._emit(out)
+            return
+        self.stats.fields_orphaned += 1
+        if self._holding:
+            self._emit(out)
+        out.append(h)
+
+    def on_error(self, e: DecodeError, out: list[Event]) -> None:
+        if self._holding:
+            self._emit(out)
+        elif self._cur is not None:
+            self._cur.tainted = True
+        out.append(e)
+
+    def idle(self, out: list[Event]) -> None:
+        """The line went quiet: release an epoch held for its last ``$PARVH``."""
+        if self._holding:
+            self._emit(out)
+
+    def flush(self, out: list[Event]) -> None:
+        """End of stream: emit whatever epoch is being assembled."""
+        if self._cur is not None:
+            self._emit(out)
+
+    # -- internals -----------------------------------------------------------------------
+
+    def _start(self, p: Parva, out: list[Event]) -> None:
+        last = self._last_seq
+        gap = 0
+        if last is not None and p.seq != last:
+            gap = (p.seq - last - 1) % SEQ_MODULO
+            if gap:
+                self.stats.seq_gaps += 1
+                self.stats.seqs_missing += gap
+        self._last_seq = p.seq
+        cur = self._cur = _Pending(p.seq, p.n, gap)
+        cur.slots[p.k - 1] = (p.id, p.d, p.delta)
+        cur.last_k = p.k
+        if p.k == p.n:
+            if self.expect_fields:
+                self._holding = True
+            else:
+                self._emit(out)
+
+    def _emit(self, out: list[Event]) -> None:
+        cur = self._cur
+        assert cur is not None
+        complete = not cur.tainted and None not in cur.slots
+        if complete:
+            self.stats.epochs_complete += 1
+        else:
+            self.stats.epochs_incomplete += 1
+        out.append(
+            Epoch(
+                cur.seq,
+                cur.n,
+                complete,
+                tuple(cur.slots),
+                None if cur.fields is None else tuple(cur.fields),
+                cur.gap,
+            )
+        )
+        self._cur = None
+        self._holding = False
