@@ -1,7 +1,8 @@
-"""``arva-emulate``: stream a scene's receiver sentences to a port.
+"""``arva-emulate``: stream a scene's receiver (and ground-truth) sentences to ports.
 
 ``arva-emulate --scene S --port - --frames N --speed 0`` prints exactly the normative
-sentences on stdout and nothing else; every log line goes to stderr.
+sentences on stdout and nothing else; every log line, the live status and the final
+summary go to stderr.
 """
 
 from __future__ import annotations
@@ -10,21 +11,22 @@ import argparse
 import logging
 import math
 import os
+import signal
 import sys
-import time
 from collections.abc import Sequence
+from pathlib import Path
 
 from firmware_proto.errors import InputError, LinkError
-from firmware_proto.sentences import encode_epochs
 
 from . import __version__
-from .receiver import Receiver
+from .ports import Port, PtyPort, SerialPort, StdoutPort
 from .scene import default_scene, load_scene
+from .scheduler import EpochScheduler, Route, status_printer, summary_line
+from .streams import scene_streams
 
 log = logging.getLogger("arva-emulate")
 
-#: Epochs computed per batch when running as fast as possible (--speed 0).
-FAST_BATCH = 4096
+_PARITIES = {"N": "N", "E": "E", "O": "O", "M": "M", "S": "S"}
 
 
 def _non_negative_int(text: str) -> int:
@@ -47,6 +49,13 @@ def _speed(text: str) -> float:
     return value
 
 
+def _stream_port(text: str) -> tuple[str, str]:
+    label, sep, port = text.partition("=")
+    if not sep or not label or not port:
+        raise argparse.ArgumentTypeError(f"expected LABEL=PORT (e.g. gps:rx=pty), got {text!r}")
+    return label, port
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="arva-emulate",
@@ -57,8 +66,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--port",
         default="-",
         metavar="PORT",
-        help="'-' for stdout (default), a device path or a pyserial URL",
+        help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
+        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL",
     )
+    p.add_argument(
+        "--stream",
+        type=_stream_port,
+        action="append",
+        default=[],
+        metavar="LABEL=PORT",
+        help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port",
+    )
+    p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
     p.add_argument("--frames", type=_non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
     p.add_argument(
         "--speed",
@@ -67,6 +86,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="X",
         help="run X times real time; 0 = as fast as possible (default 1)",
     )
+    serial_opts = p.add_argument_group("serial device options (device paths and URLs)")
+    serial_opts.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    serial_opts.add_argument("--bytesize", type=int, choices=(5, 6, 7, 8), default=8)
+    serial_opts.add_argument("--parity", choices=sorted(_PARITIES), default="N")
+    serial_opts.add_argument("--stopbits", type=float, choices=(1, 1.5, 2), default=1)
+    serial_opts.add_argument("--rtscts", action="store_true", help="hardware flow control")
+    serial_opts.add_argument("--xonxoff", action="store_true", help="software flow control")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return p
@@ -76,62 +102,89 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return build_parser().parse_args(argv)
 
 
-class _Output:
-    """Where the sentences go: stdout, or a device/URL opened with pyserial."""
+def _serial_options(args: argparse.Namespace, url: str) -> dict:
+    opts = {
+        "baudrate": args.baud,
+        "bytesize": args.bytesize,
+        "parity": args.parity,
+        "stopbits": args.stopbits,
+        "rtscts": args.rtscts,
+        "xonxoff": args.xonxoff,
+    }
+    if "://" not in url:
+        opts["exclusive"] = True  # a device another program holds is an error, not a fight
+    return opts
 
-    def __init__(self, port: str) -> None:
-        self.port = port
-        self._serial = None
-        if port == "-":
-            self._write = sys.stdout.buffer.write
-            self._flush = sys.stdout.buffer.flush
-        else:
-            import serial  # pyserial; imported only when a real port is asked for
 
-            try:
-                self._serial = serial.serial_for_url(port, baudrate=115200, write_timeout=0)
-            except (serial.SerialException, ValueError, OSError) as exc:
-                raise LinkError(f"port {port}: {exc}") from None
-            self._write = self._serial.write
-            self._flush = lambda: None
+def assign_ports(labels: list[str], default: str, overrides: list[tuple[str, str]]) -> dict[str, str]:
+    """Map every stream label to a port spec; raise InputError for impossible requests."""
+    known = set(labels)
+    ports = {label: default for label in labels}
+    for label, port in overrides:
+        if label not in known:
+            raise InputError(f"--stream {label}={port}: no stream {label!r} in this scene (streams: {', '.join(labels)})")
+        ports[label] = port
+    users: dict[str, list[str]] = {}
+    for label, port in ports.items():
+        if port != "pty":
+            users.setdefault(port, []).append(label)
+    for port, names in users.items():
+        if len(names) > 1:
+            what = "stdout" if port == "-" else port
+            raise InputError(
+                f"port {port}: {len(names)} streams ({', '.join(names)}) cannot share {what}; "
+                "use --port pty or --stream LABEL=PORT"
+            )
+    return ports
 
-    def write(self, data: bytes) -> None:
-        self._write(data)
-        self._flush()
 
-    def close(self) -> None:
-        if self._serial is not None:
-            self._serial.close()
+def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
+    if spec == "-":
+        return StdoutPort(label)
+    if spec == "pty":
+        link = None
+        if args.link is not None:
+            if not args.link.is_dir():
+                raise InputError(f"--link {args.link}: not a directory")
+            link = args.link / label.replace(":", "-")
+        return PtyPort(label, link)
+    return SerialPort(label, spec, _serial_options(args, spec))
 
 
 def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene) if args.scene else default_scene()
-    receiver = Receiver(scene)
-    out = _Output(args.port)
-    log.info("scene %s: %d transmitters, %d channels", scene.source, len(scene.transmitters), receiver.channels)
-    remaining = args.frames
-    period = 0.0 if args.speed == 0 else 1.0 / (scene.rate_hz * args.speed)
-    start = time.monotonic()
+    streams = scene_streams(scene)
+    specs = assign_ports([s.label for s in streams], args.port, args.stream)
+    routes: list[Route] = []
     try:
-        while remaining is None or remaining > 0:
-            count = FAST_BATCH if period == 0 else 1
-            if remaining is not None:
-                count = min(count, remaining)
-            if period:
-                # Absolute deadlines: epoch k is due at start + k * period, so sleep
-                # error never accumulates.
-                delay = start + receiver.next_k * period - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-            batch = receiver.next_batch(count)
-            ep = batch.epochs
-            out.write(encode_epochs(batch.k0, ep.ids, ep.d, ep.delta, ep.field))
-            if remaining is not None:
-                remaining -= count
+        for stream in streams:
+            routes.append(Route(stream, open_port(stream.label, specs[stream.label], args)))
+        for r in routes:
+            if isinstance(r.port, PtyPort):
+                # Announced before any data, flushed at once: a test harness or a human
+                # reads the path from here and opens it.
+                print(f"{r.stream.label} {r.port.path}", flush=True)
+        status = status_printer() if sys.stderr.isatty() and args.speed != 0 else None
+        scheduler = EpochScheduler(routes, args.speed, args.frames, status=status)
+        _stop_on_signals(scheduler)
+        try:
+            scheduler.run()
+        finally:
+            if status is not None:
+                sys.stderr.write("\r\x1b[K")
+            print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
     finally:
-        out.close()
-    log.info("%d epochs sent", receiver.next_k)
+        for r in routes:
+            r.port.close()
     return 0
+
+
+def _stop_on_signals(scheduler: EpochScheduler) -> None:
+    def handler(signum, frame):  # noqa: ARG001
+        scheduler.stop()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -149,8 +202,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         # keep the interpreter's final flush of stdout from complaining.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    except KeyboardInterrupt:
-        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -29,12 +29,14 @@ class Receiver:
     sequentially; the batch size does not change the output.
     """
 
-    def __init__(self, scene: Scene, stream: int = 0) -> None:
+    def __init__(self, scene: Scene, index: int = 0) -> None:
         self.scene = scene
-        self.channels = scene.receiver.channels
+        self.spec = scene.receivers[index]
+        self.channels = self.spec.channels
         self.ids = scene.transmitter_ids
         self.want_field = scene.effects.research_sentences
-        self.noise = NoiseEffect(scene.seed, stream) if scene.effects.noise else None
+        # Each receiver draws from its own stream of the scene seed.
+        self.noise = NoiseEffect(scene.seed, index) if scene.effects.noise else None
         self.next_k = 0
         txs = scene.transmitters
         self._static_tx = all(tx.trajectory.is_static for tx in txs)
@@ -55,7 +57,7 @@ class Receiver:
             empty = np.full((n, self.channels), -1, dtype=np.int64)
             field = np.zeros((n, self.channels, 3)) if self.want_field else None
             return Epochs(empty, empty.copy(), empty.copy(), empty.copy(), field)
-        rx_pos, rx_quat = self.scene.receiver.trajectory.at(t)
+        rx_pos, rx_quat = self.spec.trajectory.at(t)
         if self._static_tx:
             tx_pos, tx_quat = self._tx_pos, self._tx_quat
         else:

@@ -44,6 +44,9 @@ class Transmitter:
 
 @dataclass(frozen=True)
 class ReceiverSpec:
+    """One receiver: ``id`` names its streams (``arva:<id>`` when there are several)."""
+
+    id: int
     channels: int
     trajectory: Trajectory
 
@@ -59,8 +62,13 @@ class Scene:
     model: ModelParams
     effects: Effects
     transmitters: tuple[Transmitter, ...]
-    receiver: ReceiverSpec
+    receivers: tuple[ReceiverSpec, ...]
     name: str = ""
+
+    @property
+    def receiver(self) -> ReceiverSpec:
+        """The first (usually the only) receiver."""
+        return self.receivers[0]
 
     @property
     def transmitter_ids(self) -> np.ndarray:
@@ -189,11 +197,13 @@ def _type_name(value: Any) -> str:
     }.get(type(value), type(value).__name__)
 
 
-_TOP_KEYS = {"spec", "seed", "rate_hz", "name", "description", "model", "effects", "transmitters", "receiver"}
+_TOP_KEYS = {
+    "spec", "seed", "rate_hz", "name", "description", "model", "effects", "transmitters", "receiver", "receivers",
+}
 _MODEL_KEYS = {"kappa_eq", "moment", "r_inner", "r_outer", "r_en", "q"}
 _EFFECT_KEYS = {"noise", "research_sentences"}
 _TX_KEYS = {"id", "position", "orientation", "path"}
-_RX_KEYS = {"channels", "position", "orientation", "path"}
+_RX_KEYS = {"id", "channels", "position", "orientation", "path"}
 
 
 def parse_scene(data: dict, source: str) -> Scene:
@@ -245,10 +255,36 @@ def parse_scene(data: dict, source: str) -> Scene:
         transmitters.append(Transmitter(tx_id, rd.trajectory(tx, path)))
     transmitters.sort(key=lambda tx: tx.id)
 
-    r = rd.table(data, "receiver", "receiver", _RX_KEYS, required=True)
-    channels = rd.integer(r, "channels", "receiver.channels", 1, 1, MAX_CHANNELS)
-    receiver = ReceiverSpec(channels, rd.trajectory(r, "receiver"))
-    return Scene(source, spec, seed, rate_hz, model, effects, tuple(transmitters), receiver, name)
+    receivers = _receivers(rd, data)
+    return Scene(source, spec, seed, rate_hz, model, effects, tuple(transmitters), receivers, name)
+
+
+def _receivers(rd: _Reader, data: dict) -> tuple[ReceiverSpec, ...]:
+    """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port)."""
+    if "receiver" in data and "receivers" in data:
+        raise rd.fail("receivers", "give either [receiver] or [[receivers]], not both")
+    if "receivers" not in data:
+        tables = [(rd.table(data, "receiver", "receiver", _RX_KEYS, required=True), "receiver")]
+    else:
+        raw = data["receivers"]
+        if not isinstance(raw, list) or not raw:
+            raise rd.fail("receivers", "expected a non-empty array of tables ([[receivers]])")
+        tables = []
+        for i, r in enumerate(raw):
+            if not isinstance(r, dict):
+                raise rd.fail(f"receivers[{i}]", f"expected a table, got {_type_name(r)}")
+            rd.known_keys(r, f"receivers[{i}]", _RX_KEYS)
+            tables.append((r, f"receivers[{i}]"))
+    out: list[ReceiverSpec] = []
+    seen: dict[int, str] = {}
+    for i, (r, path) in enumerate(tables):
+        rx_id = rd.integer(r, "id", f"{path}.id", i + 1, 0, MAX_ID)
+        if rx_id in seen:
+            raise rd.fail(f"{path}.id", f"duplicate id {rx_id} (also {seen[rx_id]}.id)")
+        seen[rx_id] = path
+        channels = rd.integer(r, "channels", f"{path}.channels", 1, 1, MAX_CHANNELS)
+        out.append(ReceiverSpec(rx_id, channels, rd.trajectory(r, path)))
+    return tuple(out)
 
 
 def load_scene(path: str | Path) -> Scene:

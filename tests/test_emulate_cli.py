@@ -55,7 +55,7 @@ def test_exact_bytes_one_channel(tmp_path):
         b"$PARVA,1,1,1,1,1905,21*5A\r\n"
         b"$PARVA,2,1,1,1,1905,21*59\r\n"
     )
-    assert proc.stderr == b""
+    assert proc.stderr == b"arva-emulate: 3 epochs sent (arva 3), 0 bytes dropped, 0 faults injected\n"
 
 
 def test_exact_bytes_empty_slot(tmp_path):
@@ -107,7 +107,12 @@ def test_chunking_does_not_change_noisy_output(tmp_path):
     outputs = []
     for batch in (4096, 7, 1):
         proc = subprocess.run(
-            [sys.executable, "-c", f"import emulator.cli as c; c.FAST_BATCH={batch}; c.main(['--scene', {s!r}, '--frames', '50', '--speed', '0'])"],
+            [
+                sys.executable,
+                "-c",
+                f"import emulator.scheduler as s; s.FAST_BATCH={batch}; "
+                f"import emulator.cli as c; c.main(['--scene', {s!r}, '--frames', '50', '--speed', '0'])",
+            ],
             capture_output=True,
             timeout=60,
         )

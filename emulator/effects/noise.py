@@ -1,6 +1,4 @@
-"""Effects a scene may enable (BRIEF 3.1). Each is off unless asked for; the receiver
-pipeline is assembled once per scene from the enabled ones, so a disabled effect draws
-no random numbers and allocates nothing."""
+"""EMI noise (BRIEF 3.2): the one effect inside the receiver model itself."""
 
 from __future__ import annotations
 

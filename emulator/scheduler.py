@@ -1,0 +1,149 @@
+"""The epoch scheduler: renders every stream's epochs at their deadlines and writes them.
+
+Real time (``speed > 0``): epoch k of a stream is due at ``start + k / (rate_hz * speed)``
+on the monotonic clock. Deadlines are absolute, so sleep overshoot never accumulates
+(hours of 1 Hz epochs stay on the second), and each epoch is rendered ahead of its
+deadline so only the write happens at the deadline. As fast as possible (``speed == 0``):
+epochs are rendered in batches covering a window of scene time, stream by stream.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from .ports import Port
+from .streams import Stream
+
+#: Epochs per batch of the fastest stream when running as fast as possible.
+FAST_BATCH = 4096
+#: Longest single sleep, so a stop request is noticed promptly.
+MAX_SLEEP = 0.1
+
+
+@dataclass
+class Route:
+    """A stream bound to the port it is written to."""
+
+    stream: Stream
+    port: Port
+    next_k: int = 0
+    end_k: int | None = None
+    pending: bytes | None = field(default=None, repr=False)
+
+    @property
+    def done(self) -> bool:
+        return self.end_k is not None and self.next_k >= self.end_k
+
+
+class EpochScheduler:
+    """Runs routes until ``frames`` epochs of the first stream were sent, or :meth:`stop`.
+
+    Other streams stop at the same scene time (epochs with t_k < frames / rate_0).
+    ``clock`` and ``sleep`` are injectable for tests.
+    """
+
+    def __init__(
+        self,
+        routes: list[Route],
+        speed: float,
+        frames: int | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+        status: Callable[[list[Route]], None] | None = None,
+    ) -> None:
+        if not routes:
+            raise ValueError("nothing to schedule")
+        self.routes = routes
+        self.speed = speed
+        self.clock = clock
+        self.sleep = sleep
+        self.status = status
+        self._stop = False
+        if frames is not None:
+            rate0 = routes[0].stream.rate_hz
+            for r in routes:
+                # Epochs with k / rate < frames / rate0; the 1e-9 guards float ratios.
+                r.end_k = frames if r is routes[0] else math.ceil(frames * r.stream.rate_hz / rate0 - 1e-9)
+
+    def stop(self) -> None:
+        """Ask the run to end after the current epoch (safe from a signal handler)."""
+        self._stop = True
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop
+
+    def run(self) -> None:
+        if self.speed == 0:
+            self._run_fast()
+        else:
+            self._run_real_time()
+
+    def _write(self, route: Route, data: bytes) -> None:
+        route.port.write(data)
+
+    def _run_fast(self) -> None:
+        window = FAST_BATCH / max(r.stream.rate_hz for r in self.routes)
+        t_end = 0.0
+        next_status = self.clock() + 0.5
+        while not self._stop and not all(r.done for r in self.routes):
+            t_end += window
+            for r in self.routes:
+                k_hi = math.ceil(t_end * r.stream.rate_hz)
+                if r.end_k is not None:
+                    k_hi = min(k_hi, r.end_k)
+                if k_hi > r.next_k:
+                    self._write(r, r.stream.render(r.next_k, k_hi - r.next_k))
+                    r.next_k = k_hi
+            if self.status is not None and self.clock() >= next_status:
+                self.status(self.routes)
+                next_status += 0.5
+
+    def _run_real_time(self) -> None:
+        start = self.clock()
+        due = lambda r: start + r.next_k / (r.stream.rate_hz * self.speed)  # noqa: E731
+        heap = []
+        for i, r in enumerate(self.routes):
+            if not r.done:
+                r.pending = r.stream.render(r.next_k, 1)
+                heapq.heappush(heap, (due(r), i))
+        next_status = start + 0.5
+        while heap and not self._stop:
+            deadline, i = heap[0]
+            delay = deadline - self.clock()
+            if delay > 0:
+                self.sleep(min(delay, MAX_SLEEP))
+                continue
+            heapq.heappop(heap)
+            r = self.routes[i]
+            self._write(r, r.pending)
+            r.next_k += 1
+            if not r.done:
+                r.pending = r.stream.render(r.next_k, 1)  # ahead of its deadline
+                heapq.heappush(heap, (due(r), i))
+            if self.status is not None and self.clock() >= next_status:
+                self.status(self.routes)
+                next_status = self.clock() + 0.5
+
+
+def summary_line(routes: list[Route]) -> str:
+    """``N epochs sent (arva N, gps:rx M), B bytes dropped, F faults injected``."""
+    per = ", ".join(f"{r.stream.label} {r.next_k}" for r in routes)
+    dropped = sum(r.port.bytes_dropped for r in routes)
+    faults = sum(getattr(r.port, "faults_injected", 0) for r in routes)
+    return f"{routes[0].next_k} epochs sent ({per}), {dropped} bytes dropped, {faults} faults injected"
+
+
+def status_printer(stream=sys.stderr) -> Callable[[list[Route]], None]:
+    """A live one-line status on a terminal (carriage return, no scrolling)."""
+
+    def show(routes: list[Route]) -> None:
+        stream.write("\r" + summary_line(routes) + "\x1b[K")
+        stream.flush()
+
+    return show
