@@ -13,6 +13,7 @@ import math
 import os
 import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -39,7 +40,7 @@ def _non_negative_int(text: str) -> int:
     return value
 
 
-def _speed(text: str) -> float:
+def _speed(text: str) -> float:  # also used for --delay: a finite number >= 0
     try:
         value = float(text)
     except ValueError:
@@ -85,6 +86,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=1.0,
         metavar="X",
         help="run X times real time; 0 = as fast as possible (default 1)",
+    )
+    p.add_argument(
+        "--delay",
+        type=_speed,
+        default=0.0,
+        metavar="S",
+        help="wait S seconds after announcing ptys before the first epoch (time for clients to open them)",
     )
     serial_opts = p.add_argument_group("serial device options (device paths and URLs)")
     serial_opts.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
@@ -155,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene) if args.scene else default_scene()
     streams = scene_streams(scene)
     specs = assign_ports([s.label for s in streams], args.port, args.stream)
+    stop = threading.Event()
+    _stop_on_signals(stop)
     routes: list[Route] = []
     try:
         for stream in streams:
@@ -165,9 +175,9 @@ def run(args: argparse.Namespace) -> int:
                 # reads the path from here and opens it.
                 print(f"{r.stream.label} {r.port.path}", flush=True)
         status = status_printer() if sys.stderr.isatty() and args.speed != 0 else None
-        scheduler = EpochScheduler(routes, args.speed, args.frames, status=status)
-        _stop_on_signals(scheduler)
+        scheduler = EpochScheduler(routes, args.speed, args.frames, status=status, stop_event=stop)
         try:
+            scheduler.wait(args.delay)
             scheduler.run()
         finally:
             if status is not None:
@@ -179,9 +189,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _stop_on_signals(scheduler: EpochScheduler) -> None:
+def _stop_on_signals(stop: threading.Event) -> None:
     def handler(signum, frame):  # noqa: ARG001
-        scheduler.stop()
+        stop.set()
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, handler)

@@ -11,8 +11,10 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
+import select
 import sys
 import termios
+import time
 import tty
 from pathlib import Path
 
@@ -29,6 +31,10 @@ class Port:
         self.label = label
         self.bytes_written = 0
         self.bytes_dropped = 0
+
+    def set_drain_wait(self, seconds: float) -> None:
+        """How long a full buffer may take to drain before bytes are dropped (0: never
+        wait, the real-time behaviour). Ports without a buffer ignore it."""
 
     def write(self, data: bytes) -> int:
         """Send ``data`` without blocking; return the number of bytes accepted."""
@@ -63,8 +69,39 @@ class StdoutPort(Port):
         return self._account(len(data), len(data))
 
 
-def _write_nonblocking(fd: int, data: bytes) -> int:
-    """os.write on a non-blocking fd; bytes that do not fit are not retried."""
+class _FdWriter:
+    """Writes a non-blocking fd like a UART: what does not fit is dropped.
+
+    With ``wait > 0`` (as fast as possible, ``--speed 0``) a full buffer is first given
+    up to ``wait`` seconds to drain, so a reader that keeps up loses nothing; once a wait
+    times out the reader is taken to be absent and later writes drop at once (no
+    blocking, no queue) until a write fits again.
+    """
+
+    def __init__(self, wait: float = 0.0) -> None:
+        self.wait = wait
+        self.reader_absent = False
+
+    def write(self, fd: int, data: bytes) -> int:
+        done = _write_some(fd, data)
+        if done == len(data) or self.wait <= 0:
+            self.reader_absent = self.reader_absent and done < len(data)
+            return done
+        if self.reader_absent:
+            return done
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        deadline = time.monotonic() + self.wait
+        while done < len(data):
+            left = deadline - time.monotonic()
+            if left <= 0 or not poller.poll(left * 1000):
+                self.reader_absent = True
+                break
+            done += _write_some(fd, data[done:])
+        return done
+
+
+def _write_some(fd: int, data: bytes) -> int:
     try:
         return os.write(fd, data)
     except BlockingIOError:
@@ -76,16 +113,23 @@ class PtyPort(Port):
 
     The slave side is kept open so the pty survives readers coming and going (no EIO,
     no hang-up); the master is written non-blocking and what does not fit the kernel
-    buffer is dropped and counted. A pyserial reader flushes stale input when it opens
-    the port, so a reader that reopens gets fresh epochs. ``link`` adds a stable
-    symlink to the slave path, updated when the pty is re-created by a disconnect.
+    buffer (about 20 KB on Linux) is dropped and counted. A pyserial reader flushes
+    stale input when it opens the port (``tcflush``, which empties the whole pty
+    buffer), so a reader that reopens gets fresh epochs. ``link`` adds a stable
+    symlink to the slave path, updated when the pty is re-created by a disconnect;
+    ``on_reconnect`` is called with the port after that (to announce the new path).
     """
 
     def __init__(self, label: str, link: Path | None = None) -> None:
         super().__init__(label)
         self.link = link
         self.disconnects = 0
+        self.on_reconnect = None
+        self._writer = _FdWriter()
         self._open()
+
+    def set_drain_wait(self, seconds: float) -> None:
+        self._writer.wait = seconds
 
     def _open(self) -> None:
         master, slave = os.openpty()
@@ -104,7 +148,7 @@ class PtyPort(Port):
     def write(self, data: bytes) -> int:
         if self._master < 0:  # disconnected: the bytes go nowhere
             return self._account(len(data), 0)
-        return self._account(len(data), _write_nonblocking(self._master, data))
+        return self._account(len(data), self._writer.write(self._master, data))
 
     def pending(self) -> int:
         """Bytes written but not yet read by the other side (in the kernel buffer)."""
@@ -126,8 +170,16 @@ class PtyPort(Port):
         """A new pty (new path, announced again); the ``link`` symlink follows it."""
         if self._master < 0:
             self._open()
+            if self.on_reconnect is not None:
+                self.on_reconnect(self)
 
-    def close(self) -> None:
+    def close(self, drain: float = 0.5) -> None:
+        """Give a reader up to ``drain`` seconds to take what is buffered (closing the
+        master discards it), then close and remove the symlink."""
+        if self._master >= 0 and not self._writer.reader_absent:
+            deadline = time.monotonic() + drain
+            while self.pending() > 0 and time.monotonic() < deadline:
+                time.sleep(0.01)
         self.disconnect()
         if self.link is not None and self.link.is_symlink():
             self.link.unlink()
@@ -154,19 +206,18 @@ class SerialPort(Port):
         except (ValueError, OSError) as exc:
             raise LinkError(f"port {url}: {exc}") from None
         self._fd = None
+        self._writer = _FdWriter()
         try:
             fd = self._serial.fileno()
             fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) | os.O_NONBLOCK)
             self._fd = fd
-        except (AttributeError, NotImplementedError, OSError, ValueError, TypeError):
-            self._serial.write_timeout = 0
-        except Exception:  # pyserial raises its own types for URL handlers without fds
-            self._serial.write_timeout = 0
+        except (AttributeError, NotImplementedError, OSError, ValueError, serial.SerialException):
+            self._serial.write_timeout = 0  # a URL handler without a file descriptor
 
     def write(self, data: bytes) -> int:
         if self._fd is not None:
             try:
-                return self._account(len(data), _write_nonblocking(self._fd, data))
+                return self._account(len(data), self._writer.write(self._fd, data))
             except OSError as exc:
                 raise LinkError(f"port {self.path}: write failed: {exc.strerror}") from None
         import serial
@@ -176,6 +227,9 @@ class SerialPort(Port):
         except serial.SerialTimeoutException:
             n = 0
         return self._account(len(data), n or 0)
+
+    def set_drain_wait(self, seconds: float) -> None:
+        self._writer.wait = seconds
 
     def close(self) -> None:
         self._serial.close()
@@ -188,6 +242,6 @@ def _reason(exc: Exception) -> str:
         return "no such device"
     if err == errno.EACCES:
         return "permission denied (are you in the dialout group?)"
-    if err == errno.EBUSY:
+    if err in (errno.EBUSY, errno.EAGAIN):  # EAGAIN: pyserial's exclusive flock failed
         return "device busy (another program has it open)"
     return str(exc)

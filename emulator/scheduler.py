@@ -12,6 +12,7 @@ from __future__ import annotations
 import heapq
 import math
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,6 +24,9 @@ from .streams import Stream
 FAST_BATCH = 4096
 #: Longest single sleep, so a stop request is noticed promptly.
 MAX_SLEEP = 0.1
+#: As fast as possible, a full port buffer may take this long to drain before bytes
+#: are dropped: a reader that keeps up loses nothing, an absent one blocks nothing.
+FAST_DRAIN_WAIT = 0.05
 
 
 @dataclass
@@ -55,6 +59,7 @@ class EpochScheduler:
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
         status: Callable[[list[Route]], None] | None = None,
+        stop_event: threading.Event | None = None,
     ) -> None:
         if not routes:
             raise ValueError("nothing to schedule")
@@ -63,7 +68,9 @@ class EpochScheduler:
         self.clock = clock
         self.sleep = sleep
         self.status = status
-        self._stop = False
+        # An Event rather than a flag so a signal handler installed before the scheduler
+        # exists (while ports are being opened) can already request the stop.
+        self._stop_event = stop_event if stop_event is not None else threading.Event()
         if frames is not None:
             rate0 = routes[0].stream.rate_hz
             for r in routes:
@@ -72,11 +79,17 @@ class EpochScheduler:
 
     def stop(self) -> None:
         """Ask the run to end after the current epoch (safe from a signal handler)."""
-        self._stop = True
+        self._stop_event.set()
 
     @property
-    def stopped(self) -> bool:
-        return self._stop
+    def _stop(self) -> bool:
+        return self._stop_event.is_set()
+
+    def wait(self, seconds: float) -> None:
+        """Sleep ``seconds`` before the first epoch, interruptible by :meth:`stop`."""
+        end = self.clock() + seconds
+        while not self._stop and (left := end - self.clock()) > 0:
+            self.sleep(min(left, MAX_SLEEP))
 
     def run(self) -> None:
         if self.speed == 0:
@@ -88,6 +101,8 @@ class EpochScheduler:
         route.port.write(data)
 
     def _run_fast(self) -> None:
+        for r in self.routes:
+            r.port.set_drain_wait(FAST_DRAIN_WAIT)
         window = FAST_BATCH / max(r.stream.rate_hz for r in self.routes)
         t_end = 0.0
         next_status = self.clock() + 0.5

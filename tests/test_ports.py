@@ -1,0 +1,191 @@
+"""arva-emulate on real ptys, read with pyserial (every read has a timeout)."""
+
+import os
+import pty
+import signal
+import subprocess
+import sys
+import time
+from functools import reduce
+
+import pytest
+import serial
+
+from emulator_proc import EmulatorProcess, process_rss_kb, read_lines
+
+ONE_TX = """spec = 1
+rate_hz = {rate}
+[[transmitters]]
+id = 1
+position = [20.0, 5.0, 0.0]
+[receiver]
+position = [0.0, 0.0, 0.0]
+"""
+
+TWO_RX = """spec = 1
+[[transmitters]]
+id = 1
+position = [20.0, 5.0, 0.0]
+[[receivers]]
+id = 1
+position = [0.0, 0.0, 0.0]
+[[receivers]]
+id = 7
+position = [10.0, 0.0, 0.0]
+"""
+
+
+def parva(seq, d=1905, delta=21, tx=1):
+    body = f"PARVA,{seq},1,1,{tx},{d},{delta}".encode()
+    return b"$%s*%02X\r\n" % (body, reduce(lambda a, b: a ^ b, body, 0))
+
+
+@pytest.fixture
+def scene(tmp_path):
+    def make(text, name="s.toml"):
+        path = tmp_path / name
+        path.write_text(text)
+        return str(path)
+
+    return make
+
+
+def test_exact_sentences_through_a_pty(scene):
+    emu = EmulatorProcess("--scene", scene(ONE_TX.format(rate=20.0)), "--port", "pty", "--frames", "8", "--delay", "1")
+    try:
+        with emu.open() as ser:
+            assert read_lines(ser, 8) == [parva(k) for k in range(8)]
+        rc, err = emu.stop()
+        assert rc == 0
+        assert err == "arva-emulate: 8 epochs sent (arva 8), 0 bytes dropped, 0 faults injected\n"
+    finally:
+        emu.kill()
+
+
+def test_several_receivers_each_on_its_own_pty(scene):
+    emu = EmulatorProcess("--scene", scene(TWO_RX), "--port", "pty", "--speed", "20", "--delay", "1", streams=2)
+    try:
+        assert sorted(emu.ports) == ["arva:1", "arva:7"]
+        assert emu.ports["arva:1"] != emu.ports["arva:7"]
+        with emu.open("arva:1") as a, emu.open("arva:7") as b:
+            assert read_lines(a, 2) == [parva(0), parva(1)]
+            # Receiver 7 at (10, 0, 0): transmitter 1 at (20, 5, 0) is 11.18 m away.
+            first = read_lines(b, 1)[0]
+            assert first.startswith(b"$PARVA,0,1,1,1,") and first != parva(0)
+    finally:
+        emu.kill()
+
+
+def test_no_reader_never_blocks_and_memory_stays_flat(scene):
+    def peak_rss(frames):
+        emu = EmulatorProcess("--scene", scene(ONE_TX.format(rate=1.0)), "--port", "pty", "--frames", str(frames), "--speed", "0")
+        peak = 0
+        while emu.proc.poll() is None:
+            try:
+                peak = max(peak, process_rss_kb(emu.proc.pid))
+            except (FileNotFoundError, ProcessLookupError, RuntimeError):
+                break
+            time.sleep(0.02)
+        rc, err = emu.stop()
+        assert rc == 0
+        return peak, err
+
+    small, _ = peak_rss(50_000)
+    big, err = peak_rss(400_000)
+    assert big - small < 10_000, f"RSS grew from {small} kB to {big} kB"
+    # Everything that did not fit the pty buffer was dropped and counted.
+    sent = sum(len(parva(k % 65536)) for k in range(400_000))
+    assert err.startswith("arva-emulate: 400000 epochs sent (arva 400000), ")
+    dropped = int(err.split("), ")[1].split()[0])
+    assert sent - 30_000 < dropped < sent  # only what fits the pty buffer was kept
+
+
+def test_reader_that_reopens_gets_fresh_epochs(scene):
+    emu = EmulatorProcess("--scene", scene(ONE_TX.format(rate=1.0)), "--port", "pty", "--speed", "50")
+    try:
+        with emu.open() as ser:
+            line = read_lines(ser, 3)[-1]
+            seq_closed = int(line.split(b",")[1])
+        time.sleep(1.0)  # ~50 epochs written while nobody reads
+        with emu.open() as ser:
+            lines = read_lines(ser, 2)
+        # pyserial flushes stale input on open; the first full line is fresh.
+        seq_reopened = int(lines[-1].split(b",")[1])
+        assert seq_reopened >= seq_closed + 40
+    finally:
+        emu.kill()
+
+
+def test_link_dir_gets_stable_symlinks(scene, tmp_path):
+    links = tmp_path / "links"
+    links.mkdir()
+    emu = EmulatorProcess("--scene", scene(TWO_RX), "--port", "pty", "--link", str(links), "--speed", "1", streams=2)
+    try:
+        assert os.readlink(links / "arva-1") == emu.ports["arva:1"]
+        assert os.readlink(links / "arva-7") == emu.ports["arva:7"]
+        rc, err = emu.stop(signal.SIGINT)
+        assert rc == 0 and err.startswith("arva-emulate: ")
+        assert not (links / "arva-1").exists()  # removed on a clean stop
+    finally:
+        emu.kill()
+
+
+def emulate(*args):
+    return subprocess.run([sys.executable, "-m", "emulator.cli", *args], capture_output=True, timeout=30)
+
+
+def test_missing_device_exit_2():
+    proc = emulate("--port", "/dev/ttyNOPE0", "--frames", "1")
+    assert proc.returncode == 2
+    assert proc.stdout == b""
+    assert proc.stderr == b"arva-emulate: port /dev/ttyNOPE0: no such device\n"
+
+
+def test_busy_device_exit_2():
+    master, slave = pty.openpty()
+    path = os.ttyname(slave)
+    try:
+        with serial.Serial(path, exclusive=True, timeout=0):
+            proc = emulate("--port", path, "--frames", "1")
+        assert proc.returncode == 2
+        assert proc.stderr.decode() == f"arva-emulate: port {path}: device busy (another program has it open)\n"
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_writes_to_a_device_path(scene):
+    master, slave = pty.openpty()
+    path = os.ttyname(slave)
+    try:
+        proc = emulate("--scene", scene(ONE_TX.format(rate=1.0)), "--port", path, "--frames", "3", "--speed", "0")
+        assert proc.returncode == 0, proc.stderr
+        data = os.read(master, 4096)
+        assert data == parva(0) + parva(1) + parva(2)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--stream", "gps=pty"], "arva-emulate: --stream gps=pty: no stream 'gps' in this scene (streams: arva)\n"),
+        (["--stream", "gps"], None),
+    ],
+)
+def test_stream_argument_errors(args, message):
+    proc = emulate(*args, "--frames", "1")
+    assert proc.returncode == 2
+    if message:
+        assert proc.stderr.decode() == message
+    else:
+        assert b"expected LABEL=PORT" in proc.stderr
+
+
+def test_two_streams_cannot_share_stdout(scene):
+    proc = emulate("--scene", scene(TWO_RX), "--port", "-", "--frames", "1")
+    assert proc.returncode == 2
+    assert proc.stderr.decode() == (
+        "arva-emulate: port -: 2 streams (arva:1, arva:7) cannot share stdout; use --port pty or --stream LABEL=PORT\n"
+    )
