@@ -1,0 +1,194 @@
+"""``arvaemu://[SCENE][?receiver=ID&speed=X&frames=N&delay=S]``: an in-process receiver.
+
+A pyserial port whose input is the ``$PARVA`` stream an emulated receiver would send,
+with no pty and no thread: epochs are rendered lazily when the client reads, at the
+times the scene says (``speed`` times real time, from the moment the port is opened;
+``speed=0`` delivers as fast as the client reads). SCENE is a scene file path
+(``arvaemu://scenes/walk.toml`` relative, ``arvaemu:///abs/walk.toml`` absolute) or
+empty / ``default`` for the embedded default scene. ``receiver`` picks a receiver by
+id when the scene has several. Writes are accepted and ignored (a receiver takes no
+commands). After ``frames`` epochs the port reads as EOF (empty reads).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import urllib.parse
+
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
+
+from firmware_proto.errors import InputError
+
+from ..scene import default_scene, load_scene
+from ..streams import ArvaStream
+
+
+class Serial(SerialBase):
+    """pyserial ``Serial`` for ``arvaemu://`` URLs (see the module docstring)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        self._stream: ArvaStream | None = None
+        self._buffer = bytearray()
+        super().__init__(*args, **kwargs)
+
+    # -- opening ----------------------------------------------------------------
+    def open(self) -> None:
+        if self.is_open:
+            raise SerialException("Port is already open.")
+        if self._port is None:
+            raise SerialException("Port must be configured before it can be used.")
+        self._configure(self._port)
+        self.is_open = True
+
+    def _configure(self, url: str) -> None:
+        parts = urllib.parse.urlsplit(url)
+        if parts.scheme != "arvaemu":
+            raise SerialException(f"expected arvaemu://[SCENE][?options], got {url!r}")
+        options = urllib.parse.parse_qs(parts.query, keep_blank_values=True)
+        known = {"receiver", "speed", "frames", "delay"}
+        for key in options:
+            if key not in known:
+                raise SerialException(f"{url}: unknown option {key!r} (known: {', '.join(sorted(known))})")
+        opt = {k: v[-1] for k, v in options.items()}
+        path = parts.netloc + parts.path
+        try:
+            scene = default_scene() if path in ("", "default") else load_scene(path)
+            self._speed = _number(opt, "speed", 1.0, url)
+            self._frames = int(_number(opt, "frames", math.inf, url)) if "frames" in opt else None
+            delay = _number(opt, "delay", 0.0, url)
+        except InputError as exc:
+            raise SerialException(str(exc)) from None
+        index = 0
+        several = len(scene.receivers) > 1
+        if "receiver" in opt:
+            ids = [rx.id for rx in scene.receivers]
+            if not opt["receiver"].isdigit() or int(opt["receiver"]) not in ids:
+                raise SerialException(f"{url}: receiver={opt['receiver']}: no such receiver (ids: {ids})")
+            index = ids.index(int(opt["receiver"]))
+        rx = scene.receivers[index]
+        self._stream = ArvaStream(scene, index, f"arva:{rx.id}" if several else "arva")
+        self._next_k = 0
+        self._start = time.monotonic() + delay
+
+    # -- reading ----------------------------------------------------------------
+    def _due(self) -> int:
+        """Epochs due by now (all of them at speed 0: rendering follows the reader)."""
+        if self._speed == 0:
+            return self._next_k + 1
+        elapsed = time.monotonic() - self._start
+        if elapsed < 0:
+            return 0
+        return math.floor(elapsed * self._stream.rate_hz * self._speed) + 1
+
+    def _render_due(self, want: int) -> None:
+        due = self._due()
+        if self._speed == 0:
+            # Render whole epochs until the request can be met.
+            per_epoch = 64 * max(1, self._stream.receiver.channels)
+            due = self._next_k + max(1, math.ceil((want - len(self._buffer)) / per_epoch))
+        if self._frames is not None:
+            due = min(due, self._frames)
+        if due > self._next_k:
+            self._buffer += self._stream.render(self._next_k, due - self._next_k)
+            self._next_k = due
+
+    def _next_due_in(self) -> float:
+        """Seconds until the next epoch is due (inf when the stream has ended)."""
+        if self._frames is not None and self._next_k >= self._frames:
+            return math.inf
+        if self._speed == 0:
+            return 0.0
+        t = self._start + self._next_k / (self._stream.rate_hz * self._speed)
+        return max(0.0, t - time.monotonic())
+
+    @property
+    def in_waiting(self) -> int:
+        if not self.is_open:
+            raise PortNotOpenError()
+        if self._speed != 0:
+            self._render_due(0)
+        return len(self._buffer)
+
+    def read(self, size: int = 1) -> bytes:
+        if not self.is_open:
+            raise PortNotOpenError()
+        timeout = Timeout(self._timeout)
+        while len(self._buffer) < size:
+            self._render_due(size)
+            if len(self._buffer) >= size:
+                break
+            wait = self._next_due_in()
+            if timeout.is_non_blocking or wait == math.inf:
+                break
+            if not timeout.is_infinite:
+                left = timeout.time_left()
+                if left <= 0:
+                    break
+                wait = min(wait, left)
+            time.sleep(wait)
+        data = bytes(self._buffer[:size])
+        del self._buffer[:size]
+        return data
+
+    def reset_input_buffer(self) -> None:
+        if not self.is_open:
+            raise PortNotOpenError()
+        self._render_due(0)  # due epochs are produced (and lost), as on a real line
+        self._buffer.clear()
+
+    # -- writing and the rest ----------------------------------------------------
+    def write(self, data) -> int:
+        if not self.is_open:
+            raise PortNotOpenError()
+        return len(data)
+
+    def reset_output_buffer(self) -> None:
+        if not self.is_open:
+            raise PortNotOpenError()
+
+    @property
+    def out_waiting(self) -> int:
+        return 0
+
+    def close(self) -> None:
+        self.is_open = False
+        self._buffer.clear()
+        super().close()
+
+    def _reconfigure_port(self, force_update: bool = False) -> None:
+        pass  # nothing to configure: baud rate and framing do not affect an emulated line
+
+    def _update_rts_state(self) -> None:
+        pass
+
+    def _update_dtr_state(self) -> None:
+        pass
+
+    @property
+    def cts(self) -> bool:
+        return True
+
+    @property
+    def dsr(self) -> bool:
+        return True
+
+    @property
+    def ri(self) -> bool:
+        return False
+
+    @property
+    def cd(self) -> bool:
+        return True
+
+
+def _number(opt: dict, key: str, default: float, url: str) -> float:
+    if key not in opt:
+        return default
+    try:
+        value = float(opt[key])
+    except ValueError:
+        raise SerialException(f"{url}: {key}={opt[key]}: expected a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise SerialException(f"{url}: {key}={opt[key]}: must be a finite number >= 0")
+    return value
