@@ -1,0 +1,251 @@
+"""``arva-bench cat SOURCE``: decode a receiver stream, one JSON object per epoch on stdout.
+
+SOURCE is a file path, a FIFO, ``-`` (stdin), a serial device (``/dev/ttyUSB0``) or any
+pyserial URL (``loop://``, ``socket://host:port``, ``spy://...``, ``arvaemu://...``).
+Each epoch, in stream order, is printed and flushed as::
+
+    {"seq": 12, "complete": true, "slots": [[1, 1905, 21], [-1, -1, -1]]}
+
+with ``null`` for a slot that never arrived intact, plus ``"field": [[hx, hy, hz] | null,
+...]`` when ``$PARVH`` research sentences came with it. At the end of the input (EOF, or
+Ctrl-C, or ``--epochs`` / ``--until-idle``) the decoder is flushed and one line of
+counters goes to stderr. Exit status: 0 at the end of the input, however many errors the
+stream held (they are counted); 2 for bad arguments or a source that cannot be opened;
+1 when a port fails mid-stream; 130 after Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import select
+import stat
+import sys
+import time
+from typing import Protocol
+
+from firmware_proto.decoder import Decoder
+from firmware_proto.errors import LinkError
+from firmware_proto.events import DecoderStats, Epoch
+
+#: Silence after which an epoch held for its last ``$PARVH`` is released (seconds).
+IDLE_SECONDS = 0.1
+CHUNK = 65536
+
+
+class Source(Protocol):
+    def read(self) -> bytes | None:
+        """Next bytes; ``b""`` at end of input; ``None`` when nothing came for IDLE_SECONDS."""
+
+    def close(self) -> None: ...
+
+
+class FileSource:
+    """A regular file: read to EOF, never blocks."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def read(self) -> bytes | None:
+        return os.read(self.fd, CHUNK)
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+class StreamSource(FileSource):
+    """stdin or a FIFO: waits at most IDLE_SECONDS per read."""
+
+    def __init__(self, fd: int, owned: bool) -> None:
+        super().__init__(fd)
+        self.owned = owned
+
+    def read(self) -> bytes | None:
+        ready, _, _ = select.select([self.fd], [], [], IDLE_SECONDS)
+        if not ready:
+            return None
+        return os.read(self.fd, CHUNK)
+
+    def close(self) -> None:
+        if self.owned:
+            os.close(self.fd)
+
+
+class SerialSource:
+    """A pyserial port: reads time out after IDLE_SECONDS; a port has no end of input."""
+
+    def __init__(self, port) -> None:  # type: ignore[no-untyped-def]
+        self.port = port
+
+    def read(self) -> bytes | None:
+        data = self.port.read(max(1, min(self.port.in_waiting, CHUNK)))
+        return data or None
+
+    def close(self) -> None:
+        self.port.close()
+
+
+def _serial_for_url(url: str, baud: int):  # type: ignore[no-untyped-def]
+    import serial
+
+    try:  # the emulator's in-process receivers (arvaemu://), when installed
+        importlib.import_module("emulator.urlhandler")
+    except ImportError:  # pragma: no cover - bench without the emulator
+        pass
+    return serial.serial_for_url(url, baudrate=baud, timeout=IDLE_SECONDS)
+
+
+def open_source(spec: str, baud: int = 115200) -> Source:
+    """Open SOURCE; raise :class:`LinkError` (``cat: SOURCE: reason``) when it cannot be."""
+    if spec == "-":
+        return StreamSource(sys.stdin.buffer.fileno(), owned=False)
+    try:
+        if "://" in spec:
+            return SerialSource(_serial_for_url(spec, baud))
+        mode = os.stat(spec).st_mode
+        if stat.S_ISCHR(mode):
+            return SerialSource(_serial_for_url(spec, baud))
+        if stat.S_ISDIR(mode):
+            raise IsADirectoryError(21, "Is a directory")
+        fd = os.open(spec, os.O_RDONLY | (os.O_NONBLOCK if stat.S_ISFIFO(mode) else 0))
+        if stat.S_ISFIFO(mode):
+            os.set_blocking(fd, True)
+            return StreamSource(fd, owned=True)
+        return FileSource(fd)
+    except OSError as exc:  # includes serial.SerialException
+        reason = exc.strerror or str(exc) or type(exc).__name__
+        raise LinkError(f"cat: {spec}: {reason}") from None
+    except ValueError as exc:  # pyserial: malformed URL or option
+        raise LinkError(f"cat: {spec}: {exc}") from None
+
+
+def summary(stats: DecoderStats) -> str:
+    """The stderr line: every counter as ``name=value``."""
+    return "arva-bench: cat: " + " ".join(f"{k}={v}" for k, v in stats.as_dict().items())
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds: {text!r}")
+    return value
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "cat",
+        help="decode $PARVA/$PARVH from a file, port or stdin to JSON lines",
+        description=(
+            "Decode the $PARVA/$PARVH stream of SOURCE (file, FIFO, - for stdin, serial device or "
+            "pyserial URL) and print one JSON object per epoch on stdout, in stream order; a line "
+            "of counters goes to stderr at the end. Exit status 0 at the end of the input (errors "
+            "in the stream are counted, not fatal), 2 for bad arguments or a source that cannot be "
+            "opened, 1 when a port fails mid-stream, 130 after Ctrl-C."
+        ),
+    )
+    p.add_argument("source", metavar="SOURCE", help="file path, device, pyserial URL, or - for stdin")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate for serial devices (default 115200)")
+    p.add_argument("--epochs", type=_positive_int, metavar="N", help="stop after N epochs")
+    p.add_argument(
+        "--until-idle", type=_positive_float, metavar="SECONDS", help="stop when no byte arrives for SECONDS"
+    )
+    p.add_argument(
+        "--expect-fields",
+        action="store_true",
+        help="hold every epoch for the $PARVH of its last slot from the start (default: once one is seen)",
+    )
+    p.set_defaults(func=run)
+
+    def one_line_error(message: str) -> None:  # argparse's default prints the usage too
+        p.exit(2, f"arva-bench: cat: {message} (see arva-bench cat --help)\n")
+
+    p.error = one_line_error  # type: ignore[method-assign]
+
+
+class _Done(Exception):
+    """--epochs reached."""
+
+
+class _PipeClosed(Exception):
+    """stdout was closed by its reader (e.g. ``| head``)."""
+
+
+def run(args: argparse.Namespace) -> int:
+    source = open_source(args.source, args.baud)
+    dec = Decoder(expect_fields=args.expect_fields)
+    printed = 0
+
+    def emit(events: list) -> None:
+        nonlocal printed
+        for ev in events:
+            if type(ev) is Epoch:
+                try:
+                    sys.stdout.write(json.dumps(ev.to_json()) + "\n")
+                    sys.stdout.flush()
+                except BrokenPipeError:
+                    raise _PipeClosed from None
+                printed += 1
+                if args.epochs is not None and printed >= args.epochs:
+                    raise _Done
+
+    def finish() -> None:
+        try:
+            emit(dec.flush())
+        except _Done:
+            pass
+
+    status = 0
+    last_data = time.monotonic()
+    try:
+        while True:
+            try:
+                data = source.read()
+            except OSError as exc:  # a port unplugged or failing mid-stream
+                finish()
+                reason = exc.strerror or str(exc) or type(exc).__name__
+                print(f"arva-bench: cat: {args.source}: {reason}", file=sys.stderr)
+                status = 1
+                break
+            if data is None:
+                emit(dec.idle())
+                if args.until_idle is not None and time.monotonic() - last_data >= args.until_idle:
+                    finish()
+                    break
+                continue
+            if not data:
+                finish()
+                break
+            last_data = time.monotonic()
+            emit(dec.feed(data))
+    except _Done:
+        pass
+    except KeyboardInterrupt:
+        status = 130
+        try:
+            finish()
+        except _PipeClosed:
+            pass
+    except _PipeClosed:
+        # Keep the interpreter's final flush of stdout from failing again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    finally:
+        source.close()
+    print(summary(dec.stats), file=sys.stderr)
+    return status
