@@ -669,17 +669,47 @@ void arva_decoder_init(arva_decoder *dec, int expect_fields)
     dec->expect_fields = (uint8_t)(expect_fields != 0);
 }
 
+/* A byte that simply extends an open sentence: printable ASCII except '$', or CR. */
+static int ordinary(uint8_t b)
+{
+    return (b >= 0x20 && b <= 0x7E && b != '$') || b == '\r';
+}
+
 int arva_decoder_next(arva_decoder *dec, const uint8_t **data, size_t *len, arva_event *ev)
 {
     if (dec->qlen == 0 && data != 0 && *data != 0 && len != 0) {
         const uint8_t *p = *data;
-        size_t n = *len;
-        while (n > 0 && dec->qlen == 0) {
-            push_byte(dec, *p++);
-            n--;
+        const uint8_t *end = p + *len;
+        /* Same machine as push_byte(), with the two common runs (garbage outside a
+         * sentence, ordinary bytes inside one) handled in tight loops. */
+        while (p < end && dec->qlen == 0) {
+            const uint8_t *q = p;
+            uint32_t run;
+            if (dec->len == 0) {
+                while (q < end && *q != '$') {
+                    q++;
+                }
+                run = (uint32_t)(q - p);
+                dec->stats.garbage_bytes += run;
+            } else {
+                uint8_t n = dec->len;
+                unsigned room = (unsigned)(ARVA_MAX_SENTENCE - 1) - n;
+                while (q < end && room > 0 && ordinary(*q)) {
+                    dec->line[n++] = *q++;
+                    room--;
+                }
+                dec->len = n;
+                run = (uint32_t)(q - p);
+            }
+            dec->offset += run;
+            dec->stats.bytes += run;
+            p = q;
+            if (p < end) {
+                push_byte(dec, *p++);
+            }
         }
         *data = p;
-        *len = n;
+        *len = (size_t)(end - p);
     }
     if (dec->qlen == 0) {
         return 0;
