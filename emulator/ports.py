@@ -177,9 +177,13 @@ class PtyPort(Port):
         """Give a reader up to ``drain`` seconds to take what is buffered (closing the
         master discards it), then close and remove the symlink."""
         if self._master >= 0 and not self._writer.reader_absent:
+            # The line buffer can look empty while the pty's flip buffer still holds
+            # bytes on their way to it: require it empty twice, 20 ms apart.
             deadline = time.monotonic() + drain
-            while self.pending() > 0 and time.monotonic() < deadline:
-                time.sleep(0.01)
+            quiet = 0
+            while quiet < 2 and time.monotonic() < deadline:
+                quiet = quiet + 1 if self.pending() == 0 else 0
+                time.sleep(0.02)
         self.disconnect()
         if self.link is not None and self.link.is_symlink():
             self.link.unlink()

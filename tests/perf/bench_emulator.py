@@ -43,12 +43,17 @@ def jitter(tmp: Path, rate_hz: float, seconds: float) -> dict:
     arrivals = []
     try:
         with serial.Serial(emu.ports["arva"], timeout=2) as ser:
+            # Read whatever has arrived, timestamp it at once; an epoch's arrival is
+            # the chunk that carries its first sentence (slot 1 of 4).
             while len(arrivals) < frames:
-                line = ser.read_until(b"\r\n")
-                if not line:
+                try:
+                    chunk = ser.read(max(ser.in_waiting, 1))
+                except (OSError, serial.SerialException):
+                    break  # the emulator finished and closed the pty
+                if not chunk:
                     break
-                if b",4,1," in line[:20]:  # slot 1 of 4: the epoch's first sentence
-                    arrivals.append(time.monotonic())
+                now = time.monotonic()
+                arrivals.extend([now] * chunk.count(b",4,1,"))
         emu.stop()
     finally:
         emu.kill()
