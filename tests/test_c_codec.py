@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import platform
+import shutil
+import subprocess
+from pathlib import Path
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from c_codec import CDecoder, c_encode_epoch, c_encode_parvh, find_cc
+from c_codec import C_DIR, SANITIZE, STRICT, CDecoder, c_encode_epoch, c_encode_parvh, compile_c, find_cc, sanitizers_work
 from firmware_proto.decoder import Decoder
 from firmware_proto.errors import ProtocolError
 from firmware_proto.golden import event_text, stats_text
@@ -129,3 +134,29 @@ def test_c_parvh_encoder_refuses_bad_text() -> None:
     for bad in (b"inf", b"nan", b"1.", b"+1", b"1e999", b"", b"1" * 33):
         assert c_encode_parvh(1, 1, 1, (bad, b"0", b"0")) is None, bad
     assert c_encode_parvh(1, 1, 1, (b"1" * 30, b"2" * 30, b"3" * 10)) is None  # 90 bytes > 82
+
+
+def test_firmware_example_builds_strict_and_runs(tmp_path: Path) -> None:
+    exe = tmp_path / "example"
+    flags = STRICT + (SANITIZE if sanitizers_work() else [])
+    compile_c([*flags, str(C_DIR / "arva_codec.c"), str(C_DIR / "example.c"), "-o", str(exe)])
+    assert subprocess.run([str(exe)], timeout=30).returncode == 0
+
+
+@pytest.mark.parametrize("config", [[], ["-DARVA_MAX_CHANNELS=4", "-DARVA_WITH_FIELDS=0"]])
+def test_codec_needs_no_floating_point_and_no_library(tmp_path: Path, config: list[str]) -> None:
+    """Compiled with the FPU registers forbidden (where the compiler can), and the object
+    file calls nothing but what a compiler may emit for loops and struct copies."""
+    obj = tmp_path / "arva_codec.o"
+    no_fp = ["-mgeneral-regs-only"] if platform.machine() in ("x86_64", "aarch64", "arm64") else []
+    try:
+        compile_c([*STRICT, *config, *no_fp, "-O2", "-c", str(C_DIR / "arva_codec.c"), "-o", str(obj)])
+    except RuntimeError as exc:
+        if no_fp and "general-regs-only" in str(exc) and "unrecognized" in str(exc):
+            pytest.skip("compiler has no -mgeneral-regs-only")
+        raise
+    nm = shutil.which("nm")
+    if nm is None:
+        pytest.skip("no nm to list undefined symbols")
+    undefined = set(subprocess.run([nm, "-u", str(obj)], capture_output=True, text=True, timeout=30).stdout.split()) - {"U"}
+    assert undefined <= {"memcpy", "memset", "memmove", "strlen"}, undefined
