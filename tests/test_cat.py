@@ -8,6 +8,7 @@ import select
 import signal
 import subprocess
 import sys
+import termios
 import time
 from pathlib import Path
 
@@ -252,3 +253,40 @@ def test_emulator_url_end_to_end() -> None:
     assert proc.returncode == 0, proc.stderr
     out = json_lines(proc.stdout)
     assert [o["seq"] for o in out] == [0, 1, 2] and all(o["complete"] for o in out)
+
+
+@pytest.mark.timeout(60)
+def test_character_device_source_via_pty() -> None:
+    """A device path (here a pty slave) is opened with pyserial, like /dev/ttyUSB0."""
+    master, slave = os.openpty()
+    try:
+        path = os.ttyname(slave)
+        proc = subprocess.Popen(
+            CAT + [path, "--epochs", "2"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            cwd=ROOT,
+            env={**os.environ, "PYTHONPATH": str(ROOT)},
+        )
+        try:
+            # pyserial flushes the input when it opens the port: write only once cat has
+            # put the line in raw mode (and a moment more for that flush).
+            deadline = time.monotonic() + 20
+            while termios.tcgetattr(slave)[3] & termios.ICANON:
+                assert time.monotonic() < deadline and proc.poll() is None, "cat did not open the pty"
+                time.sleep(0.02)
+            time.sleep(0.2)
+            os.write(master, encode_epoch(40, [(1, 1905, 21)]) + encode_epoch(41, [(1, 1904, 21)]))
+            out, err = proc.communicate(timeout=20)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=10)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert proc.returncode == 0, err
+    assert json_lines(out) == [
+        {"seq": 40, "complete": True, "slots": [[1, 1905, 21]]},
+        {"seq": 41, "complete": True, "slots": [[1, 1904, 21]]},
+    ]
