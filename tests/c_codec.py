@@ -6,6 +6,7 @@ Builds go to a fresh temporary directory once per process.
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import functools
 import os
@@ -26,7 +27,9 @@ def find_cc() -> str | None:
 
 @functools.cache
 def build_dir() -> Path:
-    return Path(tempfile.mkdtemp(prefix="arva-c-"))
+    path = Path(tempfile.mkdtemp(prefix="arva-c-"))
+    atexit.register(shutil.rmtree, path, ignore_errors=True)
+    return path
 
 
 def compile_c(args: list[str]) -> None:
