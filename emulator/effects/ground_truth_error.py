@@ -1,0 +1,151 @@
+"""Errors on the emulated ground-truth streams (BRIEF 3.1 ``ground_truth_error``).
+
+The emulator can also play the GPS and attitude sensors that a field team carries with
+the receiver; real ones are not perfect. This effect degrades the true poses the way such
+sensors do:
+
+* GPS: a constant ENU bias, independent Gaussian noise per axis, and fixes that go
+  missing with a given probability (the ``valid`` mask; the position of a missing fix
+  is still finite but must not be emitted as a fix).
+* Attitude: a small random rotation per sample, rotation vector Gaussian with the same
+  sigma on each body axis, composed on the body side (R_noisy = R_true R_noise, so the
+  error is expressed in the sensor's own axes).
+
+Determinism: GPS and attitude each have their own generator, derived from the scene seed
+and a ``stream`` number (one per emulated device), and each method makes exactly one
+``standard_normal`` call of shape (N, k) per batch, so drawing N samples at once or one
+by one gives the same numbers, and interleaving GPS and attitude calls changes nothing.
+A dropout is ``z < ndtri(p)`` on its own normal column: probability exactly p.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+from scipy.special import ndtri
+
+from firmware_proto.errors import InputError, PoseError
+
+#: Spawn-key tag of this effect's random streams ("GTER"), distinct from every other effect.
+_TAG = 0x47544552
+_GPS, _ATTITUDE = 0, 1
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _triple(name: str, value, nonneg: bool) -> tuple[float, float, float]:
+    ok = isinstance(value, (tuple, list)) and len(value) == 3 and all(_finite(v) for v in value)
+    if not ok or (nonneg and any(v < 0 for v in value)):
+        what = "3 finite numbers >= 0 [east, north, up]" if nonneg else "3 finite numbers [east, north, up]"
+        raise InputError(f"ground_truth_error.{name}: must be {what}, got {value!r}")
+    return tuple(float(v) for v in value)
+
+
+@dataclass(frozen=True)
+class GroundTruthErrorConfig:
+    """Scene settings of the ``ground_truth_error`` effect.
+
+    * ``gps_sigma_m``: per-axis Gaussian sigma [east, north, up] in metres, each >= 0.
+    * ``gps_bias_m``: constant [east, north, up] bias in metres.
+    * ``gps_dropout``: probability in [0, 1] that a GPS fix is missing.
+    * ``attitude_sigma_deg``: per-axis sigma of the body-side rotation noise, in
+      degrees, in [0, 180) (a small-angle model: meant for a few degrees).
+    All default to 0 (no error).
+    """
+
+    gps_sigma_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gps_bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gps_dropout: float = 0.0
+    attitude_sigma_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "gps_sigma_m", _triple("gps_sigma_m", self.gps_sigma_m, True))
+        object.__setattr__(self, "gps_bias_m", _triple("gps_bias_m", self.gps_bias_m, False))
+        if not _finite(self.gps_dropout) or not 0 <= self.gps_dropout <= 1:
+            raise InputError(f"ground_truth_error.gps_dropout: must be a probability in [0, 1], got {self.gps_dropout!r}")
+        if not _finite(self.attitude_sigma_deg) or not 0 <= self.attitude_sigma_deg < 180:
+            raise InputError(
+                f"ground_truth_error.attitude_sigma_deg: must be in [0, 180), got {self.attitude_sigma_deg!r}"
+            )
+
+
+class GroundTruthError:
+    """GPS and attitude errors for one emulated device (BRIEF 3.1 ``ground_truth_error``).
+
+    Cost per sample: GPS one (1 to 4)-column normal draw and an add; attitude three
+    normals and one quaternion product. Nothing is drawn for a part whose settings are
+    all zero (the bias alone is a plain add).
+    """
+
+    name = "ground_truth_error"
+
+    def __init__(self, config: GroundTruthErrorConfig, seed: int | None, stream: int = 0) -> None:
+        self.config = config
+        if seed is None:
+            seed = np.random.SeedSequence().entropy
+        self._sigma = np.array(config.gps_sigma_m)
+        self._bias = np.array(config.gps_bias_m)
+        self._noisy = bool(self._sigma.any())
+        self._dropout = config.gps_dropout > 0
+        self._threshold = float(ndtri(config.gps_dropout)) if self._dropout else -math.inf
+        self._att_sigma = math.radians(config.attitude_sigma_deg)
+        self._rng_gps = _rng(seed, stream, _GPS)
+        self._rng_att = _rng(seed, stream, _ATTITUDE)
+        self.fixes = 0
+        self.fixes_dropped = 0
+
+    def gps(self, positions: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """(noisy ENU positions (N, 3), valid (N,)): true + bias + noise; ``valid`` is
+        False for missing fixes (their position is still finite)."""
+        p = np.asarray(positions, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise InputError(f"ground_truth_error: positions must be (N, 3), got shape {p.shape}")
+        if not np.all(np.isfinite(p)):
+            raise PoseError("gps.position", "position has a non-finite component")
+        n = p.shape[0]
+        out = p + self._bias
+        valid = np.ones(n, dtype=bool)
+        cols = 3 * self._noisy + self._dropout
+        if cols and n:
+            z = self._rng_gps.standard_normal((n, cols))
+            if self._noisy:
+                out += z[:, :3] * self._sigma
+            if self._dropout:
+                valid = z[:, -1] >= self._threshold
+        self.fixes += n
+        self.fixes_dropped += int(n - valid.sum())
+        return out, valid
+
+    def attitude(self, quats: ArrayLike) -> NDArray[np.float64]:
+        """Noisy unit quaternions (N, 4) [w, x, y, z]: q_true * exp(noise) on the body
+        side, noise rotation vector N(0, sigma^2) per axis; the sign is chosen so the
+        result stays in the hemisphere of the input (no jumps in a stream)."""
+        q = np.asarray(quats, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != 4:
+            raise InputError(f"ground_truth_error: quaternions must be (N, 4), got shape {q.shape}")
+        if not np.all(np.isfinite(q)):
+            raise PoseError("attitude.orientation", "quaternion has a non-finite component")
+        norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+        if np.any(norm < 1e-9):
+            raise PoseError("attitude.orientation", "quaternion of norm < 1e-9")
+        if self._att_sigma == 0.0 or q.shape[0] == 0:
+            return q.copy()
+        z = self._rng_att.standard_normal((q.shape[0], 3))
+        noisy = Rotation.from_quat(q, scalar_first=True) * Rotation.from_rotvec(z * self._att_sigma)
+        out = noisy.as_quat(scalar_first=True)
+        flip = np.einsum("ij,ij->i", out, q) < 0
+        out[flip] *= -1.0
+        return out
+
+    def stats(self) -> dict[str, int]:
+        return {"fixes": self.fixes, "fixes_dropped": self.fixes_dropped}
+
+
+def _rng(seed, stream: int, part: int) -> np.random.Generator:
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(_TAG, stream, part))))
