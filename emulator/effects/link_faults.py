@@ -1,0 +1,279 @@
+"""Link faults on a port (BRIEF 3.1 ``link_faults``): what a flaky cable or radio does.
+
+:class:`FaultyPort` wraps any :class:`~emulator.ports.Port` and is one itself. Per write,
+in this order:
+
+1. Disconnect schedule: outages start at scene times k * ``disconnect_every_s``
+   (k = 1, 2, ...) and last ``disconnect_s``. The wrapped port is ``disconnect()``-ed at
+   the first write (or :meth:`FaultyPort.poll`) inside an outage and ``reconnect()``-ed
+   at the first one after it; if no write falls inside an outage at all, it is still
+   applied, as a disconnect immediately followed by a reconnect. While disconnected, the
+   bytes are dropped and counted (``bytes_disconnected``) and nothing is drawn. A port
+   that cannot disconnect (stdout) gets a simulated outage: bytes dropped, nothing closed.
+2. Stall: with probability ``stall``, ``sleep(stall_ms / 1000)`` before the write.
+3. Bytes: each byte is lost with probability ``loss``; each byte not lost is corrupted
+   with probability ``corrupt`` (XOR with a uniform non-zero byte, so it always changes).
+4. Split: with probability ``split`` the faulted data goes out in 2, 3 or 4 pieces
+   (uniform; cut points uniform among the distinct positions), written back to back
+   with ``sleep(SPLIT_GAP_S)`` between pieces so a reader sees separate reads.
+
+Time comes from two injected callables: ``clock()`` (scene time, seconds) and
+``sleep(seconds)`` (time.sleep in real time, a no-op at ``--speed 0``), so the port itself
+never sleeps when running as fast as possible.
+
+Determinism: the stall, byte and split faults each draw from their own generator
+(derived from the seed and ``stream``), only when enabled, so the same writes at the same
+clock readings give the same bytes, and enabling splits does not change which bytes are
+lost or corrupted.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmware_proto.errors import InputError, LinkError
+
+from ..ports import Port
+
+#: Pause between the pieces of a split write, seconds.
+SPLIT_GAP_S = 0.001
+#: Spawn-key tag of this effect's random streams ("LINK"), distinct from every other effect.
+_TAG = 0x4C494E4B
+_STALL, _BYTES, _SPLIT = 0, 1, 2
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+@dataclass(frozen=True)
+class LinkFaultConfig:
+    """Scene settings of the ``link_faults`` effect.
+
+    * ``loss``: per-byte loss probability, [0, 1].
+    * ``corrupt``: per-byte corruption probability (of bytes not lost), [0, 1].
+    * ``split``: probability a write is split into 2..4 pieces, [0, 1].
+    * ``stall``: probability a write is preceded by a stall, [0, 1].
+    * ``stall_ms``: stall length, >= 0 (default 200).
+    * ``disconnect_every_s``: outage period in scene seconds, >= 0 (0 = never, default).
+    * ``disconnect_s``: outage length, > 0 and < ``disconnect_every_s`` (default 2).
+    """
+
+    loss: float = 0.0
+    corrupt: float = 0.0
+    split: float = 0.0
+    stall: float = 0.0
+    stall_ms: float = 200.0
+    disconnect_every_s: float = 0.0
+    disconnect_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("loss", "corrupt", "split", "stall"):
+            v = getattr(self, name)
+            if not _finite(v) or not 0 <= v <= 1:
+                raise InputError(f"link_faults.{name}: must be a probability in [0, 1], got {v!r}")
+        if not _finite(self.stall_ms) or self.stall_ms < 0:
+            raise InputError(f"link_faults.stall_ms: must be >= 0, got {self.stall_ms!r}")
+        if not _finite(self.disconnect_every_s) or self.disconnect_every_s < 0:
+            raise InputError(
+                f"link_faults.disconnect_every_s: must be >= 0 (0 = never), got {self.disconnect_every_s!r}"
+            )
+        if not _finite(self.disconnect_s) or self.disconnect_s <= 0:
+            raise InputError(f"link_faults.disconnect_s: must be > 0, got {self.disconnect_s!r}")
+        if self.disconnect_every_s > 0 and self.disconnect_s >= self.disconnect_every_s:
+            raise InputError(
+                f"link_faults.disconnect_s: must be < disconnect_every_s ({self.disconnect_every_s:g}), "
+                f"got {self.disconnect_s:g}"
+            )
+
+
+class FaultyPort(Port):
+    """A port that injects link faults into another port's stream (BRIEF 3.1).
+
+    Cost per write: with byte faults on, 1 or 2 uniform draws per byte plus a few numpy
+    operations on the byte array; splits, stalls and the disconnect schedule cost O(1)
+    per write. Nothing is drawn for a fault whose probability is 0.
+
+    Counters (also in :meth:`summary`): ``bytes_offered`` = ``bytes_written`` +
+    ``bytes_dropped``; ``bytes_dropped`` = ``bytes_lost`` + ``bytes_disconnected`` + what
+    the wrapped port itself dropped; ``bytes_corrupted``, ``writes``, ``writes_split``,
+    ``stalls``, ``disconnects``; ``faults_injected`` sums the injected faults.
+    """
+
+    def __init__(
+        self,
+        port: Port,
+        config: LinkFaultConfig,
+        seed: int | None,
+        stream: int = 0,
+        sleep: Callable[[float], None] = time.sleep,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
+        super().__init__(port.label)
+        self.inner = port
+        self.config = config
+        if seed is None:
+            seed = np.random.SeedSequence().entropy
+        if clock is None:
+            t0 = time.monotonic()
+            clock = lambda: time.monotonic() - t0  # noqa: E731
+        self._sleep = sleep
+        self._clock = clock
+        rng = lambda part: np.random.Generator(  # noqa: E731
+            np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(_TAG, stream, part)))
+        )
+        self._rng_stall = rng(_STALL) if config.stall > 0 else None
+        self._rng_bytes = rng(_BYTES) if config.loss > 0 or config.corrupt > 0 else None
+        self._rng_split = rng(_SPLIT) if config.split > 0 else None
+        self._window = 0  # last outage index started
+        self._down = False
+        self._down_simulated = False
+        self.bytes_offered = 0
+        self.bytes_lost = 0
+        self.bytes_corrupted = 0
+        self.bytes_disconnected = 0
+        self.writes = 0
+        self.writes_split = 0
+        self.stalls = 0
+        self.disconnects = 0
+
+    @property
+    def path(self) -> str | None:  # type: ignore[override]
+        return self.inner.path
+
+    @property
+    def disconnected(self) -> bool:
+        """True during a scheduled outage."""
+        return self._down
+
+    @property
+    def faults_injected(self) -> int:
+        return self.bytes_lost + self.bytes_corrupted + self.writes_split + self.stalls + self.disconnects
+
+    def summary(self) -> dict[str, int]:
+        return {
+            "bytes_offered": self.bytes_offered,
+            "bytes_written": self.bytes_written,
+            "bytes_dropped": self.bytes_dropped,
+            "bytes_lost": self.bytes_lost,
+            "bytes_corrupted": self.bytes_corrupted,
+            "bytes_disconnected": self.bytes_disconnected,
+            "writes": self.writes,
+            "writes_split": self.writes_split,
+            "stalls": self.stalls,
+            "disconnects": self.disconnects,
+        }
+
+    # --- Port interface ------------------------------------------------------------------
+
+    def write(self, data: bytes) -> int:
+        """Write ``data`` with faults; return the bytes the wrapped port accepted."""
+        n = len(data)
+        self.bytes_offered += n
+        self.writes += 1
+        self.poll()
+        if self._down:
+            self.bytes_disconnected += n
+            return self._account(n, 0)
+        cfg = self.config
+        if self._rng_stall is not None and self._rng_stall.random() < cfg.stall:
+            self.stalls += 1
+            self._sleep(cfg.stall_ms / 1000.0)
+        payload = self._fault_bytes(data)
+        accepted = 0
+        for i, piece in enumerate(self._split(payload)):
+            if i:
+                self._sleep(SPLIT_GAP_S)
+            accepted += self.inner.write(piece)
+        return self._account(n, accepted)
+
+    def poll(self) -> None:
+        """Apply the disconnect schedule at the current scene time without writing (a
+        scheduler may call it between writes so an outage ends on time)."""
+        every = self.config.disconnect_every_s
+        if every <= 0:
+            return
+        t = self._clock()
+        k = math.floor(t / every)
+        if self._down and (k > self._window or t >= self._window * every + self.config.disconnect_s):
+            self._up()
+        if k >= 1 and k > self._window:
+            self._window = k
+            self._go_down()
+            if t >= k * every + self.config.disconnect_s:  # the whole outage fell between writes
+                self._up()
+
+    def set_drain_wait(self, seconds: float) -> None:
+        self.inner.set_drain_wait(seconds)
+
+    def disconnect(self) -> None:
+        self.inner.disconnect()
+
+    def reconnect(self) -> None:
+        self.inner.reconnect()
+
+    def close(self, *args, **kwargs) -> None:
+        self.inner.close(*args, **kwargs)
+
+    def __getattr__(self, name: str):
+        # Anything else a specific port offers (pending(), link, ...) reads through.
+        if name.startswith("_") or name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    # --- faults --------------------------------------------------------------------------
+
+    def _go_down(self) -> None:
+        self.disconnects += 1
+        self._down = True
+        try:
+            self.inner.disconnect()
+            self._down_simulated = False
+        except LinkError:
+            self._down_simulated = True  # e.g. stdout: drop bytes, close nothing
+
+    def _up(self) -> None:
+        self._down = False
+        if not self._down_simulated:
+            self.inner.reconnect()
+
+    def _fault_bytes(self, data: bytes) -> bytes:
+        rng = self._rng_bytes
+        n = len(data)
+        if rng is None or n == 0:
+            return bytes(data)
+        cfg = self.config
+        arr = np.frombuffer(data, dtype=np.uint8)
+        both = cfg.loss > 0 and cfg.corrupt > 0
+        u = rng.random((n, 2) if both else n)
+        keep = None
+        if cfg.loss > 0:
+            keep = (u[:, 0] if both else u) >= cfg.loss
+        if cfg.corrupt > 0:
+            hit = (u[:, 1] if both else u) < cfg.corrupt
+            if keep is not None:
+                hit &= keep
+            n_hit = int(np.count_nonzero(hit))
+            if n_hit:
+                arr = arr.copy()
+                arr[hit] ^= rng.integers(1, 256, size=n_hit, dtype=np.uint8)
+                self.bytes_corrupted += n_hit
+        if keep is not None:
+            arr = arr[keep]
+            self.bytes_lost += n - arr.size
+        return arr.tobytes()
+
+    def _split(self, payload: bytes) -> list[bytes]:
+        rng = self._rng_split
+        if rng is None or rng.random() >= self.config.split or len(payload) < 2:
+            return [payload]
+        pieces = min(int(rng.integers(2, 5)), len(payload))
+        cuts = np.sort(rng.choice(len(payload) - 1, size=pieces - 1, replace=False) + 1).tolist()
+        self.writes_split += 1
+        bounds = [0, *cuts, len(payload)]
+        return [payload[a:b] for a, b in zip(bounds, bounds[1:])]
