@@ -80,7 +80,9 @@ class GroundTruthError:
 
     Cost per sample: GPS one (1 to 4)-column normal draw and an add; attitude three
     normals and one quaternion product. Nothing is drawn for a part whose settings are
-    all zero (the bias alone is a plain add).
+    all zero (the bias alone is a plain add). Measured in 4096-sample batches: GPS
+    ~0.06 us/sample, attitude ~0.55 us/sample; one sample per call costs ~65 us
+    (scipy Rotation's fixed overhead), fine at real-time rates.
     """
 
     name = "ground_truth_error"

@@ -137,7 +137,8 @@ class PulseEffect:
 
     Cost per epoch: O(M^2 * pulses per window) element-wise operations (one or two
     pulses per transmitter in a 1 s window), vectorised over the epochs of a batch; no
-    random draws after construction.
+    random draws after construction. Measured: ~1 us/epoch with 4 transmitters, ~20 us
+    with 20 (4096-epoch batches); nothing for a single transmitter beyond two floors.
 
     ``periods_s``, ``phases_s`` (M,) are the drawn timings in seconds (drift included),
     ``pulse_s`` the pulse length. Counters: ``pulses_ended`` (pulses of present
