@@ -14,6 +14,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,7 +23,8 @@ from firmware_proto.errors import InputError, LinkError
 from . import __version__
 from .ports import Port, PtyPort, SerialPort, StdoutPort
 from .scene import default_scene, load_scene
-from .scheduler import EpochScheduler, Route, status_printer, summary_line
+from .effects.link_faults import FaultyPort
+from .scheduler import EpochScheduler, Route, SceneClock, status_printer, summary_line
 from .streams import scene_streams
 
 log = logging.getLogger("arva-emulate")
@@ -165,17 +167,31 @@ def run(args: argparse.Namespace) -> int:
     specs = assign_ports([s.label for s in streams], args.port, args.stream)
     stop = threading.Event()
     _stop_on_signals(stop)
+    scene_clock = SceneClock()
     routes: list[Route] = []
     try:
-        for stream in streams:
-            routes.append(Route(stream, open_port(stream.label, specs[stream.label], args)))
-        for r in routes:
-            if isinstance(r.port, PtyPort):
+        for i, stream in enumerate(streams):
+            port = open_port(stream.label, specs[stream.label], args)
+            routes.append(Route(stream, port))
+            if isinstance(port, PtyPort):
                 # Announced before any data, flushed at once: a test harness or a human
-                # reads the path from here and opens it.
-                print(f"{r.stream.label} {r.port.path}", flush=True)
+                # reads the path from here and opens it (again after a simulated unplug).
+                port.on_reconnect = _announce
+                _announce(port)
+            routes[-1].port = _with_link_faults(scene, port, i, args.speed, scene_clock)
         status = status_printer() if sys.stderr.isatty() and args.speed != 0 else None
-        scheduler = EpochScheduler(routes, args.speed, args.frames, status=status, stop_event=stop)
+        lf = scene.effects.link_faults
+        scheduler = EpochScheduler(
+            routes,
+            args.speed,
+            args.frames,
+            status=status,
+            stop_event=stop,
+            scene_clock=scene_clock,
+            # Outages are scheduled in scene time: render epoch by epoch so they land
+            # on the right epochs even as fast as possible.
+            fast_batch=1 if lf is not None and lf.disconnect_every_s > 0 else None,
+        )
         try:
             scheduler.wait(args.delay)
             scheduler.run()
@@ -187,6 +203,21 @@ def run(args: argparse.Namespace) -> int:
         for r in routes:
             r.port.close()
     return 0
+
+
+def _announce(port: Port) -> None:
+    print(f"{port.label} {port.path}", flush=True)
+
+
+def _with_link_faults(scene, port: Port, index: int, speed: float, clock: SceneClock) -> Port:
+    """Wrap ``port`` in the scene's link faults if they apply to its stream."""
+    fx = scene.effects
+    if fx.link_faults is None or (fx.link_fault_streams and port.label not in fx.link_fault_streams):
+        return port
+    # Stalls and split gaps are real pauses in real time; as fast as possible they
+    # cost nothing (the bytes still split and stall counters still count).
+    sleep = time.sleep if speed > 0 else (lambda _s: None)
+    return FaultyPort(port, fx.link_faults, scene.seed, stream=index, sleep=sleep, clock=clock)
 
 
 def _stop_on_signals(stop: threading.Event) -> None:

@@ -3,12 +3,15 @@ pipeline and channel selection, producing epochs in order."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from .effects import NoiseEffect
-from .model import Epochs, measure, select_channels
+from .effects.noise import NoiseEffect
+from .effects.pulses import PulseEffect
+from .effects.quantize import QuantizeEffect
+from .model import ZONE_OUTER, Epochs, Measurement, measure, select_channels
 from .scene import Scene
 
 
@@ -24,9 +27,12 @@ class EpochBatch:
 class Receiver:
     """Produces the receiver's epochs for a scene, in order.
 
-    Epoch k uses the scene state at t_k = k / rate_hz (BRIEF 3 step 7). Effects with
-    random draws consume their streams in epoch order, so call :meth:`next_batch`
-    sequentially; the batch size does not change the output.
+    Epoch k uses the scene state at t_k = k / rate_hz (BRIEF 3 step 7). The effects
+    pipeline is assembled here, once: stages that act on the raw measurement (pulses)
+    run before channel selection, display stages (quantize) after it. A disabled
+    effect is simply not in the lists. Effects with random draws consume their
+    streams in epoch order, so call :meth:`next_batch` sequentially; the batch size
+    does not change the output.
     """
 
     def __init__(self, scene: Scene, index: int = 0) -> None:
@@ -35,8 +41,18 @@ class Receiver:
         self.channels = self.spec.channels
         self.ids = scene.transmitter_ids
         self.want_field = scene.effects.research_sentences
-        # Each receiver draws from its own stream of the scene seed.
-        self.noise = NoiseEffect(scene.seed, index) if scene.effects.noise else None
+        fx = scene.effects
+        # Each receiver draws noise from its own stream of the scene seed; pulse trains
+        # belong to the transmitters, so every receiver hears the same ones.
+        self.noise = NoiseEffect(scene.seed, index) if fx.noise else None
+        self.pulses = PulseEffect(fx.pulses, self.ids, scene.seed) if fx.pulses and len(self.ids) else None
+        self.quantize = QuantizeEffect(fx.quantize) if fx.quantize else None
+        self._before_selection: list[Callable[[np.ndarray, Measurement], None]] = []
+        self._after_selection: list[Callable[[Epochs], None]] = []
+        if self.pulses is not None:
+            self._before_selection.append(self._apply_pulses)
+        if self.quantize is not None:
+            self._after_selection.append(self._apply_quantize)
         self.next_k = 0
         txs = scene.transmitters
         self._static_tx = all(tx.trajectory.is_static for tx in txs)
@@ -66,4 +82,23 @@ class Receiver:
             tx_quat = np.stack([q for _, q in poses], axis=1)
         noise = self.noise.draw(n, m) if self.noise is not None else None
         meas = measure(rx_pos, rx_quat, tx_pos, tx_quat, self.scene.model, noise, self.want_field)
-        return select_channels(meas, self.ids, self.channels)
+        for stage in self._before_selection:
+            stage(t, meas)
+        epochs = select_channels(meas, self.ids, self.channels)
+        for stage in self._after_selection:
+            stage(epochs)
+        return epochs
+
+    def _apply_pulses(self, t: np.ndarray, meas: Measurement) -> None:
+        """Silence transmitters with no unhidden pulse ending in (t - 1/rate, t]."""
+        present = meas.zone != ZONE_OUTER
+        # Larger is stronger: d orders transmitters as their field at the receiver does.
+        strength = -meas.d.astype(np.float64)
+        heard = self.pulses.reported(t - 1.0 / self.scene.rate_hz, t, strength, present)
+        silent = present & ~heard
+        meas.zone[silent] = ZONE_OUTER
+        meas.d[silent] = -1
+        meas.delta[silent] = -1
+
+    def _apply_quantize(self, epochs: Epochs) -> None:
+        epochs.d, epochs.delta = self.quantize.apply(epochs.d, epochs.delta, epochs.ids < 0)

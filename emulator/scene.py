@@ -19,6 +19,10 @@ import numpy as np
 from firmware_proto.errors import InputError, PoseError, SceneError
 from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
 
+from .effects.ground_truth_error import GroundTruthErrorConfig
+from .effects.link_faults import LinkFaultConfig
+from .effects.pulses import PulseConfig
+from .effects.quantize import QuantizeConfig
 from .model import ModelParams
 from .rotation import normalize_quaternions
 from .trajectory import IDENTITY, Trajectory
@@ -30,10 +34,19 @@ DEFAULT_SCENE = "default.toml"
 
 @dataclass(frozen=True)
 class Effects:
-    """Which effects the scene enables; all off by default (BRIEF 3.1)."""
+    """Which effects the scene enables; all off by default (BRIEF 3.1).
+
+    An effect with parameters is ``None`` when off, else its validated config.
+    """
 
     noise: bool = False
     research_sentences: bool = False
+    pulses: PulseConfig | None = None
+    quantize: QuantizeConfig | None = None
+    ground_truth_error: GroundTruthErrorConfig | None = None
+    link_faults: LinkFaultConfig | None = None
+    #: Stream labels the link faults apply to (empty: every stream).
+    link_fault_streams: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -199,10 +212,46 @@ def _type_name(value: Any) -> str:
 
 _TOP_KEYS = {
     "spec", "seed", "rate_hz", "name", "description", "model", "effects", "transmitters", "receiver", "receivers",
+    "pulses", "quantize", "ground_truth_error", "link_faults",
 }
 _MODEL_KEYS = {"kappa_eq", "moment", "r_inner", "r_outer", "r_en", "q"}
-_EFFECT_KEYS = {"noise", "research_sentences"}
-_TX_KEYS = {"id", "position", "orientation", "path"}
+_EFFECT_KEYS = {"noise", "research_sentences", "pulses", "quantize", "ground_truth_error", "link_faults"}
+_TX_KEYS = {"id", "position", "orientation", "path", "pulse_period_ms", "pulse_phase_ms"}
+
+# Parameter tables of the effects: key -> kind ("number", "integer", "string",
+# ("vector", n), "strings"). Ranges are checked by each effect's config class.
+_EFFECT_PARAMS: dict[str, dict[str, object]] = {
+    "pulses": {"period_ms": ("vector", 2), "pulse_ms": "number", "drift_ppm": "number", "overlap": "string"},
+    "quantize": {
+        "profile": "string",
+        "delta_step_deg": "integer",
+        "d_step_cm": "integer",
+        "d_far_cm": "integer",
+        "d_step_far_cm": "integer",
+    },
+    "ground_truth_error": {
+        "gps_sigma_m": ("vector", 3),
+        "gps_bias_m": ("vector", 3),
+        "gps_dropout": "number",
+        "attitude_sigma_deg": "number",
+    },
+    "link_faults": {
+        "loss": "number",
+        "corrupt": "number",
+        "split": "number",
+        "stall": "number",
+        "stall_ms": "number",
+        "disconnect_every_s": "number",
+        "disconnect_s": "number",
+        "streams": "strings",
+    },
+}
+_EFFECT_CONFIGS = {
+    "pulses": PulseConfig,
+    "quantize": QuantizeConfig,
+    "ground_truth_error": GroundTruthErrorConfig,
+    "link_faults": LinkFaultConfig,
+}
 _RX_KEYS = {"id", "channels", "position", "orientation", "path"}
 
 
@@ -236,12 +285,14 @@ def parse_scene(data: dict, source: str) -> Scene:
         raise rd.fail("model", str(exc)) from None
 
     e = rd.table(data, "effects", "effects", _EFFECT_KEYS)
-    effects = Effects(**{k: rd.boolean(e, k, f"effects.{k}", False) for k in sorted(_EFFECT_KEYS)})
+    enabled = {k: rd.boolean(e, k, f"effects.{k}", False) for k in sorted(_EFFECT_KEYS)}
 
     raw_txs = data.get("transmitters", [])
     if not isinstance(raw_txs, list):
         raise rd.fail("transmitters", f"expected an array of tables ([[transmitters]]), got {_type_name(raw_txs)}")
     transmitters = []
+    pulse_periods: dict[int, float] = {}
+    pulse_phases: dict[int, float] = {}
     seen: dict[int, int] = {}
     for i, tx in enumerate(raw_txs):
         path = f"transmitters[{i}]"
@@ -253,10 +304,65 @@ def parse_scene(data: dict, source: str) -> Scene:
             raise rd.fail(f"{path}.id", f"duplicate id {tx_id} (also transmitters[{seen[tx_id]}].id)")
         seen[tx_id] = i
         transmitters.append(Transmitter(tx_id, rd.trajectory(tx, path)))
+        for key, target in (("pulse_period_ms", pulse_periods), ("pulse_phase_ms", pulse_phases)):
+            if key in tx:
+                if not enabled["pulses"]:
+                    raise rd.fail(f"{path}.{key}", "given but effects.pulses is not enabled")
+                target[tx_id] = rd.number(tx, key, f"{path}.{key}", None)
     transmitters.sort(key=lambda tx: tx.id)
+    effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
 
     receivers = _receivers(rd, data)
     return Scene(source, spec, seed, rate_hz, model, effects, tuple(transmitters), receivers, name)
+
+
+def _effects(rd: _Reader, data: dict, enabled: dict[str, bool], periods: dict, phases: dict) -> Effects:
+    """Each enabled effect's config from its own table (``[pulses]``, ``[quantize]`` ...).
+
+    A parameter table for an effect that is not enabled is an error: a scene that sets
+    ``[pulses]`` and forgets ``effects.pulses = true`` would otherwise silently differ.
+    """
+    configs: dict[str, object] = {}
+    streams: tuple[str, ...] = ()
+    for name, schema in _EFFECT_PARAMS.items():
+        table = rd.table(data, name, name, set(schema))
+        if table and not enabled[name]:
+            raise rd.fail(name, f"parameters given but effects.{name} is not enabled")
+        if not enabled[name]:
+            continue
+        kwargs = {key: _param(rd, table, key, f"{name}.{key}", kind) for key, kind in schema.items() if key in table}
+        if name == "link_faults":
+            streams = tuple(kwargs.pop("streams", ()))
+        if name == "pulses":
+            kwargs.update(periods_ms=periods, phases_ms=phases)
+        try:
+            configs[name] = _EFFECT_CONFIGS[name](**kwargs)
+        except InputError as exc:
+            raise SceneError(rd.source, "", str(exc)) from None
+    return Effects(
+        noise=enabled["noise"],
+        research_sentences=enabled["research_sentences"],
+        link_fault_streams=streams,
+        **configs,
+    )
+
+
+def _param(rd: _Reader, table: dict, key: str, path: str, kind: object):
+    if kind == "number":
+        return rd.number(table, key, path, None)
+    if kind == "integer":
+        return rd.integer(table, key, path, None, -(2**31), 2**31)
+    if kind == "string":
+        value = table[key]
+        if not isinstance(value, str):
+            raise rd.fail(path, f"expected a string, got {_type_name(value)}")
+        return value
+    if kind == "strings":
+        value = table[key]
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise rd.fail(path, "expected an array of strings")
+        return value
+    return tuple(rd.vector(table[key], path, kind[1]))
 
 
 def _receivers(rd: _Reader, data: dict) -> tuple[ReceiverSpec, ...]:

@@ -31,6 +31,20 @@ SPIN = 0.001
 FAST_DRAIN_WAIT = 0.05
 
 
+class SceneClock:
+    """Scene time (s) of the epoch being written; read by port wrappers (link faults).
+
+    As fast as possible it advances per batch, so faults scheduled in scene time land on
+    batch boundaries there; in real time it is exact to the epoch.
+    """
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
 @dataclass
 class Route:
     """A stream bound to the port it is written to."""
@@ -62,6 +76,8 @@ class EpochScheduler:
         sleep: Callable[[float], None] = time.sleep,
         status: Callable[[list[Route]], None] | None = None,
         stop_event: threading.Event | None = None,
+        scene_clock: SceneClock | None = None,
+        fast_batch: int | None = None,
     ) -> None:
         if not routes:
             raise ValueError("nothing to schedule")
@@ -70,6 +86,8 @@ class EpochScheduler:
         self.clock = clock
         self.sleep = sleep
         self.status = status
+        self.scene_clock = scene_clock if scene_clock is not None else SceneClock()
+        self.fast_batch = fast_batch
         # An Event rather than a flag so a signal handler installed before the scheduler
         # exists (while ports are being opened) can already request the stop.
         self._stop_event = stop_event if stop_event is not None else threading.Event()
@@ -100,12 +118,14 @@ class EpochScheduler:
             self._run_real_time()
 
     def _write(self, route: Route, data: bytes) -> None:
+        self.scene_clock.t = route.next_k / route.stream.rate_hz
         route.port.write(data)
 
     def _run_fast(self) -> None:
         for r in self.routes:
             r.port.set_drain_wait(FAST_DRAIN_WAIT)
-        window = FAST_BATCH / max(r.stream.rate_hz for r in self.routes)
+        batch = self.fast_batch or FAST_BATCH
+        window = batch / max(r.stream.rate_hz for r in self.routes)
         t_end = 0.0
         next_status = self.clock() + 0.5
         while not self._stop and not all(r.done for r in self.routes):
