@@ -364,7 +364,7 @@ def test_no_libusb_backend(monkeypatch):
     with pytest.raises(serial.SerialException) as err:
         serial.serial_for_url("usb://1234:5678")
     assert str(err.value) == (
-        "usb://1234:5678: no libusb backend available (install libusb 1.0: apt install libusb-1.0-0, brew install libusb)"
+        "usb://1234:5678: no libusb backend available: install libusb 1.0, e.g. apt install libusb-1.0-0 or brew install libusb"
     )
 
 

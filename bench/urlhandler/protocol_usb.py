@@ -75,7 +75,7 @@ DRAIN_LIMIT = 1 << 16
 OPTIONS = ("endpoint", "interface", "out", "serial", "timeout_ms")
 USAGE = "usb://VID:PID[?serial=S&interface=N&endpoint=0x81&out=0x01&timeout_ms=T] with VID and PID in hex"
 INSTALL_PYUSB = "pyusb is not installed (install the extra: pip install 'arva-bench[usb]')"
-NO_BACKEND = "no libusb backend available (install libusb 1.0: apt install libusb-1.0-0, brew install libusb)"
+NO_BACKEND = "no libusb backend available: install libusb 1.0, e.g. apt install libusb-1.0-0 or brew install libusb"
 UDEV_HINT = "on Linux, a udev rule grants access: see docs/transports.md"
 
 _VID_PID = re.compile(r"([0-9A-Fa-f]{1,4}):([0-9A-Fa-f]{1,4})")
@@ -144,7 +144,7 @@ def _integer(url: str, opt: dict[str, str], key: str, low: int, high: int, what:
     return value
 
 
-def _reason(exc: BaseException) -> str:
+def usb_reason(exc: BaseException) -> str:
     """One line for a pyusb error: its text, plus what to do when access was denied."""
     text = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
     if getattr(exc, "errno", None) == errno.EACCES:
@@ -152,7 +152,7 @@ def _reason(exc: BaseException) -> str:
     return text
 
 
-def _pyusb():  # type: ignore[no-untyped-def]
+def import_pyusb():  # type: ignore[no-untyped-def]
     """``usb`` with ``usb.core`` and ``usb.util`` loaded; ImportError when pyusb is missing."""
     import usb.core
     import usb.util
@@ -167,7 +167,7 @@ def read_string(device, index: int) -> str | None:  # type: ignore[no-untyped-de
     ``Device.serial_number``, which turns every failure into "The device has no langid",
     this raises ``usb.core.USBError`` with the real reason (e.g. access denied).
     """
-    usb = _pyusb()
+    usb = import_pyusb()
     if not index:
         return None
     langids = usb.util.get_langids(device)
@@ -194,6 +194,7 @@ class Serial(SerialBase):
         self._reattach = False
         self._buffer = bytearray()
         self._url: UsbUrl | None = None
+        self._usb = None  # the pyusb package, once open
         super().__init__(*args, **kwargs)
 
     # -- opening ----------------------------------------------------------------
@@ -204,7 +205,7 @@ class Serial(SerialBase):
             raise SerialException("Port must be configured before it can be used.")
         self._url = parse_url(self._port)
         try:
-            usb = _pyusb()
+            self._usb = usb = import_pyusb()
         except ImportError:
             raise SerialException(f"{self._port}: {INSTALL_PYUSB}") from None
         self._device = self._find(usb)
@@ -231,7 +232,7 @@ class Serial(SerialBase):
             try:
                 number = read_string(device, device.iSerialNumber)
             except (usb.core.USBError, ValueError, NotImplementedError) as exc:
-                unreadable.append(_reason(exc))
+                unreadable.append(usb_reason(exc))
                 number = None
             else:
                 if number == url.serial:
@@ -247,7 +248,7 @@ class Serial(SerialBase):
         except usb.core.NoBackendError:
             raise self._fail(NO_BACKEND) from None
         except usb.core.USBError as exc:
-            raise self._fail(f"cannot list USB devices: {_reason(exc)}") from None
+            raise self._fail(f"cannot list USB devices: {usb_reason(exc)}") from None
         if device is not None:
             return device
         if url.serial is None:
@@ -270,7 +271,7 @@ class Serial(SerialBase):
                 device.set_configuration()  # unconfigured device: take its first configuration
                 config = device.get_active_configuration()
         except usb.core.USBError as exc:
-            raise self._fail(f"cannot open the device: {_reason(exc)}") from None
+            raise self._fail(f"cannot open the device: {usb_reason(exc)}") from None
         interfaces = [intf for intf in config if intf.bAlternateSetting == 0]
         numbers = ", ".join(str(intf.bInterfaceNumber) for intf in interfaces)
         if url.interface is not None:
@@ -321,25 +322,25 @@ class Serial(SerialBase):
         except NotImplementedError:  # no kernel drivers to detach on this platform
             active = False
         except usb.core.USBError as exc:
-            raise self._fail(f"cannot open the device: {_reason(exc)}") from None
+            raise self._fail(f"cannot open the device: {usb_reason(exc)}") from None
         if active:
             try:
                 device.detach_kernel_driver(number)
             except (usb.core.USBError, NotImplementedError) as exc:
-                raise self._fail(f"cannot detach the kernel driver of interface {number}: {_reason(exc)}") from None
+                raise self._fail(f"cannot detach the kernel driver of interface {number}: {usb_reason(exc)}") from None
             self._reattach = True
         self._interface = number  # from here on, close() releases it
         try:
             usb.util.claim_interface(device, number)
         except usb.core.USBError as exc:
-            raise self._fail(f"cannot claim interface {number}: {_reason(exc)}") from None
+            raise self._fail(f"cannot claim interface {number}: {usb_reason(exc)}") from None
 
     def _release(self) -> None:
         """Give the interface back (and its kernel driver), close the device handle."""
         device, number, self._device = self._device, self._interface, None
         if device is None:
             return
-        usb = _pyusb()
+        usb = self._usb
         if number is not None:
             try:
                 usb.util.release_interface(device, number)
@@ -358,13 +359,13 @@ class Serial(SerialBase):
     def _transfer(self, timeout_ms: int) -> int:
         """One IN transfer of one packet, waiting at most TIMEOUT_MS (>= 1) milliseconds;
         appends to the buffer and returns the number of bytes received (0 on timeout)."""
-        usb = _pyusb()
+        usb = self._usb
         try:
             data = self._device.read(self._in_ep.bEndpointAddress, _packet_size(self._in_ep), timeout=timeout_ms)
         except usb.core.USBTimeoutError:
             return 0
         except usb.core.USBError as exc:
-            raise self._fail(f"read failed: {_reason(exc)}") from None
+            raise self._fail(f"read failed: {usb_reason(exc)}") from None
         self._buffer += data
         return len(data)
 
@@ -428,13 +429,13 @@ class Serial(SerialBase):
             limit_ms = self._url.timeout_ms
         else:
             limit_ms = max(1, math.ceil(self._write_timeout * 1000))
-        usb = _pyusb()
+        usb = self._usb
         try:
             return int(self._device.write(self._out_ep.bEndpointAddress, data, timeout=limit_ms))
         except usb.core.USBTimeoutError:
             raise SerialTimeoutException(f"{self._port}: write timed out after {limit_ms} ms") from None
         except usb.core.USBError as exc:
-            raise self._fail(f"write failed: {_reason(exc)}") from None
+            raise self._fail(f"write failed: {usb_reason(exc)}") from None
 
     def reset_output_buffer(self) -> None:
         if not self.is_open:
