@@ -1,0 +1,117 @@
+"""Heading / roll / pitch as attitude sensors print them  <->  our quaternions.
+
+Our orientation (BRIEF section 2): unit quaternion ``[w, x, y, z]`` rotating vectors of a
+body frame with x forward, y left, z up (FLU) into the world frame ENU (x east, y north,
+z up).
+
+Attitude units that emit ``$PASHR`` (OxTS, Applanix POS MV, Hemisphere, ...) and most
+marine/aviation AHRS use the aerospace Tait-Bryan convention instead:
+
+* **heading** psi, degrees true, clockwise from true north seen from above, [0, 360);
+* **pitch** theta, degrees, positive **nose (bow) up**, [-90, 90];
+* **roll** phi, degrees, positive **right (starboard) side down** -- "port side up" in the
+  vendor manuals -- [-180, 180];
+* applied as the **intrinsic Z-Y'-X'' (yaw, then pitch, then roll)** sequence to a body
+  frame x forward, y right, z down (FRD) starting aligned with **NED**::
+
+      R_ned<-frd = Rz(psi) Ry(theta) Rx(phi)
+
+  (right-handed rotations about the NED down axis, then the new y, then the new x).
+
+Written in our frames, the same rotation is (P swaps ENU and NED, F flips FLU to FRD)::
+
+      R_enu<-flu = P R_ned<-frd F,   P = [[0,1,0],[1,0,0],[0,0,-1]],  F = diag(1,-1,-1)
+                 = Rz(90 deg - psi) Ry(-theta) Rx(phi)       (intrinsic Z-Y'-X'' again)
+
+which is what :func:`hpr_to_quaternion` builds. Consequences, all tested:
+
+* heading 0: body x points north; heading 90: body x points **east**;
+* pitch +30: body x has an up component of +sin 30 = 0.5;
+* roll +30: body y (the left side) has an up component of +0.5, i.e. the right side is down.
+
+Inverse (:func:`quaternion_to_hpr`), from R = R_enu<-flu::
+
+      heading = atan2(R[0,0], R[1,0])   (east over north component of body x), wrapped to [0, 360)
+      pitch   = atan2(R[2,0], hypot(R[0,0], R[1,0]))
+      roll    = the angle of Rx(roll) = Ry(-pitch)^T Rz(90 deg - heading)^T R
+
+(the last equals atan2(R[2,1], R[2,2]) but stays accurate near gimbal lock, where those
+two entries vanish; computed from the residual, the three angles always rebuild R).
+
+At gimbal lock (pitch = +-90 deg; ``hypot(R[0,0], R[1,0]) < 1e-10``) heading and roll
+are not separately defined; we then return roll = 0 and put the whole rotation about the
+vertical into the heading, ``heading = 90 deg - atan2(-R[0,1], R[1,1])``, so the returned
+angles still rebuild the same rotation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from firmware_proto.errors import InputError
+
+from .rotation import normalize_quaternions, quaternion_matrices
+
+_GIMBAL_LOCK_COS = 1e-10
+
+HPR = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+
+
+def _finite(value: ArrayLike, field: str) -> NDArray[np.float64]:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{field}: not a number: {value!r}") from exc
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{field}: must be finite")
+    return arr
+
+
+def wrap_heading(heading_deg: ArrayLike) -> NDArray[np.float64]:
+    """Headings wrapped into [0, 360) degrees (``-1e-17 % 360`` is 360.0 in floats: fixed)."""
+    h = np.mod(np.asarray(heading_deg, dtype=np.float64), 360.0)
+    return np.where(h >= 360.0, 0.0, h)
+
+
+def hpr_to_quaternion(heading: ArrayLike, roll: ArrayLike, pitch: ArrayLike) -> NDArray[np.float64]:
+    """Unit quaternions (..., 4) ``[w, x, y, z]`` (w >= 0) of heading/roll/pitch in degrees.
+
+    Any finite angles are accepted (a pitch beyond +-90 is still a rotation); non-finite
+    ones raise :class:`InputError` naming the field.
+    """
+    h = _finite(heading, "heading")
+    r = _finite(roll, "roll")
+    p = _finite(pitch, "pitch")
+    h, r, p = np.broadcast_arrays(h, r, p)
+    angles = np.stack([90.0 - h, -p, r], axis=-1)
+    # scipy wants at most 2-d input; flatten and restore the broadcast shape.
+    rot = Rotation.from_euler("ZYX", angles.reshape(-1, 3), degrees=True)
+    q = rot.as_quat(canonical=True, scalar_first=True)
+    return q.reshape(h.shape + (4,))
+
+
+def quaternion_to_hpr(q: ArrayLike, field: str = "orientation") -> HPR:
+    """(heading [0, 360), roll [-180, 180], pitch [-90, 90]) in degrees of quaternions (..., 4).
+
+    Quaternions are normalised first; a non-finite component or a norm < 1e-9 raises
+    :class:`~firmware_proto.errors.PoseError` naming ``field``.
+    """
+    m = quaternion_matrices(normalize_quaternions(q, field))
+    r00, r10, r20 = m[..., 0, 0], m[..., 1, 0], m[..., 2, 0]
+    r01, r11, r21 = m[..., 0, 1], m[..., 1, 1], m[..., 2, 1]
+    cos_pitch = np.hypot(r00, r10)
+    locked = cos_pitch < _GIMBAL_LOCK_COS
+    theta = np.arctan2(r20, cos_pitch)  # pitch
+    # alpha = 90 deg - heading: the ENU yaw of body x, counter-clockwise from east.
+    alpha = np.where(locked, np.arctan2(-r01, r11), np.arctan2(r10, r00))
+    # Roll from what is left of R after undoing yaw and pitch, Rx(phi) = Ry(-theta)^T Rz(alpha)^T R,
+    # rather than atan2(R[2,1], R[2,2]): those two shrink with cos(pitch), so near gimbal
+    # lock that formula loses digits, and its error would not match the heading's.
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    sin_roll = -np.sin(theta) * (ca * r01 + sa * r11) + np.cos(theta) * r21
+    cos_roll = ca * r11 - sa * r01
+    roll = np.where(locked, 0.0, np.degrees(np.arctan2(sin_roll, cos_roll)))
+    heading = wrap_heading(90.0 - np.degrees(alpha))
+    return np.asarray(heading), np.asarray(roll), np.asarray(np.degrees(theta))

@@ -1,0 +1,346 @@
+"""Generate ground-truth sentences a real GPS and attitude unit would send, from poses.
+
+* GPS: NMEA 0183 ``GGA`` + ``RMC`` (``gga_sentence``, ``rmc_sentence``, ``gps_sentences``).
+* Attitude: ``$PASHR`` in the OxTS / Applanix layout (``pashr_sentence``,
+  ``pashr_from_quaternion``)::
+
+      $PASHR,hhmmss.sss,HHH.HH,T,+RR.RR,+PP.PP,+hh.hh,r.rrr,p.ppp,h.hhh,Q,I*CS
+              UTC time   heading   roll   pitch  heave  sigma roll/pitch/heading  GPS quality, INS status
+
+  heading in degrees true [0, 360), 'T' = true, roll and pitch in degrees, heave in
+  metres (positive up), the three 1-sigma accuracies in degrees, GPS quality flag
+  (0 no position, 1 non-RTK fix, 2 RTK) and INS status flag (0 not aligned, 1 aligned).
+  Angles follow :mod:`emulator.attitude_convention` (heading clockwise from true north,
+  pitch positive nose up, roll positive right side down; intrinsic Z-Y-X on NED/FRD).
+  Its conversions are re-exported here.
+
+Every sentence is assembled by ``pynmeagps.NMEAMessage(talker, msgID, GET, payload=...)``,
+which parses each field back by its type (a self-check) and computes the checksum, and
+``.serialize()`` adds ``$``, ``*hh`` and CR LF. We format the field strings ourselves
+because pynmeagps's keyword path prints floats with ``str()`` (``0.30000000000000004``),
+truncates rather than rounds the time, and can print 60 minutes (``4460.0000000``) when a
+latitude rounds up to the next degree.
+
+Precision (what the bench reader gets back, exactly to these digits):
+
+* time: centiseconds for GGA/RMC (``hhmmss.ss``), milliseconds for PASHR (``.sss``). The
+  datetime is rounded *before* it is split into time and date, so 23:59:59.996 becomes
+  00:00:00.00 of the next day in both the time and the RMC date.
+* latitude / longitude: ``lat_lon_decimals`` decimals of arc-minutes, default 7 (0.19 mm,
+  as u-blox "high precision NMEA"); 4-5 give the classic <= 82-character sentences.
+* altitude: GGA carries height above mean sea level and the geoid separation N, with
+  HAE = MSL + N. We take the height above the ellipsoid (HAE, as in
+  :mod:`emulator.geodesy`) and a separation (default 0.0: then MSL = HAE), and print both
+  to millimetres, so a reader adds them back to HAE to the millimetre.
+* speed over ground in knots (3 decimals), course over ground in degrees true
+  (2 decimals), from an ENU velocity in m/s; the course is left empty when the speed
+  is zero (it is undefined), as receivers do.
+
+Timestamps: an aware datetime is converted to UTC; a naive one is taken as UTC.
+Bad arguments raise :class:`~firmware_proto.errors.InputError` naming the argument.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime, timedelta, timezone
+
+import numpy as np
+from numpy.typing import ArrayLike
+from pynmeagps import NMEAMessage
+from pynmeagps.nmeatypes_core import GET
+
+from firmware_proto.errors import InputError, PoseError
+
+from .attitude_convention import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
+
+__all__ = [
+    "KNOTS_PER_MPS",
+    "gga_sentence",
+    "gps_sentences",
+    "hpr_to_quaternion",
+    "pashr_from_quaternion",
+    "pashr_sentence",
+    "quaternion_to_hpr",
+    "rmc_sentence",
+    "speed_course_from_enu",
+]
+
+#: 1 knot = 1852 m / 3600 s exactly.
+KNOTS_PER_MPS = 3600.0 / 1852.0
+
+_FAA_MODES = frozenset("ADEFMNPRS")
+
+
+# ---------------------------------------------------------------------------- field checks
+
+
+def _number(value: object, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(f"{field}: must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(f"{field}: must be finite")
+    return v
+
+
+def _integer(value: object, field: str, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise InputError(f"{field}: must be an integer, got {value!r}")
+    if not lo <= int(value) <= hi:
+        raise InputError(f"{field}: {value} is outside [{lo}, {hi}]")
+    return int(value)
+
+
+def _talker(talker: str) -> str:
+    if not (isinstance(talker, str) and len(talker) == 2 and talker.isascii() and talker.isalpha() and talker.isupper()):
+        raise InputError(f"talker: must be two upper-case letters (GP, GN, ...), got {talker!r}")
+    return talker
+
+
+def _utc(value: datetime, unit_us: int) -> datetime:
+    """``value`` in UTC, rounded half-up to a multiple of ``unit_us`` microseconds."""
+    if not isinstance(value, datetime):
+        raise InputError(f"utc: must be a datetime, got {value!r}")
+    t = value.replace(tzinfo=timezone.utc) if value.tzinfo is None else value.astimezone(timezone.utc)
+    us = t.microsecond
+    rounded = (us + unit_us // 2) // unit_us * unit_us
+    return t.replace(microsecond=0) + timedelta(microseconds=rounded)
+
+
+def _hhmmss(t: datetime, decimals: int) -> str:
+    frac = t.microsecond // 10 ** (6 - decimals)
+    return f"{t.hour:02d}{t.minute:02d}{t.second:02d}.{frac:0{decimals}d}"
+
+
+def _dmm(value: float, degree_digits: int, decimals: int, hemispheres: str) -> tuple[str, str]:
+    """(d)ddmm.mmm... and hemisphere letter, rounded half-up in integer arc-minute units.
+
+    Rounding the whole value first means 44.99999999999 prints as 4500.0000000, never as
+    the invalid 4460.0000000.
+    """
+    scale = 10**decimals
+    units = math.floor(abs(value) * 60.0 * scale + 0.5)
+    degrees, rest = divmod(units, 60 * scale)
+    minutes, frac = divmod(rest, scale)
+    text = f"{degrees:0{degree_digits}d}{minutes:02d}"
+    if decimals:
+        text += f".{frac:0{decimals}d}"
+    hemisphere = hemispheres[1] if value < 0 and units else hemispheres[0]
+    return text, hemisphere
+
+
+def _position(lat: float | None, lon: float | None, decimals: int) -> list[str]:
+    if lat is None and lon is None:
+        return ["", "", "", ""]
+    if lat is None or lon is None:
+        raise InputError("lat/lon: give both or neither")
+    lat_f, lon_f = _number(lat, "lat"), _number(lon, "lon")
+    if not -90.0 <= lat_f <= 90.0:
+        raise InputError(f"lat: {lat_f} is outside [-90, 90] degrees")
+    if not -180.0 <= lon_f <= 180.0:
+        raise InputError(f"lon: {lon_f} is outside [-180, 180] degrees")
+    if not (isinstance(decimals, int) and 0 <= decimals <= 9):
+        raise InputError(f"lat_lon_decimals: must be an integer in [0, 9], got {decimals!r}")
+    la, ns = _dmm(lat_f, 2, decimals, "NS")
+    lo, ew = _dmm(lon_f, 3, decimals, "EW")
+    return [la, ns, lo, ew]
+
+
+def _serialize(talker: str, msg_id: str, fields: list[str]) -> bytes:
+    return NMEAMessage(talker, msg_id, GET, payload=fields).serialize()
+
+
+# ---------------------------------------------------------------------------- GPS
+
+
+def speed_course_from_enu(v_east: float, v_north: float) -> tuple[float, float | None]:
+    """(speed over ground in knots, course over ground in degrees true [0, 360) or None).
+
+    The course is None for zero horizontal speed, where it is undefined.
+    """
+    ve, vn = _number(v_east, "velocity.east"), _number(v_north, "velocity.north")
+    speed = math.hypot(ve, vn)
+    if speed == 0.0:
+        return 0.0, None
+    return speed * KNOTS_PER_MPS, float(wrap_heading(math.degrees(math.atan2(ve, vn))))
+
+
+def gga_sentence(
+    utc: datetime,
+    lat: float | None,
+    lon: float | None,
+    alt: float | None,
+    *,
+    geoid_sep: float = 0.0,
+    quality: int = 1,
+    sats: int = 12,
+    hdop: float = 0.8,
+    talker: str = "GP",
+    lat_lon_decimals: int = 7,
+) -> bytes:
+    """One ``$xxGGA`` sentence (bytes, CR LF terminated).
+
+    ``lat``/``lon`` in degrees, ``alt`` in metres above the WGS-84 ellipsoid; the sentence
+    carries MSL = alt - geoid_sep and the separation. ``quality``: 0 no fix, 1 GPS,
+    2 DGPS, 4 RTK fixed, 5 RTK float, 6 dead reckoning, ... (0-8). Give ``lat = lon =
+    alt = None`` (with ``quality=0``) for a receiver without a fix: the fields are empty.
+    """
+    t = _utc(utc, 10_000)
+    q = _integer(quality, "quality", 0, 8)
+    n_sats = _integer(sats, "sats", 0, 99)
+    h = _number(hdop, "hdop")
+    if h < 0.0:
+        raise InputError(f"hdop: must be >= 0, got {h}")
+    sep = _number(geoid_sep, "geoid_sep")
+    fields = [_hhmmss(t, 2), *_position(lat, lon, lat_lon_decimals), str(q), f"{n_sats:02d}", f"{h:.2f}"]
+    if alt is None:
+        fields += ["", "", "", ""]
+    else:
+        fields += [f"{_number(alt, 'alt') - sep:.3f}", "M", f"{sep:.3f}", "M"]
+    fields += ["", ""]  # age of differential corrections, reference station id
+    return _serialize(_talker(talker), "GGA", fields)
+
+
+def rmc_sentence(
+    utc: datetime,
+    lat: float | None,
+    lon: float | None,
+    *,
+    velocity_enu: ArrayLike | None = None,
+    speed_knots: float | None = None,
+    course: float | None = None,
+    valid: bool = True,
+    mode: str = "A",
+    talker: str = "GP",
+    lat_lon_decimals: int = 7,
+) -> bytes:
+    """One ``$xxRMC`` sentence (NMEA 2.3 layout, with the FAA mode indicator).
+
+    Speed and course come from ``velocity_enu`` (m/s; the vertical part is ignored) or,
+    if it is None, from ``speed_knots`` / ``course`` (degrees true) as given, empty when
+    None. ``valid=False`` prints status ``V`` and mode ``N`` whatever ``mode`` says.
+    ``mode`` is the FAA indicator: A autonomous, D differential, E estimated, F RTK float,
+    R RTK fixed, N not valid, ...
+    """
+    t = _utc(utc, 10_000)
+    if velocity_enu is not None:
+        v = np.asarray(velocity_enu, dtype=np.float64).reshape(-1)
+        if v.size not in (2, 3):
+            raise InputError(f"velocity_enu: needs [east, north] or [east, north, up], got {v.size} values")
+        speed, cog = speed_course_from_enu(v[0], v[1])
+    else:
+        speed = None if speed_knots is None else _number(speed_knots, "speed_knots")
+        cog = None if course is None else float(wrap_heading(_number(course, "course")))
+    if speed is not None and speed < 0.0:
+        raise InputError(f"speed_knots: must be >= 0, got {speed}")
+    if not (isinstance(mode, str) and len(mode) == 1 and mode in _FAA_MODES):
+        raise InputError(f"mode: must be one FAA mode letter of {''.join(sorted(_FAA_MODES))}, got {mode!r}")
+    status, faa = ("A", mode) if valid else ("V", "N")
+    fields = [
+        _hhmmss(t, 2),
+        status,
+        *_position(lat, lon, lat_lon_decimals),
+        "" if speed is None else f"{speed:.3f}",
+        "" if cog is None else _course_text(cog),
+        f"{t.day:02d}{t.month:02d}{t.year % 100:02d}",
+        "",  # magnetic variation: ground truth is true north only
+        "",
+        faa,
+    ]
+    return _serialize(_talker(talker), "RMC", fields)
+
+
+def _course_text(cog: float) -> str:
+    hundredths = math.floor(cog * 100.0 + 0.5) % 36000  # 359.996 prints as 0.00, not 360.00
+    return f"{hundredths // 100}.{hundredths % 100:02d}"
+
+
+def gps_sentences(
+    utc: datetime,
+    lat: float,
+    lon: float,
+    alt: float,
+    *,
+    velocity_enu: ArrayLike | None = None,
+    geoid_sep: float = 0.0,
+    quality: int = 1,
+    sats: int = 12,
+    hdop: float = 0.8,
+    talker: str = "GP",
+    lat_lon_decimals: int = 7,
+) -> bytes:
+    """GGA then RMC for one epoch, as most receivers send them (RMC mode follows quality)."""
+    mode = {0: "N", 2: "D", 4: "R", 5: "F", 6: "E", 7: "M", 8: "S"}.get(quality, "A")
+    gga = gga_sentence(
+        utc, lat, lon, alt, geoid_sep=geoid_sep, quality=quality, sats=sats, hdop=hdop,
+        talker=talker, lat_lon_decimals=lat_lon_decimals,
+    )
+    rmc = rmc_sentence(
+        utc, lat, lon, velocity_enu=velocity_enu if velocity_enu is not None else (0.0, 0.0),
+        valid=quality != 0, mode=mode, talker=talker, lat_lon_decimals=lat_lon_decimals,
+    )
+    return gga + rmc
+
+
+# ---------------------------------------------------------------------------- attitude
+
+
+def _signed(value: float, field: str) -> str:
+    return f"{_number(value, field):+06.2f}"
+
+
+def _accuracy(value: float | None, field: str) -> str:
+    if value is None:
+        return ""
+    v = _number(value, field)
+    if v < 0.0:
+        raise InputError(f"{field}: must be >= 0, got {v}")
+    return f"{v:.3f}"
+
+
+def pashr_sentence(
+    utc: datetime,
+    heading: float,
+    roll: float,
+    pitch: float,
+    *,
+    heave: float = 0.0,
+    roll_accuracy: float | None = 0.05,
+    pitch_accuracy: float | None = 0.05,
+    heading_accuracy: float | None = 0.1,
+    gps_quality: int = 1,
+    ins_status: int = 1,
+) -> bytes:
+    """One ``$PASHR`` sentence (layout in the module docstring), angles in degrees.
+
+    ``heading`` is wrapped into [0, 360) after rounding to 0.01 deg (359.996 -> 000.00);
+    ``roll`` and ``pitch`` print with a sign, as OxTS units do (``+00.39``). Accuracies
+    are 1-sigma degrees, None for an empty field.
+    """
+    t = _utc(utc, 1_000)
+    hundredths = math.floor(_number(heading, "heading") * 100.0 + 0.5) % 36000
+    fields = [
+        _hhmmss(t, 3),
+        f"{hundredths // 100:03d}.{hundredths % 100:02d}",
+        "T",
+        _signed(roll, "roll"),
+        _signed(pitch, "pitch"),
+        _signed(heave, "heave"),
+        _accuracy(roll_accuracy, "roll_accuracy"),
+        _accuracy(pitch_accuracy, "pitch_accuracy"),
+        _accuracy(heading_accuracy, "heading_accuracy"),
+        str(_integer(gps_quality, "gps_quality", 0, 9)),
+        str(_integer(ins_status, "ins_status", 0, 9)),
+    ]
+    return _serialize("P", "ASHR", fields)
+
+
+def pashr_from_quaternion(utc: datetime, q: ArrayLike, **kwargs: object) -> bytes:
+    """``$PASHR`` for orientation ``q`` = ``[w, x, y, z]`` (FLU body into ENU); see
+    :func:`pashr_sentence` for the keyword arguments. A quaternion that cannot be
+    normalised raises :class:`~firmware_proto.errors.PoseError` naming ``orientation``."""
+    if np.shape(q) != (4,):
+        raise PoseError("orientation", f"one quaternion [w, x, y, z] is needed, got shape {np.shape(q)}")
+    heading, roll, pitch = quaternion_to_hpr(q)
+    return pashr_sentence(utc, float(heading), float(roll), float(pitch), **kwargs)  # type: ignore[arg-type]
