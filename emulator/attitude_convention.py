@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from firmware_proto.errors import InputError
 
@@ -80,16 +79,24 @@ def hpr_to_quaternion(heading: ArrayLike, roll: ArrayLike, pitch: ArrayLike) -> 
 
     Any finite angles are accepted (a pitch beyond +-90 is still a rotation); non-finite
     ones raise :class:`InputError` naming the field.
+
+    Computed as the product of the three half-angle quaternions
+    q = qz(90 deg - heading) * qy(-pitch) * qx(roll), written out: the bench calls this
+    once per $PASHR sentence, where scipy's ``Rotation.from_euler`` (which the tests
+    check this against) costs ten times more for one rotation.
     """
     h = _finite(heading, "heading")
     r = _finite(roll, "roll")
     p = _finite(pitch, "pitch")
-    h, r, p = np.broadcast_arrays(h, r, p)
-    angles = np.stack([90.0 - h, -p, r], axis=-1)
-    # scipy wants at most 2-d input; flatten and restore the broadcast shape.
-    rot = Rotation.from_euler("ZYX", angles.reshape(-1, 3), degrees=True)
-    q = rot.as_quat(canonical=True, scalar_first=True)
-    return q.reshape(h.shape + (4,))
+    half = np.radians(0.5)
+    a, b, c = (90.0 - h) * half, -p * half, r * half
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    w = ca * cb * cc + sa * sb * sc
+    x = ca * cb * sc - sa * sb * cc
+    y = ca * sb * cc + sa * cb * sc
+    z = sa * cb * cc - ca * sb * sc
+    q = np.stack(np.broadcast_arrays(w, x, y, z), axis=-1)
+    return np.where(q[..., :1] < 0.0, -q, q)
 
 
 def quaternion_to_hpr(q: ArrayLike, field: str = "orientation") -> HPR:

@@ -1,6 +1,7 @@
 """Generate ground-truth sentences a real GPS and attitude unit would send, from poses.
 
-* GPS: NMEA 0183 ``GGA`` + ``RMC`` (``gga_sentence``, ``rmc_sentence``, ``gps_sentences``).
+* GPS: NMEA 0183 ``GGA`` + ``RMC`` (``gga_sentence``, ``rmc_sentence``, and ``gps_sentences``
+  for both).
 * Attitude: ``$PASHR`` in the OxTS / Applanix layout (``pashr_sentence``,
   ``pashr_from_quaternion``)::
 
@@ -270,17 +271,19 @@ def gps_sentences(
     talker: str = "GP",
     lat_lon_decimals: int = 7,
 ) -> bytes:
-    """GGA then RMC for one epoch, as most receivers send them (RMC mode follows quality)."""
+    """RMC then GGA for one epoch, the order u-blox receivers use: a reader starting on
+    this stream dates the GGA with the RMC's date at once. The RMC's FAA mode follows
+    ``quality`` (2 -> D, 4 -> R, 5 -> F, 6 -> E, ...); ``velocity_enu`` None means at rest."""
     mode = {0: "N", 2: "D", 4: "R", 5: "F", 6: "E", 7: "M", 8: "S"}.get(quality, "A")
-    gga = gga_sentence(
-        utc, lat, lon, alt, geoid_sep=geoid_sep, quality=quality, sats=sats, hdop=hdop,
-        talker=talker, lat_lon_decimals=lat_lon_decimals,
-    )
     rmc = rmc_sentence(
         utc, lat, lon, velocity_enu=velocity_enu if velocity_enu is not None else (0.0, 0.0),
         valid=quality != 0, mode=mode, talker=talker, lat_lon_decimals=lat_lon_decimals,
     )
-    return gga + rmc
+    gga = gga_sentence(
+        utc, lat, lon, alt, geoid_sep=geoid_sep, quality=quality, sats=sats, hdop=hdop,
+        talker=talker, lat_lon_decimals=lat_lon_decimals,
+    )
+    return rmc + gga
 
 
 # ---------------------------------------------------------------------------- attitude

@@ -13,6 +13,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 from pynmeagps import NMEAReader
 from pynmeagps.nmeatypes_core import VALCKSUM, VALMSGID
+from scipy.spatial.transform import Rotation
 
 from emulator.attitude_convention import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
 from emulator.nmea_ground_truth import (
@@ -89,6 +90,15 @@ def test_same_as_aerospace_ned_frd_zyx(h, r, p):
     swap = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1]])
     flip = np.diag([1, -1, -1])
     np.testing.assert_allclose(matrix(hpr_to_quaternion(h, r, p)), swap @ rz @ ry @ rx @ flip, atol=1e-12)
+
+
+@given(st.floats(-720.0, 720.0), st.floats(-180.0, 180.0), st.floats(-90.0, 90.0))
+def test_same_as_scipy_intrinsic_zyx(h, r, p):
+    q = hpr_to_quaternion(h, r, p)
+    ref = Rotation.from_euler("ZYX", [90.0 - h, -p, r], degrees=True).as_quat(scalar_first=True)
+    assert q[0] >= 0.0
+    assert abs(float(np.dot(q, ref))) == pytest.approx(1.0, abs=1e-12)  # same rotation, up to sign
+    assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-15)
 
 
 @given(
@@ -172,9 +182,9 @@ def test_rmc_invalid_and_no_course():
     assert got == with_checksum("GPRMC,123456.79,V,,,,,0.000,,010324,,,N")
 
 
-def test_gps_sentences_is_gga_then_rmc():
+def test_gps_sentences_is_rmc_then_gga():
     out = gps_sentences(T0, 1.0, 2.0, 3.0, quality=2)
-    gga, rmc, tail = out.split(b"\r\n")
+    rmc, gga, tail = out.split(b"\r\n")
     assert tail == b""
     assert gga.startswith(b"$GPGGA,123456.79,0100.0000000,N,00200.0000000,E,2,")
     assert rmc.startswith(b"$GPRMC,123456.79,A,") and rmc.endswith(b",D*" + rmc[-2:])

@@ -1,0 +1,153 @@
+"""Streaming attitude reader: ``$PASHR`` (OxTS / Applanix layout) -> :class:`Attitude`.
+
+Layout, conventions and units are those of :mod:`emulator.nmea_ground_truth` and
+:mod:`emulator.attitude_convention`: heading degrees true clockwise from north, pitch
+positive nose up, roll positive right side down (intrinsic Z-Y-X on NED / FRD). Each
+record also carries the equivalent quaternion ``[w, x, y, z]`` rotating our body frame
+(x forward, y left, z up) into ENU, ready for the export table.
+
+Only the attitude form is read: the sentence whose third field is ``T`` (true heading).
+Ashtech's other ``$PASHR,<id>,...`` sentences (POS, SAT, RID, ACK, ...) and every other
+sentence type are ``ignored``; binary data, bad checksums and malformed fields are
+counted as in :mod:`.gps`. Counters added here: ``pashr`` and ``attitudes`` (records
+emitted).
+
+A record's ``utc`` is dated through a shared :class:`~bench.ground_truth.utc.DayTracker`
+(the GPS reader's RMC dates, or a start datetime you give it); None until a date is known.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+from datetime import datetime, time
+
+from pynmeagps import NMEAMessage
+
+from emulator.attitude_convention import hpr_to_quaternion
+
+from .lines import DEFAULT_MAX_LINE, LineSplitter
+from .nmea import PLAIN_NUMBER, FieldError, parse_checked, sentence_type, time_of_day
+from .utc import DayTracker
+
+@dataclass(frozen=True, slots=True)
+class Attitude:
+    """One ``$PASHR`` attitude sentence. Degrees and metres; None where a field was empty."""
+
+    time_of_day: time | None  # UTC
+    utc: datetime | None  # aware UTC; None until a date is known
+    heading: float  # degrees true, clockwise from north
+    roll: float  # degrees, positive right side down
+    pitch: float  # degrees, positive nose up
+    quaternion: tuple[float, float, float, float]  # [w, x, y, z], FLU body -> ENU, w >= 0
+    heave: float | None = None  # metres, positive up
+    roll_accuracy: float | None = None  # 1-sigma degrees
+    pitch_accuracy: float | None = None
+    heading_accuracy: float | None = None
+    gps_quality: int | None = None  # 0 no position, 1 non-RTK, 2 RTK
+    ins_status: int | None = None  # 0 not aligned, 1 aligned
+
+
+def _number(raw: str, required: bool) -> float | None:
+    if raw == "":
+        if required:
+            raise FieldError("missing angle")
+        return None
+    if not PLAIN_NUMBER.match(raw):
+        raise FieldError(raw)
+    value = float(raw)
+    if not math.isfinite(value):
+        raise FieldError(raw)
+    return value
+
+
+def _flag(raw: str) -> int | None:
+    if raw == "":
+        return None
+    if not raw.isdigit() or len(raw) > 3:
+        raise FieldError(raw)
+    return int(raw)
+
+
+class AttitudeReader:
+    """``feed(bytes) -> list[Attitude]``; never raises on data, memory bounded."""
+
+    def __init__(
+        self,
+        *,
+        tracker: DayTracker | None = None,
+        max_line: int = DEFAULT_MAX_LINE,
+        stats: Counter[str] | None = None,
+    ) -> None:
+        self.stats: Counter[str] = Counter() if stats is None else stats
+        self.tracker = DayTracker() if tracker is None else tracker
+        self._lines = LineSplitter(max_line, self.stats)
+
+    def feed(self, data: bytes) -> list[Attitude]:
+        """Records completed by ``data``, in stream order."""
+        return self._handle(self._lines.feed(data))
+
+    def flush(self) -> list[Attitude]:
+        """At end of input: parse a last line that lacked its CR LF."""
+        return self._handle(self._lines.flush())
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back waiting for the end of a line (at most ``max_line``)."""
+        return self._lines.pending
+
+    def _handle(self, lines: list[bytes]) -> list[Attitude]:
+        out = []
+        for line in lines:
+            att = self.handle_line(line)
+            if att is not None:
+                out.append(att)
+        return out
+
+    def handle_line(self, line: bytes) -> Attitude | None:
+        """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted)."""
+        fields = line.split(b",", 4)
+        if sentence_type(line) != b"PASHR" or len(fields) < 4 or fields[3] != b"T":
+            self.stats["ignored"] += 1
+            return None
+        msg = parse_checked(line, self.stats)
+        if msg is None:
+            return None
+        try:
+            att = self._pashr(msg)
+        except (FieldError, ValueError, TypeError):
+            self.stats["malformed"] += 1
+            return None
+        self.stats["pashr"] += 1
+        self.stats["attitudes"] += 1
+        return att
+
+    def _pashr(self, msg: NMEAMessage) -> Attitude:
+        # We read the raw fields: pynmeagps types them (DE/IN) but we want a strict
+        # number syntax and None for empty fields. Its parse verified the checksum.
+        p = list(msg.payload) + [""] * max(0, 11 - len(msg.payload))
+        if len(msg.payload) > 11:
+            raise FieldError("too many fields")
+        tod = time_of_day(msg, "utctime", p[0], self.stats)
+        heading = _number(p[1], required=True)
+        roll = _number(p[3], required=True)
+        pitch = _number(p[4], required=True)
+        assert heading is not None and roll is not None and pitch is not None
+        if not (0.0 <= heading <= 360.0 and -180.0 <= roll <= 180.0 and -90.0 <= pitch <= 90.0):
+            raise FieldError("angle out of range")
+        q = hpr_to_quaternion(heading, roll, pitch)
+        return Attitude(
+            time_of_day=tod,
+            utc=None if tod is None else self.tracker.resolve(tod),
+            heading=heading,
+            roll=roll,
+            pitch=pitch,
+            quaternion=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+            heave=_number(p[5], required=False),
+            roll_accuracy=_number(p[6], required=False),
+            pitch_accuracy=_number(p[7], required=False),
+            heading_accuracy=_number(p[8], required=False),
+            gps_quality=_flag(p[9]),
+            ins_status=_flag(p[10]),
+        )

@@ -1,0 +1,264 @@
+"""Streaming GPS reader: NMEA 0183 GGA and RMC from any talker -> :class:`GpsFix` records.
+
+``GpsReader().feed(chunk)`` accepts any bytes in any chunking and returns one
+:class:`GpsFix` per checksum-verified GGA or RMC sentence (GP GPS, GN multi-GNSS,
+GL GLONASS, GA Galileo, BD/GB BeiDou, GQ QZSS, ...), with or without a position: a
+receiver without a fix still reports that it is alive. Records are not merged across
+sentences; a GGA and an RMC of the same epoch are two records with the same ``utc``.
+
+* Position: latitude / longitude in degrees (north / east positive), as sent, parsed by
+  pynmeagps (rounded to 1e-10 deg).
+* Altitude: GGA's altitude is above mean sea level (``alt_msl``) and its geoid separation
+  N (``geoid_sep``) is the height of the geoid above the WGS-84 ellipsoid; when both are
+  sent, ``alt_hae = alt_msl + geoid_sep`` (the height :mod:`emulator.geodesy` uses).
+  Receivers that leave N empty (some report the ellipsoid height in the MSL field then)
+  give ``alt_hae = None``: we have no geoid model to guess with.
+* Time: ``time_of_day`` (UTC, from the sentence) and ``utc`` (aware datetime), dated by a
+  :class:`~bench.ground_truth.utc.DayTracker`: RMC's own date, GGA's by the last date
+  seen, across midnight (see that module). ``ZDA`` sentences (time and date, no position)
+  are read only to set that date -- some receivers send GGA + ZDA and no RMC -- and yield
+  no record. ``utc`` is None until a date is known.
+* Validity: ``valid`` is GGA quality > 0, or RMC status ``A`` with an FAA mode other than
+  ``N``; dead-reckoning fixes (quality 6, mode ``E``) count as valid, their ``quality`` /
+  ``mode`` says what they are.
+
+Everything else -- other sentences, binary data, bad checksums, malformed fields -- is
+skipped and counted in ``stats`` (keys in :mod:`.lines` and :mod:`.nmea`, plus
+``ignored`` for lines of other sentence types (not checksum-verified), ``gga``, ``rmc``, ``no_position``,
+``zda``, ``fixes`` and ``leap_second`` for a 23:59:60 time, which a datetime cannot hold).
+Sentences with a non-empty field that does not parse (time, date, a latitude beyond 90,
+minutes >= 60, a hemisphere other than N/S/E/W) are ``malformed`` and yield no record --
+except that an invalid position in a sentence that itself says "no fix" (GGA quality 0,
+RMC status V or mode N) is a receiver's placeholder (``8960.000000,N``, ``36000.0000,N``):
+that record is kept without a position and counted as ``placeholder_position``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from dataclasses import dataclass
+from datetime import date, datetime, time
+
+from pynmeagps import NMEAMessage
+
+from .lines import DEFAULT_MAX_LINE, LineSplitter
+from .nmea import PLAIN_NUMBER, FieldError, parse_checked, sentence_type, talker_of, time_of_day, typed_value
+from .utc import DayTracker
+
+_DATE = re.compile(r"\d{6}\Z")
+_LAT = re.compile(r"\d{4}(\.\d+)?\Z")
+_LON = re.compile(r"\d{5}(\.\d+)?\Z")
+
+
+@dataclass(frozen=True, slots=True)
+class GpsFix:
+    """One GGA or RMC sentence. Degrees, metres, knots; None where the sentence had nothing."""
+
+    sentence: str  # "GGA" or "RMC"
+    talker: str  # "GP", "GN", "BD", ...
+    time_of_day: time | None  # UTC
+    utc: datetime | None  # aware UTC; None until a date is known
+    lat: float | None
+    lon: float | None
+    alt_msl: float | None = None  # GGA: above mean sea level, m
+    geoid_sep: float | None = None  # GGA: geoid above ellipsoid, m
+    alt_hae: float | None = None  # alt_msl + geoid_sep: above the WGS-84 ellipsoid, m
+    quality: int | None = None  # GGA fix quality 0-8
+    sats: int | None = None  # GGA satellites used
+    hdop: float | None = None  # GGA
+    status: str | None = None  # RMC 'A' valid / 'V' warning
+    mode: str | None = None  # RMC FAA mode indicator (NMEA >= 2.3): A D E F M N P R S
+    speed_knots: float | None = None  # RMC speed over ground
+    course: float | None = None  # RMC course over ground, degrees true
+
+    @property
+    def valid(self) -> bool:
+        """Whether the receiver says this position is a fix (see the module docstring)."""
+        if self.lat is None or self.lon is None:
+            return False
+        if self.sentence == "GGA":
+            return bool(self.quality)
+        return self.status == "A" and self.mode != "N"
+
+
+def _raw(msg: NMEAMessage, index: int) -> str:
+    payload = msg.payload
+    return payload[index] if index < len(payload) else ""
+
+
+def _lat_lon(msg: NMEAMessage, i: int) -> tuple[float | None, float | None]:
+    """Position from payload fields i..i+3 (lat, N/S, lon, E/W), validated."""
+    lat_s, ns, lon_s, ew = (_raw(msg, k) for k in range(i, i + 4))
+    if lat_s == "" and lon_s == "":
+        return None, None
+    if lat_s == "" or lon_s == "":
+        raise FieldError("lat/lon")
+    if not (_LAT.match(lat_s) and _LON.match(lon_s)) or ns not in ("N", "S") or ew not in ("E", "W"):
+        raise FieldError("lat/lon")
+    if float(lat_s[2:]) >= 60.0 or float(lon_s[3:]) >= 60.0:
+        raise FieldError("minutes")
+    lat, lon = getattr(msg, "lat", ""), getattr(msg, "lon", "")
+    if not isinstance(lat, float) or not isinstance(lon, float) or abs(lat) > 90.0 or abs(lon) > 180.0:
+        raise FieldError("lat/lon")
+    return lat, lon
+
+
+def _float(msg: NMEAMessage, name: str, index: int) -> float | None:
+    raw = _raw(msg, index)
+    if raw and not PLAIN_NUMBER.match(raw):
+        raise FieldError(name)  # float() would take "nan", "inf", "1e5"
+    value = typed_value(msg, name, raw)
+    return None if value is None else float(value)  # type: ignore[arg-type]
+
+
+def _int(msg: NMEAMessage, name: str, index: int) -> int | None:
+    raw = _raw(msg, index)
+    if raw and not raw.isdigit():
+        raise FieldError(name)
+    value = typed_value(msg, name, raw)
+    return None if value is None else int(value)  # type: ignore[call-overload]
+
+
+class GpsReader:
+    """``feed(bytes) -> list[GpsFix]``; never raises on data, memory bounded.
+
+    ``tracker`` may be shared with an attitude reader on the same stream, so $PASHR times
+    get the RMC date; ``stats`` may be shared too.
+    """
+
+    def __init__(
+        self,
+        *,
+        tracker: DayTracker | None = None,
+        max_line: int = DEFAULT_MAX_LINE,
+        stats: Counter[str] | None = None,
+    ) -> None:
+        self.stats: Counter[str] = Counter() if stats is None else stats
+        self.tracker = DayTracker() if tracker is None else tracker
+        self._lines = LineSplitter(max_line, self.stats)
+
+    def feed(self, data: bytes) -> list[GpsFix]:
+        """Records completed by ``data``, in stream order."""
+        return self._handle(self._lines.feed(data))
+
+    def flush(self) -> list[GpsFix]:
+        """At end of input: parse a last line that lacked its CR LF."""
+        return self._handle(self._lines.flush())
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back waiting for the end of a line (at most ``max_line``)."""
+        return self._lines.pending
+
+    def _handle(self, lines: list[bytes]) -> list[GpsFix]:
+        out = []
+        for line in lines:
+            fix = self.handle_line(line)
+            if fix is not None:
+                out.append(fix)
+        return out
+
+    def handle_line(self, line: bytes) -> GpsFix | None:
+        """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted)."""
+        kind = sentence_type(line)
+        if kind not in (b"GGA", b"RMC", b"ZDA") or not line[1:3].isalpha():
+            self.stats["ignored"] += 1
+            return None
+        msg = parse_checked(line, self.stats)
+        if msg is None:
+            return None
+        try:
+            if kind == b"ZDA":
+                self._zda(msg)
+                return None
+            fix = self._gga(msg, line) if kind == b"GGA" else self._rmc(msg, line)
+        except (FieldError, ValueError, TypeError):
+            self.stats["malformed"] += 1
+            return None
+        self.stats[fix.sentence.lower()] += 1
+        self.stats["fixes"] += 1
+        if fix.lat is None:
+            self.stats["no_position"] += 1
+        return fix
+
+    def _gga(self, msg: NMEAMessage, line: bytes) -> GpsFix:
+        # payload: 0 time, 1-4 lat N lon E, 5 quality, 6 sats, 7 hdop, 8 alt, 9 M, 10 sep, 11 M
+        tod = time_of_day(msg, "time", _raw(msg, 0), self.stats)
+        quality = _int(msg, "quality", 5)
+        lat, lon = self._position(msg, 1, fix_claimed=bool(quality))
+        alt_msl = _float(msg, "alt", 8)
+        sep = _float(msg, "sep", 10)
+        utc = None if tod is None else self.tracker.resolve(tod)
+        return GpsFix(
+            sentence="GGA",
+            talker=talker_of(line),
+            time_of_day=tod,
+            utc=utc,
+            lat=lat,
+            lon=lon,
+            alt_msl=alt_msl,
+            geoid_sep=sep,
+            alt_hae=None if alt_msl is None or sep is None else alt_msl + sep,
+            quality=quality,
+            sats=_int(msg, "numSV", 6),
+            hdop=_float(msg, "HDOP", 7),
+        )
+
+    def _rmc(self, msg: NMEAMessage, line: bytes) -> GpsFix:
+        # payload: 0 time, 1 status, 2-5 lat N lon E, 6 speed, 7 course, 8 date, 9-10 magvar, 11 mode
+        tod = time_of_day(msg, "time", _raw(msg, 0), self.stats)
+        status = _raw(msg, 1) or None
+        mode = _raw(msg, 11) or None
+        lat, lon = self._position(msg, 2, fix_claimed=status == "A" and mode != "N")
+        raw_date = _raw(msg, 8)
+        day = None
+        if raw_date:
+            if not _DATE.match(raw_date):
+                raise FieldError("date")
+            day = typed_value(msg, "date", raw_date)
+            assert isinstance(day, date)
+        if tod is None:
+            utc = None
+        elif day is not None:
+            utc = self.tracker.anchor(day, tod)
+        else:
+            utc = self.tracker.resolve(tod)
+        return GpsFix(
+            sentence="RMC",
+            talker=talker_of(line),
+            time_of_day=tod,
+            utc=utc,
+            lat=lat,
+            lon=lon,
+            status=status,
+            mode=mode,
+            speed_knots=_float(msg, "spd", 6),
+            course=_float(msg, "cog", 7),
+        )
+
+    def _position(self, msg: NMEAMessage, index: int, fix_claimed: bool) -> tuple[float | None, float | None]:
+        """Validated position; an invalid one is dropped (not the sentence) when the
+        sentence itself says there is no fix: receivers fill those fields with
+        placeholders such as 8960.000000,N (89 deg 60 min) or 36000.0000,N."""
+        try:
+            return _lat_lon(msg, index)
+        except FieldError:
+            if fix_claimed:
+                raise
+            self.stats["placeholder_position"] += 1
+            return None, None
+
+    def _zda(self, msg: NMEAMessage) -> None:
+        """ZDA (time and date, no position) only dates what follows: no record."""
+        # payload: 0 time, 1 day, 2 month, 3 four-digit year, 4-5 local zone
+        tod = time_of_day(msg, "time", _raw(msg, 0), self.stats)
+        parts = [_raw(msg, k) for k in (1, 2, 3)]
+        if tod is None and parts == ["", "", ""]:
+            self.stats["zda"] += 1
+            return  # a receiver that does not know the time yet
+        if tod is None or not all(p.isdigit() for p in parts) or len(parts[2]) != 4:
+            raise FieldError("zda")
+        day, month, year = (int(p) for p in parts)
+        self.tracker.anchor(date(year, month, day), tod)  # ValueError for 31 Feb: malformed
+        self.stats["zda"] += 1
