@@ -149,7 +149,7 @@ def test_the_urls_open_the_devices(machine, capsys):
     with serial.serial_for_url(urls["hid", "CP2110 HID USB-to-UART Bridge"], timeout=1) as port:
         assert bridge.is_open
         bridge.receive(b"$PARVA,0,4,2,2,926,0*5D\r\n")
-        assert port.read(100) == b"$PARVA,0,4,2,2,926,0*5D\r\n"
+        assert port.read(26) == b"$PARVA,0,4,2,2,926,0*5D\r\n"
     receiver = protocol_usb.BACKEND.devices[0]
     receiver.feed(b"$PARVA,0,4,1,4,761,-62*4C\r\n")
     with serial.serial_for_url(urls["usb", "ARVA receiver"], timeout=1) as port:  # serial=RX%207 unescaped
