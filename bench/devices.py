@@ -122,6 +122,8 @@ def hid_devices(err) -> list[Found]:  # type: ignore[no-untyped-def]
     found: dict[bytes, Found] = {}
     for entry in entries:
         path = entry.get("path") or b""
+        if isinstance(path, str):  # other hidapi bindings give str paths
+            path = path.encode("utf-8")
         if path in found:
             continue  # hidapi lists one entry per usage of the same device
         vid, pid = entry.get("vendor_id"), entry.get("product_id")

@@ -198,6 +198,17 @@ def test_pyusb_not_installed(machine, monkeypatch, capsys):
     assert out.splitlines()[-1].startswith("hid ")
 
 
+def test_str_hid_paths(monkeypatch, capsys):
+    hid = FakeHid(HidDevice(b"/dev/hidraw1", serial="7"))
+    info = hid.devices[0].info()
+    monkeypatch.setattr(hid, "enumerate", lambda *a, **k: [dict(info, path="/dev/hidraw1")])
+    monkeypatch.setitem(sys.modules, "hid", hid)
+    monkeypatch.setattr(list_ports, "comports", lambda *a, **k: [])
+    monkeypatch.setattr(protocol_usb, "BACKEND", FakeBackend())
+    _, out, _ = run(capsys)
+    assert out.splitlines()[1].split()[:4] == ["hid", "cp2110:///dev/hidraw1", "10c4:ea80", "7"]
+
+
 def test_nothing_found(monkeypatch, capsys):
     monkeypatch.setattr(list_ports, "comports", lambda *a, **k: [])
     monkeypatch.setitem(sys.modules, "hid", FakeHid())
