@@ -17,7 +17,6 @@ stream held (they are counted); 2 for bad arguments or a source that cannot be o
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import select
@@ -88,13 +87,9 @@ class SerialSource:
 
 
 def _serial_for_url(url: str, baud: int):  # type: ignore[no-untyped-def]
-    import serial
+    from .transport import open_device  # registers usb:// and arvaemu://
 
-    try:  # the emulator's in-process receivers (arvaemu://), when installed
-        importlib.import_module("emulator.urlhandler")
-    except ImportError:  # pragma: no cover - bench without the emulator
-        pass
-    return serial.serial_for_url(url, baudrate=baud, timeout=IDLE_SECONDS)
+    return open_device(url, baudrate=baud, timeout=IDLE_SECONDS)
 
 
 def open_source(spec: str, baud: int = 115200) -> Source:
