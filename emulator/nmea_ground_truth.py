@@ -3,7 +3,7 @@
 * GPS: NMEA 0183 ``GGA`` + ``RMC`` (``gga_sentence``, ``rmc_sentence``, and ``gps_sentences``
   for both).
 * Attitude: ``$PASHR`` in the OxTS / Applanix layout (``pashr_sentence``,
-  ``pashr_from_quaternion``)::
+  ``pashr_from_quaternion``, and ``pashr_from_quaternions`` for a batch)::
 
       $PASHR,hhmmss.sss,HHH.HH,T,+RR.RR,+PP.PP,+hh.hh,r.rrr,p.ppp,h.hhh,Q,I*CS
               UTC time   heading   roll   pitch  heave  sigma roll/pitch/heading  GPS quality, INS status
@@ -44,6 +44,7 @@ Bad arguments raise :class:`~firmware_proto.errors.InputError` naming the argume
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from datetime import datetime, timedelta, timezone
 
 import numpy as np
@@ -61,6 +62,7 @@ __all__ = [
     "gps_sentences",
     "hpr_to_quaternion",
     "pashr_from_quaternion",
+    "pashr_from_quaternions",
     "pashr_sentence",
     "quaternion_to_hpr",
     "rmc_sentence",
@@ -347,3 +349,19 @@ def pashr_from_quaternion(utc: datetime, q: ArrayLike, **kwargs: object) -> byte
         raise PoseError("orientation", f"one quaternion [w, x, y, z] is needed, got shape {np.shape(q)}")
     heading, roll, pitch = quaternion_to_hpr(q)
     return pashr_sentence(utc, float(heading), float(roll), float(pitch), **kwargs)  # type: ignore[arg-type]
+
+
+def pashr_from_quaternions(utcs: Sequence[datetime], q: ArrayLike, **kwargs: object) -> bytes:
+    """``$PASHR`` sentences for N times and N orientations (N, 4), concatenated.
+
+    The same bytes as N calls of :func:`pashr_from_quaternion`, with the angle conversion
+    done once for the whole batch (it dominates the cost of a single call).
+    """
+    q_arr = np.asarray(q, dtype=np.float64)
+    if q_arr.ndim != 2 or q_arr.shape[1] != 4 or q_arr.shape[0] != len(utcs):
+        raise PoseError("orientation", f"needs shape ({len(utcs)}, 4) for {len(utcs)} times, got {q_arr.shape}")
+    heading, roll, pitch = quaternion_to_hpr(q_arr)
+    return b"".join(
+        pashr_sentence(t, h, r, p, **kwargs)  # type: ignore[arg-type]
+        for t, h, r, p in zip(utcs, heading.tolist(), roll.tolist(), pitch.tolist(), strict=True)
+    )

@@ -21,6 +21,7 @@ from emulator.nmea_ground_truth import (
     gga_sentence,
     gps_sentences,
     pashr_from_quaternion,
+    pashr_from_quaternions,
     pashr_sentence,
     rmc_sentence,
     speed_course_from_enu,
@@ -284,6 +285,17 @@ def test_pashr_heading_wraps_and_signs():
 def test_pashr_from_quaternion_identity_is_heading_90():
     got = pashr_from_quaternion(T0, [1.0, 0.0, 0.0, 0.0])
     assert got.split(b",")[2:6] == [b"090.00", b"T", b"+00.00", b"+00.00"]
+
+
+def test_pashr_batch_is_the_same_bytes():
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(50, 4))
+    times = [T0 + timedelta(seconds=0.01 * i) for i in range(50)]
+    expected = b"".join(pashr_from_quaternion(t, qi, heave=0.5) for t, qi in zip(times, q))
+    assert pashr_from_quaternions(times, q, heave=0.5) == expected
+    assert pashr_from_quaternions([], np.empty((0, 4))) == b""
+    with pytest.raises(PoseError, match="^orientation: needs shape"):
+        pashr_from_quaternions(times[:2], q)
 
 
 @pytest.mark.parametrize(
