@@ -7,6 +7,7 @@ text is ``FILE: key.path: reason`` (one line, naming the exact key).
 
 from __future__ import annotations
 
+import datetime as _dt
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -20,6 +21,7 @@ from firmware_proto.errors import InputError, PoseError, SceneError
 from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
 
 from .effects.ground_truth_error import GroundTruthErrorConfig
+from .geodesy import Origin
 from .effects.link_faults import LinkFaultConfig
 from .effects.pulses import PulseConfig
 from .effects.quantize import QuantizeConfig
@@ -53,6 +55,18 @@ class Effects:
 class Transmitter:
     id: int
     trajectory: Trajectory
+    gps: bool = False  # emit an emulated GPS stream for this device
+    attitude: bool = False  # emit an emulated $PASHR attitude stream
+
+
+@dataclass(frozen=True)
+class GroundTruthSpec:
+    """Emulated ground-truth streams: rates, the UTC of scene time 0, NMEA talker."""
+
+    start_utc: _dt.datetime = _dt.datetime(2026, 1, 1, tzinfo=_dt.timezone.utc)
+    gps_rate_hz: float = 1.0
+    attitude_rate_hz: float = 10.0
+    talker: str = "GP"
 
 
 @dataclass(frozen=True)
@@ -62,6 +76,8 @@ class ReceiverSpec:
     id: int
     channels: int
     trajectory: Trajectory
+    gps: bool = False
+    attitude: bool = False
 
 
 @dataclass(frozen=True)
@@ -77,6 +93,8 @@ class Scene:
     transmitters: tuple[Transmitter, ...]
     receivers: tuple[ReceiverSpec, ...]
     name: str = ""
+    origin: Origin | None = None
+    ground_truth: GroundTruthSpec = GroundTruthSpec()
 
     @property
     def receiver(self) -> ReceiverSpec:
@@ -212,11 +230,11 @@ def _type_name(value: Any) -> str:
 
 _TOP_KEYS = {
     "spec", "seed", "rate_hz", "name", "description", "model", "effects", "transmitters", "receiver", "receivers",
-    "pulses", "quantize", "ground_truth_error", "link_faults",
+    "pulses", "quantize", "ground_truth_error", "link_faults", "origin", "ground_truth",
 }
 _MODEL_KEYS = {"kappa_eq", "moment", "r_inner", "r_outer", "r_en", "q"}
 _EFFECT_KEYS = {"noise", "research_sentences", "pulses", "quantize", "ground_truth_error", "link_faults"}
-_TX_KEYS = {"id", "position", "orientation", "path", "pulse_period_ms", "pulse_phase_ms"}
+_TX_KEYS = {"id", "position", "orientation", "path", "pulse_period_ms", "pulse_phase_ms", "gps", "attitude"}
 
 # Parameter tables of the effects: key -> kind ("number", "integer", "string",
 # ("vector", n), "strings"). Ranges are checked by each effect's config class.
@@ -252,7 +270,7 @@ _EFFECT_CONFIGS = {
     "ground_truth_error": GroundTruthErrorConfig,
     "link_faults": LinkFaultConfig,
 }
-_RX_KEYS = {"id", "channels", "position", "orientation", "path"}
+_RX_KEYS = {"id", "channels", "position", "orientation", "path", "gps", "attitude"}
 
 
 def parse_scene(data: dict, source: str) -> Scene:
@@ -303,7 +321,14 @@ def parse_scene(data: dict, source: str) -> Scene:
         if tx_id in seen:
             raise rd.fail(f"{path}.id", f"duplicate id {tx_id} (also transmitters[{seen[tx_id]}].id)")
         seen[tx_id] = i
-        transmitters.append(Transmitter(tx_id, rd.trajectory(tx, path)))
+        transmitters.append(
+            Transmitter(
+                tx_id,
+                rd.trajectory(tx, path),
+                rd.boolean(tx, "gps", f"{path}.gps", False),
+                rd.boolean(tx, "attitude", f"{path}.attitude", False),
+            )
+        )
         for key, target in (("pulse_period_ms", pulse_periods), ("pulse_phase_ms", pulse_phases)):
             if key in tx:
                 if not enabled["pulses"]:
@@ -313,7 +338,53 @@ def parse_scene(data: dict, source: str) -> Scene:
     effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
 
     receivers = _receivers(rd, data)
-    return Scene(source, spec, seed, rate_hz, model, effects, tuple(transmitters), receivers, name)
+    origin, ground_truth = _ground_truth(rd, data, transmitters, receivers)
+    if effects.ground_truth_error is not None and not any(d.gps or d.attitude for d in (*transmitters, *receivers)):
+        raise rd.fail("effects.ground_truth_error", "no device has gps or attitude streams to apply it to")
+    return Scene(
+        source, spec, seed, rate_hz, model, effects, tuple(transmitters), receivers, name, origin, ground_truth
+    )
+
+
+def _ground_truth(rd: _Reader, data: dict, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
+    """``[origin]`` (geodetic, for GPS) and ``[ground_truth]`` (stream settings)."""
+    o = rd.table(data, "origin", "origin", {"lat", "lon", "alt"})
+    origin = None
+    if o:
+        values = {k: rd.number(o, k, f"origin.{k}", 0.0 if k == "alt" else None) for k in ("lat", "lon", "alt")}
+        try:
+            origin = Origin(**values)
+        except InputError as exc:
+            raise SceneError(rd.source, "", str(exc)) from None
+    g = rd.table(data, "ground_truth", "ground_truth", {"start_utc", "gps_rate_hz", "attitude_rate_hz", "talker"})
+    defaults = GroundTruthSpec()
+    start = g.get("start_utc", defaults.start_utc)
+    if isinstance(start, str):
+        try:
+            start = _dt.datetime.fromisoformat(start.replace("Z", "+00:00"))
+        except ValueError:
+            raise rd.fail("ground_truth.start_utc", f"not an ISO 8601 date-time: {start!r}") from None
+    if not isinstance(start, _dt.datetime):
+        raise rd.fail("ground_truth.start_utc", f"expected a date-time, got {_type_name(start)}")
+    if start.tzinfo is None:
+        raise rd.fail("ground_truth.start_utc", "needs a time zone (e.g. 2026-01-15T10:00:00Z)")
+    talker = g.get("talker", defaults.talker)
+    if not (isinstance(talker, str) and len(talker) == 2 and talker.isalpha() and talker.isupper()):
+        raise rd.fail("ground_truth.talker", f"expected two upper-case letters (GP, GN, ...), got {talker!r}")
+    spec = GroundTruthSpec(
+        start.astimezone(_dt.timezone.utc),
+        rd.number(g, "gps_rate_hz", "ground_truth.gps_rate_hz", defaults.gps_rate_hz, positive=True),
+        rd.number(g, "attitude_rate_hz", "ground_truth.attitude_rate_hz", defaults.attitude_rate_hz, positive=True),
+        talker,
+    )
+    if origin is None:
+        for rx in receivers:
+            if rx.gps:
+                raise rd.fail("origin", f"missing table: receiver {rx.id} has gps = true, which needs a geodetic origin")
+        for tx in transmitters:
+            if tx.gps:
+                raise rd.fail("origin", f"missing table: transmitter {tx.id} has gps = true, which needs a geodetic origin")
+    return origin, spec
 
 
 def _effects(rd: _Reader, data: dict, enabled: dict[str, bool], periods: dict, phases: dict) -> Effects:
@@ -389,7 +460,15 @@ def _receivers(rd: _Reader, data: dict) -> tuple[ReceiverSpec, ...]:
             raise rd.fail(f"{path}.id", f"duplicate id {rx_id} (also {seen[rx_id]}.id)")
         seen[rx_id] = path
         channels = rd.integer(r, "channels", f"{path}.channels", 1, 1, MAX_CHANNELS)
-        out.append(ReceiverSpec(rx_id, channels, rd.trajectory(r, path)))
+        out.append(
+            ReceiverSpec(
+                rx_id,
+                channels,
+                rd.trajectory(r, path),
+                rd.boolean(r, "gps", f"{path}.gps", False),
+                rd.boolean(r, "attitude", f"{path}.attitude", False),
+            )
+        )
     return tuple(out)
 
 

@@ -44,8 +44,13 @@ class ArvaStream(Stream):
 
 
 def scene_streams(scene: Scene) -> list[Stream]:
-    """Every stream the scene asks for, receivers first (the first one counts --frames)."""
+    """Every stream the scene asks for: receivers first (the first one counts --frames),
+    then the ground-truth GPS and attitude streams."""
+    from .truth_streams import ground_truth_streams  # imports pynmeagps: only when needed
+
     several = len(scene.receivers) > 1
-    return [
+    arva: list[Stream] = [
         ArvaStream(scene, i, f"arva:{rx.id}" if several else "arva") for i, rx in enumerate(scene.receivers)
     ]
+    wants_truth = any(d.gps or d.attitude for d in (*scene.receivers, *scene.transmitters))
+    return arva + (ground_truth_streams(scene) if wants_truth else [])

@@ -1,0 +1,103 @@
+"""Emulated ground truth: a GPS (NMEA RMC + GGA) and an attitude unit ($PASHR) riding on
+a receiver or a transmitter, each on its own port, from the device's scene trajectory.
+
+Epoch k of a ground-truth stream is at scene time k / rate and carries the UTC time
+``ground_truth.start_utc + k / rate``. ENU positions are mapped to WGS-84 through the
+scene's ``[origin]``; velocity (for RMC speed and course) is the central difference of
+the trajectory over 0.1 s. With the ``ground_truth_error`` effect, positions get bias,
+noise and dropouts (a dropped fix is sent as a no-fix RMC + GGA, as a receiver does) and
+attitudes get body-side angular noise.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+
+import numpy as np
+
+from .effects.ground_truth_error import GroundTruthError
+from .geodesy import enu_to_geodetic
+from .nmea_ground_truth import gga_sentence, gps_sentences, pashr_from_quaternion, rmc_sentence
+from .scene import Scene
+from .streams import Stream
+from .trajectory import Trajectory
+
+#: Half the interval of the central difference that gives the GPS velocity (s).
+VELOCITY_HALF_STEP = 0.05
+
+
+class GpsStream(Stream):
+    kind = "gps"
+
+    def __init__(self, scene: Scene, trajectory: Trajectory, label: str, error: GroundTruthError | None) -> None:
+        super().__init__(label, scene.ground_truth.gps_rate_hz)
+        self.trajectory = trajectory
+        self.origin = scene.origin
+        self.spec = scene.ground_truth
+        self.error = error
+
+    def render(self, k0: int, count: int) -> bytes:
+        t = (k0 + np.arange(count, dtype=np.float64)) / self.rate_hz
+        pos, _ = self.trajectory.at(t)
+        ahead, _ = self.trajectory.at(t + VELOCITY_HALF_STEP)
+        behind, _ = self.trajectory.at(t - VELOCITY_HALF_STEP)
+        velocity = (ahead - behind) / (2 * VELOCITY_HALF_STEP)
+        valid = np.ones(count, dtype=bool)
+        if self.error is not None:
+            pos, valid = self.error.gps(pos)
+        lat, lon, alt = enu_to_geodetic(pos[:, 0], pos[:, 1], pos[:, 2], self.origin)
+        out = []
+        talker = self.spec.talker
+        for i in range(count):
+            utc = self.spec.start_utc + _dt.timedelta(seconds=float(t[i]))
+            if valid[i]:
+                out.append(
+                    gps_sentences(utc, float(lat[i]), float(lon[i]), float(alt[i]), velocity_enu=velocity[i], talker=talker)
+                )
+            else:
+                out.append(
+                    rmc_sentence(utc, None, None, valid=False, talker=talker)
+                    + gga_sentence(utc, None, None, None, quality=0, sats=0, hdop=99.99, talker=talker)
+                )
+        return b"".join(out)
+
+
+class AttitudeStream(Stream):
+    kind = "attitude"
+
+    def __init__(self, scene: Scene, trajectory: Trajectory, label: str, error: GroundTruthError | None) -> None:
+        super().__init__(label, scene.ground_truth.attitude_rate_hz)
+        self.trajectory = trajectory
+        self.spec = scene.ground_truth
+        self.error = error
+
+    def render(self, k0: int, count: int) -> bytes:
+        t = (k0 + np.arange(count, dtype=np.float64)) / self.rate_hz
+        _, quat = self.trajectory.at(t)
+        if self.error is not None:
+            quat = self.error.attitude(quat)
+        start = self.spec.start_utc
+        return b"".join(
+            pashr_from_quaternion(start + _dt.timedelta(seconds=float(t[i])), quat[i]) for i in range(count)
+        )
+
+
+def ground_truth_streams(scene: Scene) -> list[Stream]:
+    """GPS and attitude streams of every device that asks for them, receivers first.
+
+    Labels: ``gps`` / ``attitude`` when one device streams that kind, else suffixed
+    with the device, ``gps:rx`` (``gps:rx<id>`` with several receivers), ``gps:tx<id>``.
+    """
+    several_rx = len(scene.receivers) > 1
+    devices = [(f"rx{rx.id}" if several_rx else "rx", rx) for rx in scene.receivers]
+    devices += [(f"tx{tx.id}", tx) for tx in scene.transmitters]
+    fx = scene.effects.ground_truth_error
+    streams: list[Stream] = []
+    for kind, cls in (("gps", GpsStream), ("attitude", AttitudeStream)):
+        carriers = [(name, dev) for name, dev in devices if getattr(dev, kind)]
+        for name, dev in carriers:
+            label = kind if len(carriers) == 1 else f"{kind}:{name}"
+            # One error stream per ground-truth stream, after the receivers' noise streams.
+            error = GroundTruthError(fx, scene.seed, stream=1000 + len(streams)) if fx is not None else None
+            streams.append(cls(scene, dev.trajectory, label, error))
+    return streams
