@@ -67,6 +67,9 @@ class GroundTruthSpec:
     gps_rate_hz: float = 1.0
     attitude_rate_hz: float = 10.0
     talker: str = "GP"
+    #: Decimals of arc-minutes in GGA/RMC: 5 (1.9 cm) keeps sentences within NMEA's 82
+    #: bytes; 7 (0.2 mm) is u-blox "high precision" NMEA, longer than 82.
+    lat_lon_decimals: int = 5
 
 
 @dataclass(frozen=True)
@@ -356,7 +359,9 @@ def _ground_truth(rd: _Reader, data: dict, transmitters, receivers) -> tuple[Ori
             origin = Origin(**values)
         except InputError as exc:
             raise SceneError(rd.source, "", str(exc)) from None
-    g = rd.table(data, "ground_truth", "ground_truth", {"start_utc", "gps_rate_hz", "attitude_rate_hz", "talker"})
+    g = rd.table(
+        data, "ground_truth", "ground_truth", {"start_utc", "gps_rate_hz", "attitude_rate_hz", "talker", "lat_lon_decimals"}
+    )
     defaults = GroundTruthSpec()
     start = g.get("start_utc", defaults.start_utc)
     if isinstance(start, str):
@@ -376,6 +381,7 @@ def _ground_truth(rd: _Reader, data: dict, transmitters, receivers) -> tuple[Ori
         rd.number(g, "gps_rate_hz", "ground_truth.gps_rate_hz", defaults.gps_rate_hz, positive=True),
         rd.number(g, "attitude_rate_hz", "ground_truth.attitude_rate_hz", defaults.attitude_rate_hz, positive=True),
         talker,
+        rd.integer(g, "lat_lon_decimals", "ground_truth.lat_lon_decimals", defaults.lat_lon_decimals, 4, 7),
     )
     if origin is None:
         for rx in receivers:

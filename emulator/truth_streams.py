@@ -17,7 +17,7 @@ import numpy as np
 
 from .effects.ground_truth_error import GroundTruthError
 from .geodesy import enu_to_geodetic
-from .nmea_ground_truth import gga_sentence, gps_sentences, pashr_from_quaternion, rmc_sentence
+from .nmea_ground_truth import gga_sentence, gps_sentences, pashr_from_quaternions, rmc_sentence
 from .scene import Scene
 from .streams import Stream
 from .trajectory import Trajectory
@@ -52,11 +52,14 @@ class GpsStream(Stream):
             utc = self.spec.start_utc + _dt.timedelta(seconds=float(t[i]))
             if valid[i]:
                 out.append(
-                    gps_sentences(utc, float(lat[i]), float(lon[i]), float(alt[i]), velocity_enu=velocity[i], talker=talker)
+                    gps_sentences(
+                        utc, float(lat[i]), float(lon[i]), float(alt[i]), velocity_enu=velocity[i],
+                        talker=talker, lat_lon_decimals=self.spec.lat_lon_decimals,
+                    )
                 )
             else:
                 out.append(
-                    rmc_sentence(utc, None, None, valid=False, talker=talker)
+                    rmc_sentence(utc, None, None, valid=False, talker=talker)  # no fix: empty position
                     + gga_sentence(utc, None, None, None, quality=0, sats=0, hdop=99.99, talker=talker)
                 )
         return b"".join(out)
@@ -77,9 +80,7 @@ class AttitudeStream(Stream):
         if self.error is not None:
             quat = self.error.attitude(quat)
         start = self.spec.start_utc
-        return b"".join(
-            pashr_from_quaternion(start + _dt.timedelta(seconds=float(t[i])), quat[i]) for i in range(count)
-        )
+        return pashr_from_quaternions([start + _dt.timedelta(seconds=float(x)) for x in t], quat)
 
 
 def ground_truth_streams(scene: Scene) -> list[Stream]:

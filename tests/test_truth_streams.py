@@ -93,7 +93,11 @@ def test_labels_with_several_gps_devices_and_rates():
     assert {f.talker for f in fixes} == {"GN"}
     origin = loads_scene(TWO_GPS.format(effects=""), "two.toml").origin
     e, n, u = geodetic_to_enu(ggas[0].lat, ggas[0].lon, ggas[0].alt_hae, origin)
-    assert (round(float(e), 3), round(float(n), 3), round(float(u), 3)) == (5.0, 5.0, -1.0)
+    # Default 5 decimals of arc-minutes: 1.9 cm north, 1.5 cm east at 34 S; height in mm.
+    assert (float(e), float(n), float(u)) == pytest.approx((5.0, 5.0, -1.0), abs=0.01)
+    assert float(u) == pytest.approx(-1.0, abs=0.0005)
+    lines = s["gps:rx"].render(0, 50).split(b"\r\n")[:-1]
+    assert max(len(line) + 2 for line in lines) <= 82  # NMEA 0183's limit, CR LF included
 
 
 def test_ground_truth_error_bias_dropout_and_seed():
@@ -107,7 +111,7 @@ def test_ground_truth_error_bias_dropout_and_seed():
     assert abs(dropped - 1000) < 5 * math.sqrt(4000 * 0.25 * 0.75)
     assert all(f.quality == 0 and f.lat is None for f in ggas if not f.valid)
     e, n, u = geodetic_to_enu(valid[0].lat, valid[0].lon, valid[0].alt_hae, scene.origin)
-    assert (round(float(e), 3), round(float(n), 3), round(float(u), 3)) == (11.0, -22.0, 2.5)
+    assert (float(e), float(n), float(u)) == pytest.approx((11.0, -22.0, 2.5), abs=0.01)
 
 
 @pytest.mark.parametrize(
