@@ -189,3 +189,46 @@ def test_two_streams_cannot_share_stdout(scene):
     assert proc.stderr.decode() == (
         "arva-emulate: port -: 2 streams (arva:1, arva:7) cannot share stdout; use --port pty or --stream LABEL=PORT\n"
     )
+
+
+UNPLUG = """spec = 1
+seed = 1
+rate_hz = 10.0
+[effects]
+link_faults = true
+[link_faults]
+disconnect_every_s = 1.0
+disconnect_s = 0.3
+[[transmitters]]
+id = 1
+position = [20.0, 5.0, 0.0]
+[receiver]
+position = [0.0, 0.0, 0.0]
+"""
+
+
+def test_pty_unplug_and_replug_follows_the_link(scene, tmp_path):
+    links = tmp_path / "links"
+    links.mkdir()
+    emu = EmulatorProcess("--scene", scene(UNPLUG), "--port", "pty", "--link", str(links), "--frames", "25")
+    try:
+        with serial.Serial(str(links / "arva"), timeout=2) as ser:
+            before = read_lines(ser, 2)
+            assert all(line.startswith(b"$PARVA,") for line in before)
+            # At scene time 1 s the device vanishes: the reader's port goes dead.
+            with pytest.raises(serial.SerialException):
+                for _ in range(40):
+                    if not ser.read(100):
+                        raise serial.SerialException("EOF")
+        # ... and comes back 0.3 s later as a new pty, announced again on stdout (Linux
+        # may hand out the same /dev/pts number again once the old one is free).
+        line = emu.proc.stdout.readline().decode().split()
+        assert line[0] == "arva" and line[1].startswith("/dev/pts/")
+        assert os.readlink(links / "arva") == line[1]
+        with serial.Serial(str(links / "arva"), timeout=2) as ser:
+            seq = int(read_lines(ser, 2)[-1].split(b",")[1])
+        assert seq >= 13  # resumed after the outage, epochs during it were lost
+        rc, err = emu.stop()
+        assert rc == 0 and " faults injected" in err and not err.endswith(" 0 faults injected\n")
+    finally:
+        emu.kill()
