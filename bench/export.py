@@ -1,0 +1,277 @@
+"""``arva-bench export``: the aligned table the fit consumes (BRIEF 7, normative columns).
+
+One row per (epoch, slot) of every logged receiver::
+
+    t, seq, id, d, delta, rx_x, rx_y, rx_z, rx_qw, rx_qx, rx_qy, rx_qz,
+    tx_x, tx_y, tx_z, tx_qw, tx_qx, tx_qy, tx_qz
+
+``t`` is the epoch's arrival (UTC POSIX seconds) minus ``--latency``; poses are in the
+session's ENU frame (metres; quaternions ``[w, x, y, z]`` body -> ENU), interpolated at
+that time from the devices' fixes (linear in position, slerp in orientation; both on
+the logger's monotonic clock, so all devices share one time base). Epochs are decoded
+again from the raw bytes, so the export never depends on the derived ``.jsonl`` files.
+
+Rows are dropped, and counted, when the epoch is incomplete, when a pose cannot be
+interpolated (no fix within ``--max-gap`` seconds on both sides), or when an empty slot
+(d = -1) cannot be attributed to a single known transmitter.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from emulator.attitude_convention import hpr_to_quaternion
+from emulator.geodesy import Origin, geodetic_to_enu
+from firmware_proto.errors import InputError
+
+from .records import ArvaRecords, GroundTruthRecords
+from .session import read_manifest, read_raw
+
+COLUMNS = (
+    "t", "seq", "id", "d", "delta",
+    "rx_x", "rx_y", "rx_z", "rx_qw", "rx_qx", "rx_qy", "rx_qz",
+    "tx_x", "tx_y", "tx_z", "tx_qw", "tx_qx", "tx_qy", "tx_qz",
+)  # fmt: skip
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+@dataclass
+class Track:
+    """A device's poses over the logger's monotonic time; either part may be missing."""
+
+    pos_t: np.ndarray = field(default_factory=lambda: np.empty(0))
+    pos: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    att_t: np.ndarray = field(default_factory=lambda: np.empty(0))
+    att: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
+    fixed_pos: np.ndarray | None = None
+    fixed_att: np.ndarray | None = None
+
+    def positions(self, t: np.ndarray, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
+        if self.fixed_pos is not None:
+            return np.broadcast_to(self.fixed_pos, (t.size, 3)).copy(), np.ones(t.size, bool)
+        ok = _bracketed(self.pos_t, t, max_gap)
+        out = np.full((t.size, 3), np.nan)
+        if ok.any():
+            for i in range(3):
+                out[ok, i] = np.interp(t[ok], self.pos_t, self.pos[:, i])
+        return out, ok
+
+    def orientations(self, t: np.ndarray, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
+        if self.fixed_att is not None or (self.att_t.size == 0 and self.fixed_pos is not None):
+            q = self.fixed_att if self.fixed_att is not None else IDENTITY
+            return np.broadcast_to(q, (t.size, 4)).copy(), np.ones(t.size, bool)
+        ok = _bracketed(self.att_t, t, max_gap)
+        out = np.full((t.size, 4), np.nan)
+        if ok.any():
+            if self.att_t.size == 1:
+                out[ok] = self.att[0]
+            else:
+                slerp = Slerp(self.att_t, Rotation.from_quat(self.att, scalar_first=True))
+                clamped = np.clip(t[ok], self.att_t[0], self.att_t[-1])  # EDGE queries take the end
+                out[ok] = slerp(clamped).as_quat(scalar_first=True)
+        return out, ok
+
+
+#: A query this close (s) before the first or after the last sample takes that sample:
+#: two devices stamped "at the same time" arrive a few milliseconds apart.
+EDGE = 0.05
+
+
+def _bracketed(times: np.ndarray, t: np.ndarray, max_gap: float) -> np.ndarray:
+    """True where ``t`` lies between two samples at most ``max_gap`` apart, on a sample,
+    or within :data:`EDGE` of the first or last one."""
+    if times.size == 0:
+        return np.zeros(t.size, bool)
+    i = np.searchsorted(times, t, side="right")
+    inside = (i > 0) & (i < times.size)
+    lo = times[np.clip(i - 1, 0, times.size - 1)]
+    hi = times[np.clip(i, 0, times.size - 1)]
+    ends = (np.abs(t - times[0]) <= EDGE) | (np.abs(t - times[-1]) <= EDGE)
+    return ends | (inside & (hi - lo <= max_gap))
+
+
+@dataclass
+class ExportResult:
+    columns: dict[str, np.ndarray]
+    dropped: Counter
+    origin: Origin
+
+    @property
+    def rows(self) -> int:
+        return int(self.columns["t"].size)
+
+
+def _decode(path: Path, decoder) -> list[tuple[float, float, dict]]:
+    """(mono, utc, record) for every record the raw reads yield, in order."""
+    out = []
+    raw = read_raw(path)
+    for read in raw.reads:
+        for rec in decoder.feed(read.data):
+            out.append((read.mono, read.utc, rec))
+    last = raw.reads[-1] if raw.reads else None
+    for rec in decoder.flush():
+        out.append((last.mono if last else 0.0, last.utc if last else 0.0, rec))
+    return out
+
+
+def _origin_from(manifest: dict, origin: list[float] | None, first_fix) -> Origin:
+    if origin is not None:
+        return Origin(origin[0], origin[1], origin[2] if len(origin) > 2 else 0.0)
+    if "origin" in manifest:
+        o = manifest["origin"]
+        return Origin(o["lat"], o["lon"], o.get("alt", 0.0))
+    if first_fix is not None:
+        return Origin(*first_fix)
+    raise InputError("export: no origin: the session has none and no receiver GPS fix; give --origin LAT,LON,ALT")
+
+
+def export_rows(
+    directory: str | Path, origin: list[float] | None = None, latency: float = 0.0, max_gap: float = 2.0
+) -> ExportResult:
+    """The normative table of a session as numpy columns, with the drop counts."""
+    directory = Path(directory)
+    manifest = read_manifest(directory)
+    devices = manifest.get("devices", {})
+    fixes: dict[str, list] = {}
+    attitudes: dict[str, list] = {}
+    epochs: dict[str, list] = {}
+    for name, dev in devices.items():
+        path = directory / f"{name}.raw"
+        if not path.exists():
+            continue  # a device that never delivered a byte
+        if dev["kind"] == "arva":
+            epochs[name] = [(m, u, r) for m, u, r in _decode(path, ArvaRecords()) if "seq" in r]
+        else:
+            for m, _u, r in _decode(path, GroundTruthRecords(dev["kind"])):
+                if r.get("sentence") == "GGA" and r.get("valid") and r.get("alt_hae") is not None:
+                    fixes.setdefault(dev["role"], []).append((m, r["lat"], r["lon"], r["alt_hae"]))
+                elif "q" in r:
+                    attitudes.setdefault(dev["role"], []).append((m, r["q"]))
+    first_rx = next((f for role, fs in fixes.items() if role.startswith("rx") for f in fs[:1]), None)
+    org = _origin_from(manifest, origin, None if first_rx is None else first_rx[1:])
+    tracks: dict[str, Track] = {}
+    for role, fs in fixes.items():
+        a = np.array(fs)
+        e, n, u = geodetic_to_enu(a[:, 1], a[:, 2], a[:, 3], org)
+        tracks.setdefault(role, Track()).pos_t = a[:, 0]
+        tracks[role].pos = np.c_[e, n, u]
+    for role, ats in attitudes.items():
+        tracks.setdefault(role, Track()).att_t = np.array([m for m, _ in ats])
+        tracks[role].att = np.array([q for _, q in ats])
+    for tx, pose in manifest.get("tx_poses", {}).items():
+        tr = tracks.setdefault(f"tx{tx}", Track())
+        e, n, u = geodetic_to_enu(pose["lat"], pose["lon"], pose["alt"], org)
+        tr.fixed_pos = np.array([float(e), float(n), float(u)])
+        if "heading" in pose:
+            tr.fixed_att = hpr_to_quaternion(pose["heading"], pose.get("roll", 0.0), pose.get("pitch", 0.0))
+    known_tx = sorted(int(role[2:]) for role in tracks if role.startswith("tx"))
+
+    dropped: Counter = Counter()
+    parts: list[dict[str, np.ndarray]] = []
+    for name, eps in epochs.items():
+        role = devices[name]["role"]
+        rows = []
+        for mono, utc, rec in eps:
+            if not rec["complete"]:
+                dropped["incomplete epoch"] += len(rec["slots"])
+                continue
+            for tx_id, d, delta in rec["slots"]:
+                rows.append((mono - latency, utc - latency, rec["seq"], tx_id, d, delta))
+        if not rows:
+            continue
+        r = np.array(rows, dtype=np.float64)
+        t_query = r[:, 0]
+        rx = tracks.get(role, Track())
+        rx_p, ok_p = rx.positions(t_query, max_gap)
+        rx_q, ok_q = rx.orientations(t_query, max_gap)
+        dropped["no receiver position"] += int((~ok_p).sum())
+        dropped["no receiver orientation"] += int((ok_p & ~ok_q).sum())
+        keep = ok_p & ok_q
+        tx_p = np.full((len(rows), 3), np.nan)
+        tx_q = np.full((len(rows), 4), np.nan)
+        ids = r[:, 3].astype(np.int64)
+        # An empty slot carries the campaign's transmitter, if there is exactly one.
+        slot_tx = np.where(ids >= 0, ids, known_tx[0] if len(known_tx) == 1 else -1)
+        for tx_id in np.unique(slot_tx):
+            sel = slot_tx == tx_id
+            if tx_id < 0 or f"tx{tx_id}" not in tracks:
+                continue
+            p, okp = tracks[f"tx{tx_id}"].positions(t_query[sel], max_gap)
+            q, okq = tracks[f"tx{tx_id}"].orientations(t_query[sel], max_gap)
+            tx_p[sel] = np.where(okp[:, None], p, np.nan)
+            tx_q[sel] = np.where((okp & okq)[:, None], q, np.nan)
+        ok_tx = np.isfinite(tx_p).all(axis=1) & np.isfinite(tx_q).all(axis=1)
+        dropped["no transmitter pose"] += int((keep & ~ok_tx & (slot_tx >= 0)).sum())
+        unattributed = "empty slot, no transmitter known" if not known_tx else "empty slot, several transmitters"
+        dropped[unattributed] += int((keep & (slot_tx < 0)).sum())
+        keep &= ok_tx
+        parts.append(
+            {
+                "t": r[keep, 1],
+                "seq": r[keep, 2].astype(np.int64),
+                "id": ids[keep],
+                "d": r[keep, 4].astype(np.int64),
+                "delta": r[keep, 5].astype(np.int64),
+                **{f"rx_{c}": rx_p[keep, i] for i, c in enumerate("xyz")},
+                **{f"rx_q{c}": rx_q[keep, i] for i, c in enumerate("wxyz")},
+                **{f"tx_{c}": tx_p[keep, i] for i, c in enumerate("xyz")},
+                **{f"tx_q{c}": tx_q[keep, i] for i, c in enumerate("wxyz")},
+            }
+        )
+    if parts:
+        columns = {c: np.concatenate([p[c] for p in parts]) for c in COLUMNS}
+    else:
+        columns = {c: np.empty(0, dtype=np.int64 if c in ("seq", "id", "d", "delta") else np.float64) for c in COLUMNS}
+    return ExportResult(columns, Counter({k: v for k, v in dropped.items() if v}), org)
+
+
+def write_csv(columns: dict[str, np.ndarray], path: str | Path) -> None:
+    """The normative CSV: header, then one row per slot (µm, 1e-9 quaternion digits)."""
+    n = columns["t"].size
+    fmt = {"t": "%.6f", "seq": "%d", "id": "%d", "d": "%d", "delta": "%d"}
+    cols = [np.asarray(columns[c]) for c in COLUMNS]
+    with open(path, "w", newline="") as f:
+        f.write(",".join(COLUMNS) + "\n")
+        formats = [fmt.get(c, "%.9f" if "_q" in c else "%.6f") for c in COLUMNS]
+        line = ",".join(formats) + "\n"
+        for i in range(n):
+            f.write(line % tuple(col[i] for col in cols))
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export", help="the aligned CSV the fit consumes", description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("session", metavar="DIR", help="session directory")
+    p.add_argument("--csv", required=True, metavar="FILE", help="output CSV (normative columns)")
+    p.add_argument("--origin", metavar="LAT,LON[,ALT]", help="ENU origin (default: the session's, else the first receiver fix)")
+    p.add_argument("--latency", type=float, default=0.0, metavar="S",
+                   help="the receiver's output latency: poses are taken S seconds before each epoch's arrival")
+    p.add_argument("--max-gap", type=float, default=2.0, metavar="S",
+                   help="interpolate poses only between fixes at most S seconds apart (default 2)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    origin = None
+    if args.origin:
+        try:
+            origin = [float(v) for v in args.origin.split(",")]
+        except ValueError:
+            raise InputError(f"export: --origin {args.origin}: expected LAT,LON[,ALT]") from None
+        if len(origin) not in (2, 3):
+            raise InputError(f"export: --origin {args.origin}: expected LAT,LON[,ALT]")
+    result = export_rows(args.session, origin, args.latency, args.max_gap)
+    try:
+        write_csv(result.columns, args.csv)
+    except OSError as exc:
+        raise InputError(f"export: {args.csv}: cannot write: {exc.strerror}") from None
+    dropped = ", ".join(f"{v} {k}" for k, v in sorted(result.dropped.items()) if v) or "none"
+    print(f"arva-bench: export: {result.rows} rows to {args.csv}; dropped: {dropped}", file=sys.stderr)
+    return 0

@@ -1,0 +1,190 @@
+"""``arva-bench log``: log receivers and ground-truth devices into a session directory.
+
+    arva-bench log --arva /dev/ttyUSB0 --gps /dev/ttyACM0 --attitude /dev/ttyUSB1 \\
+                   --tx-pose 1=46.50012,8.00031,2499.2 --out campaigns/2026-01-15-a
+
+Every device argument is a path or pyserial URL; ``--gps`` and ``--attitude`` take
+``,role=rx`` (default, the receiver) or ``,role=tx<ID>`` (a transmitter carrying the
+sensor). A transmitter may instead be given a surveyed pose with ``--tx-pose``. Stops on
+Ctrl-C, SIGTERM or ``--duration``; prints a summary; exit 0. A disk error stops the
+session with one line naming the file (exit 2); everything before it is kept.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import signal
+import sys
+import threading
+import time
+
+from firmware_proto.errors import InputError, LinkError
+
+from . import __version__
+from .logger import DeviceLogger, DeviceSpec
+from .session import SessionWriter
+
+
+def _device(kind: str):
+    def parse(text: str) -> tuple[str, str]:
+        url, sep, role = text.rpartition(",role=")
+        if not sep:
+            return text, "rx"
+        if not (role == "rx" or (role.startswith(("rx", "tx")) and role[2:].isdigit())):
+            raise argparse.ArgumentTypeError(f"{text!r}: role must be rx, rx<ID> or tx<ID>, got {role!r}")
+        return url, role
+
+    parse.__name__ = f"{kind} device"
+    return parse
+
+
+def _floats(text: str, n_min: int, n_max: int, what: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what}: expected numbers separated by commas, got {text!r}") from None
+    if not n_min <= len(values) <= n_max:
+        raise argparse.ArgumentTypeError(f"{what}: expected {n_min}..{n_max} numbers, got {len(values)}")
+    return values
+
+
+def _tx_pose(text: str) -> tuple[int, list[float]]:
+    tx, sep, rest = text.partition("=")
+    if not sep or not tx.isdigit():
+        raise argparse.ArgumentTypeError(f"expected ID=lat,lon,alt[,heading,roll,pitch], got {text!r}")
+    return int(tx), _floats(rest, 3, 6, f"--tx-pose {tx}")
+
+
+def _origin(text: str) -> list[float]:
+    return _floats(text, 2, 3, "--origin")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("log", help="log devices into a session directory", description=__doc__)
+    p.add_argument("--arva", action="append", default=[], type=_device("arva"), metavar="URL[,role=rxN]",
+                   help="an ARVA receiver (repeatable)")
+    p.add_argument("--gps", action="append", default=[], type=_device("gps"), metavar="URL[,role=R]",
+                   help="a GPS (NMEA GGA/RMC); role rx (default) or tx<ID>")
+    p.add_argument("--attitude", action="append", default=[], type=_device("attitude"), metavar="URL[,role=R]",
+                   help="an attitude unit ($PASHR); role rx (default) or tx<ID>")
+    p.add_argument("--tx-pose", action="append", default=[], type=_tx_pose, metavar="ID=LAT,LON,ALT[,H,R,P]",
+                   help="a transmitter's surveyed pose (degrees, metres HAE; heading/roll/pitch in degrees)")
+    p.add_argument("--origin", type=_origin, metavar="LAT,LON[,ALT]", help="geodetic origin of the session's ENU frame")
+    p.add_argument("--out", required=True, metavar="DIR", help="new session directory")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate for serial devices (default 115200)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--note", default="", help="free text stored in the manifest")
+    p.set_defaults(func=run)
+
+
+def device_specs(args: argparse.Namespace) -> list[DeviceSpec]:
+    specs: list[DeviceSpec] = []
+    several = len(args.arva) > 1
+    for i, (url, role) in enumerate(args.arva):
+        role = role if role != "rx" or not several else f"rx{i + 1}"
+        specs.append(DeviceSpec("arva" if not several else f"arva-{role}", "arva", url, role, args.baud))
+    for kind in ("gps", "attitude"):
+        for url, role in getattr(args, kind):
+            specs.append(DeviceSpec(f"{kind}-{role}", kind, url, role, args.baud))
+    names = [s.name for s in specs]
+    for name in names:
+        if names.count(name) > 1:
+            raise InputError(f"log: two devices would both be {name!r}: give them different roles")
+    if not any(s.kind == "arva" for s in specs):
+        raise InputError("log: no receiver: give at least one --arva URL")
+    return specs
+
+
+def manifest(args: argparse.Namespace, specs: list[DeviceSpec], argv: list[str]) -> dict:
+    out = {
+        "devices": {s.name: s.manifest() for s in specs},
+        "software": {"arva-bench": __version__, "python": platform.python_version()},
+        "command": argv,
+        "note": args.note,
+    }
+    if args.origin:
+        lat, lon, *alt = args.origin
+        out["origin"] = {"lat": lat, "lon": lon, "alt": alt[0] if alt else 0.0}
+    if args.tx_pose:
+        out["tx_poses"] = {
+            str(tx): dict(zip(("lat", "lon", "alt", "heading", "roll", "pitch"), values)) for tx, values in args.tx_pose
+        }
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    specs = device_specs(args)
+    writer = SessionWriter(args.out, manifest(args, specs, sys.argv))
+    stop = threading.Event()
+    fatal: list[Exception] = []
+
+    def on_fatal(exc: Exception) -> None:
+        fatal.append(exc)
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    loggers = [DeviceLogger(spec, writer, on_fatal) for spec in specs]
+    for lg in loggers:
+        lg.start()
+    t0 = time.monotonic()
+    live = _status(loggers) if sys.stderr.isatty() else None
+    try:
+        while not stop.wait(0.25):
+            if args.duration is not None and time.monotonic() - t0 >= args.duration:
+                break
+            if live is not None:
+                live.update(_table(loggers, time.monotonic() - t0))
+    finally:
+        if live is not None:
+            live.stop()
+        for lg in loggers:
+            lg.stop()
+        summary = {lg.spec.name: {**vars(lg.stats), "decoder": lg.decoder.stats()} for lg in loggers}
+        for s in summary.values():
+            s.pop("last_data_mono", None)
+            s.pop("connected", None)
+        writer.close(devices=summary, stopped_by="disk error" if fatal else "user")
+    for lg in loggers:
+        st = lg.stats
+        print(
+            f"arva-bench: log: {lg.spec.name}: {st.reads} reads, {st.bytes} bytes, {st.records} records, "
+            f"{st.gaps} gaps",
+            file=sys.stderr,
+        )
+    if fatal:
+        raise LinkError(f"log: {fatal[0]}; the session was closed, everything before is kept")
+    return 0
+
+
+def _status(loggers):
+    from rich.console import Console
+    from rich.live import Live
+
+    live = Live(_table(loggers, 0.0), console=Console(stderr=True), refresh_per_second=4, transient=True)
+    live.start()
+    return live
+
+
+def _table(loggers, elapsed: float):
+    from rich.table import Table
+
+    table = Table(title=f"arva-bench log  {elapsed:7.1f} s", expand=False)
+    for col in ("device", "link", "bytes", "records", "errors", "gaps", "last data"):
+        table.add_column(col)
+    now = time.monotonic()
+    for lg in loggers:
+        st = lg.stats
+        age = "-" if st.last_data_mono is None else f"{now - st.last_data_mono:.1f} s ago"
+        errors = lg.decoder.stats().get("errors", 0)
+        table.add_row(
+            lg.spec.name,
+            "[green]up[/]" if st.connected else "[red]down[/]",
+            str(st.bytes),
+            str(st.records),
+            str(errors),
+            str(st.gaps),
+            age,
+        )
+    return table

@@ -1,0 +1,159 @@
+"""Decoded records of each device kind, as JSON-ready dicts, from raw bytes.
+
+One :class:`RecordDecoder` per device: ``feed(bytes)`` returns the records those bytes
+completed, ``flush()`` the rest at end of input. The logger writes them to
+``<device>.jsonl``; export and replay re-derive them from the raw bytes with the same
+decoders, so the raw log stays the single source of truth. Corrupt input is never
+dropped silently: it becomes a record with an ``"error"`` key.
+
+Record shapes (``mono``/``utc`` are added by the caller: the read that completed them):
+
+* arva:      ``{"seq", "complete", "slots", ["field"], ["gap"]}`` or ``{"error", "offset", "length"}``
+* gps:       ``{"sentence", "talker", "time", "lat", "lon", "alt_hae", "alt_msl", "quality",
+               "sats", "hdop", "status", "mode", "speed_knots", "course", "valid"}``
+* attitude:  ``{"time", "heading", "roll", "pitch", "q"}``
+"""
+
+from __future__ import annotations
+
+from bench.ground_truth import Attitude, GpsFix, GroundTruthReader
+from firmware_proto.decoder import Decoder
+from firmware_proto.events import DecodeError, Epoch
+
+KINDS = ("arva", "gps", "attitude")
+
+
+class RecordDecoder:
+    kind = ""
+
+    def feed(self, data: bytes) -> list[dict]:
+        raise NotImplementedError
+
+    def flush(self) -> list[dict]:
+        return []
+
+    def stats(self) -> dict[str, int]:
+        return {}
+
+
+class ArvaRecords(RecordDecoder):
+    kind = "arva"
+
+    def __init__(self) -> None:
+        self.decoder = Decoder()
+
+    def feed(self, data: bytes) -> list[dict]:
+        return self._records(self.decoder.feed(data))
+
+    def idle(self) -> list[dict]:
+        return self._records(self.decoder.idle())
+
+    def flush(self) -> list[dict]:
+        return self._records(self.decoder.flush())
+
+    @staticmethod
+    def _records(events) -> list[dict]:
+        out = []
+        for ev in events:
+            if isinstance(ev, Epoch):
+                rec = ev.to_json()
+                if ev.gap:
+                    rec["gap"] = ev.gap
+                out.append(rec)
+            elif isinstance(ev, DecodeError):
+                out.append({"error": ev.kind.name, "offset": ev.offset, "length": ev.length})
+        return out
+
+    def stats(self) -> dict[str, int]:
+        s = self.decoder.stats
+        return {
+            "epochs": s.epochs_complete,
+            "incomplete": s.epochs_incomplete,
+            "errors": sum(s.errors.values()),
+            "seq_gaps": s.seq_gaps,
+        }
+
+
+def _iso(dt) -> str | None:
+    return None if dt is None else dt.isoformat().replace("+00:00", "Z")
+
+
+#: Reader counters that mean rejected input (``junk_bytes`` counts bytes, not lines).
+GT_ERROR_KEYS = ("bad_checksum", "no_checksum", "non_ascii", "malformed", "overlong", "fragments", "junk_bytes")
+
+
+class GroundTruthRecords(RecordDecoder):
+    """GPS fixes and/or $PASHR attitudes: one reader handles both on one stream.
+
+    Input the reader rejects is flagged with an ``{"error": {counter: increment}}``
+    record for the read that carried it (the bytes themselves are in the raw log).
+    """
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self.reader = GroundTruthReader()
+        self.records = 0
+        self.errors = 0
+
+    def feed(self, data: bytes) -> list[dict]:
+        return self._flagged(lambda: self.reader.feed(data))
+
+    def flush(self) -> list[dict]:
+        return self._flagged(self.reader.flush)
+
+    def _flagged(self, step) -> list[dict]:
+        stats = self.reader.stats
+        before = [stats[k] for k in GT_ERROR_KEYS]
+        out = self._records(step())
+        delta = {k: stats[k] - b for k, b in zip(GT_ERROR_KEYS, before) if stats[k] != b}
+        if delta:
+            self.errors += sum(v for k, v in delta.items() if k != "junk_bytes") or 1
+            out.append({"error": delta})
+        return out
+
+    def _records(self, items) -> list[dict]:
+        out = []
+        for r in items:
+            if isinstance(r, GpsFix):
+                out.append(
+                    {
+                        "sentence": r.sentence,
+                        "talker": r.talker,
+                        "time": _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat()),
+                        "lat": r.lat,
+                        "lon": r.lon,
+                        "alt_hae": r.alt_hae,
+                        "alt_msl": r.alt_msl,
+                        "quality": r.quality,
+                        "sats": r.sats,
+                        "hdop": r.hdop,
+                        "status": r.status,
+                        "mode": r.mode,
+                        "speed_knots": r.speed_knots,
+                        "course": r.course,
+                        "valid": r.valid,
+                    }
+                )
+            elif isinstance(r, Attitude):
+                out.append(
+                    {
+                        "time": _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat()),
+                        "heading": r.heading,
+                        "roll": r.roll,
+                        "pitch": r.pitch,
+                        "q": list(r.quaternion),
+                    }
+                )
+        self.records += len(out)
+        return out
+
+    def stats(self) -> dict[str, int]:
+        return {"records": self.records, "errors": self.errors, "ignored": self.reader.stats["ignored"]}
+
+
+def decoder_for(kind: str) -> RecordDecoder:
+    if kind == "arva":
+        return ArvaRecords()
+    if kind in ("gps", "attitude"):
+        return GroundTruthRecords(kind)
+    raise ValueError(f"unknown device kind {kind!r}")
