@@ -168,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     _stop_on_signals(stop)
     scene_clock = SceneClock()
+    # Pty announcements go to stdout, unless a stream's data does (--stream arva=-).
+    announce = _announcer(sys.stderr if "-" in specs.values() else sys.stdout)
     routes: list[Route] = []
     try:
         for i, stream in enumerate(streams):
@@ -176,8 +178,8 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(port, PtyPort):
                 # Announced before any data, flushed at once: a test harness or a human
                 # reads the path from here and opens it (again after a simulated unplug).
-                port.on_reconnect = _announce
-                _announce(port)
+                port.on_reconnect = announce
+                announce(port)
             routes[-1].port = _with_link_faults(scene, port, i, args.speed, scene_clock)
         status = status_printer() if sys.stderr.isatty() and args.speed != 0 else None
         lf = scene.effects.link_faults
@@ -205,8 +207,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _announce(port: Port) -> None:
-    print(f"{port.label} {port.path}", flush=True)
+def _announcer(stream):
+    def announce(port: Port) -> None:
+        print(f"{port.label} {port.path}", file=stream, flush=True)
+
+    return announce
 
 
 def _with_link_faults(scene, port: Port, index: int, speed: float, clock: SceneClock) -> Port:

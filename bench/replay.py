@@ -1,0 +1,103 @@
+"""``arva-bench replay DIR``: every logged device back on its own port, byte for byte,
+with its recorded timing (``--speed X`` times real time; ``0`` as fast as possible).
+
+Ports are created like the emulator's: ``--port pty`` (default) makes one
+pseudo-terminal per device, announced on stdout as ``<device> <path>`` before any data;
+``--device NAME=PORT`` sends one device elsewhere (a path, a URL or ``-``); ``--link
+DIR`` adds stable symlinks. Reads are replayed in the order and at the times the logger
+saw them (its monotonic clock), so interleaving across devices is preserved.
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from emulator.ports import Port, PtyPort, SerialPort, StdoutPort
+from firmware_proto.errors import InputError
+
+from .session import read_manifest, read_raw
+
+
+def register(sub) -> None:
+    p = sub.add_parser("replay", help="replay a session's devices on ptys with their timing", description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("session", metavar="DIR")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X", help="X times real time; 0 = as fast as possible")
+    p.add_argument("--port", default="pty", metavar="PORT", help="default port for every device (default pty)")
+    p.add_argument("--device", action="append", default=[], metavar="NAME=PORT", help="one device to its own port")
+    p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<device> to the ptys")
+    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="wait S seconds after announcing the ptys")
+    p.set_defaults(func=run)
+
+
+def _open(name: str, spec: str, link_dir: Path | None) -> Port:
+    if spec == "-":
+        return StdoutPort(name)
+    if spec == "pty":
+        return PtyPort(name, None if link_dir is None else link_dir / name)
+    return SerialPort(name, spec)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not (args.speed >= 0 and args.speed < float("inf")):
+        raise InputError(f"replay: --speed {args.speed}: must be a finite number >= 0")
+    if args.link is not None and not args.link.is_dir():
+        raise InputError(f"replay: --link {args.link}: not a directory")
+    directory = Path(args.session)
+    manifest = read_manifest(directory)
+    names = [n for n in manifest.get("devices", {}) if (directory / f"{n}.raw").exists()]
+    if not names:
+        raise InputError(f"replay: {directory}: no device has logged anything")
+    ports_for = {n: args.port for n in names}
+    for item in args.device:
+        name, sep, port = item.partition("=")
+        if not sep or name not in ports_for:
+            raise InputError(f"replay: --device {item}: expected NAME=PORT with NAME one of {', '.join(names)}")
+        ports_for[name] = port
+    if sum(1 for p in ports_for.values() if p == "-") > 1:
+        raise InputError("replay: only one device can go to stdout (-)")
+    reads = {n: read_raw(directory / f"{n}.raw").reads for n in names}
+    ports: dict[str, Port] = {}
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        # Announcements go to stdout, unless a device's data does.
+        announce_to = sys.stderr if "-" in ports_for.values() else sys.stdout
+        for name in names:
+            ports[name] = _open(name, ports_for[name], args.link)
+            if isinstance(ports[name], PtyPort):
+                print(f"{name} {ports[name].path}", file=announce_to, flush=True)
+        if args.speed == 0:
+            for port in ports.values():
+                port.set_drain_wait(0.05)
+        stop.wait(args.delay)
+        # Merge every device's reads by the logger's clock.
+        queue = [(r[0].mono, i, n, 0) for i, (n, r) in enumerate(reads.items()) if r]
+        heapq.heapify(queue)
+        t0 = min(q[0] for q in queue)
+        start = time.monotonic()
+        sent = 0
+        while queue and not stop.is_set():
+            mono, i, name, j = heapq.heappop(queue)
+            if args.speed > 0:
+                delay = start + (mono - t0) / args.speed - time.monotonic()
+                if delay > 0 and stop.wait(delay):
+                    break
+            ports[name].write(reads[name][j].data)
+            sent += 1
+            if j + 1 < len(reads[name]):
+                heapq.heappush(queue, (reads[name][j + 1].mono, i, name, j + 1))
+    finally:
+        for port in ports.values():
+            port.close()
+    dropped = sum(p.bytes_dropped for p in ports.values())
+    written = sum(p.bytes_written for p in ports.values())
+    print(f"arva-bench: replay: {sent} reads, {written} bytes written, {dropped} bytes dropped", file=sys.stderr)
+    return 0
