@@ -27,7 +27,7 @@ may overflow to inf; its reciprocal is then 0 and nothing ever computes inf * 0.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray

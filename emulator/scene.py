@@ -10,7 +10,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any

@@ -21,7 +21,7 @@ import collections
 import errno
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import usb.backend
 import usb.core

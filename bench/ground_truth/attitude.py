@@ -19,7 +19,6 @@ A record's ``utc`` is dated through a shared :class:`~bench.ground_truth.utc.Day
 from __future__ import annotations
 
 import math
-from collections import Counter
 from dataclasses import dataclass
 from datetime import datetime, time
 
@@ -27,9 +26,8 @@ from pynmeagps import NMEAMessage
 
 from emulator.attitude_convention import hpr_to_quaternion
 
-from .lines import DEFAULT_MAX_LINE, LineSplitter
+from .lines import SentenceReader
 from .nmea import PLAIN_NUMBER, FieldError, parse_checked, sentence_type, time_of_day
-from .utc import DayTracker
 
 @dataclass(frozen=True, slots=True)
 class Attitude:
@@ -70,40 +68,8 @@ def _flag(raw: str) -> int | None:
     return int(raw)
 
 
-class AttitudeReader:
+class AttitudeReader(SentenceReader):
     """``feed(bytes) -> list[Attitude]``; never raises on data, memory bounded."""
-
-    def __init__(
-        self,
-        *,
-        tracker: DayTracker | None = None,
-        max_line: int = DEFAULT_MAX_LINE,
-        stats: Counter[str] | None = None,
-    ) -> None:
-        self.stats: Counter[str] = Counter() if stats is None else stats
-        self.tracker = DayTracker() if tracker is None else tracker
-        self._lines = LineSplitter(max_line, self.stats)
-
-    def feed(self, data: bytes) -> list[Attitude]:
-        """Records completed by ``data``, in stream order."""
-        return self._handle(self._lines.feed(data))
-
-    def flush(self) -> list[Attitude]:
-        """At end of input: parse a last line that lacked its CR LF."""
-        return self._handle(self._lines.flush())
-
-    @property
-    def pending(self) -> int:
-        """Bytes held back waiting for the end of a line (at most ``max_line``)."""
-        return self._lines.pending
-
-    def _handle(self, lines: list[bytes]) -> list[Attitude]:
-        out = []
-        for line in lines:
-            att = self.handle_line(line)
-            if att is not None:
-                out.append(att)
-        return out
 
     def handle_line(self, line: bytes) -> Attitude | None:
         """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted)."""

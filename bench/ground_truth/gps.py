@@ -36,15 +36,13 @@ that record is kept without a position and counted as ``placeholder_position``.
 from __future__ import annotations
 
 import re
-from collections import Counter
 from dataclasses import dataclass
 from datetime import date, datetime, time
 
 from pynmeagps import NMEAMessage
 
-from .lines import DEFAULT_MAX_LINE, LineSplitter
+from .lines import SentenceReader
 from .nmea import PLAIN_NUMBER, FieldError, parse_checked, sentence_type, talker_of, time_of_day, typed_value
-from .utc import DayTracker
 
 _DATE = re.compile(r"\d{6}\Z")
 _LAT = re.compile(r"\d{4}(\.\d+)?\Z")
@@ -120,44 +118,12 @@ def _int(msg: NMEAMessage, name: str, index: int) -> int | None:
     return None if value is None else int(value)  # type: ignore[call-overload]
 
 
-class GpsReader:
+class GpsReader(SentenceReader):
     """``feed(bytes) -> list[GpsFix]``; never raises on data, memory bounded.
 
     ``tracker`` may be shared with an attitude reader on the same stream, so $PASHR times
     get the RMC date; ``stats`` may be shared too.
     """
-
-    def __init__(
-        self,
-        *,
-        tracker: DayTracker | None = None,
-        max_line: int = DEFAULT_MAX_LINE,
-        stats: Counter[str] | None = None,
-    ) -> None:
-        self.stats: Counter[str] = Counter() if stats is None else stats
-        self.tracker = DayTracker() if tracker is None else tracker
-        self._lines = LineSplitter(max_line, self.stats)
-
-    def feed(self, data: bytes) -> list[GpsFix]:
-        """Records completed by ``data``, in stream order."""
-        return self._handle(self._lines.feed(data))
-
-    def flush(self) -> list[GpsFix]:
-        """At end of input: parse a last line that lacked its CR LF."""
-        return self._handle(self._lines.flush())
-
-    @property
-    def pending(self) -> int:
-        """Bytes held back waiting for the end of a line (at most ``max_line``)."""
-        return self._lines.pending
-
-    def _handle(self, lines: list[bytes]) -> list[GpsFix]:
-        out = []
-        for line in lines:
-            fix = self.handle_line(line)
-            if fix is not None:
-                out.append(fix)
-        return out
 
     def handle_line(self, line: bytes) -> GpsFix | None:
         """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted)."""

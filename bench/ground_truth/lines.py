@@ -102,3 +102,43 @@ class LineSplitter:
     def pending(self) -> int:
         """Bytes held back waiting for the end of a line (always <= ``max_line``)."""
         return len(self._buf)
+
+
+class SentenceReader:
+    """Base of the streaming readers: bytes -> lines (:class:`LineSplitter`) -> records.
+
+    Subclasses implement :meth:`handle_line` (one complete line -> a record or None,
+    counting what it rejects in ``stats``). ``stats`` and the date ``tracker`` may be
+    shared between readers of one stream.
+    """
+
+    def __init__(self, *, tracker=None, max_line: int = DEFAULT_MAX_LINE, stats: Counter[str] | None = None) -> None:
+        from .utc import DayTracker  # here, not at the top: utc has no need of lines
+
+        self.stats: Counter[str] = Counter() if stats is None else stats
+        self.tracker = DayTracker() if tracker is None else tracker
+        self._lines = LineSplitter(max_line, self.stats)
+
+    def feed(self, data: bytes) -> list:
+        """Records completed by ``data``, in stream order."""
+        return self._handle(self._lines.feed(data))
+
+    def flush(self) -> list:
+        """At end of input: parse a last line that lacked its CR LF."""
+        return self._handle(self._lines.flush())
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back waiting for the end of a line (at most ``max_line``)."""
+        return self._lines.pending
+
+    def _handle(self, lines: list[bytes]) -> list:
+        out = []
+        for line in lines:
+            rec = self.handle_line(line)
+            if rec is not None:
+                out.append(rec)
+        return out
+
+    def handle_line(self, line: bytes):
+        raise NotImplementedError
