@@ -102,11 +102,14 @@ def test_log_then_export_matches_the_scene(tmp_path):
     assert result.rows == 80 and not result.dropped
     truth_pos, truth_q = scene.receiver.trajectory.at(cols["seq"].astype(float))
     rx = np.c_[cols["rx_x"], cols["rx_y"], cols["rx_z"]]
-    # Poses are interpolated on the logger's clock at each epoch's arrival; at 20x real
-    # time a millisecond of scheduling is 0.01 m of walk, GPS quantisation 0.2 mm.
-    np.testing.assert_allclose(rx, truth_pos, atol=0.05)
+    # Poses are interpolated on the logger's clock at each epoch's arrival. At 20x real
+    # time the receiver walks 10 m and turns 36 deg per wall second, so each millisecond
+    # of scheduling between the streams is 1 cm and 0.036 deg; GPS quantisation is 0.2 mm.
+    # Typical error is a few mm; a loaded machine may delay one read by ~20 ms.
+    err = np.linalg.norm(rx - truth_pos, axis=1)
+    assert np.median(err) < 0.02 and err.max() < 0.25, (np.median(err), err.max())
     q = np.c_[cols["rx_qw"], cols["rx_qx"], cols["rx_qy"], cols["rx_qz"]]
-    assert np.all(np.abs(np.sum(q * truth_q, axis=1)) > np.cos(np.radians(0.2) / 2))
+    assert np.all(np.abs(np.sum(q * truth_q, axis=1)) > np.cos(np.radians(1.0) / 2))
     np.testing.assert_allclose(np.c_[cols["tx_x"], cols["tx_y"], cols["tx_z"]], [[0, 0, -1]] * 80, atol=1e-6)
     np.testing.assert_allclose(np.c_[cols["tx_qw"], cols["tx_qx"], cols["tx_qy"], cols["tx_qz"]], [[1, 0, 0, 0]] * 80, atol=1e-9)
     assert cols["d"].tolist() == [e.slots[0][1] for e in expected]
