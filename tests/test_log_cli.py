@@ -1,0 +1,51 @@
+"""arva-bench log: argument errors are one line and exit 2; loop:// devices log."""
+
+import subprocess
+import sys
+
+import pytest
+
+from bench.session import read_jsonl, read_manifest
+
+
+def bench(*args, timeout=30):
+    return subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--gps", "loop://"], "arva-bench: log: no receiver: give at least one --arva URL\n"),
+        (["--arva", "loop://", "--gps", "loop://", "--gps", "loop://"],
+         "arva-bench: log: two devices would both be 'gps-rx': give them different roles\n"),
+    ],
+)
+def test_log_argument_errors(tmp_path, args, message):
+    proc = bench("log", *args, "--out", str(tmp_path / "s"))
+    assert proc.returncode == 2 and proc.stderr == message and proc.stdout == ""
+    assert not (tmp_path / "s").exists()  # nothing created for a command that cannot run
+
+
+def test_bad_role_is_an_argparse_error(tmp_path):
+    proc = bench("log", "--arva", "loop://", "--gps", "loop://,role=boat", "--out", str(tmp_path / "s"))
+    assert proc.returncode == 2
+    assert "role must be rx, rx<ID> or tx<ID>, got 'boat'" in proc.stderr
+
+
+def test_existing_session_is_never_overwritten(tmp_path):
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s" / "keep").write_text("x")
+    proc = bench("log", "--arva", "loop://", "--out", str(tmp_path / "s"))
+    assert proc.returncode == 2
+    assert proc.stderr == f"arva-bench: {tmp_path / 's'}: not empty; a session never overwrites another (choose a new --out)\n"
+
+
+def test_unavailable_device_is_recorded_and_the_rest_logs(tmp_path):
+    proc = bench("log", "--arva", "arvaemu://?speed=20", "--gps", "/dev/ttyNOPE7", "--out", str(tmp_path / "s"),
+                 "--duration", "1.5")
+    assert proc.returncode == 0, proc.stderr
+    events = list(read_jsonl(tmp_path / "s" / "events.jsonl"))
+    assert [(e["event"], e.get("device")) for e in events[:2]][1] == ("unavailable", "gps-rx")
+    seqs = [r["seq"] for r in read_jsonl(tmp_path / "s" / "arva.jsonl") if "seq" in r]
+    assert seqs[:5] == [0, 1, 2, 3, 4] and len(seqs) >= 20
+    assert read_manifest(tmp_path / "s")["devices"]["gps-rx"]["url"] == "/dev/ttyNOPE7"
