@@ -35,12 +35,13 @@ class Receiver:
     does not change the output.
     """
 
-    def __init__(self, scene: Scene, index: int = 0) -> None:
+    def __init__(self, scene: Scene, index: int = 0, want_field: bool | None = None) -> None:
         self.scene = scene
         self.spec = scene.receivers[index]
         self.channels = self.spec.channels
         self.ids = scene.transmitter_ids
-        self.want_field = scene.effects.research_sentences
+        # The field rides along for $PARVH, or when a closed-loop controller needs it.
+        self.want_field = scene.effects.research_sentences if want_field is None else want_field
         fx = scene.effects
         # Each receiver draws noise from its own stream of the scene seed; pulse trains
         # belong to the transmitters, so every receiver hears the same ones.
@@ -68,12 +69,19 @@ class Receiver:
 
     def evaluate(self, t: np.ndarray) -> Epochs:
         """Channel-selected epochs at scene times ``t`` (draws noise if enabled)."""
+        if len(self.ids) == 0:
+            return self.evaluate_poses(t, None, None)
+        rx_pos, rx_quat = self.spec.trajectory.at(t)
+        return self.evaluate_poses(t, rx_pos, rx_quat)
+
+    def evaluate_poses(self, t: np.ndarray, rx_pos, rx_quat) -> Epochs:
+        """Like :meth:`evaluate`, with the receiver poses (N, 3), (N, 4) given by the
+        caller (a vehicle in closed loop, an autopilot) instead of the scene trajectory."""
         n, m = t.size, len(self.ids)
         if m == 0:
             empty = np.full((n, self.channels), -1, dtype=np.int64)
             field = np.zeros((n, self.channels, 3)) if self.want_field else None
             return Epochs(empty, empty.copy(), empty.copy(), empty.copy(), field)
-        rx_pos, rx_quat = self.spec.trajectory.at(t)
         if self._static_tx:
             tx_pos, tx_quat = self._tx_pos, self._tx_quat
         else:

@@ -28,6 +28,7 @@ from .effects.quantize import QuantizeConfig
 from .model import ModelParams
 from .rotation import normalize_quaternions
 from .trajectory import IDENTITY, Trajectory
+from .vehicle import VehicleSpec, parse_vehicle
 
 #: The newest scene format this program reads.
 SPEC_VERSION = 1
@@ -81,6 +82,9 @@ class ReceiverSpec:
     trajectory: Trajectory
     gps: bool = False
     attitude: bool = False
+    #: Closed loop: the vehicle that carries this receiver (its pose then comes from the
+    #: vehicle, ``trajectory`` is only the start pose). None: the scene's trajectory.
+    vehicle: VehicleSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -273,7 +277,7 @@ _EFFECT_CONFIGS = {
     "ground_truth_error": GroundTruthErrorConfig,
     "link_faults": LinkFaultConfig,
 }
-_RX_KEYS = {"id", "channels", "position", "orientation", "path", "gps", "attitude"}
+_RX_KEYS = {"id", "channels", "position", "orientation", "path", "gps", "attitude", "vehicle"}
 
 
 def parse_scene(data: dict, source: str) -> Scene:
@@ -340,7 +344,7 @@ def parse_scene(data: dict, source: str) -> Scene:
     transmitters.sort(key=lambda tx: tx.id)
     effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
 
-    receivers = _receivers(rd, data)
+    receivers = _receivers(rd, data, rate_hz)
     origin, ground_truth = _ground_truth(rd, data, transmitters, receivers)
     if effects.ground_truth_error is not None and not any(d.gps or d.attitude for d in (*transmitters, *receivers)):
         raise rd.fail("effects.ground_truth_error", "no device has gps or attitude streams to apply it to")
@@ -442,7 +446,7 @@ def _param(rd: _Reader, table: dict, key: str, path: str, kind: object):
     return tuple(rd.vector(table[key], path, kind[1]))
 
 
-def _receivers(rd: _Reader, data: dict) -> tuple[ReceiverSpec, ...]:
+def _receivers(rd: _Reader, data: dict, rate_hz: float = 1.0) -> tuple[ReceiverSpec, ...]:
     """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port)."""
     if "receiver" in data and "receivers" in data:
         raise rd.fail("receivers", "give either [receiver] or [[receivers]], not both")
@@ -466,16 +470,44 @@ def _receivers(rd: _Reader, data: dict) -> tuple[ReceiverSpec, ...]:
             raise rd.fail(f"{path}.id", f"duplicate id {rx_id} (also {seen[rx_id]}.id)")
         seen[rx_id] = path
         channels = rd.integer(r, "channels", f"{path}.channels", 1, 1, MAX_CHANNELS)
+        vehicle = _vehicle(rd, r, path, rate_hz) if "vehicle" in r else None
         out.append(
             ReceiverSpec(
                 rx_id,
                 channels,
-                rd.trajectory(r, path),
+                rd.trajectory(r, path) if vehicle is None else _start_pose(vehicle),
                 rd.boolean(r, "gps", f"{path}.gps", False),
                 rd.boolean(r, "attitude", f"{path}.attitude", False),
+                vehicle,
             )
         )
     return tuple(out)
+
+
+def _vehicle(rd: _Reader, r: dict, path: str, rate_hz: float) -> VehicleSpec:
+    """``[receiver.vehicle]``: the receiver rides on a vehicle (emulator.vehicle)."""
+    for key in ("position", "orientation", "path", "gps", "attitude"):
+        if key in r:
+            why = "its pose comes from the vehicle" if key in ("position", "orientation", "path") else (
+                "ground-truth streams are not emulated for a vehicle yet"
+            )
+            raise rd.fail(f"{path}.{key}", f"not allowed with {path}.vehicle: {why}")
+    source = Path(rd.source)
+    vehicle = parse_vehicle(rd, r["vehicle"], f"{path}.vehicle", source.parent if source.is_file() else None)
+    ratio = vehicle.control_rate_hz / rate_hz
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise rd.fail(
+            f"{path}.vehicle.control_rate_hz",
+            f"must be a whole multiple of rate_hz = {rate_hz:g}, got {vehicle.control_rate_hz:g}",
+        )
+    return vehicle
+
+
+def _start_pose(vehicle: VehicleSpec) -> Trajectory:
+    x, y = vehicle.start
+    z = vehicle.terrain.height(x, y) + vehicle.height_start
+    yaw = math.radians(vehicle.yaw_deg)
+    return Trajectory.static([x, y, z], [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
 
 
 def load_scene(path: str | Path) -> Scene:

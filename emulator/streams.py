@@ -33,7 +33,13 @@ class ArvaStream(Stream):
 
     def __init__(self, scene: Scene, index: int, label: str) -> None:
         super().__init__(label, scene.rate_hz)
-        self.receiver = Receiver(scene, index)
+        if scene.receivers[index].vehicle is not None:
+            # Closed loop: poses come from the vehicle (or an autopilot), epoch by epoch.
+            from .closed_loop import ClosedLoop
+
+            self.receiver = ClosedLoop(scene, index, record=False)
+        else:
+            self.receiver = Receiver(scene, index)
 
     def render(self, k0: int, count: int) -> bytes:
         if k0 != self.receiver.next_k:
