@@ -1,0 +1,331 @@
+"""Search sweeps: N seeded random burials per strategy, in closed loop, faster than real time.
+
+Burial i (i = 0 .. N-1) is drawn from ``SeedSequence(seed, spawn_key=(i,))``: 1 to
+``max_transmitters`` transmitters, uniform in the search area, buried ``depth`` metres
+below a flat snow surface (uniform in the range), each with a uniformly random
+orientation (a uniform random unit quaternion). Every strategy and every (v_max, k_c)
+flies the *same* burials (paired comparison), from the area's south-west corner, with a
+lawnmower signal search (strips ``strip_width`` apart), EMI noise on (unless
+``noise=False``) and the scene seed derived from the burial, so a sweep is a pure
+function of its config: the same rows on one process, a pool or a Dask cluster.
+
+Results: one row per (strategy, v_max, k_c, burial, transmitter) — :data:`COLUMNS` —
+written as CSV (or Parquet when pyarrow is installed and the name ends in .parquet),
+and a summary per (strategy, v_max, k_c): fraction located, time-to-locate and final
+horizontal error distributions (median, p90, max).
+
+Command line (``python -m emulator.sweep``; console script ``arva-sweep``)::
+
+    python -m emulator.sweep --n 1000 --seed 1 --out sweep.csv
+    python -m emulator.sweep --n 200 --v-max 0.5,1,2 --k-c 0.1,0.2,0.4 --out grid.csv
+    python -m emulator.sweep --n 5000 --scheduler tcp://10.0.0.5:8786 --out big.csv
+
+The default executor is a local process pool (``--workers``, default the CPU count);
+``--scheduler ADDRESS`` runs the same chunks on a dask.distributed cluster (extra
+``cluster``), whose workers need this package importable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+#: One row per (strategy, v_max, k_c, burial, transmitter).
+COLUMNS = (
+    "strategy", "v_max", "k_c", "burial", "n_tx", "tx_id", "tx_x", "tx_y", "depth_m",
+    "found", "t_found_s", "error_m", "all_found", "t_all_s", "t_end_s", "path_m",
+)
+
+
+#: Strategy name -> the vehicle's controller (flux_reverse: eq. 10 with sign reversal).
+STRATEGIES = {"flux": "flux", "flux_reverse": "flux", "receiver_only": "receiver_only"}
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    n: int = 100
+    seed: int = 0
+    strategies: tuple[str, ...] = ("flux", "flux_reverse", "receiver_only")
+    v_max: tuple[float, ...] = (1.0,)
+    k_c: tuple[float, ...] = (0.2,)
+    area: tuple[float, float, float, float] = (0.0, 0.0, 80.0, 80.0)
+    max_transmitters: int = 4
+    depth: tuple[float, float] = (0.3, 2.5)
+    strip_width: float = 30.0
+    r_s: float = 1.0
+    k_z: float = 1.0
+    noise: bool = True
+    rate_hz: float = 1.0
+    control_rate_hz: float = 10.0
+    t_max: float = 1800.0
+    chunk: int = 8  # burials per task
+
+    def tasks(self) -> list[tuple[str, float, float, int]]:
+        return [
+            (s, v, k, i) for s in self.strategies for v in self.v_max for k in self.k_c for i in range(self.n)
+        ]
+
+
+@dataclass
+class SweepResult:
+    config: SweepConfig
+    rows: list[dict]
+    summary: list[dict]
+    wall_s: float
+    scene_s: float  # scene time flown in total
+    executor: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def speedup(self) -> float:
+        """Scene seconds per wall-clock second, over the whole sweep."""
+        return self.scene_s / self.wall_s if self.wall_s > 0 else math.inf
+
+
+# --------------------------------------------------------------------------- burials
+def burial(config: SweepConfig, i: int) -> list[dict]:
+    """The transmitters of burial ``i``: [{id, position, orientation, depth}]."""
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(config.seed, spawn_key=(i,))))
+    n_tx = int(rng.integers(1, config.max_transmitters + 1))
+    xmin, ymin, xmax, ymax = config.area
+    out = []
+    for j in range(n_tx):
+        x, y = rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)
+        depth = rng.uniform(*config.depth)
+        q = rng.standard_normal(4)
+        q /= np.linalg.norm(q)
+        out.append({"id": j + 1, "position": [float(x), float(y), -float(depth)],
+                    "orientation": [float(c) for c in q], "depth": float(depth)})
+    return out
+
+
+def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: float):
+    """The validated closed-loop scene of one run."""
+    from .scene import parse_scene
+
+    txs = burial(config, i)
+    seed = int(np.random.SeedSequence(config.seed, spawn_key=(i, 1)).generate_state(1)[0])
+    xmin, ymin = config.area[:2]
+    data = {
+        "spec": 1,
+        "seed": seed,
+        "rate_hz": config.rate_hz,
+        "effects": {"noise": config.noise},
+        "transmitters": [{k: tx[k] for k in ("id", "position", "orientation")} for tx in txs],
+        "receiver": {
+            "channels": config.max_transmitters,
+            "vehicle": {
+                "controller": STRATEGIES[strategy],
+                "start": [xmin, ymin],
+                "r_s": config.r_s,
+                "v_max": v_max,
+                "k_c": k_c,
+                "k_z": config.k_z,
+                "control_rate_hz": config.control_rate_hz,
+                "search_area": list(config.area),
+                "strip_width": config.strip_width,
+                **({"flux_reverse": True} if strategy == "flux_reverse" else {}),
+            },
+        },
+    }
+    return parse_scene(data, f"<sweep burial {i}>"), txs
+
+
+def run_one(config: SweepConfig, strategy: str, v_max: float, k_c: float, i: int) -> tuple[list[dict], float]:
+    """Fly one burial; its rows and the scene time flown."""
+    from .closed_loop import ClosedLoop
+
+    scene, txs = burial_scene(config, i, strategy, v_max, k_c)
+    result = ClosedLoop(scene, record=False).run(config.t_max)
+    found = result.found()
+    all_found = all(f["found"] for f in found)
+    t_all = max(f["t"] for f in found) if all_found else math.nan
+    rows = []
+    for tx, f in zip(txs, found):
+        rows.append({
+            "strategy": strategy, "v_max": v_max, "k_c": k_c, "burial": i, "n_tx": len(txs),
+            "tx_id": tx["id"], "tx_x": tx["position"][0], "tx_y": tx["position"][1], "depth_m": tx["depth"],
+            "found": f["found"], "t_found_s": f["t"], "error_m": f["error_m"],
+            "all_found": all_found, "t_all_s": t_all, "t_end_s": result.t_end, "path_m": result.path_length,
+        })
+    return rows, result.t_end
+
+
+def run_chunk(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
+    """Several runs in one worker call (amortises process / network overhead)."""
+    rows: list[dict] = []
+    scene_s = 0.0
+    for task in tasks:
+        r, t = run_one(config, *task)
+        rows += r
+        scene_s += t
+    return rows, scene_s
+
+
+# --------------------------------------------------------------------------- executors
+def sweep(config: SweepConfig, workers: int | None = None, scheduler: str | None = None) -> SweepResult:
+    """Run every task of ``config``: in this process (``workers=1``), on a local process
+    pool (default: one worker per CPU) or, given ``scheduler`` ("tcp://host:8786"), on a
+    dask.distributed cluster. Rows come back in task order whatever the executor."""
+    tasks = config.tasks()
+    chunks = [tasks[i : i + config.chunk] for i in range(0, len(tasks), config.chunk)]
+    wall = time.perf_counter()
+    if scheduler is not None:
+        from distributed import Client
+
+        with Client(scheduler) as client:
+            futures = client.map(run_chunk, [config] * len(chunks), chunks, pure=False)
+            parts = client.gather(futures)
+        executor = f"dask {scheduler}"
+    else:
+        workers = workers or os.cpu_count() or 1
+        if workers == 1 or len(chunks) == 1:
+            parts = [run_chunk(config, c) for c in chunks]
+            executor = "in process"
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                parts = list(pool.map(run_chunk, [config] * len(chunks), chunks))
+            executor = f"process pool x{workers}"
+    wall = time.perf_counter() - wall
+    rows = [row for part, _ in parts for row in part]
+    scene_s = sum(t for _, t in parts)
+    return SweepResult(config, rows, summarize(rows), wall, scene_s, executor)
+
+
+# --------------------------------------------------------------------------- summary
+def _q(values: list[float], q: float) -> float:
+    return float(np.quantile(values, q)) if values else math.nan
+
+
+def summarize(rows: list[dict]) -> list[dict]:
+    """Per (strategy, v_max, k_c): runs, located fraction, time-to-locate and error."""
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault((row["strategy"], row["v_max"], row["k_c"]), []).append(row)
+    out = []
+    for (strategy, v_max, k_c), rs in groups.items():
+        runs: dict[int, dict] = {}
+        for r in rs:
+            runs.setdefault(r["burial"], r)
+        found = [r for r in rs if r["found"]]
+        t_found = [r["t_found_s"] for r in found]
+        errors = [r["error_m"] for r in found]
+        t_all = [r["t_all_s"] for r in runs.values() if r["all_found"]]
+        out.append({
+            "strategy": strategy,
+            "v_max": v_max,
+            "k_c": k_c,
+            "runs": len(runs),
+            "transmitters": len(rs),
+            "located": len(found) / len(rs),
+            "all_located": sum(r["all_found"] for r in runs.values()) / len(runs),
+            "t_locate_median_s": _q(t_found, 0.5),
+            "t_locate_p90_s": _q(t_found, 0.9),
+            "t_all_median_s": _q(t_all, 0.5),
+            "t_all_p90_s": _q(t_all, 0.9),
+            "error_median_m": _q(errors, 0.5),
+            "error_p90_m": _q(errors, 0.9),
+            "error_max_m": max(errors) if errors else math.nan,
+            "within_1m": sum(e <= 1.0 for e in errors) / len(rs),
+        })
+    return out
+
+
+def write_table(rows: list[dict], path: str | Path) -> None:
+    """CSV (header :data:`COLUMNS`), or Parquet for ``*.parquet`` (needs pyarrow)."""
+    path = Path(path)
+    if path.suffix == ".parquet":
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        pq.write_table(pa.Table.from_pylist(rows), path)
+        return
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=COLUMNS, lineterminator="\n")
+        w.writeheader()
+        for row in rows:
+            w.writerow({k: _fmt(row[k]) for k in COLUMNS})
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(round(v, 6))
+    return v
+
+
+def summary_table(summary: list[dict]) -> str:
+    head = ("| strategy | v_max | k_c | runs | tx | located | all located | t locate median / p90 [s] "
+            "| t all median / p90 [s] | error median / p90 / max [m] |")
+    lines = [head, "|" + "---|" * 10]
+    for s in summary:
+        lines.append(
+            f"| {s['strategy']} | {s['v_max']:g} | {s['k_c']:g} | {s['runs']} | {s['transmitters']} | "
+            f"{100 * s['located']:.1f} % | {100 * s['all_located']:.1f} % | "
+            f"{s['t_locate_median_s']:.0f} / {s['t_locate_p90_s']:.0f} | {s['t_all_median_s']:.0f} / {s['t_all_p90_s']:.0f} | "
+            f"{s['error_median_m']:.2f} / {s['error_p90_m']:.2f} / {s['error_max_m']:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- CLI
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(",") if v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if not values or not all(math.isfinite(v) and v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected numbers > 0, got {text!r}")
+    return values
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="arva-sweep", description="Seeded random burials per search strategy, in closed loop.")
+    p.add_argument("--n", type=int, default=100, help="burials per strategy and gain (default 100)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--strategies", default="flux,flux_reverse,receiver_only", help="comma-separated (default: all three)")
+    p.add_argument("--v-max", type=_floats, default=(1.0,), help="m/s, comma-separated grid (default 1)")
+    p.add_argument("--k-c", type=_floats, default=(0.2,), help="eq. 10 gain, comma-separated grid (default 0.2)")
+    p.add_argument("--area", type=_floats, default=(80.0, 80.0), help="search area WIDTH,HEIGHT in m (default 80,80)")
+    p.add_argument("--max-transmitters", type=int, default=4)
+    p.add_argument("--t-max", type=float, default=1800.0, help="scene-time budget per run, s")
+    p.add_argument("--no-noise", action="store_true", help="ideal receiver (EMI noise off)")
+    p.add_argument("--workers", type=int, help="local processes (default: CPU count)")
+    p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
+    p.add_argument("--out", type=Path, help="write the rows here (.csv, or .parquet with pyarrow)")
+    args = p.parse_args(argv)
+    strategies = tuple(s for s in args.strategies.split(",") if s)
+    for s in strategies:
+        if s not in STRATEGIES:
+            p.error(f"--strategies: unknown strategy {s!r} ({', '.join(STRATEGIES)})")
+    if len(args.area) != 2 or args.n < 1 or not 1 <= args.max_transmitters <= 99:
+        p.error("--area takes WIDTH,HEIGHT; --n >= 1; --max-transmitters 1..99")
+    config = SweepConfig(
+        n=args.n, seed=args.seed, strategies=strategies, v_max=args.v_max, k_c=args.k_c,
+        area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
+        noise=not args.no_noise,
+    )
+    result = sweep(config, workers=args.workers, scheduler=args.scheduler)
+    if args.out is not None:
+        write_table(result.rows, args.out)
+    print(summary_table(result.summary))
+    print(
+        f"{len(config.tasks())} runs, {result.scene_s:,.0f} s of scene time in {result.wall_s:.1f} s "
+        f"({result.speedup:,.0f}x real time, {result.executor})",
+        file=sys.stderr,
+    )
+    return 0
+
+
+__all__ = ["SweepConfig", "SweepResult", "sweep", "summarize", "write_table", "burial", "run_one", "asdict", "replace"]
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
