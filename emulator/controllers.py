@@ -120,8 +120,9 @@ class Controller:
 
     @property
     def exhausted(self) -> bool:
-        """No signal to follow and nothing left of the search pattern."""
-        return self.phase == "search" and (self.strips is None or self.strips.finished)
+        """No signal to follow and nothing left of the search pattern (a controller
+        without a search area waits for a signal: never exhausted)."""
+        return self.phase == "search" and self.strips is not None and self.strips.finished
 
     def height_hold(self, obs: Observation) -> float:
         return self.spec.k_z * (self.spec.r_s - obs.height)
