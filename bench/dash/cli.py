@@ -1,0 +1,138 @@
+"""``arva-bench dash [SOURCE ...]``: a live terminal view of receivers, ground truth and links.
+
+    arva-bench dash                                  # an emulated receiver, default scene
+    arva-bench dash /dev/ttyUSB0 --gps /dev/ttyACM0 --attitude /dev/ttyUSB1 \\
+                    --tx-pose 1=46.50012,8.00031,2499.2
+    arva-bench dash campaigns/2026-01-15-a           # a logged session, with its timing
+
+SOURCE is a receiver: a path or pyserial URL (``arvaemu://``, ``socket://``, ``usb://`` ...)
+with an optional ``,role=rx<N>``; or a session directory, replayed in-process with its
+recorded timing (``--speed``); or nothing: ``arvaemu://``, the emulator's default scene in
+real time. ``--gps`` and ``--attitude`` (``,role=rx`` or ``,role=tx<ID>``), ``--tx-pose`` and
+``--origin`` work as in ``arva-bench log``. For an ``arvaemu://`` source and no other ground
+truth, the true poses come from the emulated scene.
+
+Keys: r starts / stops recording a session into ``--record-dir`` (one new directory
+per recording, named by its UTC start, written as ``arva-bench log`` writes), ? help,
+q quit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from firmware_proto.errors import InputError
+
+from ..log import _device, _origin, _tx_pose, device_specs
+from ..logger import DeviceSpec
+from ..session import MANIFEST, read_manifest
+
+DEFAULT_SOURCE = "arvaemu://"
+
+
+def register(sub) -> None:
+    p = sub.add_parser("dash", help="live terminal view of receivers, ground truth and links", description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("source", nargs="*", type=_device("arva"), metavar="SOURCE[,role=rxN]",
+                   help="a receiver (path or pyserial URL) or a session directory; default arvaemu://")
+    p.add_argument("--gps", action="append", default=[], type=_device("gps"), metavar="URL[,role=R]",
+                   help="a GPS (NMEA GGA/RMC); role rx (default) or tx<ID>")
+    p.add_argument("--attitude", action="append", default=[], type=_device("attitude"), metavar="URL[,role=R]",
+                   help="an attitude unit ($PASHR); role rx (default) or tx<ID>")
+    p.add_argument("--tx-pose", action="append", default=[], type=_tx_pose, metavar="ID=LAT,LON,ALT[,H,R,P]",
+                   help="a transmitter's surveyed pose (degrees, metres HAE; heading/roll/pitch in degrees)")
+    p.add_argument("--origin", type=_origin, metavar="LAT,LON[,ALT]",
+                   help="ENU origin for GPS positions (default: the session's, else the first receiver fix)")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate for serial devices (default 115200)")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+                   help="replay a session directory X times real time; 0 = as fast as possible (default 1)")
+    p.add_argument("--stale", type=float, default=3.0, metavar="S",
+                   help="a device silent for S seconds is marked STALE and reopened (default 3)")
+    p.add_argument("--record-dir", type=Path, default=Path("sessions"), metavar="DIR",
+                   help="where r records sessions: DIR/<UTC start> (default ./sessions)")
+    p.add_argument("--no-scene-truth", action="store_true",
+                   help="do not take ground truth from an arvaemu:// source's scene")
+    p.set_defaults(func=run)
+
+
+def _is_session(url: str) -> bool:
+    return os.path.isdir(url)
+
+
+def build_config(args: argparse.Namespace, argv: list[str] | None = None):
+    """The :class:`~bench.dash.app.DashConfig` of parsed arguments (InputError if unusable)."""
+    from .app import DashConfig
+
+    if not (args.stale > 0):
+        raise InputError(f"dash: --stale {args.stale}: must be > 0")
+    if not (0 <= args.speed < float("inf")):
+        raise InputError(f"dash: --speed {args.speed}: must be a finite number >= 0")
+    sources = list(args.source) or [(DEFAULT_SOURCE, "rx")]
+    sessions = [url for url, _ in sources if _is_session(url)]
+    common = dict(stale_after=args.stale, record_dir=args.record_dir, argv=list(sys.argv if argv is None else argv))
+    if sessions:
+        if len(sources) > 1 or args.gps or args.attitude:
+            raise InputError("dash: a session directory replays all its devices: give it as the only source")
+        directory = Path(sessions[0])
+        if not (directory / MANIFEST).exists():
+            raise InputError(f"dash: {directory}: not a session directory (no {MANIFEST})")
+        manifest = read_manifest(directory)
+        specs = [
+            DeviceSpec(name, dev["kind"], dev.get("url", ""), dev.get("role", "rx"), dev.get("baudrate", args.baud))
+            for name, dev in manifest.get("devices", {}).items()
+            if (directory / f"{name}.raw").exists()
+        ]
+        if not specs:
+            raise InputError(f"dash: {directory}: no device has logged anything")
+        origin = args.origin
+        if origin is None and "origin" in manifest:
+            o = manifest["origin"]
+            origin = [o["lat"], o["lon"], o.get("alt", 0.0)]
+        tx_poses = list(args.tx_pose)
+        known = {tx for tx, _ in tx_poses}
+        for tx, pose in manifest.get("tx_poses", {}).items():
+            if int(tx) not in known:
+                values = [pose["lat"], pose["lon"], pose["alt"]]
+                if "heading" in pose:
+                    values += [pose["heading"], pose.get("roll", 0.0), pose.get("pitch", 0.0)]
+                tx_poses.append((int(tx), values))
+        return DashConfig(specs=specs, replay=directory, replay_speed=args.speed, origin=origin,
+                          tx_poses=tx_poses, scene_truth=False, **common)  # fmt: skip
+    ns = argparse.Namespace(arva=sources, gps=args.gps, attitude=args.attitude, baud=args.baud)
+    try:
+        specs = device_specs(ns)
+    except InputError as exc:
+        raise InputError(str(exc).replace("log:", "dash:", 1)) from None
+    scene_truth = not (args.no_scene_truth or args.gps or args.attitude or args.tx_pose)
+    return DashConfig(specs=specs, origin=args.origin, tx_poses=list(args.tx_pose), scene_truth=scene_truth,
+                      **common)  # fmt: skip
+
+
+def start_sources(config, post) -> list:
+    """Start the reader threads of ``config``; they talk to the app only through ``post``."""
+    from .sources import DeviceFeed, LiveSource, ReplaySource, SceneTruth
+
+    if config.replay is not None:
+        sources = [ReplaySource(config.replay, [DeviceFeed(s, post) for s in config.specs], config.replay_speed)]
+    else:
+        sources = []
+        for spec in config.specs:
+            truth = SceneTruth.for_url(spec.url, spec.role, post) if config.scene_truth and spec.kind == "arva" else None
+            sources.append(LiveSource(DeviceFeed(spec, post, truth), config.stale_after))
+    for source in sources:
+        source.start()
+    return sources
+
+
+def run(args: argparse.Namespace) -> int:
+    config = build_config(args)
+    from .app import DashApp
+
+    app = DashApp(config)
+    app.run()
+    if app.last_session is not None:
+        print(f"arva-bench: dash: last recording: {app.last_session}", file=sys.stderr)
+    return 0

@@ -1,0 +1,173 @@
+"""The dashboard's widgets. Each keeps the data it was last given and renders it with the
+text-art functions of :mod:`bench.dash.render` at its current width; ``plain`` is the
+exact text shown (what the tests compare). Colours and layout are in ``dash.tcss``.
+"""
+
+from __future__ import annotations
+
+from rich.text import Text
+from textual.containers import Horizontal
+from textual.widget import Widget
+from textual.widgets import Static
+
+from . import render
+from .state import LinkView, Pose
+
+
+def _css_id(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
+
+
+class _TextWidget(Widget):
+    """A widget whose content is lines of text computed from its data and width."""
+
+    DEFAULT_WIDTH = 40
+
+    def _width(self) -> int:
+        return self.content_size.width or self.DEFAULT_WIDTH
+
+    def lines(self, width: int) -> list[str]:
+        raise NotImplementedError
+
+    @property
+    def plain(self) -> str:
+        return "\n".join(self.lines(self._width()))
+
+    def render(self) -> Text:
+        return Text("\n".join(self.lines(self._width())), no_wrap=True, overflow="crop")
+
+
+class ChannelTable(_TextWidget):
+    """id, d (m), δ (deg), zone, true distance and error of d (when ground truth knows
+    both devices), and a d-versus-time sparkline per channel (newest epoch on the right)."""
+
+    DEFAULT_WIDTH = 50
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.slots: list = []
+        self.true_m: dict[int, float] = {}
+        self.histories: dict[int, list] = {}
+
+    def show(self, slots: list, true_m: dict[int, float], histories: dict[int, list]) -> None:
+        self.slots, self.true_m, self.histories = list(slots), dict(true_m), dict(histories)
+        self.refresh()
+
+    def lines(self, width: int) -> list[str]:
+        if not self.slots:
+            return [render.table_header(width), "waiting for the first epoch"[:width]]
+        return render.channel_rows(self.slots, self.true_m, self.histories, width)
+
+
+class DirectionIndicator(_TextWidget):
+    """δ of the nearest channel (slot 1) as a ray on a half dial, the receiver's x axis
+    up and its y axis (δ > 0) to the left; the other channels' ids on the arc; below,
+    the transmitter, its distance and δ."""
+
+    DEFAULT_WIDTH = 26
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.slots: list = []
+
+    def show(self, slots: list) -> None:
+        self.slots = list(slots)
+        self.refresh()
+
+    def lines(self, width: int) -> list[str]:
+        first = self.slots[0] if self.slots else None
+        delta = None
+        if first is not None and first[0] >= 0 and first[1] >= 0 and render.zone(first[1], first[2]) == "mid":
+            delta = first[2]
+        marks = [(s[0], s[2]) for s in self.slots[1:] if s is not None and s[0] >= 0 and s[1] >= 0
+                 and render.zone(s[1], s[2]) == "mid"]  # fmt: skip
+        out = render.dial(delta, marks, width=width)
+        caption = render.dial_caption(first) if self.slots else "no epoch yet"
+        return out + [caption.center(width).rstrip()[:width]]
+
+
+class ReceiverPanel(Horizontal):
+    """One receiver: its channel table and direction indicator under a titled border."""
+
+    def __init__(self, device: str, role: str) -> None:
+        super().__init__(id=f"rx-{_css_id(device)}", classes="receiver")
+        self.device = device
+        self.role = role
+        self.border_title = f"{device} ({role})"
+
+    def compose(self):
+        yield ChannelTable(classes="channels")
+        yield DirectionIndicator(classes="direction")
+
+    def show(self, seq: int | None, complete: bool, gap: int, epochs: int) -> None:
+        title = f"{self.device} ({self.role})"
+        if seq is not None:
+            title += f"  seq {seq}"
+        self.border_title = title
+        notes = []
+        if not complete:
+            notes.append("incomplete epoch")
+        if gap:
+            notes.append(f"{gap} seq missing")
+        self.border_subtitle = ", ".join(notes)
+
+
+class GroundTruthPanel(_TextWidget):
+    """Per role (rx, tx<ID>): position in ENU metres and how it is known (GPS fix
+    quality, surveyed, scene), and attitude (heading, roll, pitch in degrees)."""
+
+    DEFAULT_WIDTH = 36
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.poses: dict[str, Pose] = {}
+        self.roles: list[str] = []
+
+    def show(self, poses: dict[str, Pose], roles: list[str]) -> None:
+        self.poses, self.roles = poses, list(roles)
+        self.refresh()
+
+    def lines(self, width: int) -> list[str]:
+        return render.truth_lines(self.poses, self.roles, width)
+
+
+class LinkPanel(_TextWidget):
+    """One row per device: state, records/s, checksum errors, seq gaps, time since the
+    last data, bytes dropped; a down link's reason below it."""
+
+    DEFAULT_WIDTH = 40
+    COMPONENT_CLASSES = {"link--up", "link--STALE", "link--down", "link--end", "link--wait", "link--header"}
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.links: list[LinkView] = []
+        self.now = 0.0
+        self.stale_after = 3.0
+
+    def show(self, links: list[LinkView], now: float, stale_after: float) -> None:
+        self.links, self.now, self.stale_after = list(links), now, stale_after
+        self.refresh()
+
+    def _rows(self, width: int) -> list[tuple[str, str]]:
+        rows = [(render.LINK_HEADER[:width], "header")]
+        for link in self.links:
+            row, state = render.link_row(link, self.now, self.stale_after)
+            rows.append((row[:width], state))
+            if state == "down" and link.reason:
+                rows.append((("  " + link.reason)[:width], "down"))
+        return rows
+
+    def lines(self, width: int) -> list[str]:
+        return [r for r, _ in self._rows(width)]
+
+    def render(self) -> Text:
+        text = Text(no_wrap=True, overflow="crop")
+        for i, (row, state) in enumerate(self._rows(self._width())):
+            if i:
+                text.append("\n")
+            text.append(row, style=self.get_component_rich_style(f"link--{state}", partial=True))
+        return text
+
+
+class StatusBar(Static):
+    """Top line: what is shown and whether a session is being recorded."""
