@@ -34,7 +34,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -324,8 +324,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     return 0
 
-
-__all__ = ["SweepConfig", "SweepResult", "sweep", "summarize", "write_table", "burial", "run_one", "asdict", "replace"]
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

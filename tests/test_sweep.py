@@ -1,0 +1,110 @@
+"""Search sweeps: seeded burials, a reproducible summary, the same rows in process, on a
+process pool and on a Dask LocalCluster; the table and the command line."""
+
+import csv
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from emulator.sweep import COLUMNS, SweepConfig, burial, summarize, summary_table, sweep, write_table
+
+CONFIG = SweepConfig(n=4, seed=3, t_max=900.0, chunk=2)
+
+
+def same(a, b):
+    """Rows equal, NaN equal to NaN (after pickling, NaNs are different objects)."""
+    norm = lambda rows: [{k: None if isinstance(v, float) and math.isnan(v) else v for k, v in r.items()} for r in rows]  # noqa: E731
+    return norm(a) == norm(b)
+
+
+@pytest.fixture(scope="module")
+def local():
+    return sweep(CONFIG, workers=1)
+
+
+def test_burials_are_seeded_and_in_range():
+    cfg = SweepConfig(n=200, seed=9)
+    all_tx = [burial(cfg, i) for i in range(200)]
+    assert burial(cfg, 17) == all_tx[17] and burial(cfg, 17) != all_tx[18]
+    assert {len(b) for b in all_tx} == {1, 2, 3, 4}
+    for txs in all_tx:
+        for tx in txs:
+            x, y, z = tx["position"]
+            assert 0 <= x <= 80 and 0 <= y <= 80 and -2.5 <= z <= -0.3 and z == -tx["depth"]
+            assert np.linalg.norm(tx["orientation"]) == pytest.approx(1.0)
+    # Orientations are uniform: the dipole's vertical component averages ~0, |.| ~ 1/2.
+    w, x, y, z = np.array([tx["orientation"] for txs in all_tx for tx in txs]).T
+    mz = 2 * (x * z - w * y)
+    assert abs(mz.mean()) < 0.1 and abs(np.abs(mz).mean() - 0.5) < 0.06
+
+
+def test_small_sweep_summary_is_exact(local):
+    assert [len(local.rows), local.scene_s] == [39, 5977.0]  # 3 strategies x 13 transmitters
+    s = {row["strategy"]: row for row in local.summary}
+    assert [s[k]["located"] for k in ("flux", "flux_reverse", "receiver_only")] == [10 / 13, 1.0, 1.0]
+    assert s["flux"]["t_locate_median_s"] == 225.0
+    assert s["flux_reverse"]["t_all_median_s"] == 306.5
+    assert s["receiver_only"]["t_locate_median_s"] == pytest.approx(301.6, abs=1e-9)
+    assert s["receiver_only"]["error_median_m"] == pytest.approx(0.268744, abs=1e-6)
+    assert s["flux"]["error_max_m"] == pytest.approx(6.711078, abs=1e-6)
+    # The sweep ran faster than real time, by a wide margin.
+    assert local.speedup > 200
+
+
+def test_rerun_gives_the_same_summary(local):
+    again = sweep(CONFIG, workers=1)
+    assert same(again.rows, local.rows) and same(again.summary, local.summary)
+
+
+def test_process_pool_gives_the_same_rows(local):
+    pooled = sweep(CONFIG, workers=2)
+    assert pooled.executor == "process pool x2"
+    assert same(pooled.rows, local.rows)
+
+
+def test_dask_local_cluster_gives_the_same_rows(local):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        result = sweep(CONFIG, scheduler=cluster.scheduler_address)
+    assert result.executor == f"dask {cluster.scheduler_address}"
+    assert same(result.rows, local.rows) and same(result.summary, local.summary)
+
+
+def test_table_round_trips(local, tmp_path):
+    path = tmp_path / "rows.csv"
+    write_table(local.rows, path)
+    with path.open() as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == COLUMNS and len(rows) == len(local.rows)
+    missed = [r for r in rows if r["found"] == "False"]
+    assert missed and all(r["t_found_s"] == "" and r["error_m"] == "" for r in missed)
+    first = local.rows[0]
+    assert float(rows[0]["tx_x"]) == pytest.approx(first["tx_x"], abs=1e-6)
+
+
+def test_summary_of_nothing_found():
+    rows = [{"strategy": "s", "v_max": 1.0, "k_c": 0.2, "burial": 0, "found": False, "t_found_s": math.nan,
+             "error_m": math.nan, "all_found": False, "t_all_s": math.nan}]
+    (s,) = summarize(rows)
+    assert s["located"] == 0.0 and math.isnan(s["t_locate_median_s"]) and math.isnan(s["error_max_m"])
+    assert "| s | 1 | 0.2 | 1 | 1 | 0.0 % |" in summary_table([s])
+
+
+def test_command_line(tmp_path):
+    out = tmp_path / "sweep.csv"
+    proc = subprocess.run(
+        [sys.executable, "-m", "emulator.sweep", "--n", "2", "--seed", "3", "--strategies", "receiver_only",
+         "--workers", "1", "--out", str(out)],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("| strategy | v_max | k_c |")
+    assert "| receiver_only | 1 | 0.2 | 2 |" in proc.stdout
+    assert "x real time, in process)" in proc.stderr
+    assert out.read_text().splitlines()[0] == ",".join(COLUMNS)
+    bad = subprocess.run([sys.executable, "-m", "emulator.sweep", "--strategies", "magic"], capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode == 2 and "unknown strategy 'magic'" in bad.stderr
