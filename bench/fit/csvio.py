@@ -1,0 +1,156 @@
+"""Read and validate the normative CSV (BRIEF 7) for the fit.
+
+Every problem raises :class:`FitInputError` with one line naming the file, the line and
+the column, e.g. ``fit: walk.csv: line 17: column rx_x: not finite: 'nan'``. Columns may
+come in any order; extra columns are ignored; blank lines are skipped. Integer columns
+(seq, id, d, delta) accept integral numbers written as ``12`` or ``12.0``.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from emulator.rotation import MIN_QUATERNION_NORM
+
+from .table import COLUMNS, INTEGER_COLUMNS, FitInputError, Table
+
+#: Largest |coordinate| accepted (metres): beyond it differences lose all precision.
+MAX_COORDINATE = 1e9
+MAX_INTEGER = 2**53
+
+
+def read_csv(path: str | Path, source: str | None = None) -> Table:
+    """Parse and validate a normative CSV file; ``source`` names it in messages."""
+    source = str(path) if source is None else source
+    try:
+        raw = Path(path).read_bytes()
+    except IsADirectoryError:
+        raise FitInputError(f"{source}: is a directory, not a CSV file") from None
+    except OSError as exc:
+        raise FitInputError(f"{source}: cannot read: {exc.strerror or exc}") from None
+    return parse_csv(raw, source)
+
+
+def parse_csv(raw: bytes | str, source: str = "<csv>") -> Table:
+    """Parse CSV bytes or text; see the module docstring for the rules."""
+    if isinstance(raw, bytes):
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise FitInputError(f"{source}: not UTF-8 text (byte {exc.start})") from None
+    else:
+        text = raw
+    if text.startswith("\ufeff"):
+        text = text[1:]
+    if "\x00" in text:
+        raise FitInputError(f"{source}: line {text[: text.index(chr(0))].count(chr(10)) + 1}: NUL byte")
+    lines = text.splitlines()
+    try:
+        records = [(i + 1, row) for i, row in enumerate(csv.reader(lines, strict=True)) if row and any(row)]
+    except csv.Error as exc:
+        raise FitInputError(f"{source}: line {_csv_line(exc, lines)}: malformed CSV: {exc}") from None
+    if not records:
+        raise FitInputError(f"{source}: empty file (no header)")
+    header_line, header = records[0]
+    header = [h.strip() for h in header]
+    dup = sorted({h for h in header if header.count(h) > 1 and h in COLUMNS})
+    if dup:
+        raise FitInputError(f"{source}: line {header_line}: duplicate column {dup[0]}")
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        plural = "s" if len(missing) > 1 else ""
+        raise FitInputError(f"{source}: missing column{plural} {', '.join(missing)}")
+    body = records[1:]
+    if not body:
+        raise FitInputError(f"{source}: no data rows")
+    width = len(header)
+    for line, row in body:
+        if len(row) != width:
+            raise FitInputError(f"{source}: line {line}: expected {width} fields, got {len(row)}")
+    line_no = np.fromiter((line for line, _ in body), dtype=np.int64, count=len(body))
+    fields = list(zip(*(row for _, row in body)))
+    cols: dict[str, np.ndarray] = {}
+    for name in COLUMNS:
+        cells = fields[header.index(name)]
+        try:
+            values = np.array(cells, dtype=np.float64)
+        except ValueError:
+            values = None
+        if values is None or any("_" in c for c in cells):
+            _raise_first_bad(source, name, cells, line_no)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise FitInputError(f"{source}: line {line_no[k]}: column {name}: not finite: {cells[k].strip()!r}")
+        if name in INTEGER_COLUMNS:
+            bad = (values != np.round(values)) | (np.abs(values) > MAX_INTEGER)
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise FitInputError(f"{source}: line {line_no[k]}: column {name}: not an integer: {cells[k].strip()!r}")
+            values = values.astype(np.int64)
+        cols[name] = values
+    table = Table.from_mapping(source, cols, lines=line_no)
+    validate(table)
+    return table
+
+
+def validate(table: Table) -> None:
+    """Row-level checks shared by every input path (CSV, session export, emulation)."""
+    n = len(table)
+    if n == 0:
+        raise FitInputError(f"{table.source}: no data rows")
+    for name, values in (("t", table.t), ("rx", table.rx_pos), ("tx", table.tx_pos)):
+        bad = ~np.isfinite(values) if values.ndim == 1 else ~np.isfinite(values).all(axis=1)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise FitInputError(f"{table.where(k)}: {name if name == 't' else name + '_x..' + name + '_z'}: not finite")
+    for prefix, pos in (("rx", table.rx_pos), ("tx", table.tx_pos)):
+        big = (np.abs(pos) > MAX_COORDINATE).any(axis=1)
+        if big.any():
+            k = int(np.argmax(big))
+            raise FitInputError(f"{table.where(k)}: {prefix}_x..{prefix}_z: coordinate beyond {MAX_COORDINATE:g} m")
+    for prefix, quat in (("rx", table.rx_quat), ("tx", table.tx_quat)):
+        finite = np.isfinite(quat).all(axis=1)
+        if not finite.all():
+            k = int(np.argmax(~finite))
+            raise FitInputError(f"{table.where(k)}: {prefix}_qw..{prefix}_qz: not finite")
+        scale = np.abs(quat).max(axis=1)
+        norm = scale * np.sqrt(np.sum((quat / np.where(scale > 0, scale, 1.0)[:, None]) ** 2, axis=1))
+        bad = ~(norm >= MIN_QUATERNION_NORM)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise FitInputError(
+                f"{table.where(k)}: {prefix}_qw..{prefix}_qz: quaternion norm {norm[k]:.3g} is below {MIN_QUATERNION_NORM:g}"
+            )
+    bad = table.d < -1
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise FitInputError(f"{table.where(k)}: column d: must be -1 or >= 0 cm, got {table.d[k]}")
+
+
+def _raise_first_bad(source: str, name: str, cells, line_no) -> None:
+    for k, cell in enumerate(cells):
+        text = cell.strip()
+        try:
+            if "_" in text:
+                raise ValueError
+            float(text)
+        except ValueError:
+            shown = text if len(text) <= 40 else text[:37] + "..."
+            raise FitInputError(f"{source}: line {line_no[k]}: column {name}: not a number: {shown!r}") from None
+    raise AssertionError("unreachable: numpy rejected a column Python accepts")  # pragma: no cover
+
+
+def _csv_line(exc: csv.Error, lines: list[str]) -> int:
+    # csv.reader over a list counts records; the message carries no line. Find the first
+    # line the strict reader rejects on its own.
+    for i, line in enumerate(lines):
+        try:
+            list(csv.reader([line], strict=True))
+        except csv.Error:
+            return i + 1
+    return len(lines)
+

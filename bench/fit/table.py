@@ -1,0 +1,113 @@
+"""The normative fit table (BRIEF 7): one row per (epoch, slot), poses in ENU.
+
+Columns ``t, seq, id, d, delta, rx_x, rx_y, rx_z, rx_qw, rx_qx, rx_qy, rx_qz, tx_x, tx_y,
+tx_z, tx_qw, tx_qx, tx_qy, tx_qz``; rows with d = -1 carry the pose of the campaign's
+transmitter. :class:`Table` holds them as numpy arrays; ``lines`` maps each row to the
+line of the file it came from, so later checks can still name it.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from firmware_proto.errors import InputError
+
+COLUMNS: tuple[str, ...] = (
+    "t", "seq", "id", "d", "delta",
+    "rx_x", "rx_y", "rx_z", "rx_qw", "rx_qx", "rx_qy", "rx_qz",
+    "tx_x", "tx_y", "tx_z", "tx_qw", "tx_qx", "tx_qy", "tx_qz",
+)  # fmt: skip
+INTEGER_COLUMNS = frozenset({"seq", "id", "d", "delta"})
+
+
+class FitInputError(InputError):
+    """Input the fit cannot use; ``str()`` is one line starting with ``fit: ``."""
+
+    def __init__(self, reason: str) -> None:
+        self.reason = reason
+        super().__init__(f"fit: {reason}")
+
+
+@dataclass
+class Table:
+    source: str
+    t: NDArray[np.float64]
+    seq: NDArray[np.int64]
+    id: NDArray[np.int64]
+    d: NDArray[np.int64]
+    delta: NDArray[np.int64]
+    rx_pos: NDArray[np.float64]  # (N, 3)
+    rx_quat: NDArray[np.float64]  # (N, 4) [w, x, y, z]
+    tx_pos: NDArray[np.float64]
+    tx_quat: NDArray[np.float64]
+    lines: NDArray[np.int64] | None = None  # file line of each row (1 = header)
+
+    def __len__(self) -> int:
+        return int(self.d.shape[0])
+
+    @classmethod
+    def from_columns(cls, source: str, t, seq, id, d, delta, rx_pos, rx_quat, tx_pos, tx_quat, lines=None) -> "Table":
+        f = lambda a, shape: np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(shape))  # noqa: E731
+        i = lambda a: np.ascontiguousarray(np.asarray(a, dtype=np.int64).reshape(-1))  # noqa: E731
+        n = np.asarray(d).reshape(-1).shape[0]
+        return cls(
+            source, f(t, (n,)), i(seq), i(id), i(d), i(delta),
+            f(rx_pos, (n, 3)), f(rx_quat, (n, 4)), f(tx_pos, (n, 3)), f(tx_quat, (n, 4)),
+            None if lines is None else i(lines),
+        )  # fmt: skip
+
+    @classmethod
+    def from_mapping(cls, source: str, cols: dict[str, ArrayLike], lines=None) -> "Table":
+        """From a dict of the normative columns (extra keys ignored)."""
+        missing = [c for c in COLUMNS if c not in cols]
+        if missing:
+            raise FitInputError(f"{source}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+        g = lambda *names: np.stack([np.asarray(cols[c], dtype=np.float64) for c in names], axis=-1)  # noqa: E731
+        return cls.from_columns(
+            source,
+            cols["t"], cols["seq"], cols["id"], cols["d"], cols["delta"],
+            g("rx_x", "rx_y", "rx_z"), g("rx_qw", "rx_qx", "rx_qy", "rx_qz"),
+            g("tx_x", "tx_y", "tx_z"), g("tx_qw", "tx_qx", "tx_qy", "tx_qz"),
+            lines,
+        )  # fmt: skip
+
+    def columns(self) -> dict[str, NDArray]:
+        out: dict[str, NDArray] = {"t": self.t, "seq": self.seq, "id": self.id, "d": self.d, "delta": self.delta}
+        for prefix, pos, quat in (("rx", self.rx_pos, self.rx_quat), ("tx", self.tx_pos, self.tx_quat)):
+            for k, c in enumerate("xyz"):
+                out[f"{prefix}_{c}"] = pos[:, k]
+            for k, c in enumerate(("qw", "qx", "qy", "qz")):
+                out[f"{prefix}_{c}"] = quat[:, k]
+        return out
+
+    def subset(self, mask: NDArray[np.bool_]) -> "Table":
+        return Table(
+            self.source, self.t[mask], self.seq[mask], self.id[mask], self.d[mask], self.delta[mask],
+            self.rx_pos[mask], self.rx_quat[mask], self.tx_pos[mask], self.tx_quat[mask],
+            None if self.lines is None else self.lines[mask],
+        )  # fmt: skip
+
+    def where(self, row: int) -> str:
+        """``FILE: line N`` (or ``row N`` without line numbers) for error messages."""
+        if self.lines is not None:
+            return f"{self.source}: line {int(self.lines[row])}"
+        return f"{self.source}: row {row}"
+
+    def write_csv(self, path: str | Path | io.TextIOBase) -> None:
+        """Write the normative CSV (header + one line per row); floats read back exactly."""
+        cols = self.columns()
+        parts = []
+        for name in COLUMNS:
+            a = cols[name]
+            parts.append(a.astype(str))  # shortest text that reads back to the same float
+        body = "\n".join(",".join(row) for row in zip(*parts))
+        text = ",".join(COLUMNS) + "\n" + (body + "\n" if len(self) else "")
+        if isinstance(path, (str, Path)):
+            Path(path).write_text(text)
+        else:
+            path.write(text)
