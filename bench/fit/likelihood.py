@@ -1,0 +1,409 @@
+"""The likelihood of the observed integers d given each row's geometry (BRIEF 3, 3.2).
+
+For row i the logged poses give the distance r and the receiver-frame field direction
+g = R_r^T R_t A(p)/r^2 (|g| in [1, 2]); with s = 1 the signal is c = g / (4 pi r^3). The
+receiver adds EMI n = Q R_r^T w, w uniform in the ball of radius w_en = 1/(2 pi max q r_en^3),
+and shows
+
+    inner  d = round(100 d3)  if d3 = cbrt(kappa / (4 pi |h|)) <= r_inner
+    mid    d = round(100 dxy) if dxy = cbrt(kappa / (4 pi |h_xy|)) <= r_outer
+    outer  d = -1
+
+The model multiplies both distances by exp(sigma Z), Z standard normal: the error of the
+logged poses (``pose_sigma``, relative; fixed at 0.1 % unless fitted). Then for each row
+
+    P(d = k) = P(inner, round(100 d3) = k) + (1 - P(inner)) P(round(100 dxy) = k, dxy <= r_outer)
+    P(d = -1) = (1 - P(inner)) P(dxy > r_outer)
+
+(the censored rows carry as much information as the detected ones). Two evaluations of
+the distribution of log dxy are used, chosen per row once per pass (regimes are frozen
+during an optimisation so the objective stays smooth):
+
+* **S** (EMI small against the signal, eps = |noise radius| / |c_xy| <= ``eps_split``):
+  log dxy = log dxy0 - (eps/3) E + sigma Z with E the ball's projection on a line; the
+  CDF is closed form (:func:`special.epan_gauss_cdf`). The neglected terms are O(eps^2).
+* **L** (otherwise): the exact distribution of |h_xy| under ball noise
+  (:func:`special.ball_disk_cdf`); the pose error is added by a Gauss-Hermite rule only
+  when it is being fitted or set above 0.2 % (with eps > eps_split the EMI spread of
+  log d is >= 10 times a 0.1 % pose error's).
+
+The inner zone always uses S on |h| (EMI is 1e-4 of the signal at 3 m). Every
+probability is mixed with a gross-error floor: P' = (1 - 1e-6) P + 1e-6 / (100 r_outer + 2).
+Only kappa_eq / s is identifiable: the fit reports kappa_eq for s = 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import CubicSpline
+
+from emulator.rotation import rotation_components, unit_quaternion_components, x_axis_components
+
+from .special import epan_gauss_cdf, epan_gauss_interval, smoothed_ball_disk_cdf
+from .table import Table
+
+GROSS_ERROR = 1e-6
+EPS_SPLIT = 0.03
+
+
+@dataclass(frozen=True)
+class Params:
+    """Every model constant the likelihood depends on (s = 1)."""
+
+    kappa_eq: float = 1.542
+    r_en: float = 80.0
+    q: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    r_inner: float = 3.0
+    r_outer: float = 50.0
+    pose_sigma: float = 0.001
+    time_offset: float = 0.0
+
+
+#: Parameters the fit can estimate, with their transform to the optimiser's scale.
+FREE_PARAMS = ("kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma")
+
+
+def to_params(base: Params, names: tuple[str, ...], theta: NDArray[np.float64]) -> Params:
+    """Map the optimiser's vector (log scale except time_offset; q as log(q_y/q_x))."""
+    kw = {}
+    for name, v in zip(names, theta):
+        if name == "time_offset":
+            kw[name] = float(v)
+        elif name == "q":
+            ratio = math.exp(v)
+            kw[name] = (1.0, ratio, 1.0) if ratio <= 1.0 else (1.0 / ratio, 1.0, 1.0)
+        else:
+            kw[name] = math.exp(v)
+    return replace(base, **kw)
+
+
+def from_params(p: Params, names: tuple[str, ...]) -> NDArray[np.float64]:
+    out = []
+    for name in names:
+        if name == "time_offset":
+            out.append(p.time_offset)
+        elif name == "q":
+            out.append(math.log(p.q[1] / p.q[0]))
+        else:
+            out.append(math.log(getattr(p, name)))
+    return np.array(out)
+
+
+@dataclass
+class Geometry:
+    """Per-row log r and receiver-frame field direction g = (gx, gy, gz), |g| in [1, 2]."""
+
+    log_r: NDArray[np.float64]
+    g: NDArray[np.float64]  # (3, N)
+
+    @property
+    def r(self) -> NDArray[np.float64]:
+        return np.exp(self.log_r)
+
+
+def geometry(rx_pos, rx_quat, tx_pos, tx_quat) -> Geometry:
+    """r and g for each row (the emulator's formulas, emulator/model.py). r = 0 gives log r = -inf."""
+    rr = rotation_components(unit_quaternion_components(rx_quat, "rx_q"))  # (3, 3, N)
+    m = x_axis_components(unit_quaternion_components(tx_quat, "tx_q"))  # (3, N)
+    diff = (np.asarray(rx_pos, float) - np.asarray(tx_pos, float)).T
+    r = np.sqrt(np.einsum("in,in->n", diff, diff))
+    n = diff / np.where(r > 0, r, 1.0)
+    x3 = 3.0 * np.einsum("in,in->n", m, n)
+    uw = x3 * n - m
+    g = np.einsum("ijn,in->jn", rr, uw)  # R_r^T u_w
+    with np.errstate(divide="ignore"):
+        log_r = np.log(r)
+    return Geometry(log_r, g)
+
+
+class PoseTrack:
+    """Poses as smooth functions of time, to evaluate rows at t + time_offset.
+
+    Positions and (sign-aligned) quaternion components are cubic splines over the unique
+    times; rows logged at the same time share a pose. Needs >= 4 distinct times.
+    """
+
+    def __init__(self, table: Table) -> None:
+        t, first = np.unique(table.t, return_index=True)
+        self.t = t
+        self.row_t = table.t
+
+        def spline(values):
+            return CubicSpline(t, values[first], axis=0, extrapolate=True)
+
+        def quat_spline(q):
+            q = np.array(q[first])
+            flip = np.cumprod(np.where(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0, -1.0, 1.0))
+            q[1:] *= flip[:, None]
+            return spline(q)
+
+        self.rx_p, self.tx_p = spline(table.rx_pos), spline(table.tx_pos)
+        self.rx_q, self.tx_q = quat_spline(table.rx_quat), quat_spline(table.tx_quat)
+
+    def geometry(self, offset: float) -> Geometry:
+        tt = np.clip(self.row_t + offset, self.t[0], self.t[-1])
+        return geometry(self.rx_p(tt), self.rx_q(tt), self.tx_p(tt), self.tx_q(tt))
+
+
+@dataclass
+class Rows:
+    """Observed outcomes (k = d in cm, -1 censored) and their geometry."""
+
+    k: NDArray[np.int64]
+    geo: Geometry
+    track: PoseTrack | None = None
+
+
+@dataclass
+class Regimes:
+    """Which rows use the exact (L) evaluation; frozen for one optimisation pass."""
+
+    exact: NDArray[np.bool_]
+    eps_split: float = EPS_SPLIT
+
+
+def _log_eps(geo_log_r, log_gn, qfac, r_en):
+    """log of noise radius / signal = log(2 qfac r^3 / (r_en^3 |g|))."""
+    with np.errstate(divide="ignore"):
+        return np.log(2.0 * qfac) + 3.0 * (geo_log_r - math.log(r_en)) - log_gn
+
+
+def _qfactors(g: NDArray[np.float64], q) -> tuple[NDArray, NDArray]:
+    """|Q g_hat| / max q in the xy plane and in 3D (the noise radius along the signal)."""
+    qx, qy, qz = (v / max(q) for v in q)
+    gx, gy, gz = g
+    gxy2 = gx * gx + gy * gy
+    g2 = gxy2 + gz * gz
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fxy = np.sqrt((qx * qx * gx * gx + qy * qy * gy * gy) / gxy2)
+        f3 = np.sqrt((qx * qx * gx * gx + qy * qy * gy * gy + qz * qz * gz * gz) / g2)
+    fxy = np.where(gxy2 > 0, fxy, math.sqrt((qx * qx + qy * qy) / 2.0))
+    return fxy, f3
+
+
+class Likelihood:
+    """log P(d_i | geometry_i, params) for every row, vectorised over rows."""
+
+    def __init__(self, rows: Rows, regimes: Regimes | None = None) -> None:
+        self.rows = rows
+        self.k = rows.k
+        self.censored = rows.k == -1
+        self.regimes = regimes
+        self.n_evals = 0
+
+    def choose_regimes(self, p: Params, eps_split: float = EPS_SPLIT) -> Regimes:
+        geo = self._geo(p)
+        gx, gy, _ = geo.g
+        with np.errstate(divide="ignore"):
+            log_gxy = np.log(np.hypot(gx, gy))
+        fxy, _ = _qfactors(geo.g, p.q)
+        exact = _log_eps(geo.log_r, log_gxy, fxy, p.r_en) > math.log(eps_split)
+        self.regimes = Regimes(exact, eps_split)
+        return self.regimes
+
+    def _geo(self, p: Params) -> Geometry:
+        if p.time_offset != 0.0 and self.rows.track is not None:
+            return self.rows.track.geometry(p.time_offset)
+        return self.rows.geo
+
+    def logp(self, p: Params) -> NDArray[np.float64]:
+        """log P(d_i) for each row, gross-error floor included."""
+        self.n_evals += 1
+        prob = self.prob(p)
+        n_out = 100.0 * p.r_outer + 2.0
+        return np.log((1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out)
+
+    def nll(self, p: Params) -> float:
+        return -float(np.sum(self.logp(p)))
+
+    # -- the model ------------------------------------------------------------------
+    def prob(self, p: Params) -> NDArray[np.float64]:
+        if self.regimes is None:
+            self.choose_regimes(p)
+        geo = self._geo(p)
+        k = self.k
+        n = k.shape[0]
+        sigma = p.pose_sigma
+        log_r = geo.log_r
+        gx, gy, gz = geo.g
+        with np.errstate(divide="ignore"):
+            log_gxy = np.log(np.hypot(gx, gy))
+            log_g3 = 0.5 * np.log(gx * gx + gy * gy + gz * gz)
+        fxy, f3 = _qfactors(geo.g, p.q)
+        lk = math.log(p.kappa_eq)
+        l3 = log_r + (lk - log_g3) / 3.0  # log d3 without noise
+        lxy = log_r + (lk - log_gxy) / 3.0  # log dxy without noise (inf if g_xy = 0)
+        e3 = np.exp(_log_eps(log_r, log_g3, f3, p.r_en)) / 3.0
+        log_in = math.log(p.r_inner)
+        log_out = math.log(p.r_outer)
+
+        kk = k.astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lo = np.log((kk - 0.5) / 100.0)  # -inf for k = 0 (and nan for k = -1, unused)
+            hi = np.log((kk + 0.5) / 100.0)
+        prob = np.zeros(n)
+
+        # Inner part: rows whose bin reaches below r_inner.
+        inner = (~self.censored) & (lo <= log_in)
+        if inner.any():
+            i = inner
+            prob[i] += epan_gauss_interval(lo[i] - l3[i], np.minimum(hi[i], log_in) - l3[i], e3[i], sigma)
+
+        # Mid part and censoring: P(inner) first, then the distribution of log dxy.
+        mid = (self.censored | (hi > log_in)) & ~(lo >= log_out)
+        if not mid.any():
+            return prob
+        idx = np.flatnonzero(mid)
+        # P(inner) is exactly 0 to double precision unless d3 is within e3 + 9 sigma of r_inner.
+        p_not_inner = np.ones(idx.shape[0])
+        gap = log_in - l3[idx]
+        maybe = gap > -(e3[idx] + 9.0 * sigma)
+        if maybe.any():
+            p_not_inner[maybe] = 1.0 - epan_gauss_cdf(gap[maybe], e3[idx][maybe], sigma)
+        cens = self.censored[idx]
+        a = np.where(cens, log_out, np.maximum(lo[idx], log_in))  # P(a < log dxy <= b)
+        b = np.where(cens, np.inf, np.minimum(hi[idx], log_out))
+        pm = np.zeros(idx.shape[0])
+        exact = self.regimes.exact[idx]
+
+        s_rows = ~exact
+        if s_rows.any():
+            j = idx[s_rows]
+            exy = np.exp(_log_eps(log_r[j], log_gxy[j], fxy[j], p.r_en)) / 3.0
+            pm[s_rows] = epan_gauss_interval(a[s_rows] - lxy[j], b[s_rows] - lxy[j], exy, sigma)
+
+        if exact.any():
+            j = idx[exact]
+            # log dxy <= y <=> |h_xy| >= kappa / (4 pi e^{3y}); in units of the noise radius
+            # b = fxy / (2 pi r_en^3) that threshold is t(y) = kappa r_en^3 / (2 fxy e^{3y}).
+            log_t0 = lk + 3.0 * math.log(p.r_en) - np.log(2.0 * fxy[j])
+            gamma = _gamma(log_r[j], log_gxy[j], fxy[j], p.r_en)
+            pm[exact] = np.maximum(
+                _cdf_at(log_t0, a[exact], gamma, sigma) - _cdf_at(log_t0, b[exact], gamma, sigma), 0.0
+            )
+        prob[idx] += p_not_inner * pm
+        return prob
+
+    # -- diagnostics ------------------------------------------------------------------
+    def prob_below(self, p: Params) -> NDArray[np.float64]:
+        """P(outcome < observed) per row, outcomes ordered 0 < 1 < ... < r_outer < -1
+        (-1 last: "farther than shown"); with :meth:`prob`, gives randomised PIT values."""
+        k = self.k
+        below = np.where(k == -1, 1.0, 0.0)
+        det = k >= 1
+        if det.any():
+            widened = _UnionBin(self, det)
+            below[det] = widened.prob_le(p)
+        cens = k == -1
+        if cens.any():
+            below[cens] = 1.0 - self.prob_censored(p)[cens]
+        return np.clip(below, 0.0, 1.0)
+
+    def prob_censored(self, p: Params) -> NDArray[np.float64]:
+        """P(d = -1) for every row, whatever was observed."""
+        saved = self.k, self.censored
+        try:
+            self.k = np.full_like(saved[0], -1)
+            self.censored = np.ones_like(saved[1])
+            return self.prob(p)
+        finally:
+            self.k, self.censored = saved
+
+
+class _UnionBin:
+    """P(d < k) for detected rows: all inner outcomes below k, plus mid ones below k."""
+
+    def __init__(self, like: Likelihood, rows: NDArray[np.bool_]) -> None:
+        self.like = like
+        self.rows = rows
+
+    def prob_le(self, p: Params) -> NDArray[np.float64]:
+        like = self.like
+        geo = like._geo(p)
+        sel = self.rows
+        k = like.k[sel].astype(np.float64)
+        y = np.log((k - 0.5) / 100.0)  # d < k <=> distance < (k - 0.5) cm
+        log_r = geo.log_r[sel]
+        g = geo.g[:, sel]
+        gx, gy, gz = g
+        with np.errstate(divide="ignore"):
+            log_gxy = np.log(np.hypot(gx, gy))
+        log_g3 = 0.5 * np.log(gx * gx + gy * gy + gz * gz)
+        fxy, f3 = _qfactors(g, p.q)
+        lk = math.log(p.kappa_eq)
+        l3 = log_r + (lk - log_g3) / 3.0
+        lxy = log_r + (lk - log_gxy) / 3.0
+        e3 = np.exp(_log_eps(log_r, log_g3, f3, p.r_en)) / 3.0
+        log_in, log_out = math.log(p.r_inner), math.log(p.r_outer)
+        sigma = p.pose_sigma
+        p_in_below = epan_gauss_cdf(np.minimum(y, log_in) - l3, e3, sigma)
+        p_not_inner = 1.0 - epan_gauss_cdf(log_in - l3, e3, sigma)
+        top = np.minimum(y, log_out)
+        exact = like.regimes.exact[sel]
+        pm = np.zeros(k.shape[0])
+        s = ~exact & (top > log_in)
+        if s.any():
+            exy = np.exp(_log_eps(log_r[s], log_gxy[s], fxy[s], p.r_en)) / 3.0
+            pm[s] = epan_gauss_interval(log_in - lxy[s], top[s] - lxy[s], exy, sigma)
+        x = exact & (top > log_in)
+        if x.any():
+            log_t0 = lk + 3.0 * math.log(p.r_en) - np.log(2.0 * fxy[x])
+            gamma = _gamma(log_r[x], log_gxy[x], fxy[x], p.r_en)
+            pm[x] = _cdf_at(log_t0, np.full(gamma.shape, log_in), gamma, sigma) - _cdf_at(log_t0, top[x], gamma, sigma)
+        return p_in_below + p_not_inner * np.maximum(pm, 0.0)
+
+
+def _gamma(log_r, log_gxy, fxy, r_en):
+    """Signal / noise radius in the xy plane, |c_xy| / b (0 when g_xy = 0)."""
+    with np.errstate(over="ignore"):
+        return np.minimum(np.exp(-_log_eps(log_r, log_gxy, fxy, r_en)), 1e300)
+
+
+def _cdf_at(log_t0, y, gamma, sigma):
+    """P(|h_xy| < rho(y)) = P(log dxy > y) with the pose error: G(t(y)), t = e^{log_t0 - 3y}."""
+    with np.errstate(invalid="ignore"):
+        lt = log_t0 - 3.0 * y
+    lt = np.where(np.isnan(lt), -np.inf, lt)  # y = +inf: threshold 0
+    lt = np.clip(lt, -745.0, np.log(gamma + 2.0))  # G = 1 beyond gamma + 1
+    return smoothed_ball_disk_cdf(lt, gamma, 3.0 * sigma)
+
+
+def rows_from_table(table: Table, with_track: bool = False) -> Rows:
+    geo = geometry(table.rx_pos, table.rx_quat, table.tx_pos, table.tx_quat)
+    track = PoseTrack(table) if with_track else None
+    return Rows(table.d.astype(np.int64), geo, track)
+
+
+def simulate(geo: Geometry, p: Params, rng: np.random.Generator) -> NDArray[np.int64]:
+    """Draw outcomes d (cm, -1 outer) from the model for each row's geometry.
+
+    The receiver of BRIEF 3 with ball noise (drawn in the receiver frame: R_r^T w is
+    uniform in the ball whenever w is), and the pose error exp(sigma Z) on both distances.
+    With pose_sigma = 0 it returns exactly what :func:`emulator.model.measure` returns for
+    noise points u = R_r^T w (tested).
+    """
+    n = geo.log_r.shape[0]
+    z = rng.standard_normal((n, 5))
+    u = z[:, :3] / np.sqrt(np.einsum("ij,ij->i", z, z))[:, None]
+    qn = np.asarray(p.q, dtype=float) / max(p.q)
+    r = np.exp(geo.log_r)
+    rho = 2.0 * (r / p.r_en) ** 3  # noise radius / signal scale, h * 4 pi r^3 = g + rho Q u
+    hx = geo.g[0] + rho * qn[0] * u[:, 0]
+    hy = geo.g[1] + rho * qn[1] * u[:, 1]
+    hz = geo.g[2] + rho * qn[2] * u[:, 2]
+    jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if p.pose_sigma > 0 else 1.0
+    scale = r * np.cbrt(p.kappa_eq) * jitter
+    hxy = np.hypot(hx, hy)
+    with np.errstate(divide="ignore"):
+        d3 = scale / np.cbrt(np.sqrt(hxy * hxy + hz * hz))
+        dxy = scale / np.cbrt(hxy)
+    inner = d3 <= p.r_inner
+    mid = ~inner & (hxy > 0) & (dxy <= p.r_outer)
+    dist = np.where(inner, d3, dxy) * 100.0
+    t = np.trunc(dist)
+    k = (t + (dist - t >= 0.5)).astype(np.int64)
+    return np.where(inner | mid, k, -1)
