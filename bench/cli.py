@@ -18,7 +18,7 @@ from firmware_proto.errors import InputError, LinkError
 from . import __version__
 
 #: Sub-command modules, in the order ``--help`` lists them.
-SUBCOMMANDS: tuple[str, ...] = ("cat", "devices", "log", "export", "replay", "dash")
+SUBCOMMANDS: tuple[str, ...] = ("cat", "devices", "log", "export", "replay", "dash", "fit")
 
 
 def build_parser() -> argparse.ArgumentParser:

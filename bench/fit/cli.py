@@ -1,0 +1,198 @@
+"""``arva-bench fit INPUT``: calibrate the receiver model from a logged campaign.
+
+INPUT is a CSV with the normative columns (BRIEF 7; ``-`` reads stdin) or a session
+directory (through the session export). Prints a summary (or ``--json``: one JSON
+object), optionally writes a report (``--report DIR``: report.md + fit.png) and the fitted
+``[model]`` table into a scene (``--write-scene FILE``). Exit status: 0 fitted; 1 the fit
+did not converge (said on stderr; ``--json`` still prints, with ``"converged": false``);
+2 unusable input or arguments (one line ``arva-bench: fit: <reason>``).
+
+This module imports only argparse at load time: the numerics load when the command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+OPTIONAL_FREE = ("q", "r_outer", "time_offset")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "fit",
+        help="fit kappa_eq and r_en (the receiver model) to a logged campaign",
+        description=(
+            "Fit the receiver model (kappa_eq, the noise-equivalent distance r_en and the pose "
+            "error) to a campaign by maximum likelihood, with standard errors. INPUT is a CSV "
+            "with the normative columns (t, seq, id, d, delta, rx_x .. rx_qz, tx_x .. tx_qz), "
+            "'-' for stdin, or a session directory."
+        ),
+        epilog="Method, assumptions and how to read the report: docs/calibration.md.",
+    )
+    p.add_argument("input", metavar="INPUT", help="CSV file, '-' (stdin) or session directory")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
+    p.add_argument("--report", metavar="DIR", type=Path, help="write DIR/report.md and DIR/fit.png")
+    p.add_argument("--write-scene", metavar="FILE", type=Path, help="write the fitted [model] table into scene FILE (created if missing)")
+    p.add_argument(
+        "--fit",
+        metavar="NAMES",
+        action="append",
+        default=[],
+        help=f"also fit these, comma-separated: {', '.join(OPTIONAL_FREE)} (q as the ratio q_y/q_x)",
+    )
+    fixed = p.add_argument_group("fixed model constants (used as given unless fitted)")
+    fixed.add_argument("--r-inner", type=_positive, default=3.0, metavar="M", help="inner-zone radius (default 3.0)")
+    fixed.add_argument("--r-outer", type=_positive, default=50.0, metavar="M", help="outer limit of d (default 50.0)")
+    fixed.add_argument("--q", type=_q_triple, default=(1.0, 1.0, 1.0), metavar="QX,QY,QZ", help="antenna noise sensitivities (default 1,1,1)")
+    fixed.add_argument("--pose-sigma", type=_positive, metavar="S", help="fix the relative pose error instead of fitting it (e.g. 0.01)")
+    fixed.add_argument("--time-offset", type=float, default=0.0, metavar="SEC", help="evaluate readings at the poses of t + SEC (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the report's simulations and the subsample (default 0)")
+    p.set_defaults(func=run)
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return v
+
+
+def _q_triple(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        q = tuple(float(x) for x in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three numbers QX,QY,QZ, got {text!r}") from None
+    if len(q) != 3 or not all(0 < v <= 1 for v in q):
+        raise argparse.ArgumentTypeError(f"expected three numbers in (0, 1], got {text!r}")
+    return q  # type: ignore[return-value]
+
+
+def load_input(arg: str):
+    """The normative table from a CSV path, '-' (stdin) or a session directory."""
+    from .csvio import parse_csv, read_csv, validate
+    from .table import FitInputError, Table
+
+    if arg == "-":
+        return parse_csv(sys.stdin.buffer.read(), "<stdin>")
+    path = Path(arg)
+    if not path.is_dir():
+        return read_csv(path)
+    try:
+        from bench import export  # the session export (another issue)
+    except ImportError:
+        export = None
+    export_rows = getattr(export, "export_rows", None)
+    if export_rows is None:  # pragma: no cover - the export exists since issue 5
+        raise FitInputError(f"{arg}: session export not available yet")
+    from firmware_proto.errors import InputError
+
+    try:
+        out = export_rows(path)
+    except InputError as exc:
+        raise FitInputError(f"{arg}: {exc}") from None
+    if isinstance(out, (str, Path)):
+        return read_csv(out, source=f"{arg} ({out})")
+    columns = getattr(out, "columns", out)  # ExportResult, or a plain dict of columns
+    if isinstance(columns, dict):
+        table = Table.from_mapping(arg, columns)
+        validate(table)
+        return table
+    raise FitInputError(f"{arg}: the session export returned {type(out).__name__}, not a table")
+
+
+def options_from_args(args):
+    from .fit import FitOptions
+    from .likelihood import Params
+    from .table import FitInputError
+
+    extra: list[str] = []
+    for item in args.fit:
+        for name in item.split(","):
+            name = name.strip()
+            if not name:
+                continue
+            if name in ("kappa_eq", "r_en"):
+                continue  # always fitted
+            if name == "pose_sigma":
+                if args.pose_sigma is not None:
+                    raise FitInputError("--fit pose_sigma and --pose-sigma contradict each other")
+                continue
+            if name not in OPTIONAL_FREE:
+                raise FitInputError(f"--fit: unknown parameter {name!r} (choose from {', '.join(OPTIONAL_FREE)})")
+            if name not in extra:
+                extra.append(name)
+    free = ["kappa_eq", "r_en"] + extra + ([] if args.pose_sigma is not None else ["pose_sigma"])
+    base = Params(
+        r_inner=args.r_inner,
+        r_outer=args.r_outer,
+        q=tuple(args.q),
+        pose_sigma=args.pose_sigma if args.pose_sigma is not None else 1e-3,
+        time_offset=args.time_offset,
+    )
+    if args.r_outer <= args.r_inner:
+        raise FitInputError(f"--r-outer {args.r_outer:g} must exceed --r-inner {args.r_inner:g}")
+    return FitOptions(free=tuple(free), base=base, seed=args.seed)
+
+
+def summary(result) -> str:
+    p = result.params
+    lines = [f"fit: {result.source}: {result.n_rows} rows, {result.n_censored} with d = -1"]
+
+    def row(name, value, unit="", extra=""):
+        se = result.se.get(name)
+        pm = f" +- {se:.3g}" if name in result.free and se is not None and se == se else ""
+        return f"{name:<11} = {value:.6g}{pm}{unit}{extra}"
+
+    lines.append(row("kappa_eq", p.kappa_eq, "", "   (for transmitter moment s = 1)"))
+    lines.append(row("r_en", p.r_en, " m"))
+    if "pose_sigma" in result.free:
+        lines.append(row("pose_sigma", p.pose_sigma))
+    if "r_outer" in result.free:
+        lines.append(row("r_outer", p.r_outer, " m"))
+    if "time_offset" in result.free:
+        lines.append(row("time_offset", p.time_offset, " s"))
+    if "q" in result.free:
+        lines.append(f"{'q':<11} = {', '.join(f'{v:.4g}' for v in p.q)}   (q_y/q_x +- {result.se.get('q', float('nan')):.3g})")
+    status = "converged" if result.converged else f"DID NOT CONVERGE ({result.message})"
+    lines.append(f"log-likelihood {result.log_likelihood:.2f}; {status}; {result.iterations} iterations, {result.seconds:.2f} s")
+    lines += [f"note: {n}" for n in result.notes]
+    nv = result.naive
+    lines.append(f"naive least squares on detected rows only: kappa_eq {nv['kappa_eq']:.6g}, r_en {nv['r_en']:.4g} m")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .fit import fit_table
+    from .report import write_report
+    from .scene import write_scene
+
+    options = options_from_args(args)
+    table = load_input(args.input)
+    result = fit_table(table, options)
+    if args.json:
+        print(json.dumps(result.to_json(), allow_nan=False))
+    else:
+        print(summary(result))
+    sys.stdout.flush()
+    if args.report is not None:
+        md, png, warning = write_report(args.report, table, result, seed=args.seed)
+        print(f"arva-bench: fit: wrote {md}" + (f" and {png}" if png else ""), file=sys.stderr)
+        if warning:
+            print(f"arva-bench: fit: {warning}", file=sys.stderr)
+    if not result.converged:
+        print(f"arva-bench: fit: did not converge: {result.message}", file=sys.stderr)
+        if args.write_scene is not None:
+            print(f"arva-bench: fit: not writing {args.write_scene}: no converged estimate", file=sys.stderr)
+        return 1
+    if args.write_scene is not None:
+        how = write_scene(args.write_scene, result)
+        print(f"arva-bench: fit: {how} {args.write_scene}", file=sys.stderr)
+    return 0
