@@ -33,25 +33,24 @@ from .state import LinkView, ReceiverState, TruthState
 from .widgets import ChannelTable, DirectionIndicator, GroundTruthPanel, LinkPanel, ReceiverPanel, StatusBar
 
 HELP = """\
-[b]arva-bench dash[/b]: receivers, ground truth and links, live.
+[b]arva-bench dash[/b]: receivers, ground truth and links, live
+[b]r[/b]  start / stop recording a session (as arva-bench log)
+[b]?[/b]  this help (esc or ? closes it)    [b]q[/b]  quit
 
-[b]Keys[/b]
-  [b]r[/b]      start / stop recording a session (as arva-bench log)
-  [b]?[/b]      this help (esc or ? closes it)
-  [b]q[/b]      quit (a recording is closed first)
+[b]Receiver[/b] (latest epoch, one panel per receiver)
+  id d δ    transmitter, distance (m), direction (deg)
+  zone      inner (d <= 3 m, no δ), mid; — an empty slot
+  true err  true distance (ground truth); d - true
+  d(t)      d per epoch, newest on the right; · not heard
+  dial      δ of the nearest channel, receiver x axis up,
+            δ > 0 to the left (toward y); others' ids
 
-[b]Receiver[/b]  one panel per receiver, latest epoch
-  id d δ   transmitter, distance (m), direction (deg)
-  zone     inner (d <= 3 m, no δ), mid; — empty slot
-  true err true distance from ground truth, d - true
-  d(t)     d per epoch, newest right; · = not heard
-  dial     δ of the nearest channel; x axis up,
-           δ > 0 to the left (toward y); others' ids
-
-[b]Links[/b]  ep/s epochs (or fixes) per second, cks
-  checksum errors, gap seq gaps, last time since
-  data, drop bytes dropped (junk, rejected). STALE:
-  silent too long; the source reopens by itself."""
+[b]Links[/b]
+  ep/s      epochs (GPS fixes, attitudes) per second
+  cks gap   checksum errors; seq gaps (receivers)
+  last      time since the last data
+  drop      bytes dropped (junk, rejected sentences)
+  STALE     silent longer than --stale; reopened by itself"""
 
 
 @dataclass

@@ -221,7 +221,7 @@ def truth_lines(poses: dict, roles: Sequence[str], width: int) -> list[str]:
         else:
             out.append(f"{head:<{TRUTH_HEAD}} {DASH}"[:width])
         if pose.via == "gps":
-            out.append(f"{'':<{TRUTH_HEAD}} {_fix_summary(pose.fix)}"[:width])
+            out.append(f"     {_fix_summary(pose.fix)}"[:width])
         if pose.hpr is not None and not (pose.via in ("scene", "surveyed") and role.startswith("tx")):
             h, r, p = pose.hpr
             out.append(f" hdg {h:5.1f}  roll {r:6.1f}  pitch {p:5.1f}"[:width])
@@ -281,3 +281,20 @@ def link_row(link, now: float, stale_after: float) -> tuple[str, str]:
         f"{gaps:>3} {age_text(link.age(now)):>5} {compact(c.dropped_bytes, 5):>5}"
     )
     return row, state
+
+
+def size_text(n: int) -> str:
+    if n < 10_000:
+        return f"{n} B"
+    if n < 10_000_000:
+        return f"{n / 1000:.0f} kB"
+    return f"{n / 1_000_000:.0f} MB"
+
+
+LINK_DETAIL_HEADER = f"{'device':<8} {'bytes':>8} {'reopen':>6} url"
+
+
+def link_detail(link) -> str:
+    """Where a link reads from, how much it read, how often it was reopened."""
+    c = link.counters
+    return f"{link_label(link.device)[:8]:<8} {size_text(c.bytes):>8} {c.reconnects:>6} {link.url or DASH}"

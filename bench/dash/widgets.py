@@ -133,7 +133,8 @@ class GroundTruthPanel(_TextWidget):
 
 class LinkPanel(_TextWidget):
     """One row per device: state, records/s, checksum errors, seq gaps, time since the
-    last data, bytes dropped; a down link's reason below it."""
+    last data, bytes dropped; a down link's reason below it. Then each device's URL,
+    bytes read and how often it was reopened."""
 
     DEFAULT_WIDTH = 40
     COMPONENT_CLASSES = {"link--up", "link--STALE", "link--down", "link--end", "link--wait", "link--header"}
@@ -155,6 +156,9 @@ class LinkPanel(_TextWidget):
             rows.append((row[:width], state))
             if state == "down" and link.reason:
                 rows.append((("  " + link.reason)[:width], "down"))
+        if self.links:
+            rows += [("", "up"), (render.LINK_DETAIL_HEADER[:width], "header")]
+            rows += [(render.link_detail(link)[:width], "wait") for link in self.links]
         return rows
 
     def lines(self, width: int) -> list[str]:
