@@ -42,12 +42,17 @@ class Walk:
     wobble_sd: float = 4.0  # per-second wobble on each angle
 
 
-def walk_poses(n: int, walk: Walk, rng: np.random.Generator, rate_hz: float = 1.0):
-    """Receiver positions (n, 3) and quaternions (n, 4) [w, x, y, z] for epochs 0..n-1."""
-    t = np.arange(n) / rate_hz
+def walk_poses(t, walk: Walk, rng: np.random.Generator):
+    """Receiver positions (n, 3) and quaternions (n, 4) [w, x, y, z] at times ``t`` (s).
+
+    Draws, in order: the first bearing, one hold per leg, one wobble per time. With
+    ``wobble_sd = 0`` the path is a smooth function of time within each leg.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    n = t.shape[0]
     span = walk.r_max - walk.r_min
     leg_time = span / walk.speed  # one way
-    leg = np.floor(t / leg_time).astype(np.int64)  # 0 out, 1 back, 2 out, ...
+    leg = np.maximum(np.floor(t / leg_time), 0).astype(np.int64)  # 0 out, 1 back, 2 out, ...
     phase = t / leg_time - leg
     outward = leg % 2 == 0
     rho = walk.r_min + span * np.where(outward, phase, 1.0 - phase)
@@ -84,7 +89,7 @@ def emulate_campaign(
     tx_rot = Rotation.from_euler("ZYX", [rng.uniform(0, 360), rng.normal(0, 30), rng.normal(0, 30)], degrees=True)
     tx_q = tx_rot.as_quat(scalar_first=True)
     tx_p = np.array([0.0, 0.0, -walk.depth])
-    rx_p, rx_q = walk_poses(n, walk, rng, rate_hz)
+    rx_p, rx_q = walk_poses(np.arange(n) / rate_hz, walk, rng)
     noise = NoiseEffect(seed).draw(n, 1)
     meas = measure(rx_p, rx_q, tx_p[None], tx_q[None], params, noise=noise)
     d = meas.d[:, 0]

@@ -252,6 +252,12 @@ def _gradient(f, theta, h, f0=None, hessian=False):
     return g, hess
 
 
+def _merge(theta, mask, values):
+    out = theta.copy()
+    out[mask] = values
+    return out
+
+
 def _active(theta, g, lo, hi):
     """Parameters at a bound whose gradient (of f, to be minimised) points outwards."""
     span = hi - lo
@@ -270,14 +276,29 @@ def _solve(hf, gf):
     return -(v @ ((v.T @ gf) / mod)), bool(np.any(w <= 0))
 
 
-def _line_search(f, theta, step, f0, lo, hi):
-    for _ in range(12):
+def _line_search(f, theta, step, f0, lo, hi, cap=None):
+    """Backtracking from the full step; if the full step already decreases f, keep
+    doubling it while f keeps decreasing (the likelihood is steeper on the barrier side
+    of r_en than a quadratic, so Newton steps from there fall short)."""
+    for k in range(12):
         trial = np.clip(theta + step, lo, hi)
         f1 = f(trial)
         if f1 < f0:
-            return trial, f1
+            break
         step = step * 0.5
-    return None, f0
+    else:
+        return None, f0
+    if k == 0:
+        for _ in range(4):
+            longer = step * 2.0
+            if cap is not None and np.any(np.abs(longer) > cap):
+                break
+            t2 = np.clip(theta + longer, lo, hi)
+            f2 = f(t2)
+            if not f2 < f1:
+                break
+            step, trial, f1 = longer, t2, f2
+    return trial, f1
 
 
 @dataclass
@@ -310,17 +331,39 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
     none = np.zeros(p, bool)
     if not math.isfinite(f0):
         return _Newton(theta, f0, None, none, h, 0, False, "the likelihood is zero at the starting point")
+    held = np.zeros(p, bool)  # at a bound with the gradient pointing out: no Hessian row
+    shrinks = 0
     for it in range(1, max_iter + 1):
-        g, hess = _gradient(f, theta, h, f0, hessian=True)
+        g = np.zeros(p)
+        hess = np.zeros((p, p))
+        if held.any():
+            gh, _ = _gradient(lambda th_h: f(_merge(theta, held, th_h)), theta[held], h[held], f0)
+            g[held] = gh
+        live = np.flatnonzero(~held)
+        gl, hl = _gradient(lambda th_l: f(_merge(theta, ~held, th_l)), theta[live], h[live], f0, hessian=True)
+        g[live] = gl
+        hess[np.ix_(live, live)] = hl
+        if held.any():
+            hess[held, held] = 1.0  # placeholder, never used for a step
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(hess))):
             return _Newton(theta, f0, hess, none, h, it, False, "the likelihood is not finite next to the estimate")
         active = _active(theta, g, lo, hi)
         keep = np.flatnonzero(~active)
+        if np.any(active & ~held):
+            held = active.copy()
+            continue  # recompute without the held rows (cheaper, and exact for the rest)
+        held = active.copy()
         hf = hess[np.ix_(keep, keep)]
         stepf, modified = _solve(hf, g[keep])
         if stepf is None:
             return _Newton(theta, f0, hess, active, h, it, False, "the Hessian is not finite")
         decrement = -0.5 * float(g[keep] @ stepf)
+        if modified and decrement < 0.5 and shrinks < 3:
+            # Close to the optimum but not convex at this step size: a difference straddles
+            # a steep side (the noise edge). Look again with smaller steps.
+            shrinks += 1
+            h = h / 3.0
+            continue
         new_h = h.copy()
         if not modified:
             se = np.sqrt(np.maximum(np.diag(np.linalg.inv(hf)), 0.0))
@@ -346,30 +389,42 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if probed:
             continue
         step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
-        trial, f1 = _line_search(f, theta, step, f0, lo, hi)
+        trial, f1 = _line_search(f, theta, step, f0, lo, hi, cap)
+        if trial is None:
+            # Near a steep side (the noise edge) differences over 0.3 standard errors bias
+            # the gradient: retry with a gradient from steps ten times smaller.
+            gk, _ = _gradient(lambda th_k: f(_merge(theta, ~active, th_k)), theta[keep], h[keep] / 10.0, f0)
+            stepf, _mod = _solve(hf, gk)
+            decrement = -0.5 * float(gk @ stepf)
+            step = np.zeros(p)
+            step[keep] = stepf
+            step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+            trial, f1 = _line_search(f, theta, step, f0, lo, hi, cap) if decrement >= tol else (None, f0)
         if trial is None:
             if not modified and decrement < 1e-3:
-                return _Newton(theta, f0, hess, active, h, it, True, "converged (within rounding)")
+                return _Newton(theta, f0, hess, active, h, it, True, "converged")
             return _Newton(theta, f0, hess, active, h, it, False, "no step decreases the negative log-likelihood")
         theta, f0 = trial, f1
     return _Newton(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
 
 
-def _refine(f, theta, free, hess, h, max_iter=12):
-    """Gradient steps preconditioned by a fixed Hessian (the scaled subsample's)."""
+def _refine(f, theta, free, hess, h, held, max_iter=12):
+    """Gradient steps preconditioned by a fixed Hessian (the scaled subsample's); the
+    ``held`` parameters (at a bound) stay where they are."""
     lo, hi = _box(free)
+    live = np.flatnonzero(~held)
+    sub = lambda th_l: f(_merge(theta, ~held, th_l))  # noqa: E731
+    hl = hess[np.ix_(live, live)]
     f0 = f(theta)
     for it in range(1, max_iter + 1):
-        g, _ = _gradient(f, theta, h, f0)
-        active = _active(theta, g, lo, hi)
-        keep = np.flatnonzero(~active)
-        stepf, _mod = _solve(hess[np.ix_(keep, keep)], g[keep])
+        g, _ = _gradient(sub, theta[live], h[live], f0)
+        stepf, _mod = _solve(hl, g)
         if stepf is None:
             return theta, f0, it, False
-        if -0.5 * float(g[keep] @ stepf) < DECREMENT_TOL:
+        if -0.5 * float(g @ stepf) < DECREMENT_TOL:
             return theta, f0, it, True
         step = np.zeros(len(free))
-        step[keep] = stepf
+        step[live] = stepf
         trial, f1 = _line_search(f, theta, step, f0, lo, hi)
         if trial is None:
             return theta, f0, it, True
@@ -485,8 +540,10 @@ def pilot_sigma(rows: Rows, kappa: float, r_inner: float) -> float:
     return float(np.clip(math.sqrt(max(mad * mad - rounding * rounding, 0.0)), BOUNDS["pose_sigma"][0], 0.2))
 
 
-#: Above this many rows, Newton and the Hessian run on a random subsample of this size.
-SUBSAMPLE = 20000
+#: Above this many rows, Newton and the Hessian run on a random subsample of this size
+#: (the Hessian is a sum over rows: scaled by n / SUBSAMPLE its relative error is about
+#: 1 / sqrt(SUBSAMPLE) times the rows' spread of curvature).
+SUBSAMPLE = 10000
 
 
 def _subset(rows: Rows, idx) -> Rows:
@@ -494,6 +551,88 @@ def _subset(rows: Rows, idx) -> Rows:
 
 
 # -- the fit ------------------------------------------------------------------------------------
+
+
+def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], start: Params | None):
+    """Pilot + Newton (+ full-data refinement for big tables) for the parameters ``free``."""
+    n = rows.k.shape[0]
+    big = n > SUBSAMPLE and "time_offset" not in free  # the pose track needs every row
+    if big:
+        rng = np.random.default_rng(np.random.SeedSequence(options.seed, spawn_key=(0x5B,)))
+        sub = _subset(rows, np.sort(rng.choice(n, SUBSAMPLE, replace=False)))
+    else:
+        sub = rows
+    n_evals = 0
+    if start is None:  # pilot on (at most) the subsample
+        start = base
+        if "kappa_eq" in free:
+            k_med = _median_kappa(sub, base.r_inner)
+            if math.isfinite(k_med):
+                start = replace(start, kappa_eq=k_med)
+        if "pose_sigma" in free:
+            start = replace(start, pose_sigma=pilot_sigma(sub, start.kappa_eq, base.r_inner))
+        if "r_en" in free:
+            grid = Likelihood(sub)
+            best = (math.inf, start.r_en)
+            for r_en in np.geomspace(8.0, 1000.0, 15):
+                trial = replace(start, r_en=float(r_en))
+                grid.choose_regimes(trial)
+                v = grid.nll(trial)
+                if v < best[0]:
+                    best = (v, float(r_en))
+            n_evals += grid.n_evals
+            start = replace(start, r_en=best[1])
+    theta = from_params(start, free)
+    like, res = _optimise(sub, base, free, theta, options, notes)
+    n_evals += like.n_evals
+    hess, fval = res.hess, res.f
+    if big and res.ok:
+        # Full data: gradient steps preconditioned by the subsample Hessian scaled to n rows.
+        scale = n / SUBSAMPLE
+        full = Likelihood(rows)
+        full.choose_regimes(to_params(base, free, res.theta))
+        theta, fval, it, ok_r = _refine(_Objective(full, base, free), res.theta, free, hess * scale, res.steps, res.active)
+        res.iterations += it
+        # The Hessian for the standard errors on all rows (a subsample's, scaled, is too
+        # noisy: a few rows near the noise edge carry much of the curvature), with steps of
+        # 0.3 standard errors taken from the scaled subsample Hessian.
+        live = np.flatnonzero(~res.active)
+        try:
+            se_live = np.sqrt(np.maximum(np.diag(np.linalg.inv(hess[np.ix_(live, live)] * scale)), 1e-18))
+        except np.linalg.LinAlgError:
+            se_live = res.steps[live] / 0.3 / math.sqrt(scale)
+        steps = res.steps.copy()
+        steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
+        f_full = _Objective(full, base, free)
+        _g, h_live = _gradient(lambda th_l: f_full(_merge(theta, ~res.active, th_l)), theta[live], steps[live], fval, hessian=True)
+        hess = np.zeros_like(hess)
+        hess[np.ix_(live, live)] = h_live
+        res.theta, res.hess, res.f = theta, hess, fval
+        n_evals += full.n_evals
+        like = full
+        if not ok_r:
+            res.ok, res.why = False, "no convergence of the full-data refinement"
+        notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then gradient steps and the Hessian on all rows")
+    return like, res, n_evals
+
+
+def _fit_r_outer(like: Likelihood, params: Params, rows: Rows) -> tuple[float, float, float]:
+    """r_outer is an end point (the largest d the receiver shows): its likelihood is not
+    quadratic, so it gets a bounded 1-D search with the other parameters held, and a
+    likelihood-ratio interval (ΔNLL = 1.92) whose width / 3.92 is reported as its s.e.
+    Returns (r_outer, se, nll)."""
+    from scipy.optimize import brentq, minimize_scalar
+
+    max_d = int(np.max(rows.k))
+    lo = (max_d - 0.5) / 100.0 + 1e-7
+    hi = max(lo, params.r_outer) + 2.0
+    f = lambda r: like.nll(replace(params, r_outer=float(r)))  # noqa: E731
+    best = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6})
+    r, f0 = float(best.x), float(best.fun)
+    g = lambda x: f(x) - f0 - 1.92  # noqa: E731
+    left = brentq(g, lo, r, xtol=1e-7) if g(lo) > 0 else lo
+    right = brentq(g, r, hi, xtol=1e-7) if g(hi) > 0 else hi
+    return r, (right - left) / 3.92, f0
 
 
 def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
@@ -504,84 +643,52 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             raise FitInputError(f"cannot fit {name!r}; choose from {', '.join(FREE_PARAMS)}")
     rows = usable(check_table(table, options))
     free = tuple(n for n in FREE_PARAMS if n in options.free)  # canonical order
+    newton_free = tuple(n for n in free if n != "r_outer")
     base = options.base
+    if "r_outer" in free:  # start just above the largest d shown
+        base = replace(base, r_outer=max(base.r_outer, (int(np.max(rows.k)) + 0.5) / 100.0))
     naive = naive_fit(rows, base.r_inner)
     notes: list[str] = []
     n = rows.k.shape[0]
-    big = n > SUBSAMPLE and "time_offset" not in free  # the pose track needs every row
-    if big:
-        rng = np.random.default_rng(np.random.SeedSequence(options.seed, spawn_key=(0x5B,)))
-        sub = _subset(rows, np.sort(rng.choice(n, SUBSAMPLE, replace=False)))
-    else:
-        sub = rows
 
-    # Pilot on (at most) the subsample.
-    start = base
-    if "kappa_eq" in free:
-        k_med = _median_kappa(sub, base.r_inner)
-        if math.isfinite(k_med):
-            start = replace(start, kappa_eq=k_med)
-    if "pose_sigma" in free:
-        start = replace(start, pose_sigma=pilot_sigma(sub, start.kappa_eq, base.r_inner))
-    n_evals = 0
-    if "r_en" in free:
-        grid = Likelihood(sub)
-        best = (math.inf, start.r_en)
-        for r_en in np.geomspace(8.0, 1000.0, 15):
-            trial = replace(start, r_en=float(r_en))
-            grid.choose_regimes(trial)
-            v = grid.nll(trial)
-            if v < best[0]:
-                best = (v, float(r_en))
-        n_evals += grid.n_evals
-        start = replace(start, r_en=best[1])
-    theta = from_params(start, free)
-
-    like, res = _optimise(sub, base, free, theta, options, notes)
-    n_evals += like.n_evals
-    hess, fval = res.hess, res.f
-    if big and res.ok:
-        # Full data: gradient steps preconditioned by the subsample Hessian scaled to n
-        # rows; then the Hessian again on the subsample at the final estimate.
-        scale = n / SUBSAMPLE
-        full = Likelihood(rows)
-        full.choose_regimes(to_params(base, free, res.theta))
-        theta, fval, it, ok_r = _refine(_Objective(full, base, free), res.theta, free, hess * scale, res.steps)
-        res.iterations += it
-        n_evals += full.n_evals
-        like.choose_regimes(to_params(base, free, theta))
-        f_sub = _Objective(like, base, free)
-        _g, h_sub = _gradient(f_sub, theta, res.steps, hessian=True)
-        hess = h_sub * scale
-        res.theta = theta
-        res.active = _active(theta, _g, *_box(free))
-        like = full
-        if not ok_r:
-            res.ok, res.why = False, "no convergence of the full-data refinement"
-        notes.append(f"Newton and Hessian on a {SUBSAMPLE}-row subsample (scaled x{scale:.2f}); full data refined")
-    theta, ok, why, active = res.theta, res.ok, res.why, res.active
-    params = to_params(base, free, theta)
+    like, res, n_evals = _core(rows, base, newton_free, options, notes, None)
+    r_outer_se = float("nan")
+    if "r_outer" in free and res.ok:
+        params = to_params(base, newton_free, res.theta)
+        like.choose_regimes(params)
+        r_outer, r_outer_se, _f = _fit_r_outer(like, params, rows)
+        base = replace(base, r_outer=r_outer)
+        start = to_params(base, newton_free, res.theta)
+        like, res, extra = _core(rows, base, newton_free, options, notes, start)
+        n_evals += extra
+    theta_n, fval, hess, active, ok, why = res.theta, res.f, res.hess, res.active, res.ok, res.why
+    params = to_params(base, newton_free, theta_n)
+    theta = from_params(params, free)
 
     estimate = {m: (float(theta[i]) if m == "time_offset" else math.exp(theta[i])) for i, m in enumerate(free)}
     cov = np.full((len(free), len(free)), np.nan)
     se = {m: float("nan") for m in free}
-    lo, _hi = _box(free)
+    ix = [free.index(m) for m in newton_free]
+    lo, _hi = _box(newton_free)
     if ok and hess is not None:
         keep = np.flatnonzero(~active)
         try:
             hk = hess[np.ix_(keep, keep)]
             np.linalg.cholesky(hk)
-            cov[np.ix_(keep, keep)] = np.linalg.inv(hk)
+            sub_cov = np.linalg.inv(hk)
+            for a_, i in enumerate(keep):
+                for b_, j in enumerate(keep):
+                    cov[ix[i], ix[j]] = sub_cov[a_, b_]
         except np.linalg.LinAlgError:
             ok = False
             why = "the likelihood has no curvature in some direction: a parameter cannot be estimated from these rows"
         for i in keep:
-            name = free[i]
-            sd = math.sqrt(max(cov[i, i], 0.0))
+            name = newton_free[i]
+            sd = math.sqrt(max(cov[ix[i], ix[i]], 0.0))
             se[name] = sd if name == "time_offset" else estimate[name] * sd  # delta method
         for i in np.flatnonzero(active):
-            name = free[i]
-            at_lower = theta[i] <= lo[i] + 1e-6
+            name = newton_free[i]
+            at_lower = theta_n[i] <= lo[i] + 1e-6
             if name == "pose_sigma" and at_lower:
                 notes.append(
                     f"pose_sigma is at its lower bound {BOUNDS[name][0]:g} (the poses look exact); "
@@ -592,9 +699,14 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
                 bound = BOUNDS[name][0 if at_lower else 1]
                 hint = " (the data show no noise floor)" if name == "r_en" and not at_lower else ""
                 why = f"{name} runs to its {'lower' if at_lower else 'upper'} bound {bound:g}{hint}"
+    if "r_outer" in free:
+        se["r_outer"] = r_outer_se
+        j = free.index("r_outer")
+        cov[j, j] = (r_outer_se / estimate["r_outer"]) ** 2
+        notes.append("r_outer is an end point: its standard error is a likelihood-ratio interval width / 3.92")
     info = None
     if ok and options.expected_se:
-        info = expected_information(like, base, free, theta, options.seed)
+        info = expected_information(like, base, newton_free, theta_n, options.seed)
     return FitResult(
         source=table.source,
         params=params,
