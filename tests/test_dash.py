@@ -201,6 +201,17 @@ def test_links_rate_errors_and_stale_after_a_clock_advance(tmp_path):
     run(go())
 
 
+def test_rate_uses_the_sources_running_count_when_it_thins_records(tmp_path):
+    async def go():
+        app = make_app(tmp_path, clock=FakeClock(T0 + 2))
+        async with app.run_test(size=(80, 24)) as pilot:
+            await inject(pilot, [EpochReceived("arva", "rx", k, DEFAULT_SLOTS, T0 + k, count=1 + 2500 * k)
+                                 for k in range(3)])  # fmt: skip
+            assert app.query_one(LinkPanel).plain.splitlines()[1] == "arva     wait  2500   0   0  0.0s     0"
+
+    run(go())
+
+
 def test_gps_truth_with_a_surveyed_transmitter(tmp_path):
     origin = Origin(46.5, 8.0, 2500.0)
     lat, lon, alt = (float(v) for v in enu_to_geodetic(3.0, 4.0, -1.0, origin))
@@ -373,6 +384,18 @@ class Collect:
             time.sleep(0.02)
 
 
+def test_feed_thins_a_flood_of_records_but_keeps_exact_counts():
+    post = Collect()
+    feed = DeviceFeed(DeviceSpec("arva", "arva", "x", "rx"), post)
+    for k in range(1000):  # 1000 epochs in 1 s: far more than a UI draws
+        feed.received(parva(k, 1, 1, 1, 1905, 21), 10.0 + k / 1000, 0.0)
+    feed.flush()
+    epochs = post.of(EpochReceived)
+    assert 30 <= len(epochs) <= 60
+    assert epochs[-1].seq == 999 and epochs[-1].count == 1000  # the latest always arrives, with the true count
+    assert [e.count for e in epochs] == sorted(e.count for e in epochs)
+
+
 def test_feed_counts_checksum_errors_gaps_and_dropped_bytes():
     post = Collect()
     feed = DeviceFeed(DeviceSpec("arva", "arva", "x", "rx"), post)
@@ -416,7 +439,7 @@ def test_live_source_reopens_a_silent_device_by_itself():
 def test_live_source_reads_the_in_process_emulator_with_scene_truth():
     post = Collect()
     spec = DeviceSpec("arva", "arva", "arvaemu://?speed=0&frames=3", "rx")
-    src = LiveSource(DeviceFeed(spec, post, SceneTruth.for_url(spec.url, "rx", post)), stale_after=5)
+    src = LiveSource(DeviceFeed(spec, post, SceneTruth.for_url(spec.url, "rx")), stale_after=5)
     src.start()
     try:
         post.wait(lambda: len(post.of(EpochReceived)) >= 3)
@@ -425,11 +448,11 @@ def test_live_source_reads_the_in_process_emulator_with_scene_truth():
         src.join(5)
     epochs = post.of(EpochReceived)
     assert [(e.seq, e.slots) for e in epochs] == [(k, DEFAULT_SLOTS) for k in range(3)]
+    assert [e.count for e in epochs] == [1, 2, 3]
     truth = post.of(TruthPose)
-    assert {t.role for t in truth} == {"rx", "tx1", "tx2", "tx3", "tx4"}
-    assert [t.role for t in truth].count("tx1") == 1  # static transmitters once per connection
-    assert next(t for t in truth if t.role == "tx3").position == (20.0, -20.0, -1.0)
-    assert post.messages.index(truth[0]) < post.messages.index(epochs[0])  # truth before its epoch
+    assert [t.role for t in truth] == ["rx", "tx1", "tx2", "tx3", "tx4"] * 3
+    assert truth[3].position == (20.0, -20.0, -1.0) and truth[0].q == (1.0, 0.0, 0.0, 0.0)
+    assert post.messages.index(truth[4]) < post.messages.index(epochs[0])  # truth before its epoch
 
 
 def test_scene_truth_follows_a_moving_receiver(tmp_path):
@@ -439,16 +462,16 @@ def test_scene_truth_follows_a_moving_receiver(tmp_path):
         "[receiver]\nchannels = 1\npath = [{ t = 0.0, position = [10.0, 0.0, 0.0] },"
         " { t = 10.0, position = [0.0, 0.0, 0.0] }]\n"
     )
-    post = Collect()
-    truth = SceneTruth.for_url(f"arvaemu://{scene}", "rx", post)
-    truth.on_epoch(4, 1.0)  # t = 2 s
-    truth.on_epoch(65535, 2.0)  # k = 65535: long past the end of the path, whose last pose holds
-    truth.reset()
-    truth.on_epoch(6, 3.0)  # a new connection: k = 6, t = 3 s
-    rx = [m.position for m in post.messages if m.role == "rx"]
-    assert rx[0] == pytest.approx((8.0, 0.0, 0.0)) and rx[1] == pytest.approx((0.0, 0.0, 0.0))
+    truth = SceneTruth.for_url(f"arvaemu://{scene}", "rx")
+    ks = [truth.on_epoch(4), truth.on_epoch(65535), truth.on_epoch(2)]  # seq wraps after 65535
+    assert ks == [4, 65535, 65538]
+    truth.reset()  # a new connection: the emulator starts again at epoch 0
+    assert truth.on_epoch(6) == 6
+    rx = [truth.poses(k, 0.0)[0].position for k in (4, 65535, 6)]
+    assert rx[0] == pytest.approx((8.0, 0.0, 0.0))  # t = 2 s
+    assert rx[1] == pytest.approx((0.0, 0.0, 0.0))  # long past the end of the path: its last pose holds
     assert rx[2] == pytest.approx((7.0, 0.0, 0.0))
-    assert SceneTruth.for_url("/dev/ttyUSB0", "rx", post) is None
+    assert SceneTruth.for_url("/dev/ttyUSB0", "rx") is None
 
 
 def _session(path):

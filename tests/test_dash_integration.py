@@ -1,15 +1,27 @@
-"""arva-bench dash over a real pty: arva-emulate in a subprocess, the dashboard's reader
-thread on the pty it announces, the default scene's epoch in the channel table."""
+"""arva-bench dash over real ptys: arva-emulate in a subprocess with the dashboard's reader
+thread on the pty it announces (the default scene's epoch in the channel table), and the
+command itself run in a pseudo-terminal, recording and quitting."""
 
 from __future__ import annotations
 
 import asyncio
+import fcntl
+import os
+import pty
+import select
+import struct
+import subprocess
+import sys
+import termios
+import time
 
 import pytest
 
 from bench.dash.app import DashApp, DashConfig
 from bench.dash.widgets import ChannelTable, LinkPanel
 from bench.logger import DeviceSpec
+from bench.session import read_jsonl, read_manifest
+from dash_helpers import DEFAULT_SLOTS
 from emulator_proc import EmulatorProcess
 
 EXPECTED_ROWS = [
@@ -46,3 +58,54 @@ def test_dash_shows_the_emulator_on_a_pty(tmp_path):
         assert links.split()[:2] == ["arva", "up"]
     finally:
         emu.kill()
+
+
+def _drain(fd: int, seconds: float, out: bytearray) -> None:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([fd], [], [], 0.05)
+        if ready:
+            try:
+                out += os.read(fd, 65536)
+            except OSError:  # the child closed the terminal
+                return
+
+
+@pytest.mark.timeout(60)
+def test_arva_bench_dash_in_a_terminal_records_and_quits(tmp_path):
+    """The command itself on a pseudo-terminal (80x24): r, r records a session from the
+    bytes the dashboard reads; q quits at once and cleanly."""
+    master, slave = pty.openpty()
+    fcntl.ioctl(master, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bench.cli", "dash", "arvaemu://?speed=4", "--record-dir", str(tmp_path)],
+        stdin=slave, stdout=slave, stderr=slave, env={**os.environ, "TERM": "xterm-256color"},
+        start_new_session=True,
+    )  # fmt: skip
+    os.close(slave)
+    out = bytearray()
+    try:
+        _drain(master, 2.0, out)  # started, showing epochs
+        os.write(master, b"r")
+        _drain(master, 1.5, out)  # about six epochs at 4 Hz
+        os.write(master, b"r")
+        _drain(master, 0.3, out)
+        os.write(master, b"q")
+        t0 = time.monotonic()
+        while proc.poll() is None and time.monotonic() - t0 < 10:
+            _drain(master, 0.1, out)
+        quit_s = time.monotonic() - t0
+        assert proc.wait(timeout=1) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    assert quit_s < 5
+    (session,) = tmp_path.iterdir()
+    assert b"last recording: " + str(session).encode() in bytes(out)
+    manifest = read_manifest(session)
+    assert manifest["devices"]["arva"]["url"] == "arvaemu://?speed=4"
+    assert manifest["summary"]["stopped_by"] == "user"
+    epochs = [r for r in read_jsonl(session / "arva.jsonl") if "seq" in r]
+    assert len(epochs) >= 3 and all(r["slots"] == [list(s) for s in DEFAULT_SLOTS] for r in epochs)

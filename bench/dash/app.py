@@ -148,7 +148,7 @@ class DashApp(App):
             rs = self.receivers[msg.device] = ReceiverState(msg.device, msg.role)
             await self.query_one("#receivers").mount(ReceiverPanel(msg.device, msg.role))
         rs.on_epoch(msg.seq, msg.slots, msg.complete)
-        self._link(msg.device, "arva", msg.role).arrived(msg.mono)
+        self._link(msg.device, "arva", msg.role).arrived(msg.mono, msg.count)
         self._refresh_receiver(rs, gap=msg.gap)
         self._refresh_links()
 
@@ -158,13 +158,13 @@ class DashApp(App):
         sentence = msg.fix.get("sentence")
         link.seen_gga |= sentence == "GGA"
         if sentence == "GGA" or not link.seen_gga:
-            link.arrived(msg.mono)  # one fix per GGA (RMC only when a device sends no GGA)
+            link.arrived(msg.mono, msg.count)  # one fix per GGA (RMC only when a device sends no GGA)
         self._refresh_truth()
         self._refresh_links()
 
     def on_attitude_received(self, msg: AttitudeReceived) -> None:
         self.truth.on_attitude(msg.role, msg.heading, msg.roll, msg.pitch, msg.q)
-        self._link(msg.device, "attitude", msg.role).arrived(msg.mono)
+        self._link(msg.device, "attitude", msg.role).arrived(msg.mono, msg.count)
         self._refresh_truth()
         self._refresh_links()
 

@@ -120,7 +120,7 @@ def start_sources(config, post) -> list:
     else:
         sources = []
         for spec in config.specs:
-            truth = SceneTruth.for_url(spec.url, spec.role, post) if config.scene_truth and spec.kind == "arva" else None
+            truth = SceneTruth.for_url(spec.url, spec.role) if config.scene_truth and spec.kind == "arva" else None
             sources.append(LiveSource(DeviceFeed(spec, post, truth), config.stale_after))
     for source in sources:
         source.start()

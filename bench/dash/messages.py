@@ -13,7 +13,11 @@ from textual.message import Message
 
 
 class EpochReceived(Message):
-    """One receiver epoch: ``slots[k-1]`` is ``(id, d, delta)`` or None (slot lost)."""
+    """One receiver epoch: ``slots[k-1]`` is ``(id, d, delta)`` or None (slot lost).
+
+    ``count`` (here and in the other record messages) is the device's running number of
+    such records: a source that thins a flood of records (more than the UI can draw)
+    still lets the app compute the true rate. None counts this message as one."""
 
     def __init__(
         self,
@@ -24,8 +28,10 @@ class EpochReceived(Message):
         mono: float,
         complete: bool = True,
         gap: int = 0,
+        count: int | None = None,
     ) -> None:
         super().__init__()
+        self.count = count
         self.device = device
         self.role = role
         self.seq = seq
@@ -38,8 +44,9 @@ class EpochReceived(Message):
 class FixReceived(Message):
     """A GPS record (the ``gps`` record dict of :mod:`bench.records`) for ``role``."""
 
-    def __init__(self, device: str, role: str, fix: dict, mono: float) -> None:
+    def __init__(self, device: str, role: str, fix: dict, mono: float, count: int | None = None) -> None:
         super().__init__()
+        self.count = count
         self.device = device
         self.role = role
         self.fix = fix
@@ -50,9 +57,11 @@ class AttitudeReceived(Message):
     """A ``$PASHR`` attitude for ``role``: degrees and the ENU quaternion ``[w, x, y, z]``."""
 
     def __init__(
-        self, device: str, role: str, heading: float, roll: float, pitch: float, q: list[float], mono: float
+        self, device: str, role: str, heading: float, roll: float, pitch: float, q: list[float], mono: float,
+        count: int | None = None,
     ) -> None:
         super().__init__()
+        self.count = count
         self.device = device
         self.role = role
         self.heading = heading

@@ -273,7 +273,7 @@ def link_row(link, now: float, stale_after: float) -> tuple[str, str]:
     checksum errors, seq gaps, time since the last data, bytes dropped."""
     c = link.counters
     rate = link.rate(now, stale_after)
-    rate_text = DASH if rate is None else (f"{rate:.1f}" if rate < 100 else f"{rate:.0f}")
+    rate_text = DASH if rate is None else (f"{rate:.1f}" if rate < 100 else compact(round(rate), 4))
     gaps = compact(c.seq_gaps, 3) if link.kind == "arva" else DASH
     state = link_state(link, now, stale_after)
     row = (

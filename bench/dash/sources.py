@@ -41,26 +41,32 @@ from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkCounters
 READ_TIMEOUT = 0.1
 #: At most this many LinkStatus messages per second per device while data flows.
 STATUS_INTERVAL = 0.25
+#: Records posted per second per device at most (a burst of POST_BURST passes at once).
+#: Beyond that (an emulator or a replay at speed 0) the UI gets the latest record at
+#: least every STATUS_INTERVAL, with running counts so rates stay exact, and the
+#: app's message queue stays bounded. Counters and recordings see every record.
+POST_RATE = 30.0
+POST_BURST = 10.0
 SEQ_MODULO = 65536
 
 Post = Callable[[object], object]
 
 
 class SceneTruth:
-    """True poses for an ``arvaemu://SCENE[?receiver=ID...]`` source, posted as
-    :class:`TruthPose` before each epoch (``via="scene"``). Not for closed-loop receivers,
-    whose poses the scene does not know in advance (``for_url`` returns None)."""
+    """True poses for an ``arvaemu://SCENE[?receiver=ID...]`` source: :class:`TruthPose`
+    messages (``via="scene"``) of the receiver and every transmitter at each epoch's
+    time, posted just before the epoch. Not for closed-loop receivers, whose poses the
+    scene does not know in advance (``for_url`` returns None)."""
 
-    def __init__(self, scene, index: int, rx_role: str, post: Post) -> None:
+    def __init__(self, scene, index: int, rx_role: str) -> None:
         self.rx = scene.receivers[index]
         self.transmitters = scene.transmitters
         self.rate = scene.rate_hz
         self.rx_role = rx_role
-        self.post = post
         self.reset()
 
     @classmethod
-    def for_url(cls, url: str, rx_role: str, post: Post) -> "SceneTruth | None":
+    def for_url(cls, url: str, rx_role: str) -> "SceneTruth | None":
         parts = urllib.parse.urlsplit(url)
         if parts.scheme != "arvaemu":
             return None
@@ -74,26 +80,28 @@ class SceneTruth:
         index = ids.index(int(opts["receiver"])) if opts.get("receiver", "").isdigit() and int(opts["receiver"]) in ids else 0
         if getattr(scene.receivers[index], "vehicle", None) is not None:
             return None
-        return cls(scene, index, rx_role, post)
+        return cls(scene, index, rx_role)
 
     def reset(self) -> None:
         """A new connection: the emulated receiver starts again at epoch 0."""
         self._k: int | None = None
         self._seq = 0
-        self._static_sent = False
 
-    def on_epoch(self, seq: int, mono: float) -> None:
+    def on_epoch(self, seq: int) -> int:
+        """Follow the epoch counter (seq is k modulo 65536); returns k."""
         k = seq if self._k is None else self._k + (seq - self._seq) % SEQ_MODULO
         self._k, self._seq = k, seq
+        return k
+
+    def poses(self, k: int, mono: float) -> list[TruthPose]:
+        """The receiver's and transmitters' poses at epoch k (t = k / rate_hz)."""
         t = k / self.rate
         pos, q = self.rx.trajectory.at([t])
-        self.post(TruthPose(self.rx_role, tuple(pos[0]), tuple(q[0]), "scene", mono))
+        out = [TruthPose(self.rx_role, tuple(pos[0]), tuple(q[0]), "scene", mono)]
         for tx in self.transmitters:
-            if tx.trajectory.is_static and self._static_sent:
-                continue
             p, tq = tx.trajectory.at([t])
-            self.post(TruthPose(f"tx{tx.id}", tuple(p[0]), tuple(tq[0]), "scene", mono))
-        self._static_sent = True
+            out.append(TruthPose(f"tx{tx.id}", tuple(p[0]), tuple(tq[0]), "scene", mono))
+        return out
 
 
 class DeviceFeed:
@@ -117,6 +125,10 @@ class DeviceFeed:
         self.reason = ""
         self._last_status = -1e9
         self._dirty = False
+        self._counts = {"epoch": 0, "GGA": 0, "RMC": 0, "attitude": 0}
+        self._tokens = POST_BURST
+        self._token_mono: float | None = None
+        self._held: list | None = None  # the latest record's messages not posted yet
 
     # -- data ----------------------------------------------------------------------------
     def received(self, data: bytes, mono: float, utc: float) -> None:
@@ -134,11 +146,12 @@ class DeviceFeed:
         mono = time.monotonic()
         if isinstance(self.decoder, ArvaRecords):
             self._handle(self.decoder.idle(), mono)
-        if self._dirty:
+        if self._dirty or self._held is not None:
             self.status(mono)
 
     def flush(self) -> None:
         self._handle(self.decoder.flush(), time.monotonic())
+        self._release()
 
     def _handle(self, records: list[dict], mono: float) -> None:
         name, role = self.spec.name, self.spec.role
@@ -154,15 +167,49 @@ class DeviceFeed:
                     self.rejected_bytes += rec.get("length", 0)
                 continue
             self.records += 1
+            counts = self._counts
             if "seq" in rec:
-                if self.truth is not None:
-                    self.truth.on_epoch(rec["seq"], mono)
+                counts["epoch"] += 1
+                k = self.truth.on_epoch(rec["seq"]) if self.truth is not None else 0
                 slots = [None if s is None else tuple(s) for s in rec["slots"]]
-                self.post(EpochReceived(name, role, rec["seq"], slots, mono, rec["complete"], rec.get("gap", 0)))
+                epoch = EpochReceived(name, role, rec["seq"], slots, mono, rec["complete"], rec.get("gap", 0),
+                                      count=counts["epoch"])  # fmt: skip
+                truth = self.truth
+
+                def make(truth=truth, k=k, epoch=epoch, mono=mono) -> list:
+                    return ([] if truth is None else truth.poses(k, mono)) + [epoch]
+
+                self._offer(make, mono)
             elif "sentence" in rec:
-                self.post(FixReceived(name, role, rec, mono))
+                if rec["sentence"] in counts:
+                    counts[rec["sentence"]] += 1
+                fixes = counts["GGA"] or counts["RMC"]
+                self._offer(lambda rec=rec, n=fixes, mono=mono: [FixReceived(name, role, rec, mono, count=n)], mono)
             elif "q" in rec:
-                self.post(AttitudeReceived(name, role, rec["heading"], rec["roll"], rec["pitch"], rec["q"], mono))
+                counts["attitude"] += 1
+                msg = AttitudeReceived(name, role, rec["heading"], rec["roll"], rec["pitch"], rec["q"], mono,
+                                       count=counts["attitude"])  # fmt: skip
+                self._offer(lambda msg=msg: [msg], mono)
+
+    def _offer(self, make, mono: float) -> None:
+        """Post one record's messages (``make()``), unless the token bucket is empty:
+        then hold them, replacing an older held record, until :meth:`status`."""
+        if self._token_mono is not None:
+            self._tokens = min(POST_BURST, self._tokens + (mono - self._token_mono) * POST_RATE)
+        self._token_mono = mono
+        if self._tokens >= 1.0:
+            self._tokens -= 1.0
+            self._held = None
+            for msg in make():
+                self.post(msg)
+        else:
+            self._held = make  # built only if it is ever posted
+
+    def _release(self) -> None:
+        held, self._held = self._held, None
+        if held is not None:
+            for msg in held():
+                self.post(msg)
 
     # -- link state ----------------------------------------------------------------------
     def counters(self) -> LinkCounters:
@@ -185,6 +232,7 @@ class DeviceFeed:
             return
         self._last_status = mono
         self._dirty = False
+        self._release()
         s = self.spec
         self.post(LinkStatus(s.name, s.kind, s.role, s.url, self.state, self.counters(), self.reason))
 

@@ -165,13 +165,16 @@ class LinkView:
     arrivals: deque = field(default_factory=lambda: deque(maxlen=256))
     seen_gga: bool = False
 
-    def arrived(self, mono: float) -> None:
-        self.arrivals.append(mono)
+    def arrived(self, mono: float, count: int | None = None) -> None:
+        """A record at ``mono``; ``count`` is the source's running record count (None: one more)."""
+        if count is None:
+            count = self.arrivals[-1][1] + 1 if self.arrivals else 1
+        self.arrivals.append((mono, count))
 
     def last_data(self) -> float | None:
         last = self.counters.last_data_mono
-        if self.arrivals and (last is None or self.arrivals[-1] > last):
-            return self.arrivals[-1]
+        if self.arrivals and (last is None or self.arrivals[-1][0] > last):
+            return self.arrivals[-1][0]
         return last
 
     def age(self, now: float) -> float | None:
@@ -189,9 +192,9 @@ class LinkView:
 
     def rate(self, now: float, stale_after: float) -> float | None:
         """Records per second over the last :data:`RATE_WINDOW` s; 0 when stale."""
-        recent = [t for t in self.arrivals if now - t <= RATE_WINDOW]
         if self.stale(now, stale_after):
             return 0.0
-        if len(recent) < 2 or recent[-1] <= recent[0]:
+        recent = [(t, c) for t, c in self.arrivals if now - t <= RATE_WINDOW]
+        if len(recent) < 2 or recent[-1][0] <= recent[0][0]:
             return None
-        return (len(recent) - 1) / (recent[-1] - recent[0])
+        return (recent[-1][1] - recent[0][1]) / (recent[-1][0] - recent[0][0])
