@@ -220,8 +220,12 @@ def _box(free) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     return lo, hi
 
 
+#: First difference steps, about a third of a typical standard error (log scale).
+INITIAL_STEPS = {"kappa_eq": 1e-4, "r_en": 1e-3, "q": 3e-3, "r_outer": 1e-4, "pose_sigma": 1e-2, "time_offset": 0.05}
+
+
 def _initial_steps(free) -> NDArray[np.float64]:
-    return np.array([0.05 if n == "time_offset" else 1e-3 for n in free])
+    return np.array([INITIAL_STEPS[n] for n in free])
 
 
 def _caps(free) -> NDArray[np.float64]:
@@ -325,7 +329,8 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
     lo, hi = _box(free)
     h = _initial_steps(free) if h is None else h.copy()
     cap = _caps(free)
-    probe_bounds = np.array([n == "pose_sigma" for n in free])
+    probe_lo = np.array([n == "pose_sigma" for n in free])
+    probe_hi = np.array([n == "r_en" for n in free])
     theta = np.clip(theta, lo, hi)
     f0 = f(theta)
     none = np.zeros(p, bool)
@@ -378,11 +383,14 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         step = np.zeros(p)
         step[keep] = stepf
         probed = False
-        for i in np.flatnonzero(probe_bounds & (step < 0) & (theta > lo)):
-            # pose_sigma heading for its bound (exact poses): the likelihood flattens there,
-            # so Newton would creep; try the bound itself.
+        # A parameter heading for a bound where the likelihood flattens (pose_sigma with
+        # exact poses; r_en with no noise in the data) would creep there in capped
+        # steps: try the bound itself.
+        toward_lo = probe_lo & (step < 0) & (theta > lo)
+        toward_hi = probe_hi & (step > 0) & ((np.abs(step) >= cap) | (theta > math.log(300.0))) & (theta < hi)
+        for i in np.flatnonzero(toward_lo | toward_hi):
             trial = theta.copy()
-            trial[i] = lo[i]
+            trial[i] = lo[i] if toward_lo[i] else hi[i]
             f1 = f(trial)
             if f1 < f0:
                 theta, f0, probed = trial, f1, True
@@ -403,6 +411,10 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if trial is None:
             if not modified and decrement < 1e-3:
                 return _Newton(theta, f0, hess, active, h, it, True, "converged")
+            if shrinks < 4:  # the differences were too coarse here: look closer
+                shrinks += 1
+                h = h / 3.0
+                continue
             return _Newton(theta, f0, hess, active, h, it, False, "no step decreases the negative log-likelihood")
         theta, f0 = trial, f1
     return _Newton(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
@@ -699,6 +711,12 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
                 bound = BOUNDS[name][0 if at_lower else 1]
                 hint = " (the data show no noise floor)" if name == "r_en" and not at_lower else ""
                 why = f"{name} runs to its {'lower' if at_lower else 'upper'} bound {bound:g}{hint}"
+    for name in ("kappa_eq", "r_en"):
+        if ok and name in free and se[name] > 0.5 * estimate[name]:
+            notes.append(
+                f"{name} is poorly determined (standard error {se[name]:.3g} against {estimate[name]:.4g}); "
+                "check time alignment and the pose error"
+            )
     if "r_outer" in free:
         se["r_outer"] = r_outer_se
         j = free.index("r_outer")

@@ -368,7 +368,8 @@ def _cdf_at(log_t0, y, gamma, sigma):
     with np.errstate(invalid="ignore"):
         lt = log_t0 - 3.0 * y
     lt = np.where(np.isnan(lt), -np.inf, lt)  # y = +inf: threshold 0
-    lt = np.clip(lt, -745.0, np.log(gamma + 2.0))  # G = 1 beyond gamma + 1
+    # G = 1 beyond gamma + 1, and the pose error reaches 8 s.d. (3 sigma each) past it.
+    lt = np.clip(lt, -745.0, np.log(gamma + 2.0) + 30.0 * sigma)
     return smoothed_ball_disk_cdf(lt, gamma, 3.0 * sigma)
 
 
