@@ -371,7 +371,8 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
             continue
         new_h = h.copy()
         if not modified:
-            se = np.sqrt(np.maximum(np.diag(np.linalg.inv(hf)), 0.0))
+            w, v = np.linalg.eigh(0.5 * (hf + hf.T))
+            se = np.sqrt(np.maximum((v * v) @ (1.0 / np.maximum(w, 1e-300)), 0.0))
             top = np.where(np.array(free)[keep] == "time_offset", 0.5, 0.05)
             new_h[keep] = np.clip(0.3 * se, 1e-7, top)
         if not modified and decrement < tol:
@@ -577,6 +578,22 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
     n_evals = 0
     if start is None:  # pilot on (at most) the subsample
         start = base
+        if "time_offset" in free and rows.track is not None:
+            # A misaligned clock looks like a large pose error (and no noise floor), so
+            # find the offset first: a scan over +-3 s at the naive kappa_eq.
+            k_med = _median_kappa(sub, base.r_inner)
+            probe = replace(base, kappa_eq=k_med if math.isfinite(k_med) else base.kappa_eq, pose_sigma=0.01)
+            scan = Likelihood(sub)
+            best = (math.inf, 0.0)
+            for dt in np.arange(-3.0, 3.0001, 0.25):
+                trial = replace(probe, time_offset=float(dt))
+                scan.choose_regimes(trial)
+                v = scan.nll(trial)
+                if v < best[0]:
+                    best = (v, float(dt))
+            n_evals += scan.n_evals
+            start = replace(start, time_offset=best[1])
+            sub = Rows(sub.k, sub.track.geometry(best[1]), sub.track)  # pilots below at that offset
         if "kappa_eq" in free:
             k_med = _median_kappa(sub, base.r_inner)
             if math.isfinite(k_med):
@@ -595,6 +612,8 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
             n_evals += grid.n_evals
             start = replace(start, r_en=best[1])
     theta = from_params(start, free)
+    if "time_offset" in free and rows.track is not None:
+        sub = rows  # the likelihood recomputes the geometry from the track at each offset
     like, res = _optimise(sub, base, free, theta, options, notes)
     n_evals += like.n_evals
     hess, fval = res.hess, res.f
