@@ -255,6 +255,23 @@ def test_a_device_nobody_announced_gets_its_own_panel(tmp_path):
     run(go())
 
 
+def test_a_receiver_with_many_channels_shows_them_all_and_brackets_stay_text(tmp_path):
+    slots = [(i, 500 + 100 * i, i) for i in range(1, 10)]
+
+    async def go():
+        app = make_app(tmp_path)
+        async with app.run_test(size=(80, 30)) as pilot:
+            await inject(pilot, [EpochReceived("arva", "rx", 0, slots, T0)])
+            table = app.query_one(ChannelTable)
+            assert table.size.height == 10 and len(table.plain.splitlines()) == 10
+            app.message = "recording stopped: [Errno 28] No space left on device"
+            app.tick()
+            await pilot.pause()
+            assert str(app.query_one(StatusBar).visual).endswith("[Errno 28] No space left on device")
+
+    run(go())
+
+
 def test_help_screen_opens_and_closes(tmp_path):
     async def go():
         app = make_app(tmp_path)

@@ -5,11 +5,14 @@ and look at the SVGs in tests/__snapshots__/."""
 
 from __future__ import annotations
 
+import asyncio
+from pathlib import Path
+
 import pytest
 
 from bench.dash.messages import AttitudeReceived, EpochReceived, FixReceived, LinkCounters, LinkStatus
 from bench.logger import DeviceSpec
-from dash_helpers import T0, FakeClock, inject, make_app, walk_app, walk_messages
+from dash_helpers import T0, FakeClock, inject, make_app, save_walk_screenshot, walk_app, walk_messages
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -56,3 +59,11 @@ def test_help_screen(snap_compare, tmp_path):
         await inject(pilot, walk_messages())
 
     assert snap_compare(walk_app(tmp_path), press=["question_mark"], terminal_size=(80, 24), run_before=before)
+
+
+def test_docs_screenshot_is_current(tmp_path):
+    """docs/dash.svg is what the app draws now (regenerate: python tests/dash_helpers.py docs/dash.svg)."""
+    out = tmp_path / "dash.svg"
+    asyncio.run(asyncio.wait_for(save_walk_screenshot(str(out), tmp_path), timeout=30))
+    docs = Path(__file__).resolve().parent.parent / "docs" / "dash.svg"
+    assert out.read_text() == docs.read_text(), "docs/dash.svg is stale: python tests/dash_helpers.py docs/dash.svg"

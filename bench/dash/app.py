@@ -200,7 +200,7 @@ class DashApp(App):
         ids = [s[0] for s in rs.slots if s is not None and s[0] >= 0]
         panel.query_one(ChannelTable).show(rs.slots, self.truth.distances(rs.role, ids), rs.histories())
         panel.query_one(DirectionIndicator).show(rs.slots)
-        panel.show(rs.seq, rs.complete, gap, rs.epochs)
+        panel.show(rs.seq, rs.complete, gap, rs.epochs, len(rs.slots))
 
     def _refresh_truth(self) -> None:
         self.query_one(GroundTruthPanel).show(self.truth.poses, self.truth.roles())

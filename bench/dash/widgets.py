@@ -99,7 +99,9 @@ class ReceiverPanel(Horizontal):
         yield ChannelTable(classes="channels")
         yield DirectionIndicator(classes="direction")
 
-    def show(self, seq: int | None, complete: bool, gap: int, epochs: int) -> None:
+    def show(self, seq: int | None, complete: bool, gap: int, epochs: int, slots: int = 0) -> None:
+        # Room for every slot: the dial needs 8 lines, the table a header and one per slot.
+        self.styles.height = max(10, slots + 3)
         title = f"{self.device} ({self.role})"
         if seq is not None:
             title += f"  seq {seq}"
@@ -174,4 +176,8 @@ class LinkPanel(_TextWidget):
 
 
 class StatusBar(Static):
-    """Top line: what is shown and whether a session is being recorded."""
+    """Top line: what is shown and whether a session is being recorded. Plain text (no
+    markup): it shows paths and error messages, which may contain brackets."""
+
+    def __init__(self, text: str = "", **kwargs) -> None:
+        super().__init__(text, markup=False, **kwargs)
