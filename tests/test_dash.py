@@ -91,6 +91,13 @@ def test_sparkline_scales_to_the_window_and_dots_missing_epochs():
     assert render.sparkline([1, 2, 3, 4, 5, 6, 7, 8, 9], 4) == "▁▃▆█"  # only the newest that fit
 
 
+def test_a_long_url_keeps_its_end():
+    from bench.dash.state import LinkView
+
+    link = LinkView("arva", url="/media/field/campaigns/2026-01-15-slope-a/arva.raw")
+    assert render.link_detail(link, 40) == "arva          0 B      0 …ope-a/arva.raw"
+
+
 def test_zone_of_a_reported_slot():
     assert [render.zone(*s) for s in [(250, 0), (300, 0), (301, 0), (290, 5), (-1, -1)]] == [
         "inner", "inner", "mid", "mid", "—",

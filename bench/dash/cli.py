@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from firmware_proto.errors import InputError
@@ -116,7 +117,9 @@ def start_sources(config, post) -> list:
     from .sources import DeviceFeed, LiveSource, ReplaySource, SceneTruth
 
     if config.replay is not None:
-        sources = [ReplaySource(config.replay, [DeviceFeed(s, post) for s in config.specs], config.replay_speed)]
+        # The links show where the bytes come from now: the session's raw logs.
+        feeds = [DeviceFeed(replace(s, url=str(config.replay / f"{s.name}.raw")), post) for s in config.specs]
+        sources = [ReplaySource(config.replay, feeds, config.replay_speed)]
     else:
         sources = []
         for spec in config.specs:

@@ -294,7 +294,13 @@ def size_text(n: int) -> str:
 LINK_DETAIL_HEADER = f"{'device':<8} {'bytes':>8} {'reopen':>6} url"
 
 
-def link_detail(link) -> str:
-    """Where a link reads from, how much it read, how often it was reopened."""
+def link_detail(link, width: int = 80) -> str:
+    """Where a link reads from, how much it read, how often it was reopened. A URL too
+    long for ``width`` keeps its end (``…/2026-01-15-a/arva.raw``)."""
     c = link.counters
-    return f"{link_label(link.device)[:8]:<8} {size_text(c.bytes):>8} {c.reconnects:>6} {link.url or DASH}"
+    head = f"{link_label(link.device)[:8]:<8} {size_text(c.bytes):>8} {c.reconnects:>6} "
+    url = link.url or DASH
+    room = width - len(head)
+    if len(url) > room > 1:
+        url = "…" + url[len(url) - room + 1 :]
+    return (head + url)[:width]

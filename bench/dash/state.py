@@ -191,8 +191,9 @@ class LinkView:
         return self.state == "up" and self.state_since is not None and now - self.state_since > after
 
     def rate(self, now: float, stale_after: float) -> float | None:
-        """Records per second over the last :data:`RATE_WINDOW` s; 0 when stale."""
-        if self.stale(now, stale_after):
+        """Records per second over the last :data:`RATE_WINDOW` s; 0 when stale or over."""
+        age = self.age(now)
+        if self.stale(now, stale_after) or (self.state == "ended" and age is not None and age > stale_after):
             return 0.0
         recent = [(t, c) for t, c in self.arrivals if now - t <= RATE_WINDOW]
         if len(recent) < 2 or recent[-1][0] <= recent[0][0]:

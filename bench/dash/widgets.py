@@ -160,7 +160,7 @@ class LinkPanel(_TextWidget):
                 rows.append((("  " + link.reason)[:width], "down"))
         if self.links:
             rows += [("", "up"), (render.LINK_DETAIL_HEADER[:width], "header")]
-            rows += [(render.link_detail(link)[:width], "wait") for link in self.links]
+            rows += [(render.link_detail(link, width), "wait") for link in self.links]
         return rows
 
     def lines(self, width: int) -> list[str]:
