@@ -98,6 +98,10 @@ def test_a_long_url_keeps_its_end():
     assert render.link_detail(link, 40) == "arva          0 B      0 …ope-a/arva.raw"
 
 
+def test_truth_numbers_never_show_minus_zero():
+    assert [render.num(v, 6, 2) for v in (-0.001, -0.0, 0.004, -0.005)] == ["  0.00", "  0.00", "  0.00", " -0.01"]
+
+
 def test_zone_of_a_reported_slot():
     assert [render.zone(*s) for s in [(250, 0), (300, 0), (301, 0), (290, 5), (-1, -1)]] == [
         "inner", "inner", "mid", "mid", "—",

@@ -200,6 +200,12 @@ def _fix_summary(fix: dict | None) -> str:
 TRUTH_HEAD = 13  # "rx1  surveyed"
 
 
+def num(value: float, width: int, decimals: int) -> str:
+    """``value`` in ``width`` characters, and never ``-0.00``."""
+    text = f"{value:{width}.{decimals}f}"
+    return f"{0.0:{width}.{decimals}f}" if float(text) == 0 else text
+
+
 def truth_lines(poses: dict, roles: Sequence[str], width: int) -> list[str]:
     """Per role: where it is (ENU metres, or lat/lon/alt until an origin is known) and how
     we know it (gps, surveyed, scene); a GPS's fix quality; the attitude (heading, roll,
@@ -214,7 +220,7 @@ def truth_lines(poses: dict, roles: Sequence[str], width: int) -> list[str]:
         head = f"{role:<4} {pose.via or '—':<8}"
         if pose.position is not None:
             e, n, u = pose.position
-            out.append(f"{head:<{TRUTH_HEAD}} {e:7.2f} {n:7.2f} {u:6.2f}"[:width])
+            out.append(f"{head:<{TRUTH_HEAD}} {num(e, 7, 2)} {num(n, 7, 2)} {num(u, 6, 2)}"[:width])
         elif pose.geodetic is not None:
             lat, lon, alt = pose.geodetic
             out.append(f"{head:<{TRUTH_HEAD}} {lat:.6f} {lon:.6f} {alt:.1f}"[:width])
@@ -224,7 +230,7 @@ def truth_lines(poses: dict, roles: Sequence[str], width: int) -> list[str]:
             out.append(f"     {_fix_summary(pose.fix)}"[:width])
         if pose.hpr is not None and not (pose.via in ("scene", "surveyed") and role.startswith("tx")):
             h, r, p = pose.hpr
-            out.append(f" hdg {h:5.1f}  roll {r:6.1f}  pitch {p:5.1f}"[:width])
+            out.append(f" hdg {num(h, 5, 1)}  roll {num(r, 6, 1)}  pitch {num(p, 5, 1)}"[:width])
     return out
 
 
