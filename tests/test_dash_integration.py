@@ -18,7 +18,7 @@ import time
 import pytest
 
 from bench.dash.app import DashApp, DashConfig
-from bench.dash.widgets import ChannelTable, LinkPanel
+from bench.dash.widgets import ChannelTable, GroundTruthPanel, LinkPanel
 from bench.logger import DeviceSpec
 from bench.session import read_jsonl, read_manifest
 from dash_helpers import DEFAULT_SLOTS
@@ -109,3 +109,68 @@ def test_arva_bench_dash_in_a_terminal_records_and_quits(tmp_path):
     assert manifest["summary"]["stopped_by"] == "user"
     epochs = [r for r in read_jsonl(session / "arva.jsonl") if "seq" in r]
     assert len(epochs) >= 3 and all(r["slots"] == [list(s) for s in DEFAULT_SLOTS] for r in epochs)
+
+
+SCENE_WITH_TRUTH = """\
+spec = 1
+rate_hz = 1.0
+[origin]
+lat = 46.5
+lon = 8.0
+alt = 2500.0
+[ground_truth]
+gps_rate_hz = 1.0
+attitude_rate_hz = 2.0
+lat_lon_decimals = 7
+[[transmitters]]
+id = 1
+position = [0.0, 0.0, -1.0]
+[receiver]
+channels = 1
+gps = true
+attitude = true
+position = [12.0, 5.0, 1.0]
+orientation = [1.0, 0.0, 0.0, 0.0]
+"""
+
+
+@pytest.mark.timeout(60)
+def test_dash_ground_truth_from_emulated_gps_and_attitude_ptys(tmp_path):
+    """Receiver, GPS and $PASHR on three ptys; a surveyed transmitter: the true distance
+    sqrt(12^2 + 5^2 + 2^2) = 13.15 m appears next to d, and the receiver's ENU pose."""
+    from emulator.geodesy import Origin, enu_to_geodetic
+
+    scene = tmp_path / "truth.toml"
+    scene.write_text(SCENE_WITH_TRUTH)
+    tx = [float(v) for v in enu_to_geodetic(0.0, 0.0, -1.0, Origin(46.5, 8.0, 2500.0))]
+    emu = EmulatorProcess("--scene", str(scene), "--port", "pty", "--speed", "10", streams=3)
+    try:
+        specs = [DeviceSpec("arva", "arva", emu.ports["arva"], "rx"),
+                 DeviceSpec("gps-rx", "gps", emu.ports["gps"], "rx"),
+                 DeviceSpec("attitude-rx", "attitude", emu.ports["attitude"], "rx")]  # fmt: skip
+        config = DashConfig(specs=specs, record_dir=tmp_path, origin=[46.5, 8.0, 2500.0], tx_poses=[(1, tx)],
+                            scene_truth=False)  # fmt: skip
+
+        async def go() -> tuple[str, str]:
+            app = DashApp(config)
+            async with app.run_test(size=(80, 24)) as pilot:
+                table, truth = app.query_one(ChannelTable), app.query_one(GroundTruthPanel)
+                for _ in range(200):  # up to 20 s
+                    if "13.15" in table.plain and "hdg" in truth.plain:
+                        break
+                    await asyncio.sleep(0.1)
+                out = table.plain, truth.plain
+                await pilot.press("q")
+            return out
+
+        table, truth = asyncio.run(asyncio.wait_for(go(), timeout=40))
+    finally:
+        emu.kill()
+    row = table.splitlines()[1].split()
+    assert row[0] == "1" and row[4] == "13.15"
+    assert float(row[5]) == pytest.approx(float(row[1]) - 13.15, abs=0.011)
+    lines = truth.splitlines()
+    assert lines[1].split() == ["rx", "gps", "12.00", "5.00", "1.00"]
+    assert lines[2].startswith("     fix q1")
+    assert lines[3].split()[:2] == ["hdg", "90.0"]
+    assert lines[4].split() == ["tx1", "surveyed", "0.00", "0.00", "-1.00"]
