@@ -10,6 +10,7 @@ import json
 import time
 
 import pytest
+from dash_helpers import DEFAULT_SLOTS, T0, FakeClock, default_scene_messages, inject, make_app
 
 from bench.cli import parse_args
 from bench.dash import render
@@ -28,7 +29,6 @@ from bench.dash.sources import DeviceFeed, LiveSource, ReplaySource, SceneTruth
 from bench.dash.widgets import ChannelTable, DirectionIndicator, GroundTruthPanel, LinkPanel, ReceiverPanel, StatusBar
 from bench.logger import DeviceSpec
 from bench.session import SessionWriter, read_jsonl, read_manifest, read_raw
-from dash_helpers import DEFAULT_SLOTS, T0, FakeClock, default_scene_messages, inject, make_app
 from emulator.geodesy import Origin, enu_to_geodetic
 from firmware_proto.errors import InputError
 

@@ -16,13 +16,13 @@ import termios
 import time
 
 import pytest
+from dash_helpers import DEFAULT_SLOTS
+from emulator_proc import EmulatorProcess
 
 from bench.dash.app import DashApp, DashConfig
 from bench.dash.widgets import ChannelTable, GroundTruthPanel, LinkPanel
 from bench.logger import DeviceSpec
 from bench.session import read_jsonl, read_manifest
-from dash_helpers import DEFAULT_SLOTS
-from emulator_proc import EmulatorProcess
 
 EXPECTED_ROWS = [
     "  4    7.61  -62 mid",

@@ -9,10 +9,10 @@ import asyncio
 from pathlib import Path
 
 import pytest
+from dash_helpers import T0, FakeClock, inject, make_app, save_walk_screenshot, walk_app, walk_messages
 
 from bench.dash.messages import AttitudeReceived, EpochReceived, FixReceived, LinkCounters, LinkStatus
 from bench.logger import DeviceSpec
-from dash_helpers import T0, FakeClock, inject, make_app, save_walk_screenshot, walk_app, walk_messages
 
 pytestmark = pytest.mark.timeout(60)
 

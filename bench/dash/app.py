@@ -16,9 +16,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 from textual.app import App, ComposeResult
-from textual.binding import Binding
+from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, VerticalScroll
 from textual.screen import ModalScreen
 from textual.widgets import Footer, Static
@@ -71,7 +72,7 @@ class DashConfig:
 
 
 class HelpScreen(ModalScreen):
-    BINDINGS = [Binding("escape", "close", "Close"), Binding("question_mark", "close", "Close")]
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "close", "Close"), Binding("question_mark", "close", "Close")]
 
     def compose(self) -> ComposeResult:
         yield Static(HELP, id="help")
@@ -84,7 +85,7 @@ class DashApp(App):
     CSS_PATH = "dash.tcss"
     TITLE = "arva-bench dash"
     ENABLE_COMMAND_PALETTE = False
-    BINDINGS = [
+    BINDINGS: ClassVar[list[BindingType]] = [
         Binding("r", "record", "Record"),
         Binding("question_mark", "help", "Help", key_display="?"),
         Binding("q", "quit", "Quit"),
@@ -256,7 +257,7 @@ class DashApp(App):
         self._refresh_status()
 
     def _new_session_dir(self) -> Path:
-        stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
         base = Path(self.config.record_dir) / stamp
         path, n = base, 1
         while path.exists():

@@ -73,7 +73,7 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
         raise InputError(f"dash: --speed {args.speed}: must be a finite number >= 0")
     sources = list(args.source) or [(DEFAULT_SOURCE, "rx")]
     sessions = [url for url, _ in sources if _is_session(url)]
-    common = dict(stale_after=args.stale, record_dir=args.record_dir, argv=list(sys.argv if argv is None else argv))
+    common = {"stale_after": args.stale, "record_dir": args.record_dir, "argv": list(sys.argv if argv is None else argv)}
     if sessions:
         if len(sources) > 1 or args.gps or args.attitude:
             raise InputError("dash: a session directory replays all its devices: give it as the only source")

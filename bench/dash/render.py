@@ -136,7 +136,7 @@ def dial(delta: int | None, marks: Sequence[tuple[int, int]] = (), radius: int =
         # Round half away from the centre (and absorb float noise), so the dial is symmetric.
         off = col - cx
         c = cx + int(math.copysign(math.floor(abs(off) + 0.5 + 1e-9), off))
-        return c, int(math.floor(row + 0.5 + 1e-9))
+        return c, math.floor(row + 0.5 + 1e-9)
 
     def put(col: float, row: float, ch: str) -> None:
         c, r = cell(col, row)

@@ -66,7 +66,7 @@ class SceneTruth:
         self.reset()
 
     @classmethod
-    def for_url(cls, url: str, rx_role: str) -> "SceneTruth | None":
+    def for_url(cls, url: str, rx_role: str) -> SceneTruth | None:
         parts = urllib.parse.urlsplit(url)
         if parts.scheme != "arvaemu":
             return None

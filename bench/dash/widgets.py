@@ -5,6 +5,8 @@ exact text shown (what the tests compare). Colours and layout are in ``dash.tcss
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from rich.text import Text
 from textual.containers import Horizontal
 from textual.widget import Widget
@@ -139,7 +141,7 @@ class LinkPanel(_TextWidget):
     bytes read and how often it was reopened."""
 
     DEFAULT_WIDTH = 40
-    COMPONENT_CLASSES = {"link--up", "link--STALE", "link--down", "link--end", "link--wait", "link--header"}
+    COMPONENT_CLASSES: ClassVar[set[str]] = {"link--up", "link--STALE", "link--down", "link--end", "link--wait", "link--header"}
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
