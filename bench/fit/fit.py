@@ -62,6 +62,7 @@ class FitOptions:
     max_iter: int = MAX_ITER
     seed: int = 0  # for the simulated outcomes of the Fisher information
     expected_se: bool = False  # also compute the expected (Fisher) information, for comparison
+    likelihood: type = Likelihood  # another approximation, for the accuracy/time table
 
 
 @dataclass
@@ -461,7 +462,7 @@ class _Objective:
 def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None):
     """Newton with the S/L split re-chosen until the one at the estimate is the one the
     estimate was found with (the first pass stops early, at a decrement of 0.5 nats)."""
-    like = Likelihood(rows)
+    like = options.likelihood(rows)
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
     iters = 0
     res = None
@@ -601,11 +602,11 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
         if "pose_sigma" in free:
             start = replace(start, pose_sigma=pilot_sigma(sub, start.kappa_eq, base.r_inner))
         if "r_en" in free:
-            grid = Likelihood(sub)
+            grid = options.likelihood(sub)
             best = (math.inf, start.r_en)
             for r_en in np.geomspace(8.0, 1000.0, 15):
                 trial = replace(start, r_en=float(r_en))
-                grid.choose_regimes(trial)
+                grid.choose_regimes(trial, **({} if options.eps_split is None else {"eps_split": options.eps_split}))
                 v = grid.nll(trial)
                 if v < best[0]:
                     best = (v, float(r_en))
@@ -620,8 +621,8 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
     if big and res.ok:
         # Full data: gradient steps preconditioned by the subsample Hessian scaled to n rows.
         scale = n / SUBSAMPLE
-        full = Likelihood(rows)
-        full.choose_regimes(to_params(base, free, res.theta))
+        full = options.likelihood(rows)
+        full.choose_regimes(to_params(base, free, res.theta), **({} if options.eps_split is None else {"eps_split": options.eps_split}))
         theta, fval, it, ok_r = _refine(_Objective(full, base, free), res.theta, free, hess * scale, res.steps, res.active)
         res.iterations += it
         # The Hessian for the standard errors on all rows (a subsample's, scaled, is too

@@ -267,26 +267,33 @@ class Likelihood:
         cens = self.censored[idx]
         a = np.where(cens, log_out, np.maximum(lo[idx], log_in))  # P(a < log dxy <= b)
         b = np.where(cens, np.inf, np.minimum(hi[idx], log_out))
+        pm = self.mid_prob(idx, a, b, _Mid(geo, log_gxy, lxy, fxy, lk, sigma, p))
+        prob[idx] += p_not_inner * pm
+        return prob
+
+    def mid_prob(self, idx, a, b, m: "_Mid") -> NDArray[np.float64]:
+        """P(a < log dxy <= b) for rows ``idx`` (bounds may be +-inf): S rows in closed
+        form, L rows from the exact |h_xy| distribution. Subclasses replace this to try
+        other approximations (tests/perf/bench_fit.py)."""
+        p, sigma = m.params, m.sigma
+        log_r = m.geo.log_r
         pm = np.zeros(idx.shape[0])
         exact = self.regimes.exact[idx]
-
         s_rows = ~exact
         if s_rows.any():
             j = idx[s_rows]
-            exy = np.exp(_log_eps(log_r[j], log_gxy[j], fxy[j], p.r_en)) / 3.0
-            pm[s_rows] = epan_gauss_interval(a[s_rows] - lxy[j], b[s_rows] - lxy[j], exy, sigma)
-
+            exy = np.exp(_log_eps(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) / 3.0
+            pm[s_rows] = epan_gauss_interval(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, sigma)
         if exact.any():
             j = idx[exact]
             # log dxy <= y <=> |h_xy| >= kappa / (4 pi e^{3y}); in units of the noise radius
             # b = fxy / (2 pi r_en^3) that threshold is t(y) = kappa r_en^3 / (2 fxy e^{3y}).
-            log_t0 = lk + 3.0 * math.log(p.r_en) - np.log(2.0 * fxy[j])
-            gamma = _gamma(log_r[j], log_gxy[j], fxy[j], p.r_en)
+            log_t0 = m.log_kappa + 3.0 * math.log(p.r_en) - np.log(2.0 * m.fxy[j])
+            gamma = _gamma(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)
             pm[exact] = np.maximum(
                 _cdf_at(log_t0, a[exact], gamma, sigma) - _cdf_at(log_t0, b[exact], gamma, sigma), 0.0
             )
-        prob[idx] += p_not_inner * pm
-        return prob
+        return pm
 
     # -- diagnostics ------------------------------------------------------------------
     def prob_below(self, p: Params) -> NDArray[np.float64]:
@@ -312,6 +319,19 @@ class Likelihood:
             return self.prob(p)
         finally:
             self.k, self.censored = saved
+
+
+@dataclass
+class _Mid:
+    """Per-row quantities :meth:`Likelihood.mid_prob` needs, computed once per evaluation."""
+
+    geo: Geometry
+    log_gxy: NDArray[np.float64]
+    lxy: NDArray[np.float64]  # log dxy without noise
+    fxy: NDArray[np.float64]  # noise radius along the signal / max q
+    log_kappa: float
+    sigma: float
+    params: Params
 
 
 class _UnionBin:

@@ -109,7 +109,12 @@ def _nodes(n: int):
 _NODES = {8: _nodes(8)}
 
 
-def ball_disk_cdf(t, gamma, nodes: int = 8) -> NDArray[np.float64]:
+#: Gauss-Legendre nodes of ball_disk_cdf (8: error < 3e-7; the accuracy/time table in
+#: docs/performance.md compares 24).
+G_NODES = 8
+
+
+def ball_disk_cdf(t, gamma, nodes: int | None = None) -> NDArray[np.float64]:
     """P(|gamma e_x + n| <= t), n the projection of a uniform unit-3-ball point on a plane.
 
     In polar coordinates about the noise centre (radius tau), the circle of radius tau
@@ -119,6 +124,7 @@ def ball_disk_cdf(t, gamma, nodes: int = 8) -> NDArray[np.float64]:
     closed form, 1 - (1 - a^2)^(3/2); the partial band a < tau < c is integrated with
     tau = a + (c - a)(1 - cos theta)/2, which makes the square-root ends smooth.
     """
+    nodes = G_NODES if nodes is None else nodes
     t = np.asarray(t, dtype=np.float64)
     gamma = np.maximum(np.asarray(gamma, dtype=np.float64), 1e-300)
     t = np.clip(t, 0.0, gamma + 2.0)  # G = 1 beyond gamma + 1; keeps everything finite

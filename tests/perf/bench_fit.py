@@ -1,0 +1,206 @@
+"""Calibration fit (issue 6): time and accuracy. Prints tables and writes docs/performance.md.
+
+Usage: python tests/perf/bench_fit.py [--seeds N] [--no-write]
+
+1. ``arva-bench fit`` on emulated campaigns of 1e4 and 1e5 rows (1 Hz radial walks around
+   one buried transmitter, kappa_eq = 1.542, r_en = 80 m): CSV read time, fit time,
+   estimates with their standard errors. Target: 1e5 rows in under 5 s.
+2. The likelihood's approximation, justified: the same fits with other ways to compute
+   P(d | geometry): the exact noise distribution on every row, a 24-node reference, a
+   Gaussian (linearised) noise model, and Monte Carlo with fixed noise draws per row.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.special import ndtr
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parents[1]))
+
+from _report import markdown_table, write_section  # noqa: E402
+
+import bench.fit.special as special  # noqa: E402
+from bench.fit.campaign import emulate_campaign  # noqa: E402
+from bench.fit.csvio import read_csv  # noqa: E402
+from bench.fit.fit import FitOptions, fit_table, usable  # noqa: E402
+from bench.fit.likelihood import Likelihood, Params, _log_eps, rows_from_table  # noqa: E402
+from emulator.model import ModelParams  # noqa: E402
+
+TRUTH = (1.542, 80.0)
+
+
+class GaussianLikelihood(Likelihood):
+    """log dxy ~ Normal(log dxy0, (eps/3)^2/5 + sigma^2): the ball's variance, its shape
+    and its bounded support ignored (closed form, the usual 'Gaussian noise' shortcut)."""
+
+    def mid_prob(self, idx, a, b, m):
+        p = m.params
+        eps = np.exp(_log_eps(m.geo.log_r[idx], m.log_gxy[idx], m.fxy[idx], p.r_en))
+        sd = np.sqrt((eps / 3.0) ** 2 / 5.0 + m.sigma**2)
+        mu = m.lxy[idx]
+        with np.errstate(invalid="ignore"):
+            za, zb = (a - mu) / sd, (b - mu) / sd
+        return np.maximum(ndtr(np.nan_to_num(zb, nan=-np.inf)) - ndtr(np.nan_to_num(za, nan=-np.inf)), 0.0)
+
+
+class MonteCarloLikelihood(Likelihood):
+    """M fixed unit-ball points per row (common random numbers, so the objective is a
+    deterministic function of the parameters), each giving log dxy; P(bin) averages a
+    Gaussian kernel over them, bandwidth sqrt(sigma^2 + h^2), h by Silverman's rule."""
+
+    M = 64
+
+    def __init__(self, rows, regimes=None):
+        super().__init__(rows, regimes)
+        z = np.random.default_rng(12345).standard_normal((rows.k.shape[0], self.M, 5))
+        self.u = z[..., :3] / np.linalg.norm(z, axis=-1, keepdims=True)
+
+    def mid_prob(self, idx, a, b, m):
+        p = m.params
+        qn = np.asarray(p.q) / max(p.q)
+        r = np.exp(m.geo.log_r[idx])[:, None]
+        rho = 2.0 * (r / p.r_en) ** 3
+        gx, gy, _ = m.geo.g[:, idx]
+        u = self.u[idx]
+        hxy = np.hypot(gx[:, None] + rho * qn[0] * u[..., 0], gy[:, None] + rho * qn[1] * u[..., 1])
+        with np.errstate(divide="ignore"):
+            lm = np.log(r) + (m.log_kappa - np.log(hxy)) / 3.0  # (rows, M)
+        finite = np.where(np.isfinite(lm), lm, 50.0)
+        h = 1.06 * np.std(finite, axis=1, keepdims=True) * self.M ** (-0.2)
+        bw = np.sqrt(m.sigma**2 + h * h) + 1e-12
+        with np.errstate(invalid="ignore"):
+            pa = ndtr((a[:, None] - finite) / bw)
+            pb = ndtr((b[:, None] - finite) / bw)
+        return np.maximum(np.mean(pb - pa, axis=1), 0.0)
+
+
+def methods():
+    """(name, FitOptions kwargs, G nodes)."""
+    return [
+        ("ours: closed form where EMI < 3 % of the signal, exact elsewhere (8 nodes)", {}, 8),
+        ("exact EMI distribution on every row (8 nodes)", {"eps_split": 1e-12}, 8),
+        ("reference: exact on every row, 24 nodes", {"eps_split": 1e-12}, 24),
+        ("Gaussian noise (linearised, closed form)", {"likelihood": GaussianLikelihood, "eps_split": 1e-12}, 8),
+        (f"Monte Carlo, {MonteCarloLikelihood.M} fixed draws per row + kernel", {"likelihood": MonteCarloLikelihood, "eps_split": 1e-12}, 8),
+    ]
+
+
+def time_and_accuracy(seeds_small: int, seeds_big: int):
+    rows = []
+    tmp = Path(tempfile.mkdtemp())
+    for n, seeds in ((10_000, seeds_small), (100_000, seeds_big)):
+        for seed in range(seeds):
+            table = emulate_campaign(0, ModelParams(kappa_eq=TRUTH[0], r_en=TRUTH[1]), seed=1000 + seed, n_rows=n)
+            path = tmp / f"c{n}_{seed}.csv"
+            table.write_csv(path)
+            t0 = time.perf_counter()
+            table = read_csv(path)
+            t_read = time.perf_counter() - t0
+            res = fit_table(table)
+            e, s = res.estimate, res.se
+            rows.append([
+                f"{n:,}", seed, f"{t_read:.2f} s", f"**{res.seconds:.2f} s**",
+                f"{e['kappa_eq']:.5f} ± {s['kappa_eq']:.5f}", f"{100 * (e['kappa_eq'] / TRUTH[0] - 1):+.3f} %",
+                f"{e['r_en']:.2f} ± {s['r_en']:.2f}", f"{100 * (e['r_en'] / TRUTH[1] - 1):+.2f} %",
+                "yes" if res.converged else f"no: {res.message}",
+            ])  # fmt: skip
+            print(*rows[-1], sep=" | ", flush=True)
+    header = ["rows", "seed", "read CSV", "fit", "kappa_eq ± se", "error", "r_en (m) ± se", "error", "converged"]
+    return markdown_table(header, rows)
+
+
+def approximation_table(seeds: int, minutes: float):
+    tables = [emulate_campaign(minutes, ModelParams(kappa_eq=TRUTH[0], r_en=TRUTH[1]), seed=2000 + s) for s in range(seeds)]
+    big = emulate_campaign(0, ModelParams(kappa_eq=TRUTH[0], r_en=TRUTH[1]), seed=77, n_rows=10_000)
+    big_rows = usable(rows_from_table(big))
+    at = Params(kappa_eq=TRUTH[0], r_en=TRUTH[1], pose_sigma=1e-3)
+    out = []
+    ref_logp = None
+    results = {}
+    for name, kw, nodes in methods():
+        special.G_NODES = nodes
+        try:
+            like = kw.get("likelihood", Likelihood)(big_rows)
+            like.choose_regimes(at, eps_split=kw.get("eps_split", 0.03))
+            like.logp(at)
+            t0 = time.perf_counter()
+            for _ in range(5):
+                lp = like.logp(at)
+            ms = (time.perf_counter() - t0) / 5 * 1e3
+            fits = [fit_table(t, FitOptions(**kw)) for t in tables]
+        finally:
+            special.G_NODES = 8
+        results[name] = (lp, ms, fits)
+        if name.startswith("reference"):
+            ref_logp = lp
+    ref_fits = results[[n for n, *_ in methods() if n.startswith("reference")][0]][2]
+    for name, _kw, _nodes in methods():
+        lp, ms, fits = results[name]
+        dk = np.array([f.estimate["kappa_eq"] / TRUTH[0] - 1 for f in fits]) * 100
+        dr = np.array([f.estimate["r_en"] / TRUTH[1] - 1 for f in fits]) * 100
+        vs_ref = max(abs(f.estimate["r_en"] - g.estimate["r_en"]) / g.se["r_en"] for f, g in zip(fits, ref_fits))
+        conv = sum(f.converged for f in fits)
+        out.append([
+            name, f"{ms:.1f} ms", f"{np.max(np.abs(lp - ref_logp)):.1e}", f"{abs(lp.sum() - ref_logp.sum()):.2g}",
+            f"{dk.mean():+.3f} %", f"{dr.mean():+.2f} % (sd {dr.std():.2f})", f"{vs_ref:.2f}",
+            f"{np.mean([f.seconds for f in fits]):.2f} s", f"{conv}/{len(fits)}",
+        ])  # fmt: skip
+        print(*out[-1], sep=" | ", flush=True)
+    header = [
+        "P(d given geometry) computed by", "one evaluation, 1e4 rows", "largest per-row Δ log P vs reference",
+        "Δ log L vs reference", "kappa_eq error (mean)", "r_en error (mean, sd)",
+        "largest Δ r_en vs reference fit, in se", "fit time", "converged",
+    ]  # fmt: skip
+    return markdown_table(header, out), len(tables), minutes
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=3, help="campaigns per size (1e5 rows: 2)")
+    ap.add_argument("--no-write", action="store_true", help="print only; leave docs/performance.md alone")
+    args = ap.parse_args(argv)
+    timing = time_and_accuracy(args.seeds, max(1, args.seeds - 1))
+    approx, n_camp, minutes = approximation_table(5, 30.0)
+    body = f"""
+Emulated campaigns (`bench.fit.campaign`: radial walks from 1 to 80 m at 1.1 m/s around a
+transmitter buried 1 m deep, mixed hand-held orientations, EMI noise on; kappa_eq = 1.542,
+r_en = 80 m, exact poses). `fit` is `bench.fit.fit_table` (pilot, Newton on a 10,000-row
+subsample, gradient steps and the Hessian on all rows), CSV parsing excluded. Target:
+1e5 rows in under 5 s, kappa_eq within 1 % and r_en within 5 %.
+
+{timing}
+
+**Why this likelihood.** The same {n_camp} campaigns of {minutes:g} minutes (1800 rows) fitted
+with other ways of computing P(d given geometry); per-row log P compared (absolute
+differences) at the true parameters (pose_sigma = 0.001) on a 10,000-row campaign; the
+last-but-two column is the largest distance of an r_en estimate from the reference
+method's, in the reference's standard errors.
+
+{approx}
+
+Reading it: the closed form on rows where EMI is small moves no estimate by more than a
+tenth of a standard error and cuts the evaluation time by 3-7x against the exact
+distribution everywhere; 24 instead of 8 quadrature nodes change nothing. The Gaussian
+shortcut is 10x faster still but moves r_en by several standard errors (unbounded tails
+and the wrong shape for the ball's projection, which the far rows and the -1 fraction
+feel). Fixed Monte Carlo draws per row, even kernel-smoothed, are as slow as the exact
+distribution and far less accurate: the kernel that makes them smooth also widens the
+noise, so r_en comes out biased.
+"""
+    print(body)
+    if not args.no_write:
+        write_section("fit", "Calibration fit", body, "python tests/perf/bench_fit.py")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
