@@ -130,7 +130,7 @@ class ClosedLoop:
     # -- one epoch ----------------------------------------------------------------
     def _external_pose(self) -> tuple[np.ndarray, np.ndarray]:
         src = self.pose_source
-        if src._thread is None:
+        if not src.started:
             src.start()
         pose = src.latest()
         now = time.monotonic()

@@ -107,6 +107,10 @@ class MavlinkPoseSource:
         self._conn = None
         self._thread: threading.Thread | None = None
 
+    @property
+    def started(self) -> bool:
+        return self._thread is not None
+
     def start(self) -> "MavlinkPoseSource":
         if self._thread is not None:
             return self
