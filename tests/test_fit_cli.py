@@ -99,6 +99,25 @@ def test_report_markdown(campaign, capsys, tmp_path):
     assert "| 78.0 - 81.0 | " in md  # the bins run to the farthest row
 
 
+def test_report_diagnostics_of_a_correct_model(campaign):
+    """On an emulated campaign the fitted model passes its own checks: randomised PIT
+    values uniform (Kolmogorov 1 % critical value), 90 % bands holding ~90 % of the rows,
+    observed and predicted -1 fractions equal within binomial error."""
+    from bench.fit.csvio import read_csv
+    from bench.fit.fit import fit_table
+    from bench.fit.report import diagnostics
+
+    table = read_csv(campaign)
+    diag = diagnostics(table, fit_table(table))
+    assert diag.pit.shape == (1200,) and diag.ks < 1.63 / math.sqrt(1200)
+    has = np.isfinite(diag.inside)
+    inside = np.sum(diag.inside[has] * diag.n[has]) / np.sum(diag.n[has])
+    assert abs(inside - 0.9) < 0.04
+    n = diag.n[diag.n > 0]
+    assert np.all(np.abs(diag.obs_cens - diag.model_cens)[diag.n > 0] < 4 * np.sqrt(0.25 / n) + 1e-9)
+    assert np.mean(diag.d == -1) == pytest.approx(np.sum(diag.model_cens[diag.n > 0] * n) / n.sum(), abs=0.02)
+
+
 def test_report_figure(campaign, capsys, tmp_path):
     pytest.importorskip("matplotlib", reason="the report's PNG needs the plot extra (matplotlib)")
     assert run(capsys, campaign, "--report", tmp_path)[0] == 0

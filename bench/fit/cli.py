@@ -36,7 +36,9 @@ def register(subparsers) -> None:
     p.add_argument("input", metavar="INPUT", help="CSV file, '-' (stdin) or session directory")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--report", metavar="DIR", type=Path, help="write DIR/report.md and DIR/fit.png")
-    p.add_argument("--write-scene", metavar="FILE", type=Path, help="write the fitted [model] table into scene FILE (created if missing)")
+    p.add_argument(
+        "--write-scene", metavar="FILE", type=Path, help="write the fitted [model] table into scene FILE (created if missing)"
+    )
     p.add_argument(
         "--fit",
         metavar="NAMES",
@@ -47,9 +49,15 @@ def register(subparsers) -> None:
     fixed = p.add_argument_group("fixed model constants (used as given unless fitted)")
     fixed.add_argument("--r-inner", type=_positive, default=3.0, metavar="M", help="inner-zone radius (default 3.0)")
     fixed.add_argument("--r-outer", type=_positive, default=50.0, metavar="M", help="outer limit of d (default 50.0)")
-    fixed.add_argument("--q", type=_q_triple, default=(1.0, 1.0, 1.0), metavar="QX,QY,QZ", help="antenna noise sensitivities (default 1,1,1)")
-    fixed.add_argument("--pose-sigma", type=_positive, metavar="S", help="fix the relative pose error instead of fitting it (e.g. 0.01)")
-    fixed.add_argument("--time-offset", type=float, default=0.0, metavar="SEC", help="evaluate readings at the poses of t + SEC (default 0)")
+    fixed.add_argument(
+        "--q", type=_q_triple, default=(1.0, 1.0, 1.0), metavar="QX,QY,QZ", help="antenna noise sensitivities (default 1,1,1)"
+    )
+    fixed.add_argument(
+        "--pose-sigma", type=_positive, metavar="S", help="fix the relative pose error instead of fitting it (e.g. 0.01)"
+    )
+    fixed.add_argument(
+        "--time-offset", type=float, default=0.0, metavar="SEC", help="evaluate readings at the poses of t + SEC (default 0)"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the report's simulations and the subsample (default 0)")
     p.set_defaults(func=run)
 

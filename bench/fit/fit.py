@@ -622,7 +622,8 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
         # Full data: gradient steps preconditioned by the subsample Hessian scaled to n rows.
         scale = n / SUBSAMPLE
         full = options.likelihood(rows)
-        full.choose_regimes(to_params(base, free, res.theta), **({} if options.eps_split is None else {"eps_split": options.eps_split}))
+        eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+        full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
         theta, fval, it, ok_r = _refine(_Objective(full, base, free), res.theta, free, hess * scale, res.steps, res.active)
         res.iterations += it
         # The Hessian for the standard errors on all rows (a subsample's, scaled, is too
@@ -636,7 +637,8 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
         steps = res.steps.copy()
         steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
         f_full = _Objective(full, base, free)
-        _g, h_live = _gradient(lambda th_l: f_full(_merge(theta, ~res.active, th_l)), theta[live], steps[live], fval, hessian=True)
+        on_live = lambda th_l: f_full(_merge(theta, ~res.active, th_l))  # noqa: E731
+        _g, h_live = _gradient(on_live, theta[live], steps[live], fval, hessian=True)
         hess = np.zeros_like(hess)
         hess[np.ix_(live, live)] = h_live
         res.theta, res.hess, res.f = theta, hess, fval

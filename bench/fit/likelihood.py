@@ -35,7 +35,7 @@ Only kappa_eq / s is identifiable: the fit reports kappa_eq for s = 1.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray

@@ -159,7 +159,8 @@ def markdown(result: FitResult, diag: Diagnostics, png: str | None) -> str:
         f"{diag.replicates} times with the fitted parameters; the 90 % band holds 90 % of the "
         "simulated detections in the bin.",
         "",
-        "| distance (m) | rows | -1 observed | -1 model | median d observed (m) | median d model (m) | model 90 % band (m) | detected inside band | mean log-lik |",
+        "| distance (m) | rows | -1 observed | -1 model | median d observed (m) | median d model (m) "
+        "| model 90 % band (m) | detected inside band | mean log-lik |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for b in range(len(diag.n)):

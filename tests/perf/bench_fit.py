@@ -13,7 +13,6 @@ Usage: python tests/perf/bench_fit.py [--seeds N] [--no-write]
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import tempfile
 import time
