@@ -696,10 +696,16 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         like, res, extra = _core(rows, base, newton_free, options, notes, start)
         n_evals += extra
     theta_n, fval, hess, active, ok, why = res.theta, res.f, res.hess, res.active, res.ok, res.why
+    lo_n, hi_n = _box(newton_free)
+    theta_n = np.where(active & (theta_n <= lo_n + 1e-9), lo_n, theta_n)  # exactly at the bound
     params = to_params(base, newton_free, theta_n)
+    if "pose_sigma" in newton_free and active[newton_free.index("pose_sigma")]:
+        params = replace(params, pose_sigma=BOUNDS["pose_sigma"][0])
     theta = from_params(params, free)
 
     estimate = {m: (float(theta[i]) if m == "time_offset" else math.exp(theta[i])) for i, m in enumerate(free)}
+    if "pose_sigma" in free:
+        estimate["pose_sigma"] = params.pose_sigma
     cov = np.full((len(free), len(free)), np.nan)
     se = {m: float("nan") for m in free}
     ix = [free.index(m) for m in newton_free]
