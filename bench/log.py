@@ -60,17 +60,22 @@ def _origin(text: str) -> list[float]:
     return _floats(text, 2, 3, "--origin")
 
 
-def register(sub) -> None:
-    p = sub.add_parser("log", help="log devices into a session directory", description=__doc__)
-    p.add_argument("--arva", action="append", default=[], type=_device("arva"), metavar="URL[,role=rxN]",
-                   help="an ARVA receiver (repeatable)")
+def add_truth_arguments(p: argparse.ArgumentParser, origin_help: str) -> None:
+    """The ground-truth options ``log`` and ``dash`` share: --gps, --attitude, --tx-pose, --origin."""
     p.add_argument("--gps", action="append", default=[], type=_device("gps"), metavar="URL[,role=R]",
                    help="a GPS (NMEA GGA/RMC); role rx (default) or tx<ID>")
     p.add_argument("--attitude", action="append", default=[], type=_device("attitude"), metavar="URL[,role=R]",
                    help="an attitude unit ($PASHR); role rx (default) or tx<ID>")
     p.add_argument("--tx-pose", action="append", default=[], type=_tx_pose, metavar="ID=LAT,LON,ALT[,H,R,P]",
                    help="a transmitter's surveyed pose (degrees, metres HAE; heading/roll/pitch in degrees)")
-    p.add_argument("--origin", type=_origin, metavar="LAT,LON[,ALT]", help="geodetic origin of the session's ENU frame")
+    p.add_argument("--origin", type=_origin, metavar="LAT,LON[,ALT]", help=origin_help)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("log", help="log devices into a session directory", description=__doc__)
+    p.add_argument("--arva", action="append", default=[], type=_device("arva"), metavar="URL[,role=rxN]",
+                   help="an ARVA receiver (repeatable)")
+    add_truth_arguments(p, origin_help="geodetic origin of the session's ENU frame")
     p.add_argument("--out", required=True, metavar="DIR", help="new session directory")
     p.add_argument("--baud", type=int, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")

@@ -35,7 +35,6 @@ import argparse
 import math
 import sys
 from dataclasses import replace
-from importlib import resources
 from pathlib import Path
 
 import numpy as np

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from firmware_proto.errors import InputError
 
-from ..log import _device, _origin, _tx_pose, device_specs
+from ..log import _device, add_truth_arguments, device_specs
 from ..logger import DeviceSpec
 from ..session import MANIFEST, read_manifest
 
@@ -39,14 +39,7 @@ def register(sub) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("source", nargs="*", type=_device("arva"), metavar="SOURCE[,role=rxN]",
                    help="a receiver (path or pyserial URL) or a session directory; default arvaemu://")
-    p.add_argument("--gps", action="append", default=[], type=_device("gps"), metavar="URL[,role=R]",
-                   help="a GPS (NMEA GGA/RMC); role rx (default) or tx<ID>")
-    p.add_argument("--attitude", action="append", default=[], type=_device("attitude"), metavar="URL[,role=R]",
-                   help="an attitude unit ($PASHR); role rx (default) or tx<ID>")
-    p.add_argument("--tx-pose", action="append", default=[], type=_tx_pose, metavar="ID=LAT,LON,ALT[,H,R,P]",
-                   help="a transmitter's surveyed pose (degrees, metres HAE; heading/roll/pitch in degrees)")
-    p.add_argument("--origin", type=_origin, metavar="LAT,LON[,ALT]",
-                   help="ENU origin for GPS positions (default: the session's, else the first receiver fix)")
+    add_truth_arguments(p, origin_help="ENU origin for GPS positions (default: the session's, else the first receiver fix)")
     p.add_argument("--baud", type=int, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="replay a session directory X times real time; 0 = as fast as possible (default 1)")

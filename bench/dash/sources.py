@@ -246,18 +246,15 @@ class DeviceFeed:
             recorder.event(kind, self.spec.name, **fields)
 
 
-class LiveSource:
-    """A thread reading one device, reopening it when it fails or goes stale."""
+class _SourceThread:
+    """One background thread feeding the app; started, stopped and joined by it."""
 
-    def __init__(self, feed: DeviceFeed, stale_after: float = 3.0) -> None:
-        self.feed = feed
-        self.stale_after = stale_after
+    def __init__(self, name: str) -> None:
         self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, name=f"dash-{feed.spec.name}", daemon=True)
+        self.thread = threading.Thread(target=self._run, name=name, daemon=True)
 
-    @property
-    def feeds(self) -> list[DeviceFeed]:
-        return [self.feed]
+    def _run(self) -> None:
+        raise NotImplementedError
 
     def start(self) -> None:
         self.thread.start()
@@ -268,6 +265,19 @@ class LiveSource:
     def join(self, timeout: float) -> None:
         if self.thread.is_alive():
             self.thread.join(timeout)
+
+
+class LiveSource(_SourceThread):
+    """A thread reading one device, reopening it when it fails or goes stale."""
+
+    def __init__(self, feed: DeviceFeed, stale_after: float = 3.0) -> None:
+        self.feed = feed
+        self.stale_after = stale_after
+        super().__init__(f"dash-{feed.spec.name}")
+
+    @property
+    def feeds(self) -> list[DeviceFeed]:
+        return [self.feed]
 
     def _run(self) -> None:
         feed, spec = self.feed, self.feed.spec
@@ -320,29 +330,18 @@ class LiveSource:
         feed.flush()
 
 
-class ReplaySource:
+class ReplaySource(_SourceThread):
     """A thread replaying a session directory's devices with their recorded timing."""
 
     def __init__(self, directory: str | Path, feeds: list[DeviceFeed], speed: float = 1.0) -> None:
         self.directory = Path(directory)
         self._feeds = {f.spec.name: f for f in feeds}
         self.speed = speed
-        self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="dash-replay", daemon=True)
+        super().__init__("dash-replay")
 
     @property
     def feeds(self) -> list[DeviceFeed]:
         return list(self._feeds.values())
-
-    def start(self) -> None:
-        self.thread.start()
-
-    def request_stop(self) -> None:
-        self._stop.set()
-
-    def join(self, timeout: float) -> None:
-        if self.thread.is_alive():
-            self.thread.join(timeout)
 
     def _run(self) -> None:
         reads = {}
