@@ -31,7 +31,7 @@ from emulator.attitude_convention import hpr_to_quaternion
 from emulator.geodesy import Origin, geodetic_to_enu
 from firmware_proto.errors import InputError
 
-from .records import ArvaRecords, GroundTruthRecords
+from .records import ArvaRecords, decoder_for
 from .session import read_manifest, read_raw
 
 COLUMNS = (
@@ -149,7 +149,7 @@ def export_rows(
         if dev["kind"] == "arva":
             epochs[name] = [(m, u, r) for m, u, r in _decode(path, ArvaRecords()) if "seq" in r]
         else:
-            for m, _u, r in _decode(path, GroundTruthRecords(dev["kind"])):
+            for m, _u, r in _decode(path, decoder_for(dev["kind"], dev.get("format"))):
                 if r.get("sentence") == "GGA" and r.get("valid") and r.get("alt_hae") is not None:
                     fixes.setdefault(dev["role"], []).append((m, r["lat"], r["lon"], r["alt_hae"]))
                 elif "q" in r:

@@ -5,7 +5,8 @@
 
 Every device argument is a path or pyserial URL; ``--gps`` and ``--attitude`` take
 ``,role=rx`` (default, the receiver) or ``,role=tx<ID>`` (a transmitter carrying the
-sensor). A transmitter may instead be given a surveyed pose with ``--tx-pose``. Stops on
+sensor); ``--attitude URL,format=mavlink`` reads a drone autopilot's MAVLink attitude
+instead of ``$PASHR`` (the ``mavlink`` extra). A transmitter may instead be given a surveyed pose with ``--tx-pose``. Stops on
 Ctrl-C, SIGTERM or ``--duration``; prints a summary; exit 0. A disk error stops the
 session with one line naming the file (exit 2); everything before it is kept.
 """
@@ -23,17 +24,34 @@ from firmware_proto.errors import InputError, LinkError
 
 from . import __version__
 from .logger import DeviceLogger, DeviceSpec
+from .records import FORMATS, decoder_for
 from .session import SessionWriter
 
 
 def _device(kind: str):
-    def parse(text: str) -> tuple[str, str]:
-        url, sep, role = text.rpartition(",role=")
-        if not sep:
-            return text, "rx"
+    """argparse type for ``URL[,role=R][,format=F]`` (options after the URL, in any order)."""
+    formats = FORMATS.get(kind)
+
+    def parse(text: str) -> tuple:
+        url, role, fmt = text, "rx", None
+        while True:
+            head, sep, value = url.rpartition(",")
+            key, eq, value = value.partition("=")
+            if not sep or not eq or key not in ("role", "format"):
+                break
+            url = head
+            if key == "role":
+                role = value
+            else:
+                fmt = value
         if not (role == "rx" or (role.startswith(("rx", "tx")) and role[2:].isdigit())):
             raise argparse.ArgumentTypeError(f"{text!r}: role must be rx, rx<ID> or tx<ID>, got {role!r}")
-        return url, role
+        if fmt is not None and (formats is None or fmt not in formats):
+            allowed = "no format option" if formats is None else "format " + " or ".join(formats)
+            raise argparse.ArgumentTypeError(f"{text!r}: {kind} devices take {allowed}, got {fmt!r}")
+        if not url:
+            raise argparse.ArgumentTypeError(f"{text!r}: no device URL before the options")
+        return (url, role) if formats is None else (url, role, fmt)
 
     parse.__name__ = f"{kind} device"
     return parse
@@ -64,8 +82,10 @@ def add_truth_arguments(p: argparse.ArgumentParser, origin_help: str) -> None:
     """The ground-truth options ``log`` and ``dash`` share: --gps, --attitude, --tx-pose, --origin."""
     p.add_argument("--gps", action="append", default=[], type=_device("gps"), metavar="URL[,role=R]",
                    help="a GPS (NMEA GGA/RMC); role rx (default) or tx<ID>")
-    p.add_argument("--attitude", action="append", default=[], type=_device("attitude"), metavar="URL[,role=R]",
-                   help="an attitude unit ($PASHR); role rx (default) or tx<ID>")
+    p.add_argument("--attitude", action="append", default=[], type=_device("attitude"),
+                   metavar="URL[,role=R][,format=mavlink]",
+                   help="an attitude unit ($PASHR; format=mavlink: an autopilot's MAVLink ATTITUDE_QUATERNION, "
+                        "the mavlink extra); role rx (default) or tx<ID>")
     p.add_argument("--tx-pose", action="append", default=[], type=_tx_pose, metavar="ID=LAT,LON,ALT[,H,R,P]",
                    help="a transmitter's surveyed pose (degrees, metres HAE; heading/roll/pitch in degrees)")
     p.add_argument("--origin", type=_origin, metavar="LAT,LON[,ALT]", help=origin_help)
@@ -90,8 +110,10 @@ def device_specs(args: argparse.Namespace) -> list[DeviceSpec]:
         role = role if role != "rx" or not several else f"rx{i + 1}"
         specs.append(DeviceSpec("arva" if not several else f"arva-{role}", "arva", url, role, args.baud))
     for kind in ("gps", "attitude"):
-        for url, role in getattr(args, kind):
-            specs.append(DeviceSpec(f"{kind}-{role}", kind, url, role, args.baud))
+        for url, role, fmt in getattr(args, kind):
+            if fmt is not None:
+                decoder_for(kind, fmt)  # a missing extra is reported now, before a session exists
+            specs.append(DeviceSpec(f"{kind}-{role}", kind, url, role, args.baud, fmt))
     names = [s.name for s in specs]
     for name in names:
         if names.count(name) > 1:

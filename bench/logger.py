@@ -31,16 +31,21 @@ BACKOFF_MAX = 2.0
 @dataclass
 class DeviceSpec:
     """A device to log: ``name`` in the session (``arva``, ``gps-rx``, ``attitude-tx1``),
-    ``kind`` (arva, gps, attitude), ``role`` (``rx``, ``rx<id>`` or ``tx<id>``)."""
+    ``kind`` (arva, gps, attitude), ``role`` (``rx``, ``rx<id>`` or ``tx<id>``), ``format``
+    (None: the kind's default; ``mavlink`` for a MAVLink attitude source)."""
 
     name: str
     kind: str
     url: str
     role: str = "rx"
     baudrate: int = 115200
+    format: str | None = None
 
     def manifest(self) -> dict:
-        return {"kind": self.kind, "url": self.url, "role": self.role, "baudrate": self.baudrate}
+        out = {"kind": self.kind, "url": self.url, "role": self.role, "baudrate": self.baudrate}
+        if self.format is not None:
+            out["format"] = self.format
+        return out
 
 
 @dataclass
@@ -71,7 +76,7 @@ class DeviceLogger:
     def __init__(self, spec: DeviceSpec, writer: SessionWriter, on_fatal) -> None:
         self.spec = spec
         self.writer = writer
-        self.decoder: RecordDecoder = decoder_for(spec.kind)
+        self.decoder: RecordDecoder = decoder_for(spec.kind, spec.format)
         self.stats = DeviceStats()
         self._on_fatal = on_fatal
         self._stop = threading.Event()

@@ -11,7 +11,10 @@ Record shapes (``mono``/``utc`` are added by the caller: the read that completed
 * arva:      ``{"seq", "complete", "slots", ["field"], ["gap"]}`` or ``{"error", "offset", "length"}``
 * gps:       ``{"sentence", "talker", "time", "lat", "lon", "alt_hae", "alt_msl", "quality",
                "sats", "hdop", "status", "mode", "speed_knots", "course", "valid"}``
-* attitude:  ``{"time", "heading", "roll", "pitch", "q"}``
+* attitude:  ``{"time", "heading", "roll", "pitch", "q"}`` (+ ``"time_boot_ms"`` from MAVLink)
+
+Ground-truth devices speak a ``format``: ``nmea`` (GGA/RMC/$PASHR, the default) or, for
+attitude, ``mavlink`` (ATTITUDE_QUATERNION / ATTITUDE, the ``mavlink`` extra).
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ from firmware_proto.decoder import Decoder
 from firmware_proto.events import DecodeError, Epoch
 
 KINDS = ("arva", "gps", "attitude")
+#: Wire formats a ground-truth device of each kind may speak; the first is the default.
+FORMATS = {"gps": ("nmea",), "attitude": ("nmea", "mavlink")}
 
 
 class RecordDecoder:
@@ -89,9 +94,15 @@ class GroundTruthRecords(RecordDecoder):
     record for the read that carried it (the bytes themselves are in the raw log).
     """
 
-    def __init__(self, kind: str) -> None:
+    def __init__(self, kind: str, fmt: str = "nmea") -> None:
         self.kind = kind
-        self.reader = GroundTruthReader()
+        self.format = fmt
+        if fmt == "mavlink":
+            from bench.ground_truth.mavlink import MavlinkAttitudeReader  # the optional extra
+
+            self.reader = MavlinkAttitudeReader()
+        else:
+            self.reader = GroundTruthReader()
         self.records = 0
         self.errors = 0
 
@@ -135,15 +146,16 @@ class GroundTruthRecords(RecordDecoder):
                     }
                 )
             elif isinstance(r, Attitude):
-                out.append(
-                    {
-                        "time": _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat()),
-                        "heading": r.heading,
-                        "roll": r.roll,
-                        "pitch": r.pitch,
-                        "q": list(r.quaternion),
-                    }
-                )
+                rec = {
+                    "time": _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat()),
+                    "heading": r.heading,
+                    "roll": r.roll,
+                    "pitch": r.pitch,
+                    "q": list(r.quaternion),
+                }
+                if r.time_boot_ms is not None:
+                    rec["time_boot_ms"] = r.time_boot_ms
+                out.append(rec)
         self.records += len(out)
         return out
 
@@ -151,9 +163,13 @@ class GroundTruthRecords(RecordDecoder):
         return {"records": self.records, "errors": self.errors, "ignored": self.reader.stats["ignored"]}
 
 
-def decoder_for(kind: str) -> RecordDecoder:
+def decoder_for(kind: str, fmt: str | None = None) -> RecordDecoder:
+    """The decoder of a device ``kind`` speaking ``fmt`` (None: the kind's default)."""
     if kind == "arva":
         return ArvaRecords()
-    if kind in ("gps", "attitude"):
-        return GroundTruthRecords(kind)
+    if kind in FORMATS:
+        fmt = FORMATS[kind][0] if fmt is None else fmt
+        if fmt not in FORMATS[kind]:
+            raise ValueError(f"a {kind} device cannot speak {fmt!r} (one of: {', '.join(FORMATS[kind])})")
+        return GroundTruthRecords(kind, fmt)
     raise ValueError(f"unknown device kind {kind!r}")

@@ -75,7 +75,8 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
             raise InputError(f"dash: {directory}: not a session directory (no {MANIFEST})")
         manifest = read_manifest(directory)
         specs = [
-            DeviceSpec(name, dev["kind"], dev.get("url", ""), dev.get("role", "rx"), dev.get("baudrate", args.baud))
+            DeviceSpec(name, dev["kind"], dev.get("url", ""), dev.get("role", "rx"), dev.get("baudrate", args.baud),
+                       dev.get("format"))
             for name, dev in manifest.get("devices", {}).items()
             if (directory / f"{name}.raw").exists()
         ]

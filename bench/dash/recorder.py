@@ -27,7 +27,7 @@ class SessionRecorder:
     def __init__(self, directory: str | Path, specs: list[DeviceSpec], manifest: dict) -> None:
         self.writer = SessionWriter(directory, manifest)
         self.directory = self.writer.dir
-        self._decoders = {s.name: decoder_for(s.kind) for s in specs}
+        self._decoders = {s.name: decoder_for(s.kind, s.format) for s in specs}
         self._stats = {s.name: {"reads": 0, "bytes": 0, "records": 0, "gaps": 0} for s in specs}
         self._lock = threading.Lock()  # reads of several devices arrive from their own threads
         self.closed = False

@@ -110,7 +110,7 @@ class DeviceFeed:
     def __init__(self, spec: DeviceSpec, post: Post, truth: SceneTruth | None = None) -> None:
         self.spec = spec
         self.post = post
-        self.decoder = decoder_for(spec.kind)
+        self.decoder = decoder_for(spec.kind, spec.format)
         self.truth = truth
         self.recorder = None  # set and cleared by the app (an attribute write is atomic)
         self.reads = 0

@@ -1,4 +1,4 @@
-"""Ground-truth readers: GPS (NMEA GGA/RMC) and attitude ($PASHR) from real devices.
+"""Ground-truth readers: GPS (NMEA GGA/RMC) and attitude ($PASHR, MAVLink) from real devices.
 
 Streaming and tolerant: ``feed(bytes)`` in any chunking returns frozen records; unknown
 sentences, binary data, bad checksums and garbage are skipped and counted in ``stats``,
@@ -9,6 +9,8 @@ never raised, and memory stays bounded. Modules:
 * :mod:`.utc` -- dating times of day across midnight;
 * :mod:`.gps` -- :class:`GpsReader` -> :class:`GpsFix`;
 * :mod:`.attitude` -- :class:`AttitudeReader` -> :class:`Attitude`;
+* :mod:`.mavlink` -- :class:`MavlinkAttitudeReader`, MAVLink attitude -> :class:`Attitude`
+  (the ``mavlink`` extra; imported on use, not here);
 * :mod:`.reader` -- :class:`GroundTruthReader`, both on one stream.
 """
 

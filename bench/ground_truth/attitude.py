@@ -31,7 +31,8 @@ from .nmea import PLAIN_NUMBER, FieldError, parse_checked, sentence_type, time_o
 
 @dataclass(frozen=True, slots=True)
 class Attitude:
-    """One ``$PASHR`` attitude sentence. Degrees and metres; None where a field was empty."""
+    """One attitude (``$PASHR``, or MAVLink via :mod:`.mavlink`). Degrees and metres; None
+    where a field was empty or the source has no such field."""
 
     time_of_day: time | None  # UTC
     utc: datetime | None  # aware UTC; None until a date is known
@@ -45,6 +46,7 @@ class Attitude:
     heading_accuracy: float | None = None
     gps_quality: int | None = None  # 0 no position, 1 non-RTK, 2 RTK
     ins_status: int | None = None  # 0 not aligned, 1 aligned
+    time_boot_ms: int | None = None  # MAVLink only: the autopilot's clock
 
 
 def _number(raw: str, required: bool) -> float | None:
