@@ -93,27 +93,16 @@ def load_input(arg: str):
     path = Path(arg)
     if not path.is_dir():
         return read_csv(path)
-    try:
-        from bench import export  # the session export (another issue)
-    except ImportError:
-        export = None
-    export_rows = getattr(export, "export_rows", None)
-    if export_rows is None:  # pragma: no cover - the export exists since issue 5
-        raise FitInputError(f"{arg}: session export not available yet")
+    from bench import export  # through the module: tests substitute export_rows
     from firmware_proto.errors import InputError
 
     try:
-        out = export_rows(path)
+        out = export.export_rows(path)
     except InputError as exc:
         raise FitInputError(f"{arg}: {exc}") from None
-    if isinstance(out, (str, Path)):
-        return read_csv(out, source=f"{arg} ({out})")
-    columns = getattr(out, "columns", out)  # ExportResult, or a plain dict of columns
-    if isinstance(columns, dict):
-        table = Table.from_mapping(arg, columns)
-        validate(table)
-        return table
-    raise FitInputError(f"{arg}: the session export returned {type(out).__name__}, not a table")
+    table = Table.from_mapping(arg, out.columns)
+    validate(table)
+    return table
 
 
 def options_from_args(args):
