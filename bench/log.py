@@ -81,7 +81,7 @@ def _origin(text: str) -> list[float]:
 def add_truth_arguments(p: argparse.ArgumentParser, origin_help: str) -> None:
     """The ground-truth options ``log`` and ``dash`` share: --gps, --attitude, --tx-pose, --origin."""
     p.add_argument("--gps", action="append", default=[], type=_device("gps"), metavar="URL[,role=R]",
-                   help="a GPS (NMEA GGA/RMC); role rx (default) or tx<ID>")
+                   help="a GPS (NMEA GGA/RMC/GLL; the export uses GGA); role rx (default) or tx<ID>")
     p.add_argument("--attitude", action="append", default=[], type=_device("attitude"),
                    metavar="URL[,role=R][,format=mavlink]",
                    help="an attitude unit ($PASHR; format=mavlink: an autopilot's MAVLink ATTITUDE_QUATERNION, "

@@ -5,7 +5,7 @@ only read it, never copy it), the whole log is fed to :class:`GroundTruthReader`
 random-sized chunks. It must not raise, must finish, must hold back at most one line,
 must give the same records as one big chunk, and every fix gpsd decoded -- each ``TPV``
 in ``X.log.chk`` with mode >= 2, lat, lon and time -- must come out of our reader as a
-GGA/RMC record with the same time (to the millisecond gpsd prints) and lat/lon within
+GGA/RMC/GLL record with the same time (to the millisecond gpsd prints) and lat/lon within
 1e-6 deg. Where gpsd's TPV carries ``altHAE`` and our GGA record of that epoch has one
 (the receiver sent the geoid separation), they must agree to 1 mm.
 
@@ -14,9 +14,11 @@ Two kinds of documented difference, each as narrow as we could make it:
 * ``WEEK_ROLLOVER``: gpsd moves dates that look older than its build by 1024 GPS weeks
   (a receiver week-rollover heuristic); our reader reports the date the receiver sent.
   For these logs the expected time is gpsd's minus exactly 1024 weeks.
-* ``EXCLUDED``: TPVs gpsd built from sentences we do not read (GLL), per log, by exact
-  timestamp, with the reason. The test fails if an excluded fix starts matching (stale
-  entry) or if any other fix does not.
+* ``EXCLUDED``: TPVs we could not match, per log, by exact timestamp, with the reason;
+  empty now. It held 18 fixes gpsd built from ``$GPGLL`` (a Garmin's extra GLL fix on odd
+  seconds, an eXplorist's GLL with odd milliseconds, a Triton epoch whose GGA the capture
+  cut off) until the reader learnt GLL. The test fails if an excluded fix starts matching
+  (stale entry) or if any other fix does not.
 """
 
 from __future__ import annotations
@@ -45,28 +47,9 @@ WEEK_ROLLOVER = {
     "neo-m8n.log": "RMC date 2015-03-18; gpsd reports 2034-11-01",
 }
 
-_GLL = "TPV from a $GPGLL (we read GGA/RMC only) whose timestamp no GGA/RMC carries: "
-
-#: log -> (reason, exact TPV times, as gpsd prints them, that we cannot match).
-EXCLUDED: dict[str, tuple[str, frozenset[str]]] = {
-    "eXplorist210.log": (
-        _GLL + "the device prints GLL times with odd milliseconds (.303, .297, .305; a bug "
-        "noted in the log header) while its GGA/RMC say .30",
-        frozenset({"2006-05-20T20:06:20.303Z", "2006-05-20T20:06:21.297Z", "2006-05-20T20:06:22.305Z"}),
-    ),
-    "garmin48.log": (
-        _GLL + "this Garmin sends GGA/RMC on even seconds and an extra GLL fix on the odd "
-        "seconds between them (log header: 'GLL can include a fix update')",
-        frozenset(
-            f"2001-06-06T22:53:{s:02d}.000Z" for s in (9, 11, 13, 15, 17, 33, 35)
-        ),  # each twice in the .chk: gpsd reports after the GLL and again after $PGRMZ
-    ),
-    "triton400.log": (
-        _GLL + "at 03:01:30 the capture cut the GGA off ('$GPGGA,030130$GPGLL,...') and "
-        "the receiver sent no RMC, so only the GLL holds that epoch",
-        frozenset({"2013-04-01T03:01:30.000Z"}),
-    ),
-}
+#: log -> (reason, exact TPV times, as gpsd prints them, that we cannot match). Empty
+#: since the reader takes GLL too: every fix gpsd decoded from this corpus is ours.
+EXCLUDED: dict[str, tuple[str, frozenset[str]]] = {}
 
 #: log -> why gpsd's altHAE is not the GGA's MSL + separation.
 ALT_EXCLUDED = {
@@ -75,7 +58,7 @@ ALT_EXCLUDED = {
 }
 
 #: The corpus as shipped: logs with at least one TPV to match, and the totals.
-EXPECTED_TOTALS = {"tpv": 2827, "matched": 2809, "excluded": 18, "altitudes": 2119}
+EXPECTED_TOTALS = {"tpv": 2827, "matched": 2827, "excluded": 0, "altitudes": 2119}
 
 
 @dataclass

@@ -217,6 +217,36 @@ def test_empty_fields_are_none_and_missing_separation_gives_no_hae():
     assert (rmc.mode, rmc.valid) == (None, True)  # NMEA 2.0: no mode field
 
 
+def test_gll_exact_records_dated_by_the_last_rmc():
+    # Garmin 48 style: GGA/RMC on even seconds, an extra GLL fix on the odd one between.
+    r = GpsReader()
+    stream = (s("GPGLL,4807.0380,N,01131.0000,E,123518,A")  # NMEA 2.0: no mode field; no date yet
+              + s(RMC) + s("GPGLL,4807.0390,N,01131.0010,E,123520.00,A,D")
+              + s("GNGLL,,,,,123521.00,V,N")  # alive, no fix
+              + s("GPGLL,8960.0000,N,00000.0000,E,123522.00,V,N"))  # placeholder: kept, no position
+    first, _, gll, empty, placeholder = feed_all(r, stream)
+    assert first == GpsFix(
+        sentence="GLL", talker="GP", time_of_day=time(12, 35, 18), utc=None,
+        lat=round(48 + 7.038 / 60, 10), lon=round(11 + 31 / 60, 10), status="A",
+    )  # fmt: skip
+    assert first.valid and (first.mode, first.alt_hae, first.quality) == (None, None, None)
+    assert gll.utc == datetime(1994, 3, 23, 12, 35, 20, tzinfo=UTC)
+    assert (gll.lat, gll.lon, gll.mode, gll.valid) == (round(48 + 7.039 / 60, 10), round(11 + 31.001 / 60, 10), "D", True)
+    assert (empty.talker, empty.lat, empty.status, empty.mode, empty.valid) == ("GN", None, "V", "N", False)
+    assert (placeholder.lat, placeholder.valid) == (None, False)
+    assert (r.stats["gll"], r.stats["rmc"], r.stats["fixes"], r.stats["no_position"]) == (4, 1, 5, 2)
+    assert r.stats["placeholder_position"] == 1
+
+
+def test_gll_rejects():
+    r = GpsReader()
+    stream = (s("GPGLL,4807.0380,N,01131.0000,E,12351,A,A")  # malformed time
+              + s("GPGLL,4860.0000,N,01131.0000,E,123519,A,A")  # 60 minutes with a fix
+              + s("GPGLL,4807.0380,N,01131.0000,E,123519,A,A,X"))  # a field too many
+    assert feed_all(r, stream) == []
+    assert (r.stats["malformed"], r.stats.get("fixes", 0)) == (3, 0)
+
+
 # ---------------------------------------------------------------------------- attitude
 
 
@@ -284,12 +314,12 @@ def test_arbitrary_bytes_never_raise(reader_cls, data, cuts):
 
 @given(readers, st.integers(0, 10**6), st.binary(min_size=1, max_size=3), st.integers(1, 40))
 def test_corrupted_valid_stream_never_raises(reader_cls, pos, junk, chunk):
-    clean = s(GGA) + s(RMC) + s(PASHR) + s("GPZDA,051134.000,04,07,2012,,")
+    clean = s(GGA) + s(RMC) + s(PASHR) + s("GPZDA,051134.000,04,07,2012,,") + s("GPGLL,4807.038,N,01131.000,E,123520,A,A")
     at = pos % len(clean)
     data = clean[:at] + junk + clean[at + 1 :]
     reader = reader_cls()
     recs = feed_all(reader, data, chunk)
-    assert len(recs) <= 3
+    assert len(recs) <= 4
 
 
 instants = st.datetimes(datetime(2000, 1, 1), datetime(2068, 12, 31), timezones=st.just(UTC))
@@ -385,3 +415,20 @@ def test_gps_sentences_give_two_matching_records(t, lat, lon, alt):
     assert (rmc.sentence, gga.sentence) == ("RMC", "GGA")
     assert (gga.utc, gga.lat, gga.lon) == (rmc.utc, rmc.lat, rmc.lon)
     assert gga.valid and rmc.valid
+
+
+# decimals >= 1 as for GGA: NMEA prints llll.ll, and pynmeagps leaves "4807" (no point) untyped.
+@given(instants, latitudes, longitudes, st.sampled_from(["A", "D", "N", ""]), st.integers(1, 8))
+def test_gll_round_trip(t, lat, lon, mode, decimals):
+    from emulator.nmea_ground_truth import _position  # the generator's own lat/lon formatting
+
+    r = GpsReader()
+    feed_all(r, s(f"GPZDA,{t:%H%M%S},{t:%d},{t:%m},{t:%Y},,"))  # the date comes from elsewhere
+    status = "V" if mode == "N" else "A"
+    (fix,) = feed_all(r, s(",".join(["GPGLL", *_position(lat, lon, decimals), f"{t:%H%M%S}.00", status, mode])))
+    assert fix.utc == t.replace(microsecond=0) and fix.sentence == "GLL"
+    assert fix.valid == (mode != "N")
+    if mode == "N":
+        return  # a no-fix sentence may carry any position
+    half_unit = 0.5 / 60.0 / 10**decimals + 1e-10  # rounding to the printed arc-minutes, plus pynmeagps's 1e-10
+    assert abs(fix.lat - lat) <= half_unit and abs(fix.lon - lon) <= half_unit

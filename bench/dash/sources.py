@@ -125,7 +125,7 @@ class DeviceFeed:
         self.reason = ""
         self._last_status = -1e9
         self._dirty = False
-        self._counts = {"epoch": 0, "GGA": 0, "RMC": 0, "attitude": 0}
+        self._counts = {"epoch": 0, "GGA": 0, "RMC": 0, "GLL": 0, "attitude": 0}
         self._tokens = POST_BURST
         self._token_mono: float | None = None
         self._held: list | None = None  # the latest record's messages not posted yet
@@ -183,7 +183,7 @@ class DeviceFeed:
             elif "sentence" in rec:
                 if rec["sentence"] in counts:
                     counts[rec["sentence"]] += 1
-                fixes = counts["GGA"] or counts["RMC"]
+                fixes = counts["GGA"] or counts["RMC"] or counts["GLL"]
                 self._offer(lambda rec=rec, n=fixes, mono=mono: [FixReceived(name, role, rec, mono, count=n)], mono)
             elif "q" in rec:
                 counts["attitude"] += 1

@@ -1,10 +1,12 @@
-"""Streaming GPS reader: NMEA 0183 GGA and RMC from any talker -> :class:`GpsFix` records.
+"""Streaming GPS reader: NMEA 0183 GGA, RMC and GLL from any talker -> :class:`GpsFix` records.
 
 ``GpsReader().feed(chunk)`` accepts any bytes in any chunking and returns one
-:class:`GpsFix` per checksum-verified GGA or RMC sentence (GP GPS, GN multi-GNSS,
+:class:`GpsFix` per checksum-verified GGA, RMC or GLL sentence (GP GPS, GN multi-GNSS,
 GL GLONASS, GA Galileo, BD/GB BeiDou, GQ QZSS, ...), with or without a position: a
 receiver without a fix still reports that it is alive. Records are not merged across
 sentences; a GGA and an RMC of the same epoch are two records with the same ``utc``.
+GLL (position and time, no date, no altitude) matters for older receivers: some Garmins
+send an extra GLL fix between their GGA/RMC pairs; it is dated like GGA.
 
 * Position: latitude / longitude in degrees (north / east positive), as sent, parsed by
   pynmeagps (rounded to 1e-10 deg).
@@ -18,18 +20,18 @@ sentences; a GGA and an RMC of the same epoch are two records with the same ``ut
   seen, across midnight (see that module). ``ZDA`` sentences (time and date, no position)
   are read only to set that date -- some receivers send GGA + ZDA and no RMC -- and yield
   no record. ``utc`` is None until a date is known.
-* Validity: ``valid`` is GGA quality > 0, or RMC status ``A`` with an FAA mode other than
-  ``N``; dead-reckoning fixes (quality 6, mode ``E``) count as valid, their ``quality`` /
+* Validity: ``valid`` is GGA quality > 0, or RMC/GLL status ``A`` with an FAA mode other
+  than ``N``; dead-reckoning fixes (quality 6, mode ``E``) count as valid, their ``quality`` /
   ``mode`` says what they are.
 
 Everything else -- other sentences, binary data, bad checksums, malformed fields -- is
 skipped and counted in ``stats`` (keys in :mod:`.lines` and :mod:`.nmea`, plus
-``ignored`` for lines of other sentence types (not checksum-verified), ``gga``, ``rmc``, ``no_position``,
+``ignored`` for lines of other sentence types (not checksum-verified), ``gga``, ``rmc``, ``gll``, ``no_position``,
 ``zda``, ``fixes`` and ``leap_second`` for a 23:59:60 time, which a datetime cannot hold).
 Sentences with a non-empty field that does not parse (time, date, a latitude beyond 90,
 minutes >= 60, a hemisphere other than N/S/E/W) are ``malformed`` and yield no record --
 except that an invalid position in a sentence that itself says "no fix" (GGA quality 0,
-RMC status V or mode N) is a receiver's placeholder (``8960.000000,N``, ``36000.0000,N``):
+RMC/GLL status V or mode N) is a receiver's placeholder (``8960.000000,N``, ``36000.0000,N``):
 that record is kept without a position and counted as ``placeholder_position``.
 """
 
@@ -51,9 +53,9 @@ _LON = re.compile(r"\d{5}(\.\d+)?\Z")
 
 @dataclass(frozen=True, slots=True)
 class GpsFix:
-    """One GGA or RMC sentence. Degrees, metres, knots; None where the sentence had nothing."""
+    """One GGA, RMC or GLL sentence. Degrees, metres, knots; None where the sentence had nothing."""
 
-    sentence: str  # "GGA" or "RMC"
+    sentence: str  # "GGA", "RMC" or "GLL"
     talker: str  # "GP", "GN", "BD", ...
     time_of_day: time | None  # UTC
     utc: datetime | None  # aware UTC; None until a date is known
@@ -65,8 +67,8 @@ class GpsFix:
     quality: int | None = None  # GGA fix quality 0-8
     sats: int | None = None  # GGA satellites used
     hdop: float | None = None  # GGA
-    status: str | None = None  # RMC 'A' valid / 'V' warning
-    mode: str | None = None  # RMC FAA mode indicator (NMEA >= 2.3): A D E F M N P R S
+    status: str | None = None  # RMC/GLL 'A' valid / 'V' warning
+    mode: str | None = None  # RMC/GLL FAA mode indicator (NMEA >= 2.3): A D E F M N P R S
     speed_knots: float | None = None  # RMC speed over ground
     course: float | None = None  # RMC course over ground, degrees true
 
@@ -128,7 +130,7 @@ class GpsReader(SentenceReader):
     def handle_line(self, line: bytes) -> GpsFix | None:
         """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted)."""
         kind = sentence_type(line)
-        if kind not in (b"GGA", b"RMC", b"ZDA") or not line[1:3].isalpha():
+        if kind not in (b"GGA", b"RMC", b"GLL", b"ZDA") or not line[1:3].isalpha():
             self.stats["ignored"] += 1
             return None
         msg = parse_checked(line, self.stats)
@@ -138,7 +140,7 @@ class GpsReader(SentenceReader):
             if kind == b"ZDA":
                 self._zda(msg)
                 return None
-            fix = self._gga(msg, line) if kind == b"GGA" else self._rmc(msg, line)
+            fix = self._gga(msg, line) if kind == b"GGA" else self._rmc(msg, line) if kind == b"RMC" else self._gll(msg, line)
         except (FieldError, ValueError, TypeError):
             self.stats["malformed"] += 1
             return None
@@ -201,6 +203,25 @@ class GpsReader(SentenceReader):
             mode=mode,
             speed_knots=_float(msg, "spd", 6),
             course=_float(msg, "cog", 7),
+        )
+
+    def _gll(self, msg: NMEAMessage, line: bytes) -> GpsFix:
+        # payload: 0-3 lat N lon E, 4 time, 5 status, 6 mode (NMEA >= 2.3; older: absent)
+        if len(msg.payload) > 7:
+            raise FieldError("too many fields")
+        tod = time_of_day(msg, "time", _raw(msg, 4), self.stats)
+        status = _raw(msg, 5) or None
+        mode = _raw(msg, 6) or None
+        lat, lon = self._position(msg, 0, fix_claimed=status == "A" and mode != "N")
+        return GpsFix(
+            sentence="GLL",
+            talker=talker_of(line),
+            time_of_day=tod,
+            utc=None if tod is None else self.tracker.resolve(tod),
+            lat=lat,
+            lon=lon,
+            status=status,
+            mode=mode,
         )
 
     def _position(self, msg: NMEAMessage, index: int, fix_claimed: bool) -> tuple[float | None, float | None]:
