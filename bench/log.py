@@ -25,6 +25,7 @@ from firmware_proto.errors import InputError, LinkError
 from . import __version__
 from .logger import DeviceLogger, DeviceSpec
 from .records import FORMATS, decoder_for
+from .transport import check_url
 from .session import SessionWriter
 
 
@@ -114,6 +115,8 @@ def device_specs(args: argparse.Namespace) -> list[DeviceSpec]:
             if fmt is not None:
                 decoder_for(kind, fmt)  # a missing extra is reported now, before a session exists
             specs.append(DeviceSpec(f"{kind}-{role}", kind, url, role, args.baud, fmt))
+    for s in specs:
+        check_url(s.url)  # a missing extra is reported now, not retried as an absent device
     names = [s.name for s in specs]
     for name in names:
         if names.count(name) > 1:

@@ -9,13 +9,38 @@ A device argument is a path (``/dev/ttyUSB0``) or a pyserial URL: pyserial's own
 
 from __future__ import annotations
 
+import importlib
+
 import serial
+
+from firmware_proto.errors import MissingExtra
 
 import bench.urlhandler  # noqa: F401  (registers usb://)
 import emulator.urlhandler  # noqa: F401  (registers arvaemu://)
 
 
+#: URL schemes whose handler needs an extra: scheme -> (module, package, extra). pyserial
+#: skips a handler that fails to import and then calls the scheme "not known", which
+#: would send a user hunting for a typo instead of a missing package.
+EXTRA_SCHEMES = {"cp2110": ("hid", "hidapi", "hid"), "usb": ("usb.core", "pyusb", "usb")}
+
+
+def check_url(url: str) -> None:
+    """:class:`MissingExtra` if ``url``'s scheme needs an extra that is not installed."""
+    scheme, sep, _ = url.partition("://")
+    need = EXTRA_SCHEMES.get(scheme.lower()) if sep else None
+    if need is None:
+        return
+    module, package, extra = need
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        raise MissingExtra(f"a {scheme.lower()}:// device", package, extra) from None
+
+
 def open_device(url: str, baudrate: int = 115200, timeout: float | None = 0.1, **options) -> serial.SerialBase:
-    """``serial.serial_for_url`` with our handlers registered; errors propagate as
-    pyserial raises them (``serial.SerialException``)."""
+    """``serial.serial_for_url`` with our handlers registered; :class:`MissingExtra` for a
+    scheme whose extra is missing; other errors propagate as pyserial raises them
+    (``serial.SerialException``, ``ValueError``)."""
+    check_url(url)
     return serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, **options)

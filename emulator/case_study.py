@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_proto.errors import MissingExtra
+
 from .closed_loop import ClosedLoop, RunResult
 from .scene import Scene, load_scene
 
@@ -128,14 +130,22 @@ def summarize(case: int, result: RunResult) -> dict:
     }
 
 
-def plot_case(case: int, results: dict[str, RunResult], path: Path) -> None:
-    """Paper-style figure: the 2-D trajectory over the horizontal field direction at
-    flight height, and the distance to the transmitter versus time."""
-    import matplotlib
-
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend, or :class:`MissingExtra`."""
+    try:
+        import matplotlib
+    except ImportError:
+        raise MissingExtra("case-study plots (--out)", "matplotlib", "plot") from None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def plot_case(case: int, results: dict[str, RunResult], path: Path) -> None:
+    """Paper-style figure: the 2-D trajectory over the horizontal field direction at
+    flight height, and the distance to the transmitter versus time."""
+    plt = _pyplot()
     from .model import measure
 
     scene = load_case(case)
@@ -193,6 +203,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.terrain:
         write_terrain(SCENES_DIR / "case_study_terrain.csv")
     names = [c for c in args.controllers.split(",") if c]
+    if args.out is not None:
+        try:
+            _pyplot()  # before minutes of flying, not after
+        except MissingExtra as exc:
+            print(f"{p.prog}: {exc}", file=sys.stderr)
+            return 2
     print("| case | strategy | start [m] | max [m] (at s) | growth | located at [s] | error [m] | final 3-D [m] |")
     print("|---|---|---|---|---|---|---|---|")
     for case in CASES:

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from firmware_proto.errors import MissingExtra
+
 _SQRT_HALF = math.sqrt(0.5)
 _Q_T = (0.0, _SQRT_HALF, _SQRT_HALF, 0.0)  # NED <-> ENU (its own inverse)
 _Q_F = (0.0, 1.0, 0.0, 0.0)  # FLU <-> FRD (its own inverse)
@@ -114,7 +116,10 @@ class MavlinkPoseSource:
     def start(self) -> "MavlinkPoseSource":
         if self._thread is not None:
             return self
-        from pymavlink import mavutil  # the optional extra: imported only when used
+        try:
+            from pymavlink import mavutil  # the optional extra: imported only when used
+        except ImportError:
+            raise MissingExtra("MAVLink pose input", "pymavlink", "mavlink") from None
 
         self._conn = mavutil.mavlink_connection(self.url, baud=self.baud, source_system=self.source_system)
         self._thread = threading.Thread(target=self._run, name=f"mavlink {self.url}", daemon=True)

@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from firmware_proto.errors import InputError, MissingExtra
+
 #: One row per (strategy, v_max, k_c, burial, transmitter).
 COLUMNS = (
     "strategy", "v_max", "k_c", "burial", "n_tx", "tx_id", "tx_x", "tx_y", "depth_m",
@@ -180,7 +182,10 @@ def sweep(config: SweepConfig, workers: int | None = None, scheduler: str | None
     chunks = [tasks[i : i + config.chunk] for i in range(0, len(tasks), config.chunk)]
     wall = time.perf_counter()
     if scheduler is not None:
-        from distributed import Client
+        try:
+            from distributed import Client
+        except ImportError:
+            raise MissingExtra("--scheduler (a dask cluster)", "dask.distributed", "cluster") from None
 
         with Client(scheduler) as client:
             futures = client.map(run_chunk, [config] * len(chunks), chunks, pure=False)
@@ -240,14 +245,33 @@ def summarize(rows: list[dict]) -> list[dict]:
     return out
 
 
-def write_table(rows: list[dict], path: str | Path) -> None:
-    """CSV (header :data:`COLUMNS`), or Parquet for ``*.parquet`` (needs pyarrow)."""
-    path = Path(path)
-    if path.suffix == ".parquet":
+def _pyarrow():
+    try:
         import pyarrow as pa
         import pyarrow.parquet as pq
+    except ImportError:
+        raise MissingExtra("Parquet output", "pyarrow", "parquet") from None
+    return pa, pq
 
-        pq.write_table(pa.Table.from_pylist(rows), path)
+
+def check_output(path: Path) -> None:
+    """Refuse an output the sweep could not write, before hours of work, not after."""
+    if path.suffix not in (".csv", ".parquet"):
+        raise InputError(f"--out {path}: give a .csv or .parquet file")
+    if not path.parent.is_dir():
+        raise InputError(f"--out {path}: directory {path.parent} does not exist")
+    if path.suffix == ".parquet":
+        _pyarrow()
+
+
+def write_table(rows: list[dict], path: str | Path) -> None:
+    """CSV (header :data:`COLUMNS`), or Parquet for ``*.parquet`` (the ``parquet`` extra),
+    with the same columns in the same order (NaN where a CSV cell is empty)."""
+    path = Path(path)
+    if path.suffix == ".parquet":
+        pa, pq = _pyarrow()
+        columns = {k: [row[k] for row in rows] for k in COLUMNS}
+        pq.write_table(pa.table(columns), path)
         return
     with path.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=COLUMNS, lineterminator="\n")
@@ -300,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-noise", action="store_true", help="ideal receiver (EMI noise off)")
     p.add_argument("--workers", type=int, help="local processes (default: CPU count)")
     p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
-    p.add_argument("--out", type=Path, help="write the rows here (.csv, or .parquet with pyarrow)")
+    p.add_argument("--out", type=Path, help="write the rows here (.csv, or .parquet with the parquet extra)")
     args = p.parse_args(argv)
     strategies = tuple(s for s in args.strategies.split(",") if s)
     for s in strategies:
@@ -313,9 +337,15 @@ def main(argv: list[str] | None = None) -> int:
         area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
         noise=not args.no_noise,
     )
-    result = sweep(config, workers=args.workers, scheduler=args.scheduler)
-    if args.out is not None:
-        write_table(result.rows, args.out)
+    try:
+        if args.out is not None:
+            check_output(args.out)
+        result = sweep(config, workers=args.workers, scheduler=args.scheduler)
+        if args.out is not None:
+            write_table(result.rows, args.out)
+    except InputError as exc:
+        print(f"arva-sweep: {exc}", file=sys.stderr)
+        return 2
     print(summary_table(result.summary))
     print(
         f"{len(config.tasks())} runs, {result.scene_s:,.0f} s of scene time in {result.wall_s:.1f} s "

@@ -7,6 +7,7 @@ stdlib exception whose meaning it carries, so callers can catch either::
      +-- InputError (ValueError)        bad user input: scene file, CSV, argument
      |    +-- SceneError                a scene file that does not validate
      |    +-- PoseError                 a non-finite position or degenerate quaternion
+     |    +-- MissingExtra              an optional dependency (a pip extra) is not installed
      +-- ProtocolError (ValueError)     a sentence that cannot be encoded or decoded
      +-- LinkError (OSError)            a port or device that cannot be opened or used
 
@@ -45,6 +46,20 @@ class PoseError(InputError):
         self.field = field
         self.reason = reason
         super().__init__(f"{field}: {reason}")
+
+
+class MissingExtra(InputError):
+    """A feature whose optional dependency is not installed; says which extra to install.
+
+    An :class:`InputError`: asking for the feature was the input this installation cannot
+    serve, and the command line reports it in one line with exit status 2.
+    """
+
+    def __init__(self, feature: str, package: str, extra: str) -> None:
+        self.feature = feature
+        self.package = package
+        self.extra = extra
+        super().__init__(f"{feature} needs {package} (install the extra: pip install 'arva-bench[{extra}]')")
 
 
 class ProtocolError(ArvaError, ValueError):

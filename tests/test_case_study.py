@@ -122,3 +122,20 @@ def test_closed_loop_stream_on_stdout_matches_the_in_process_port():
     run = ClosedLoop(load_case(4)).run(80.0, stop_when_found=False)  # hovers once located
     assert len(d) == 80 and d == run.d[:, 0].tolist()
     assert d[0] == 945 and max(d) > 2000 and all(0 <= v <= 300 for v in d[-20:])
+
+
+def test_plots_without_matplotlib_say_which_extra_before_flying(tmp_path):
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.modules['matplotlib'] = None\n"  # as if the extra were not installed
+        "from emulator.case_study import main\n"
+        f"sys.exit(main(['--out', {str(tmp_path)!r}]))"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert (p.returncode, p.stdout) == (2, "")
+    assert p.stderr == (
+        "python -m emulator.case_study: case-study plots (--out) needs matplotlib "
+        "(install the extra: pip install 'arva-bench[plot]')\n"
+    )

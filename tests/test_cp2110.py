@@ -112,3 +112,23 @@ def test_missing_bridge(bridge):
         serial.serial_for_url("cp2110:///dev/hidraw9")
     # pyserial passes the errno of hidapi's OSError, which is None
     assert str(err.value) == "[Errno None] could not open port cp2110:///dev/hidraw9: open failed"
+
+
+def test_without_hidapi_the_url_names_the_extra_not_an_unknown_protocol(monkeypatch, tmp_path, capsys):
+    from bench.cli import main
+    from bench.transport import check_url, open_device
+    from firmware_proto.errors import MissingExtra
+
+    monkeypatch.setitem(sys.modules, "hid", None)  # as if the extra were not installed
+    sys.modules.pop(HANDLER, None)
+    why = "a cp2110:// device needs hidapi (install the extra: pip install 'arva-bench[hid]')"
+    with pytest.raises(MissingExtra) as err:
+        open_device("cp2110:///dev/hidraw3")
+    assert str(err.value) == why
+    check_url("loop://")  # schemes without an extra pass
+    check_url("/dev/ttyUSB0")
+    assert main(["cat", "CP2110:///dev/hidraw3"]) == 2
+    assert capsys.readouterr().err == f"arva-bench: cat: CP2110:///dev/hidraw3: {why}\n"
+    assert main(["log", "--arva", "loop://", "--gps", "cp2110:///dev/hidraw3", "--out", str(tmp_path / "s")]) == 2
+    assert capsys.readouterr().err == f"arva-bench: {why}\n"
+    assert not (tmp_path / "s").exists()

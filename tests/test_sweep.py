@@ -108,3 +108,41 @@ def test_command_line(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "emulator.sweep", "--strategies", "magic"], capture_output=True,
                          text=True, timeout=60)
     assert bad.returncode == 2 and "unknown strategy 'magic'" in bad.stderr
+
+
+def test_parquet_table_has_the_csv_columns_and_values(local, tmp_path):
+    pq = pytest.importorskip("pyarrow.parquet")
+    path = tmp_path / "rows.parquet"
+    write_table(local.rows, path)
+    table = pq.read_table(path)
+    assert tuple(table.column_names) == COLUMNS
+    assert same(table.to_pylist(), [{k: r[k] for k in COLUMNS} for r in local.rows])
+
+
+def test_bad_output_is_refused_before_the_sweep_runs(tmp_path):
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "emulator.sweep", "--n", "1000000", *args],
+                              capture_output=True, text=True, timeout=60)  # fmt: skip
+
+    for out, why in [
+        (tmp_path / "rows.xlsx", f"arva-sweep: --out {tmp_path / 'rows.xlsx'}: give a .csv or .parquet file\n"),
+        (tmp_path / "no" / "rows.csv", f"arva-sweep: --out {tmp_path / 'no' / 'rows.csv'}: directory {tmp_path / 'no'} does not exist\n"),
+    ]:  # fmt: skip
+        p = run("--out", str(out))
+        assert (p.returncode, p.stdout, p.stderr) == (2, "", why)
+    code = (
+        "import sys; sys.modules['pyarrow'] = None\n"  # as if the extra were not installed
+        "from emulator.sweep import main\n"
+        f"sys.exit(main(['--n', '1000000', '--out', {str(tmp_path / 'rows.parquet')!r}]))"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert (p.returncode, p.stdout) == (2, "")
+    assert p.stderr == "arva-sweep: Parquet output needs pyarrow (install the extra: pip install 'arva-bench[parquet]')\n"
+    code = code.replace("'pyarrow'", "'distributed'").replace(
+        f"'--out', {str(tmp_path / 'rows.parquet')!r}", "'--n', '2', '--scheduler', 'tcp://127.0.0.1:1'"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert (p.returncode, p.stdout) == (2, "")
+    assert p.stderr == (
+        "arva-sweep: --scheduler (a dask cluster) needs dask.distributed (install the extra: pip install 'arva-bench[cluster]')\n"
+    )

@@ -31,18 +31,15 @@ from collections import Counter
 
 from emulator.attitude_convention import hpr_to_quaternion, quaternion_to_hpr
 from emulator.mavlink_pose import frd_ned_to_flu_enu
-from firmware_proto.errors import InputError
+from firmware_proto.errors import MissingExtra
 
 from .attitude import Attitude
-
-INSTALL_PYMAVLINK = "MAVLink attitude needs pymavlink (install the extra: pip install 'arva-bench[mavlink]')"
-
 
 def _dialect():
     try:
         from pymavlink.dialects.v20 import ardupilotmega
     except ImportError:
-        raise InputError(INSTALL_PYMAVLINK) from None
+        raise MissingExtra("MAVLink attitude", "pymavlink", "mavlink") from None
     return ardupilotmega
 
 
