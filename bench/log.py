@@ -23,6 +23,7 @@ import time
 from firmware_proto.errors import InputError, LinkError
 
 from . import __version__
+from .log_status import LiveStatus
 from .logger import DeviceLogger, DeviceSpec
 from .records import FORMATS, decoder_for
 from .transport import check_url
@@ -159,13 +160,14 @@ def run(args: argparse.Namespace) -> int:
     for lg in loggers:
         lg.start()
     t0 = time.monotonic()
-    live = _status(loggers) if sys.stderr.isatty() else None
+    status = LiveStatus(loggers) if sys.stderr.isatty() else None
+    live = status.start() if status is not None else None
     try:
         while not stop.wait(0.25):
             if args.duration is not None and time.monotonic() - t0 >= args.duration:
                 break
-            if live is not None:
-                live.update(_table(loggers, time.monotonic() - t0))
+            if status is not None:
+                status.update(live, time.monotonic() - t0)
     finally:
         if live is not None:
             live.stop()
@@ -186,35 +188,3 @@ def run(args: argparse.Namespace) -> int:
     if fatal:
         raise LinkError(f"log: {fatal[0]}; the session was closed, everything before is kept")
     return 0
-
-
-def _status(loggers):
-    from rich.console import Console
-    from rich.live import Live
-
-    live = Live(_table(loggers, 0.0), console=Console(stderr=True), refresh_per_second=4, transient=True)
-    live.start()
-    return live
-
-
-def _table(loggers, elapsed: float):
-    from rich.table import Table
-
-    table = Table(title=f"arva-bench log  {elapsed:7.1f} s", expand=False)
-    for col in ("device", "link", "bytes", "records", "errors", "gaps", "last data"):
-        table.add_column(col)
-    now = time.monotonic()
-    for lg in loggers:
-        st = lg.stats
-        age = "-" if st.last_data_mono is None else f"{now - st.last_data_mono:.1f} s ago"
-        errors = lg.decoder.stats().get("errors", 0)
-        table.add_row(
-            lg.spec.name,
-            "[green]up[/]" if st.connected else "[red]down[/]",
-            str(st.bytes),
-            str(st.records),
-            str(errors),
-            str(st.gaps),
-            age,
-        )
-    return table
