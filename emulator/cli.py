@@ -18,7 +18,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from firmware_proto.errors import InputError, LinkError
+from firmware_proto.errors import InputError, LinkError, SceneError
 
 from . import __version__
 from .ports import Port, PtyPort, SerialPort, StdoutPort
@@ -240,6 +240,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         return run(args)
+    except SceneError as exc:
+        print(exc, file=sys.stderr)  # exactly FILE: key.path: reason, the form editors jump to
+        return 2
     except (InputError, LinkError) as exc:
         print(f"arva-emulate: {exc}", file=sys.stderr)
         return 2

@@ -148,6 +148,15 @@ class _Reader:
             raise self.fail(path, f"must be in {lo}..{hi}, got {value}")
         return value
 
+    def rate(self, data: dict, key: str, path: str, default: float) -> float:
+        """A stream rate in Hz within :data:`RATE_LIMITS_HZ` (epoch k is at k / rate: a
+        rate of 1e-320 Hz would put epoch 1 beyond any float)."""
+        value = self.number(data, key, path, default, positive=True)
+        lo, hi = RATE_LIMITS_HZ
+        if not lo <= value <= hi:
+            raise self.fail(path, f"must be within [{lo:g}, {hi:g}] Hz, got {value:g}")
+        return value
+
     def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False) -> float:
         value = data.get(key, default)
         if value is None:
@@ -239,6 +248,9 @@ _TOP_KEYS = {
     "spec", "seed", "rate_hz", "name", "description", "model", "effects", "transmitters", "receiver", "receivers",
     "pulses", "quantize", "ground_truth_error", "link_faults", "origin", "ground_truth",
 }
+#: Stream rates a scene may ask for, Hz: one epoch per 1000 s up to 10 kHz.
+RATE_LIMITS_HZ = (1e-3, 1e4)
+
 _MODEL_KEYS = {"kappa_eq", "moment", "r_inner", "r_outer", "r_en", "q"}
 _EFFECT_KEYS = {"noise", "research_sentences", "pulses", "quantize", "ground_truth_error", "link_faults"}
 _TX_KEYS = {"id", "position", "orientation", "path", "pulse_period_ms", "pulse_phase_ms", "gps", "attitude"}
@@ -290,7 +302,7 @@ def parse_scene(data: dict, source: str) -> Scene:
         raise rd.fail("spec", f"version {spec} is newer than this program supports ({SPEC_VERSION})")
     rd.known_keys(data, "", _TOP_KEYS)
     seed = rd.integer(data, "seed", "seed", 0, 0, 2**63 - 1)
-    rate_hz = rd.number(data, "rate_hz", "rate_hz", 1.0, positive=True)
+    rate_hz = rd.rate(data, "rate_hz", "rate_hz", 1.0)
     name = data.get("name", "")
     if not isinstance(name, str):
         raise rd.fail("name", f"expected a string, got {_type_name(name)}")
@@ -382,8 +394,8 @@ def _ground_truth(rd: _Reader, data: dict, transmitters, receivers) -> tuple[Ori
         raise rd.fail("ground_truth.talker", f"expected two upper-case letters (GP, GN, ...), got {talker!r}")
     spec = GroundTruthSpec(
         start.astimezone(_dt.timezone.utc),
-        rd.number(g, "gps_rate_hz", "ground_truth.gps_rate_hz", defaults.gps_rate_hz, positive=True),
-        rd.number(g, "attitude_rate_hz", "ground_truth.attitude_rate_hz", defaults.attitude_rate_hz, positive=True),
+        rd.rate(g, "gps_rate_hz", "ground_truth.gps_rate_hz", defaults.gps_rate_hz),
+        rd.rate(g, "attitude_rate_hz", "ground_truth.attitude_rate_hz", defaults.attitude_rate_hz),
         talker,
         rd.integer(g, "lat_lon_decimals", "ground_truth.lat_lon_decimals", defaults.lat_lon_decimals, 4, 7),
     )

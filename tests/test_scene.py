@@ -101,6 +101,8 @@ ERRORS = [
     ("spec = 1\n[model]\nq = [1.0, 0.5]\n", "s.toml: model.q: expected 3 numbers, got 2"),
     ("spec = 1\n[model]\nq = [1.0, 0.0, 1.0]\n", "s.toml: model.q[1]: must be in (0, 1], got 0"),
     ("spec = 1\nrate_hz = 0\n", "s.toml: rate_hz: must be > 0, got 0"),
+    ("spec = 1\nrate_hz = 1e-320\n", "s.toml: rate_hz: must be within [0.001, 10000] Hz, got 9.99989e-321"),
+    ("spec = 1\n[ground_truth]\ngps_rate_hz = 2e4\n[receiver]\nchannels = 1\nposition = [0.0, 0.0, 0.0]\n", "s.toml: ground_truth.gps_rate_hz: must be within [0.001, 10000] Hz, got 20000"),
     ("spec = 1\n[effects]\nnoise = 1\n", "s.toml: effects.noise: expected true or false, got an integer"),
     ("spec = 1\n[effects]\nglare = true\n", "s.toml: effects.glare: unknown key"),
     (
@@ -177,5 +179,17 @@ def test_cli_exit_2_one_line_nothing_on_stdout(tmp_path, text, message):
     )
     assert proc.returncode == 2
     assert proc.stdout == b""
-    expected = "arva-emulate: " + message.replace("s.toml", str(path), 1) + "\n"
+    expected = message.replace("s.toml", str(path), 1) + "\n"
     assert proc.stderr.decode() == expected
+
+
+@pytest.mark.parametrize("text, message", ERRORS)
+def test_every_error_class_through_the_cli(tmp_path, capsys, text, message):
+    """In process (fast): every class of ERRORS exits 2 with exactly its one line."""
+    from emulator.cli import main
+
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    assert main(["--scene", str(path), "--port", "-", "--frames", "1", "--speed", "0"]) == 2
+    out, err = capsys.readouterr()
+    assert (out, err) == ("", message.replace("s.toml", str(path), 1) + "\n")
