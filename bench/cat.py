@@ -25,6 +25,7 @@ import sys
 import time
 from typing import Protocol
 
+from emulator.ports import baud_rate
 from firmware_proto.decoder import Decoder
 from firmware_proto.errors import LinkError
 from firmware_proto.events import DecoderStats, Epoch
@@ -154,7 +155,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("source", metavar="SOURCE", help="file path, device, pyserial URL, or - for stdin")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate for serial devices (default 115200)")
+    p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--epochs", type=_positive_int, metavar="N", help="stop after N epochs")
     p.add_argument(
         "--until-idle", type=_positive_float, metavar="SECONDS", help="stop when no byte arrives for SECONDS"

@@ -20,14 +20,15 @@ import sys
 import threading
 import time
 
+from emulator.ports import baud_rate
 from firmware_proto.errors import InputError, LinkError
 
 from . import __version__
 from .log_status import LiveStatus
 from .logger import DeviceLogger, DeviceSpec
 from .records import FORMATS, decoder_for
-from .transport import check_url
 from .session import SessionWriter
+from .transport import check_url
 
 
 def _device(kind: str):
@@ -99,7 +100,7 @@ def register(sub) -> None:
                    help="an ARVA receiver (repeatable)")
     add_truth_arguments(p, origin_help="geodetic origin of the session's ENU frame")
     p.add_argument("--out", required=True, metavar="DIR", help="new session directory")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate for serial devices (default 115200)")
+    p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--note", default="", help="free text stored in the manifest")
     p.set_defaults(func=run)

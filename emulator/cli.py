@@ -21,7 +21,7 @@ from pathlib import Path
 from firmware_proto.errors import InputError, LinkError, SceneError
 
 from . import __version__
-from .ports import Port, PtyPort, SerialPort, StdoutPort
+from .ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
 from .scene import default_scene, load_scene
 from .effects.link_faults import FaultyPort
 from .scheduler import EpochScheduler, Route, SceneClock, status_printer, summary_line
@@ -97,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="wait S seconds after announcing ptys before the first epoch (time for clients to open them)",
     )
     serial_opts = p.add_argument_group("serial device options (device paths and URLs)")
-    serial_opts.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    serial_opts.add_argument("--baud", type=baud_rate, default=115200, help="baud rate (default 115200)")
     serial_opts.add_argument("--bytesize", type=int, choices=(5, 6, 7, 8), default=8)
     serial_opts.add_argument("--parity", choices=sorted(_PARITIES), default="N")
     serial_opts.add_argument("--stopbits", type=float, choices=(1, 1.5, 2), default=1)

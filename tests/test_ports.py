@@ -232,3 +232,22 @@ def test_pty_unplug_and_replug_follows_the_link(scene, tmp_path):
         assert rc == 0 and " faults injected" in err and not err.endswith(" 0 faults injected\n")
     finally:
         emu.kill()
+
+
+@pytest.mark.parametrize(
+    "argv, line",
+    [
+        (["emulator.cli", "--port", "/dev/null", "--baud", "12345678901"],
+         "arva-emulate: error: argument --baud: must be within 50..12000000, got 12345678901"),
+        (["emulator.cli", "--port", "/dev/null", "--baud", "fast"],
+         "arva-emulate: error: argument --baud: expected a whole number, got 'fast'"),
+        (["bench.cli", "cat", "loop://", "--baud", "0"],
+         "arva-bench: cat: argument --baud: must be within 50..12000000, got 0 (see arva-bench cat --help)"),
+        (["bench.cli", "log", "--arva", "loop://", "--out", "unused", "--baud", "49"],
+         "arva-bench log: error: argument --baud: must be within 50..12000000, got 49"),
+    ],
+)  # fmt: skip
+def test_baud_out_of_range_is_a_one_line_error_not_a_traceback(argv, line):
+    proc = subprocess.run([sys.executable, "-m", *argv], capture_output=True, text=True, timeout=60)
+    assert (proc.returncode, proc.stdout) == (2, "")
+    assert proc.stderr.splitlines()[-1] == line

@@ -25,6 +25,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from emulator.ports import baud_rate
 from firmware_proto.errors import InputError
 
 from ..log import _device, add_truth_arguments, device_specs
@@ -40,7 +41,7 @@ def register(sub) -> None:
     p.add_argument("source", nargs="*", type=_device("arva"), metavar="SOURCE[,role=rxN]",
                    help="a receiver (path or pyserial URL) or a session directory; default arvaemu://")
     add_truth_arguments(p, origin_help="ENU origin for GPS positions (default: the session's, else the first receiver fix)")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate for serial devices (default 115200)")
+    p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="replay a session directory X times real time; 0 = as fast as possible (default 1)")
     p.add_argument("--stale", type=float, default=3.0, metavar="S",
