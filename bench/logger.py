@@ -91,8 +91,11 @@ class DeviceLogger:
         self._stop.set()
         self._lost.set()
         self._thread.join(timeout=5)
-        with self._lock:
-            self._store(self.decoder.flush(), time.monotonic(), time.time())
+        try:
+            with self._lock:
+                self._store(self.decoder.flush(), time.monotonic(), time.time())
+        except LinkError as exc:  # the disk filled up: report it, let the session close
+            self._on_fatal(exc)
 
     # -- called from the reader thread ---------------------------------------------
     def received(self, data: bytes, mono: float, utc: float) -> None:

@@ -63,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
     if sum(1 for p in ports_for.values() if p == "-") > 1:
         raise InputError("replay: only one device can go to stdout (-)")
     reads = {n: read_raw(directory / f"{n}.raw").reads for n in names}
+    if not any(reads.values()):  # e.g. killed during its very first write: only a torn line
+        raise InputError(f"replay: {directory}: no complete read in any device's raw log")
     ports: dict[str, Port] = {}
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -81,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         # Merge every device's reads by the logger's clock.
         queue = [(r[0].mono, i, n, 0) for i, (n, r) in enumerate(reads.items()) if r]
         heapq.heapify(queue)
-        t0 = min(q[0] for q in queue)
+        t0 = queue[0][0]  # the heap's smallest
         start = time.monotonic()
         sent = 0
         while queue and not stop.is_set():

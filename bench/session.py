@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import errno
 import datetime as _dt
 import json
 import os
@@ -54,12 +55,28 @@ class _AppendFile:
         self.lock = threading.Lock()
         self.dirty = False
         self.bytes = 0
+        self.torn = False
 
     def write_line(self, line: bytes) -> None:
+        """Append one whole line. A raw unbuffered write may take only part of it (a disk
+        filling up): the rest is retried; if the disk then refuses, the file is left with
+        a torn last line and refuses every later line, so a torn line is only ever the
+        tail, which the readers tolerate."""
         with self.lock:
-            self._f.write(line)
-            self.dirty = True
-            self.bytes += len(line)
+            if self.torn:
+                raise OSError(errno.EIO, "an earlier line was cut short; nothing more is appended")
+            view = memoryview(line)
+            try:
+                while view:
+                    n = self._f.write(view)
+                    if not n:
+                        raise OSError(errno.ENOSPC, "short write: no space left on device")
+                    view = view[n:]
+                    self.dirty = True
+            finally:
+                self.bytes += len(line) - len(view)
+                if 0 < len(view) < len(line):
+                    self.torn = True
 
     def sync(self) -> None:
         with self.lock:

@@ -77,3 +77,13 @@ def test_replay_not_a_session(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "bench.cli", "replay", str(tmp_path)], capture_output=True, text=True, timeout=30)
     assert proc.returncode == 2
     assert proc.stderr == f"arva-bench: {tmp_path}: not a session directory (no manifest.json)\n"
+
+
+def test_replay_of_a_session_killed_in_its_first_write(tmp_path):
+    w = SessionWriter(tmp_path / "s", {"devices": {"arva": {"kind": "arva", "url": "x", "role": "rx"}}})
+    w.close()
+    (tmp_path / "s" / "arva.raw").write_bytes(b"100.0\t1970-01-01T00:00:00.000000Z\tJFBBUl")  # torn, no newline
+    proc = subprocess.run([sys.executable, "-m", "bench.cli", "replay", str(tmp_path / "s"), "--speed", "0"],
+                          capture_output=True, text=True, timeout=30)  # fmt: skip
+    assert (proc.returncode, proc.stdout) == (2, "")
+    assert proc.stderr == f"arva-bench: replay: {tmp_path / 's'}: no complete read in any device's raw log\n"

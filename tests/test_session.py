@@ -101,6 +101,59 @@ def test_disk_full_is_one_clear_error_and_keeps_what_was_written(tmp_path, monke
     assert isinstance(LinkError("x"), OSError)
 
 
+def test_short_writes_are_completed_and_a_torn_line_stays_the_tail(tmp_path):
+    w = SessionWriter(tmp_path / "s", {})
+    w.raw("arva", b"first", mono=1.0, utc=0.0)
+    f = w._file("arva.raw")
+    real = f._f
+
+    class Filling:
+        """Takes 7 bytes per call, twice, then the disk is full."""
+
+        calls = 0
+
+        def write(self, data):
+            self.calls += 1
+            if self.calls > 2:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return real.write(bytes(data[:7]))
+
+        def fileno(self):
+            return real.fileno()
+
+    f._f = Filling()
+    with pytest.raises(LinkError, match=r"arva.raw: write failed: No space left on device$"):
+        w.raw("arva", b"second", mono=2.0, utc=0.0)
+    f._f = real  # the disk has room again, but this file has a torn line: no more appends
+    with pytest.raises(LinkError, match=r"arva.raw: write failed: an earlier line was cut short"):
+        w.raw("arva", b"third", mono=3.0, utc=0.0)
+    w.raw("gps-rx", b"other files go on", mono=3.0, utc=0.0)
+    w.close()
+    raw = read_raw(tmp_path / "s" / "arva.raw")
+    assert [r.data for r in raw.reads] == [b"first"] and raw.torn_tail
+    assert (tmp_path / "s" / "arva.raw").read_bytes().count(b"\n") == 1  # 14 torn bytes after it
+    assert f.bytes == len((tmp_path / "s" / "arva.raw").read_bytes())
+
+    # A write that returns 0 (no progress, no error) is a full disk too, not a busy loop.
+    w2 = SessionWriter(tmp_path / "s2", {})
+    g = w2._file("arva.raw")
+
+    class Zero:
+        def write(self, data):
+            return 0
+
+        def fileno(self):
+            return g._f.fileno()
+
+    real2, g._f = g._f, Zero()
+    with pytest.raises(LinkError, match=r"short write: no space left on device$"):
+        w2.raw("arva", b"x", mono=1.0, utc=0.0)
+    g._f = real2
+    w2.raw("arva", b"y", mono=2.0, utc=0.0)  # nothing was written: the file is not torn
+    w2.close()
+    assert [r.data for r in read_raw(tmp_path / "s2" / "arva.raw").reads] == [b"y"]
+
+
 WRITER = r"""
 import sys, time
 from bench.session import SessionWriter
@@ -137,3 +190,26 @@ def test_sigkill_loses_nothing_before_the_last_second(tmp_path):
 def test_not_a_session(tmp_path):
     with pytest.raises(InputError, match=r"not a session directory \(no manifest.json\)$"):
         read_manifest(tmp_path)
+
+
+def test_a_full_disk_while_a_logger_stops_is_reported_not_raised(tmp_path):
+    from bench.logger import DeviceLogger, DeviceSpec
+    from firmware_proto.sentences import encode_parva
+
+    class FullWriter:
+        def event(self, kind, **fields):
+            pass
+
+        def raw(self, *a):
+            pass
+
+        def record(self, device, record):
+            raise LinkError(f"{tmp_path}/arva.jsonl: write failed: No space left on device")
+
+    fatal = []
+    lg = DeviceLogger(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty")), FullWriter(), fatal.append)
+    lg.start()
+    # One slot of a two-slot epoch: flushed at stop as an incomplete epoch record.
+    assert lg.decoder.feed(encode_parva(7, 2, 1, 1, 100, 0)) == []
+    lg.stop()  # must not raise: the session still gets closed by its owner
+    assert [str(e) for e in fatal] == [f"{tmp_path}/arva.jsonl: write failed: No space left on device"]
