@@ -154,7 +154,8 @@ def export_rows(
                     fixes.setdefault(dev["role"], []).append((m, r["lat"], r["lon"], r["alt_hae"]))
                 elif "q" in r:
                     attitudes.setdefault(dev["role"], []).append((m, r["q"]))
-    first_rx = next((f for role, fs in fixes.items() if role.startswith("rx") for f in fs[:1]), None)
+    # The earliest receiver fix, as the logger stores it when there is no --origin.
+    first_rx = min((fs[0] for role, fs in fixes.items() if role.startswith("rx") and fs), default=None)
     org = _origin_from(manifest, origin, None if first_rx is None else first_rx[1:])
     tracks: dict[str, Track] = {}
     for role, fs in fixes.items():

@@ -145,6 +145,28 @@ def manifest(args: argparse.Namespace, specs: list[DeviceSpec], argv: list[str])
     return out
 
 
+class _FirstFixOrigin:
+    """Without ``--origin``, the first receiver GGA fix becomes the session's origin, written
+    into the manifest as soon as it arrives (export would pick the same fix; storing it
+    makes the session say where its ENU frame is)."""
+
+    def __init__(self, writer: SessionWriter, on_fatal) -> None:
+        self.writer = writer
+        self.on_fatal = on_fatal
+        self.lock = threading.Lock()
+        self.done = False
+
+    def __call__(self, mono: float, lat: float, lon: float, alt: float) -> None:
+        with self.lock:
+            if self.done:
+                return
+            self.done = True
+        try:
+            self.writer.update_manifest(origin={"lat": lat, "lon": lon, "alt": alt, "source": "first receiver fix"})
+        except LinkError as exc:
+            self.on_fatal(exc)
+
+
 def run(args: argparse.Namespace) -> int:
     specs = device_specs(args)
     writer = SessionWriter(args.out, manifest(args, specs, sys.argv))
@@ -157,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    loggers = [DeviceLogger(spec, writer, on_fatal) for spec in specs]
+    origin = None if args.origin else _FirstFixOrigin(writer, on_fatal)  # one for all receivers
+    loggers = [DeviceLogger(spec, writer, on_fatal, origin) for spec in specs]
     for lg in loggers:
         lg.start()
     t0 = time.monotonic()

@@ -73,12 +73,15 @@ class _Protocol(serial.threaded.Protocol):
 
 
 class DeviceLogger:
-    def __init__(self, spec: DeviceSpec, writer: SessionWriter, on_fatal) -> None:
+    def __init__(self, spec: DeviceSpec, writer: SessionWriter, on_fatal, on_fix=None) -> None:
+        """``on_fatal(LinkError)``: the disk failed. ``on_fix(mono, lat, lon, alt_hae)``:
+        each valid GGA fix with a height from a receiver's GPS (the session's origin)."""
         self.spec = spec
         self.writer = writer
         self.decoder: RecordDecoder = decoder_for(spec.kind, spec.format)
         self.stats = DeviceStats()
         self._on_fatal = on_fatal
+        self._on_fix = on_fix if spec.kind == "gps" and spec.role.startswith("rx") else None
         self._stop = threading.Event()
         self._lost = threading.Event()
         self._lock = threading.Lock()  # the decoder is fed from reader threads one at a time
@@ -113,6 +116,9 @@ class DeviceLogger:
     def _store(self, records: list[dict], mono: float, utc: float) -> None:
         for rec in records:
             self.writer.record(self.spec.name, {"mono": round(mono, 6), "utc": round(utc, 6), **rec})
+            if self._on_fix is not None and rec.get("sentence") == "GGA" and rec.get("valid") \
+                    and rec.get("alt_hae") is not None:
+                self._on_fix(mono, rec["lat"], rec["lon"], rec["alt_hae"])
         self.stats.records += len(records)
 
     def lost(self, exc: BaseException | None) -> None:

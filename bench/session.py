@@ -110,6 +110,7 @@ class SessionWriter:
         self.manifest = {"format": FORMAT, "version": FORMAT_VERSION, **manifest, "start_utc": utc_iso()}
         self._files: dict[str, _AppendFile] = {}
         self._files_lock = threading.Lock()
+        self._manifest_lock = threading.Lock()
         self._write_manifest()
         self.event("start")
         self._stop = threading.Event()
@@ -131,6 +132,15 @@ class SessionWriter:
             self._file(name).write_line(line)
         except OSError as exc:
             raise LinkError(f"{self.dir / name}: write failed: {exc.strerror or exc}") from None
+
+    def update_manifest(self, **fields) -> None:
+        """Add ``fields`` to the manifest now (atomically: a crash leaves the old or the new)."""
+        with self._manifest_lock:
+            self.manifest.update(fields)
+            try:
+                self._write_manifest()
+            except OSError as exc:
+                raise LinkError(f"{self.dir / MANIFEST}: write failed: {exc.strerror or exc}") from None
 
     def _write_manifest(self) -> None:
         tmp = self.dir / (MANIFEST + ".tmp")
@@ -198,13 +208,14 @@ class SessionWriter:
                 f.close()
             except OSError:
                 pass
-        self.manifest["stop_utc"] = utc_iso()
-        if summary:
-            self.manifest["summary"] = summary
-        try:
-            self._write_manifest()
-        except OSError:
-            pass  # the start manifest is still there
+        with self._manifest_lock:
+            self.manifest["stop_utc"] = utc_iso()
+            if summary:
+                self.manifest["summary"] = summary
+            try:
+                self._write_manifest()
+            except OSError:
+                pass  # the start manifest is still there
 
 
 # -- reading ------------------------------------------------------------------------

@@ -260,8 +260,13 @@ def test_logged_mavlink_attitude_is_the_exported_receiver_attitude(tmp_path):
     finally:
         emu.kill()
         server.close()
-    dev = read_manifest(out)["devices"]["attitude-rx"]
+    manifest = read_manifest(out)
+    dev = manifest["devices"]["attitude-rx"]
     assert dev["format"] == "mavlink" and dev["kind"] == "attitude"
+    # No --origin: the first receiver GGA fix became the session's origin, in the manifest.
+    first = next(r for r in read_jsonl(out / "gps-rx.jsonl") if r.get("sentence") == "GGA" and r["valid"])
+    assert manifest["origin"] == {"lat": first["lat"], "lon": first["lon"], "alt": first["alt_hae"],
+                                  "source": "first receiver fix"}  # fmt: skip
     atts = [r for r in read_jsonl(out / "attitude-rx.jsonl") if "q" in r]
     records = list(read_jsonl(out / "attitude-rx.jsonl"))
     errors = [r for r in records if "error" in r]

@@ -1,0 +1,91 @@
+"""export's options on a session written directly (exact clocks, no ptys): the origin
+(session, --origin, first receiver fix) and --latency."""
+
+import numpy as np
+import pytest
+
+from bench.export import export_rows
+from bench.session import SessionWriter, read_manifest
+from emulator.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
+from emulator.nmea_ground_truth import gps_sentences, pashr_sentence
+from firmware_proto.sentences import encode_parva
+
+ORIGIN = Origin(46.5, 8.0, 2500.0)
+START_UTC = 1768471200.0  # 2026-01-15T10:00:00Z
+SECONDS = 20
+
+
+def rx_true(t):
+    """The receiver walks east at 1 m/s from (-10, 5, 1)."""
+    return np.array([-10.0 + t, 5.0, 1.0])
+
+
+def write_session(path, origin_in_manifest: bool, arva_delay: float):
+    import datetime as dt
+
+    manifest = {
+        "devices": {
+            "arva": {"kind": "arva", "url": "x", "role": "rx"},
+            "gps-rx": {"kind": "gps", "url": "y", "role": "rx"},
+            "attitude-rx": {"kind": "attitude", "url": "z", "role": "rx"},
+        },
+        "tx_poses": {"1": {"lat": 46.5, "lon": 8.0, "alt": 2499.0}},
+    }
+    if origin_in_manifest:
+        manifest["origin"] = {"lat": ORIGIN.lat, "lon": ORIGIN.lon, "alt": ORIGIN.alt}
+    w = SessionWriter(path, manifest)
+    for k in range(SECONDS):
+        lat, lon, alt = (float(v) for v in enu_to_geodetic(*rx_true(float(k)), ORIGIN))
+        utc = dt.datetime.fromtimestamp(START_UTC + k, dt.timezone.utc)
+        w.raw("gps-rx", gps_sentences(utc, lat, lon, alt, lat_lon_decimals=9), mono=1000.0 + k, utc=START_UTC + k)
+        w.raw("attitude-rx", pashr_sentence(utc, 90.0, 0.0, 0.0), mono=1000.0 + k, utc=START_UTC + k)
+        # The epoch measured at k arrives arva_delay seconds later (the receiver's latency).
+        w.raw("arva", encode_parva(k, 1, 1, 1, 500, 0), mono=1000.0 + k + arva_delay, utc=START_UTC + k + arva_delay)
+    w.close()
+
+
+def rx_columns(result):
+    c = result.columns
+    return np.c_[c["rx_x"], c["rx_y"], c["rx_z"]]
+
+
+def test_latency_moves_the_pose_lookup_back_to_the_measurement(tmp_path):
+    write_session(tmp_path / "s", origin_in_manifest=True, arva_delay=0.4)
+    # GPS fixes at whole seconds; epochs arrive 0.4 s late. The last epoch's arrival
+    # (19.4 s) is past the last fix, so without the correction it has no pose.
+    plain = export_rows(tmp_path / "s")
+    assert plain.rows == SECONDS - 1 and dict(plain.dropped) == {"no receiver position": 1}
+    np.testing.assert_allclose(plain.columns["rx_qw"], 1.0, atol=1e-12)  # heading 90: body x east
+    truth = np.array([rx_true(k) for k in range(SECONDS)])
+    # Without --latency each pose is 0.4 s (0.4 m east) ahead of where the epoch was measured.
+    np.testing.assert_allclose(rx_columns(plain) - truth[:-1], [[0.4, 0.0, 0.0]] * (SECONDS - 1), atol=1e-3)
+    fixed = export_rows(tmp_path / "s", latency=0.4)
+    assert fixed.rows == SECONDS and not fixed.dropped
+    np.testing.assert_allclose(rx_columns(fixed), truth, atol=1e-3)
+    np.testing.assert_allclose(fixed.columns["t"], START_UTC + np.arange(SECONDS), atol=1e-6)
+
+
+def test_origin_from_the_session_from_the_option_and_from_the_first_fix(tmp_path):
+    write_session(tmp_path / "with", origin_in_manifest=True, arva_delay=0.0)
+    write_session(tmp_path / "without", origin_in_manifest=False, arva_delay=0.0)
+    truth = np.array([rx_true(k) for k in range(SECONDS)])
+
+    session = export_rows(tmp_path / "with")
+    assert session.origin == ORIGIN
+    np.testing.assert_allclose(rx_columns(session), truth, atol=1e-3)
+
+    # --origin overrides the session's: every position moves by the ENU offset between them.
+    other = Origin(46.5001, 8.0002, 2490.0)
+    moved = export_rows(tmp_path / "with", origin=[other.lat, other.lon, other.alt])
+    assert moved.origin == other
+    e, n, u = geodetic_to_enu(*enu_to_geodetic(truth[:, 0], truth[:, 1], truth[:, 2], ORIGIN), other)
+    np.testing.assert_allclose(rx_columns(moved), np.c_[e, n, u], atol=1e-3)
+    assert np.abs(rx_columns(moved) - truth).min() > 5.0  # it did move (11 m north, 15 m east, 10 m up)
+
+    # No origin anywhere: the first receiver fix is (0, 0, 0); the walk keeps its shape.
+    first = export_rows(tmp_path / "without")
+    lat0, lon0, alt0 = (float(v) for v in enu_to_geodetic(*rx_true(0.0), ORIGIN))
+    assert first.origin.lat == pytest.approx(lat0, abs=1e-9) and first.origin.alt == pytest.approx(alt0, abs=1e-3)
+    np.testing.assert_allclose(rx_columns(first)[0], [0.0, 0.0, 0.0], atol=1e-3)
+    np.testing.assert_allclose(rx_columns(first) - rx_columns(first)[0], truth - truth[0], atol=2e-3)
+    assert "origin" not in read_manifest(tmp_path / "without")
