@@ -15,7 +15,8 @@ Rules (identical in the C codec, ``arva_codec.c``):
   match a slot that arrived and has no field yet; otherwise it is counted as orphaned.
 * When an epoch starts, ``gap = (seq - previous_seq - 1) mod 65536`` (0 for the first
   epoch and for a repeated seq); a non-zero gap is counted in ``seq_gaps`` and summed in
-  ``seqs_missing``. The wrap 65535 -> 0 is not a gap.
+  ``seqs_missing``. The wrap 65535 -> 0 is not a gap; an epoch whose seq is below the
+  previous one is counted in ``seq_wraps`` (the counter went round, or the sender restarted).
 """
 
 from __future__ import annotations
@@ -120,6 +121,8 @@ class EpochAssembler:
             if gap:
                 self.stats.seq_gaps += 1
                 self.stats.seqs_missing += gap
+            if p.seq < last:
+                self.stats.seq_wraps += 1
         self._last_seq = p.seq
         cur = self._cur = _Pending(p.seq, p.n, gap)
         cur.slots[p.k - 1] = (p.id, p.d, p.delta)

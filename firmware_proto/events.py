@@ -113,6 +113,7 @@ class DecoderStats:
     epochs_incomplete: int = 0
     seq_gaps: int = 0  #: epochs whose seq was not the previous seq + 1 (mod 65536)
     seqs_missing: int = 0  #: sum of the gaps: seq values never seen
+    seq_wraps: int = 0  #: epochs whose seq is below the previous one: 65535 -> 0 passed (or a restart)
     fields_orphaned: int = 0  #: valid ``$PARVH`` with no matching slot to attach to
 
     @property
@@ -129,6 +130,7 @@ class DecoderStats:
             "epochs_incomplete": self.epochs_incomplete,
             "seq_gaps": self.seq_gaps,
             "seqs_missing": self.seqs_missing,
+            "seq_wraps": self.seq_wraps,
             "fields_orphaned": self.fields_orphaned,
         }
         for kind in ErrorKind:

@@ -40,7 +40,7 @@ STREAM_JSON = [
 ]
 STREAM_STATS = (
     f"arva-bench: cat: bytes={len(STREAM)} garbage_bytes=6 sentences_ok=5 epochs_complete=2 epochs_incomplete=1 "
-    "seq_gaps=1 seqs_missing=1 fields_orphaned=0 "
+    "seq_gaps=1 seqs_missing=1 seq_wraps=0 fields_orphaned=0 "
     + ZERO_ERRORS.replace("TRUNCATED=0", "TRUNCATED=1")
 )
 
@@ -82,7 +82,7 @@ def test_garbage_only_stream_exits_zero_with_everything_counted() -> None:
     assert proc.returncode == 0 and proc.stdout == b""
     assert proc.stderr.decode() == (
         f"arva-bench: cat: bytes={len(data)} garbage_bytes=111 sentences_ok=0 epochs_complete=0 epochs_incomplete=0 "
-        "seq_gaps=0 seqs_missing=0 fields_orphaned=0 "
+        "seq_gaps=0 seqs_missing=0 seq_wraps=0 fields_orphaned=0 "
         + ZERO_ERRORS.replace("BAD_CHECKSUM=0", "BAD_CHECKSUM=1")
         .replace("TOO_LONG=0", "TOO_LONG=1")
         .replace("TRUNCATED=0", "TRUNCATED=1")

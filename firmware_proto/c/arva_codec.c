@@ -478,6 +478,9 @@ static void start_epoch(arva_decoder *dec, const arva_parva *p)
             dec->stats.seq_gaps++;
             dec->stats.seqs_missing += gap;
         }
+        if (p->seq < dec->last_seq) {
+            dec->stats.seq_wraps++;
+        }
     }
     dec->have_last_seq = 1;
     dec->last_seq = p->seq;

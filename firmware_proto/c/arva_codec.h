@@ -143,6 +143,7 @@ typedef struct {
     uint32_t epochs_incomplete;
     uint32_t seq_gaps;
     uint32_t seqs_missing;
+    uint32_t seq_wraps;      /* epochs whose seq is below the previous one (65535 -> 0, or a restart) */
     uint32_t fields_orphaned;
 } arva_stats;
 

@@ -100,10 +100,10 @@ size_t arva_describe_stats(const arva_stats *st, char *out, size_t cap)
     size_t pos = 0;
     int kind;
     APPEND("stats bytes=%lu garbage_bytes=%lu sentences_ok=%lu epochs_complete=%lu epochs_incomplete=%lu "
-           "seq_gaps=%lu seqs_missing=%lu fields_orphaned=%lu",
+           "seq_gaps=%lu seqs_missing=%lu seq_wraps=%lu fields_orphaned=%lu",
            (unsigned long)st->bytes, (unsigned long)st->garbage_bytes, (unsigned long)st->sentences_ok,
            (unsigned long)st->epochs_complete, (unsigned long)st->epochs_incomplete, (unsigned long)st->seq_gaps,
-           (unsigned long)st->seqs_missing, (unsigned long)st->fields_orphaned);
+           (unsigned long)st->seqs_missing, (unsigned long)st->seq_wraps, (unsigned long)st->fields_orphaned);
     for (kind = 1; kind < ARVA_ERROR_KINDS; kind++) {
         APPEND(" errors.%s=%lu", arva_error_name((arva_error_kind)kind), (unsigned long)st->errors[kind]);
     }
