@@ -114,7 +114,7 @@ class ClosedLoop:
 
             self.uav = None
             self.controller: Controller | None = None
-            self.pose_source = pose_source or MavlinkPoseSource(spec.mavlink, spec.mavlink_origin)
+            self.pose_source = pose_source or MavlinkPoseSource(spec.mavlink, spec.mavlink_origin, baud=spec.mavlink_baud)
             self._start_pose = scene.receivers[index].trajectory.at([0.0])
             self._last_render: float | None = None
             self._waiting_logged = False

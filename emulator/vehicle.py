@@ -26,6 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .ports import BAUD_LIMITS
+
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")
 
 
@@ -228,6 +230,7 @@ class VehicleSpec:
     # External loop.
     mavlink: str | None = None
     mavlink_origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mavlink_baud: int = 57600  # a serial telemetry link only (radios: 57600; USB: any)
 
     @property
     def height_start(self) -> float:
@@ -238,8 +241,9 @@ _VEHICLE_KEYS = {
     "kind", "controller", "start", "start_height", "yaw", "v_max", "v_z_max", "r_s", "k_c", "k_z",
     "control_rate_hz", "range_sigma_m", "terrain", "terrain_height", "terrain_origin", "terrain_spacing",
     "search_area", "strip_width", "v_stop", "v_fine", "flux_reverse", "mavlink", "mavlink_origin",
+    "mavlink_baud",
 }
-_MAVLINK_ONLY = {"mavlink", "mavlink_origin"}
+_MAVLINK_ONLY = {"mavlink", "mavlink_origin", "mavlink_baud"}
 
 
 def parse_vehicle(rd: Any, data: Any, path: str, scene_dir: Path | None) -> VehicleSpec:
@@ -276,6 +280,9 @@ def parse_vehicle(rd: Any, data: Any, path: str, scene_dir: Path | None) -> Vehi
             raise rd.fail(p("mavlink"), "expected a pymavlink connection string (udpin:HOST:PORT, /dev/ttyUSB0, ...)")
         if "mavlink_origin" in data:
             origin = tuple(rd.vector(data["mavlink_origin"], p("mavlink_origin"), 3))
+        baud = rd.integer(data, "mavlink_baud", p("mavlink_baud"), d.mavlink_baud, *BAUD_LIMITS)
+    else:
+        baud = d.mavlink_baud
     spec = VehicleSpec(
         kind=kind,
         controller=controller,
@@ -298,6 +305,7 @@ def parse_vehicle(rd: Any, data: Any, path: str, scene_dir: Path | None) -> Vehi
         flux_reverse=rd.boolean(data, "flux_reverse", p("flux_reverse"), False),
         mavlink=mavlink,
         mavlink_origin=tuple(float(v) for v in origin),
+        mavlink_baud=baud,
     )
     return spec
 

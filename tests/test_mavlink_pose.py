@@ -224,3 +224,17 @@ def test_without_the_extra_the_emulator_says_install_it(tmp_path):
     assert p.stderr.splitlines()[-1] == (
         "arva-emulate: MAVLink pose input needs pymavlink (install the extra: pip install 'arva-bench[mavlink]')"
     )
+
+
+def test_serial_link_baud_comes_from_the_scene():
+    from firmware_proto.errors import SceneError
+
+    scene = loads_scene(EXTERNAL.format(port=14551) + "mavlink_baud = 921600\n", "ext.toml")
+    stream = ArvaStream(scene, 0, "arva")
+    assert stream.receiver.pose_source.baud == 921600
+    assert loads_scene(EXTERNAL.format(port=14551), "ext.toml").receivers[0].vehicle.mavlink_baud == 57600
+    with pytest.raises(SceneError, match=r"ext.toml: receiver.vehicle.mavlink_baud: must be in 50..12000000, got 7$"):
+        loads_scene(EXTERNAL.format(port=14551) + "mavlink_baud = 7\n", "ext.toml")
+    flux = EXTERNAL.format(port=14551).replace('"external_mavlink"', '"flux"').split("mavlink = ")[0]
+    with pytest.raises(SceneError, match=r'receiver.vehicle.mavlink_baud: only with controller = "external_mavlink"$'):
+        loads_scene(flux + "mavlink_baud = 9600\n", "ext.toml")
