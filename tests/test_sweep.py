@@ -65,9 +65,12 @@ def test_process_pool_gives_the_same_rows(local):
     assert same(pooled.rows, local.rows)
 
 
+@pytest.mark.timeout(180)
 def test_dask_local_cluster_gives_the_same_rows(local):
+    """Worker processes, as on a real cluster: the config and the chunks are pickled to
+    them and the package is imported there."""
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         result = sweep(CONFIG, scheduler=cluster.scheduler_address)
     assert result.executor == f"dask {cluster.scheduler_address}"
     assert same(result.rows, local.rows) and same(result.summary, local.summary)
