@@ -35,6 +35,7 @@ Only kappa_eq / s is identifiable: the fit reports kappa_eq for s = 1.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -194,6 +195,7 @@ class Likelihood:
         self.censored = rows.k == -1
         self.regimes = regimes
         self.n_evals = 0
+        self._count = threading.Lock()  # the fit evaluates a stencil's points on several threads
 
     def choose_regimes(self, p: Params, eps_split: float = EPS_SPLIT) -> Regimes:
         geo = self._geo(p)
@@ -212,7 +214,8 @@ class Likelihood:
 
     def logp(self, p: Params) -> NDArray[np.float64]:
         """log P(d_i) for each row, gross-error floor included."""
-        self.n_evals += 1
+        with self._count:
+            self.n_evals += 1
         prob = self.prob(p)
         n_out = 100.0 * p.r_outer + 2.0
         return np.log((1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out)

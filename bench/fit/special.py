@@ -137,6 +137,15 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None) -> NDArray[np.float64]:
     out = 1.0 - (1.0 - ac * ac) ** 1.5
     out *= t > gamma
     width = np.maximum(c - a, 0.0)
+    # Only a band of non-zero width needs the quadrature: in a fit about half the
+    # elements have none (G is 0 or 1 there), so gather the others first.
+    band = np.flatnonzero(width > 0.0)
+    if band.size == 0:
+        return np.clip(out, 0.0, 1.0)
+    whole = band.size == width.size
+    if not whole:
+        gamma = np.broadcast_to(gamma, width.shape)
+        t, gamma, a, width = (np.ravel(v)[band] for v in (t, gamma, a, width))
     k = gamma * gamma - t * t
     two_g = 2.0 * gamma
     acc = np.zeros(t.shape)
@@ -162,7 +171,10 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None) -> NDArray[np.float64]:
         sq *= w
         acc += sq
     acc *= width
-    out += acc
+    if whole:
+        out += acc
+    else:
+        out.ravel()[band] += acc  # out is a fresh contiguous array: ravel() is a view
     return np.clip(out, 0.0, 1.0)
 
 
