@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from emulator.effects.link_faults import SPLIT_GAP_S, FaultyPort, LinkFaultConfig
 from emulator.ports import Port
@@ -149,6 +151,26 @@ def test_seeded_reproducibility():
     for d in data:
         port.write(d)
     assert inner.writes != runs[0][0]
+
+
+@settings(max_examples=60)
+@given(st.lists(st.integers(1, 700), min_size=1, max_size=30), st.booleans())
+def test_byte_faults_do_not_depend_on_how_the_stream_is_cut_into_writes(cuts, split):
+    """Speed 0 writes thousands of epochs at once, real time one per write: the same
+    stream must carry the same faulted bytes either way (splits and stalls included)."""
+    cfg = LinkFaultConfig(loss=0.05, corrupt=0.08, split=0.5 if split else 0.0, stall=0.3 if split else 0.0)
+    data = b"".join(payloads(40, 81, seed=4))
+    whole, inner_whole, _ = make(cfg, seed=21)
+    whole.write(data)
+    pieces, inner_pieces, _ = make(cfg, seed=21)
+    pos = 0
+    for n in cuts * (len(data) // sum(cuts) + 1):
+        if pos >= len(data):
+            break
+        pieces.write(data[pos : pos + n])
+        pos += n
+    assert inner_pieces.received == inner_whole.received
+    assert (pieces.bytes_lost, pieces.bytes_corrupted) == (whole.bytes_lost, whole.bytes_corrupted)
 
 
 # --- byte faults ----------------------------------------------------------------------------

@@ -21,10 +21,12 @@ Time comes from two injected callables: ``clock()`` (scene time, seconds) and
 ``sleep(seconds)`` (time.sleep in real time, a no-op at ``--speed 0``), so the port itself
 never sleeps when running as fast as possible.
 
-Determinism: the stall, byte and split faults each draw from their own generator
-(derived from the seed and ``stream``), only when enabled, so the same writes at the same
-clock readings give the same bytes, and enabling splits does not change which bytes are
-lost or corrupted.
+Determinism: the stall, byte, corruption-value and split faults each draw from their own
+generator (derived from the seed and ``stream``), only when enabled. The byte faults draw
+one fixed-size block per byte in stream order, so which bytes are lost or corrupted, and
+how, does not depend on how the stream is cut into writes: a run at ``--speed 0`` (large
+batched writes) and one in real time (a write per epoch) carry the same faulted bytes.
+Enabling splits or stalls does not change them either.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from ..ports import Port
 SPLIT_GAP_S = 0.001
 #: Spawn-key tag of this effect's random streams ("LINK"), distinct from every other effect.
 _TAG = 0x4C494E4B
-_STALL, _BYTES, _SPLIT = 0, 1, 2
+_STALL, _BYTES, _SPLIT, _XOR = 0, 1, 2, 3
 
 
 def _finite(v) -> bool:
@@ -131,6 +133,7 @@ class FaultyPort(Port):
         self._rng_stall = rng(_STALL) if config.stall > 0 else None
         self._rng_bytes = rng(_BYTES) if config.loss > 0 or config.corrupt > 0 else None
         self._rng_split = rng(_SPLIT) if config.split > 0 else None
+        self._rng_xor = rng(_XOR) if config.corrupt > 0 else None
         self._window = 0  # last outage index started
         self._down = False
         self._down_simulated = False
@@ -262,7 +265,11 @@ class FaultyPort(Port):
             n_hit = int(np.count_nonzero(hit))
             if n_hit:
                 arr = arr.copy()
-                arr[hit] ^= rng.integers(1, 256, size=n_hit, dtype=np.uint8)
+                # From doubles (one 64-bit draw each): numpy's uint8 integers() draw from a
+                # 32-bit buffer discarded at the end of each call, which would make the
+                # values depend on how the stream is cut into writes.
+                xor = 1 + np.floor(self._rng_xor.random(n_hit) * 255.0).astype(np.uint8)
+                arr[hit] ^= xor
                 self.bytes_corrupted += n_hit
         if keep is not None:
             arr = arr[keep]
