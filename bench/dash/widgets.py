@@ -102,8 +102,6 @@ class ReceiverPanel(Horizontal):
         yield DirectionIndicator(classes="direction")
 
     def show(self, seq: int | None, complete: bool, gap: int, epochs: int, slots: int = 0) -> None:
-        # Room for every slot: the dial needs 8 lines, the table a header and one per slot.
-        self.styles.height = max(10, slots + 3)
         title = f"{self.device} ({self.role})"
         if seq is not None:
             title += f"  seq {seq}"
