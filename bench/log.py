@@ -6,9 +6,10 @@
 Every device argument is a path or pyserial URL; ``--gps`` and ``--attitude`` take
 ``,role=rx`` (default, the receiver) or ``,role=tx<ID>`` (a transmitter carrying the
 sensor); ``--attitude URL,format=mavlink`` reads a drone autopilot's MAVLink attitude
-instead of ``$PASHR`` (the ``mavlink`` extra). A transmitter may instead be given a surveyed pose with ``--tx-pose``. Stops on
-Ctrl-C, SIGTERM or ``--duration``; prints a summary; exit 0. A disk error stops the
-session with one line naming the file (exit 2); everything before it is kept.
+instead of ``$PASHR`` (the ``mavlink`` extra). A transmitter may instead be given a
+surveyed pose with ``--tx-pose``. Stops on Ctrl-C, SIGTERM or ``--duration``; prints a
+summary; exit 0. A disk error stops the session with one line naming the file (exit 2);
+everything before it is kept.
 """
 
 from __future__ import annotations
@@ -156,7 +157,7 @@ class _FirstFixOrigin:
         self.lock = threading.Lock()
         self.done = False
 
-    def __call__(self, mono: float, lat: float, lon: float, alt: float) -> None:
+    def __call__(self, lat: float, lon: float, alt: float) -> None:
         with self.lock:
             if self.done:
                 return

@@ -74,8 +74,8 @@ class _Protocol(serial.threaded.Protocol):
 
 class DeviceLogger:
     def __init__(self, spec: DeviceSpec, writer: SessionWriter, on_fatal, on_fix=None) -> None:
-        """``on_fatal(LinkError)``: the disk failed. ``on_fix(mono, lat, lon, alt_hae)``:
-        each valid GGA fix with a height from a receiver's GPS (the session's origin)."""
+        """``on_fatal(LinkError)``: the disk failed. ``on_fix(lat, lon, alt_hae)``: each
+        valid GGA fix with a height from a receiver's GPS (for the session's origin)."""
         self.spec = spec
         self.writer = writer
         self.decoder: RecordDecoder = decoder_for(spec.kind, spec.format)
@@ -118,7 +118,7 @@ class DeviceLogger:
             self.writer.record(self.spec.name, {"mono": round(mono, 6), "utc": round(utc, 6), **rec})
             if self._on_fix is not None and rec.get("sentence") == "GGA" and rec.get("valid") \
                     and rec.get("alt_hae") is not None:
-                self._on_fix(mono, rec["lat"], rec["lon"], rec["alt_hae"])
+                self._on_fix(rec["lat"], rec["lon"], rec["alt_hae"])
         self.stats.records += len(records)
 
     def lost(self, exc: BaseException | None) -> None:

@@ -125,15 +125,9 @@ def test_closed_loop_stream_on_stdout_matches_the_in_process_port():
 
 
 def test_plots_without_matplotlib_say_which_extra_before_flying(tmp_path):
-    import subprocess
-    import sys
+    from without_extra import run_without
 
-    code = (
-        "import sys; sys.modules['matplotlib'] = None\n"  # as if the extra were not installed
-        "from emulator.case_study import main\n"
-        f"sys.exit(main(['--out', {str(tmp_path)!r}]))"
-    )
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    p = run_without("matplotlib", "emulator.case_study:main", ["--out", str(tmp_path)])
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr == (
         "python -m emulator.case_study: case-study plots (--out) needs matplotlib "

@@ -64,10 +64,10 @@ def start_logger(ports, out, duration=None, extra=()):
     return subprocess.Popen([*cmd, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def run_emulator(tmp_path, frames, effects="", link=None, **kw):
+def run_emulator(tmp_path, frames, effects="", link=None, speed=SPEED, **kw):
     scene = tmp_path / "scene.toml"
     scene.write_text(SCENE.format(effects=effects))
-    args = ["--scene", str(scene), "--port", "pty", "--speed", str(SPEED), "--frames", str(frames), "--delay", "1.5"]
+    args = ["--scene", str(scene), "--port", "pty", "--speed", str(speed), "--frames", str(frames), "--delay", "1.5"]
     if link is not None:
         args += ["--link", str(link)]
     return EmulatorProcess(*args, streams=3, **kw), scene
@@ -75,10 +75,11 @@ def run_emulator(tmp_path, frames, effects="", link=None, **kw):
 
 @pytest.mark.timeout(90)
 def test_log_then_export_matches_the_scene(tmp_path):
-    emu, scene_path = run_emulator(tmp_path, 80)
+    N = 40
+    emu, scene_path = run_emulator(tmp_path, N, speed=5.0)
     out = tmp_path / "session"
     try:
-        logger = start_logger(emu.ports, out, duration=7.0)
+        logger = start_logger(emu.ports, out, duration=11.0)
         assert emu.proc.wait(timeout=60) == 0
         _, err = logger.communicate(timeout=60)
         assert logger.returncode == 0, err
@@ -93,34 +94,35 @@ def test_log_then_export_matches_the_scene(tmp_path):
 
     # The logged epochs are exactly what the emulator computes for the scene.
     scene = loads_scene(scene_path.read_text(), "scene")
-    expected = [ev for ev in Decoder().feed(scene_streams(scene)[0].render(0, 80)) if isinstance(ev, Epoch)]
+    expected = [ev for ev in Decoder().feed(scene_streams(scene)[0].render(0, N)) if isinstance(ev, Epoch)]
     logged = [r for r in read_jsonl(out / "arva.jsonl") if "seq" in r]
     assert [(r["seq"], r["slots"]) for r in logged] == [(e.seq, [list(s) for s in e.slots]) for e in expected]
 
     result = export_rows(out)
     cols = result.columns
-    assert result.rows == 80 and not result.dropped
+    assert result.rows == N and not result.dropped
     truth_pos, truth_q = scene.receiver.trajectory.at(cols["seq"].astype(float))
     rx = np.c_[cols["rx_x"], cols["rx_y"], cols["rx_z"]]
-    # Poses are interpolated on the logger's clock at each epoch's arrival. At 20x real
-    # time the receiver walks 10 m and turns 36 deg per wall second, so each millisecond
-    # of scheduling between the streams is 1 cm and 0.036 deg; GPS quantisation is 0.2 mm.
-    # Typical error is a few mm; a loaded machine may delay one read by ~20 ms.
+    # Poses are interpolated on the logger's clock at each epoch's arrival. At 5x real
+    # time the receiver walks 2.5 m and turns 9 deg per wall second, so each millisecond
+    # of scheduling between the streams is 2.5 mm and 0.009 deg; GPS quantisation is
+    # 0.2 mm. A loaded 2-core machine delays the receiver's reads against the GPS's by
+    # ~15-20 ms (three reader threads share the GIL): ~5 mm, one read up to ~100 ms.
     err = np.linalg.norm(rx - truth_pos, axis=1)
-    assert np.median(err) < 0.02 and err.max() < 0.25, (np.median(err), err.max())
+    assert np.median(err) < 0.01 and err.max() < 0.25, (np.median(err), err.max())
     q = np.c_[cols["rx_qw"], cols["rx_qx"], cols["rx_qy"], cols["rx_qz"]]
     assert np.all(np.abs(np.sum(q * truth_q, axis=1)) > np.cos(np.radians(1.0) / 2))
-    np.testing.assert_allclose(np.c_[cols["tx_x"], cols["tx_y"], cols["tx_z"]], [[0, 0, -1]] * 80, atol=1e-6)
-    np.testing.assert_allclose(np.c_[cols["tx_qw"], cols["tx_qx"], cols["tx_qy"], cols["tx_qz"]], [[1, 0, 0, 0]] * 80, atol=1e-9)
+    np.testing.assert_allclose(np.c_[cols["tx_x"], cols["tx_y"], cols["tx_z"]], [[0, 0, -1]] * N, atol=1e-6)
+    np.testing.assert_allclose(np.c_[cols["tx_qw"], cols["tx_qx"], cols["tx_qy"], cols["tx_qz"]], [[1, 0, 0, 0]] * N, atol=1e-9)
     assert cols["d"].tolist() == [e.slots[0][1] for e in expected]
 
     csv_path = tmp_path / "out.csv"
     proc = subprocess.run([sys.executable, "-m", "bench.cli", "export", str(out), "--csv", str(csv_path)],
                           capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 0 and proc.stderr == f"arva-bench: export: 80 rows to {csv_path}; dropped: none\n"
+    assert proc.returncode == 0 and proc.stderr == f"arva-bench: export: {N} rows to {csv_path}; dropped: none\n"
     with open(csv_path) as f:
         rows = list(csv.reader(f))
-    assert tuple(rows[0]) == COLUMNS and len(rows) == 81
+    assert tuple(rows[0]) == COLUMNS and len(rows) == N + 1
     assert [int(r[3]) for r in rows[1:]] == cols["d"].tolist()
 
 

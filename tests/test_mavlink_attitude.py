@@ -283,12 +283,10 @@ def test_logged_mavlink_attitude_is_the_exported_receiver_attitude(tmp_path):
 
 
 def test_without_the_extra_log_says_install_it_and_creates_nothing(tmp_path):
-    code = (
-        "import sys; sys.modules['pymavlink'] = None\n"  # as if the extra were not installed
-        "from bench.cli import main\n"
-        f"sys.exit(main(['log', '--arva', 'loop://', '--attitude', 'loop://,format=mavlink', '--out', {str(tmp_path / 's')!r}]))"
-    )
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    from without_extra import run_without
+
+    argv = ["log", "--arva", "loop://", "--attitude", "loop://,format=mavlink", "--out", str(tmp_path / "s")]
+    p = run_without("pymavlink", "bench.cli:main", argv)
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr == (
         "arva-bench: MAVLink attitude needs pymavlink (install the extra: pip install 'arva-bench[mavlink]')\n"

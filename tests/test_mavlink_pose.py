@@ -209,17 +209,11 @@ def test_pose_over_a_serial_line():
 
 
 def test_without_the_extra_the_emulator_says_install_it(tmp_path):
-    import subprocess
-    import sys
+    from without_extra import run_without
 
     scene = tmp_path / "ext.toml"
     scene.write_text(EXTERNAL.format(port=free_udp_port()))
-    code = (
-        "import sys; sys.modules['pymavlink'] = None\n"  # as if the extra were not installed
-        "from emulator.cli import main\n"
-        f"sys.exit(main(['--scene', {str(scene)!r}, '--port', '-', '--frames', '2', '--speed', '0']))"
-    )
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    p = run_without("pymavlink", "emulator.cli:main", ["--scene", str(scene), "--port", "-", "--frames", "2", "--speed", "0"])
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr.splitlines()[-1] == (
         "arva-emulate: MAVLink pose input needs pymavlink (install the extra: pip install 'arva-bench[mavlink]')"

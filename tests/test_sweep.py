@@ -133,18 +133,12 @@ def test_bad_output_is_refused_before_the_sweep_runs(tmp_path):
     ]:  # fmt: skip
         p = run("--out", str(out))
         assert (p.returncode, p.stdout, p.stderr) == (2, "", why)
-    code = (
-        "import sys; sys.modules['pyarrow'] = None\n"  # as if the extra were not installed
-        "from emulator.sweep import main\n"
-        f"sys.exit(main(['--n', '1000000', '--out', {str(tmp_path / 'rows.parquet')!r}]))"
-    )
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    from without_extra import run_without
+
+    p = run_without("pyarrow", "emulator.sweep:main", ["--n", "1000000", "--out", str(tmp_path / "rows.parquet")])
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr == "arva-sweep: Parquet output needs pyarrow (install the extra: pip install 'arva-bench[parquet]')\n"
-    code = code.replace("'pyarrow'", "'distributed'").replace(
-        f"'--out', {str(tmp_path / 'rows.parquet')!r}", "'--n', '2', '--scheduler', 'tcp://127.0.0.1:1'"
-    )
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    p = run_without("distributed", "emulator.sweep:main", ["--n", "2", "--scheduler", "tcp://127.0.0.1:1"])
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr == (
         "arva-sweep: --scheduler (a dask cluster) needs dask.distributed (install the extra: pip install 'arva-bench[cluster]')\n"
