@@ -585,3 +585,27 @@ def test_argument_errors():
     with pytest.raises(SystemExit):
         parse_args(["dash", "loop://,role=boat"])
     assert isinstance(parse_args(["dash"]), argparse.Namespace)
+
+
+def test_n_and_p_bring_each_receiver_into_view_at_80x24(tmp_path):
+    specs = [DeviceSpec(f"arva-rx{i}", "arva", f"arvaemu://?receiver={i}", f"rx{i}") for i in (1, 2, 3)]
+
+    async def go():
+        app = make_app(tmp_path, specs=specs)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await inject(pilot, [EpochReceived(s.name, s.role, 0, [(1, 500, 3)], T0) for s in specs])
+            box = app.query_one("#receivers")
+            panels = list(app.query(ReceiverPanel))
+
+            def in_view():
+                return [p.device for p in panels if box.region.contains_region(p.region)]
+
+            assert in_view() == ["arva-rx1"] and str(app.query_one(StatusBar).visual).startswith(
+                " arva-bench dash · 3 receivers (n/p)"
+            )
+            for key, device in [("n", "arva-rx2"), ("n", "arva-rx3"), ("n", "arva-rx1"), ("p", "arva-rx3")]:
+                await pilot.press(key)
+                await pilot.pause()
+                assert in_view() == [device], key
+
+    run(go())

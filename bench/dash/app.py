@@ -36,6 +36,7 @@ from .widgets import ChannelTable, DirectionIndicator, GroundTruthPanel, LinkPan
 HELP = """\
 [b]arva-bench dash[/b]: receivers, ground truth and links, live
 [b]r[/b]  start / stop recording a session (as arva-bench log)
+[b]n p[/b] next / previous receiver panel, when there are several
 [b]?[/b]  this help (esc or ? closes it)    [b]q[/b]  quit
 
 [b]Receiver[/b] (latest epoch, one panel per receiver)
@@ -87,6 +88,8 @@ class DashApp(App):
     ENABLE_COMMAND_PALETTE = False
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("r", "record", "Record"),
+        Binding("n", "receiver(1)", "Next rx", show=False),
+        Binding("p", "receiver(-1)", "Prev rx", show=False),
         Binding("question_mark", "help", "Help", key_display="?"),
         Binding("q", "quit", "Quit"),
         Binding("ctrl+c", "quit", "Quit", show=False, priority=True),
@@ -114,6 +117,7 @@ class DashApp(App):
         self.last_session: Path | None = None
         self.message = ""
         self._shut = False
+        self._rx_index = 0  # the receiver panel n / p last brought into view
 
     # -- layout ----------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -216,9 +220,17 @@ class DashApp(App):
             link = self.links.get(panel.device)
             panel.set_class(link is not None and link.stale(now, self.config.stale_after), "-stale")
 
+    def action_receiver(self, step: int) -> None:
+        """Bring the next (step 1) or previous (-1) receiver panel to the top of the view."""
+        panels = list(self.query(ReceiverPanel))
+        if len(panels) < 2:
+            return
+        self._rx_index = (self._rx_index + step) % len(panels)
+        self.query_one("#receivers", VerticalScroll).scroll_to_widget(panels[self._rx_index], animate=False, top=True)
+
     def _status_text(self) -> str:
         n = len(self.receivers)
-        left = f" arva-bench dash · {n} receiver{'s' if n != 1 else ''}"
+        left = f" arva-bench dash · {n} receiver{'s' if n != 1 else ''}" + (" (n/p)" if n > 1 else "")
         if self.recorder is not None:
             kb = self.recorder.bytes_on_disk() / 1000
             right = f"● REC {self.recorder.directory}  {kb:.1f} kB"
