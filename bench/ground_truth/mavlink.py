@@ -61,8 +61,7 @@ class MavlinkAttitudeReader:
             messages = self._parser.parse_buffer(data) or []
         except Exception:  # noqa: BLE001 - a third-party parser fed hostile bytes
             self.stats["malformed"] += 1
-            self._parser.buf = bytearray()  # resynchronise on the next frame
-            self._parser.buf_index = 0
+            self._drop_pending()  # resynchronise on the next frame
             return []
         out = []
         for msg in messages:
@@ -77,9 +76,13 @@ class MavlinkAttitudeReader:
         if pending:
             self.stats["fragments"] += 1
             self.stats["junk_bytes"] += pending
-            self._parser.buf = bytearray()
-            self._parser.buf_index = 0
+            self._drop_pending()
         return []
+
+    def _drop_pending(self) -> None:
+        """Forget a partial frame (pymavlink keeps it in ``buf`` from ``buf_index``)."""
+        self._parser.buf = bytearray()
+        self._parser.buf_index = 0
 
     @property
     def pending(self) -> int:
