@@ -25,7 +25,7 @@ import sys
 import time
 from typing import Protocol
 
-from emulator.ports import baud_rate
+from emulator.output.ports import baud_rate
 from firmware_proto.decoder import Decoder
 from firmware_proto.errors import LinkError
 from firmware_proto.events import DecoderStats, Epoch

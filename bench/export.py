@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from emulator.attitude_convention import hpr_to_quaternion
-from emulator.geodesy import Origin, geodetic_to_enu
+from emulator.frames.attitude import hpr_to_quaternion
+from emulator.frames.geodesy import Origin, geodetic_to_enu
 from firmware_proto.errors import InputError
 
 from .records import ArvaRecords, decoder_for

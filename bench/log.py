@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 
-from emulator.ports import baud_rate
+from emulator.output.ports import baud_rate
 from firmware_proto.errors import InputError, LinkError
 
 from . import __version__

@@ -18,7 +18,7 @@ import threading
 import time
 from pathlib import Path
 
-from emulator.ports import Port, PtyPort, SerialPort, StdoutPort
+from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
 from firmware_proto.errors import InputError
 
 from .session import read_manifest, read_raw

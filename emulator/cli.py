@@ -20,12 +20,12 @@ from pathlib import Path
 
 from firmware_proto.errors import InputError, LinkError, SceneError
 
-from . import __version__
-from .ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
-from .scene import default_scene, load_scene
-from .effects.link_faults import FaultyPort
-from .scheduler import EpochScheduler, Route, SceneClock, status_printer, summary_line
-from .streams import scene_streams
+from emulator import __version__
+from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
+from emulator.scene.reader import default_scene, load_scene
+from emulator.output.link_faults import FaultyPort
+from emulator.output.scheduler import EpochScheduler, Route, SceneClock, status_printer, summary_line
+from emulator.output.streams import scene_streams
 
 log = logging.getLogger("arva-emulate")
 

@@ -13,7 +13,7 @@ import pytest
 import serial
 
 import emulator.urlhandler  # noqa: F401  (registers arvaemu://)
-from emulator.case_study import CASES, load_case, main, run_case, scene_path, summarize
+from emulator.closed_loop.case_study import CASES, load_case, main, run_case, scene_path, summarize
 
 R_S = 1.0
 
@@ -82,8 +82,8 @@ def test_orientation_matters_start_behind_the_dipole_never_grows():
     # Case 1 with its dipole pointing east, away from the start: straight in.
     from dataclasses import replace
 
-    from emulator.closed_loop import ClosedLoop
-    from emulator.trajectory import Trajectory
+    from emulator.closed_loop.loop import ClosedLoop
+    from emulator.frames.trajectory import Trajectory
 
     scene = load_case(1)
 
@@ -117,7 +117,7 @@ def test_closed_loop_stream_on_stdout_matches_the_in_process_port():
     with serial.serial_for_url(f"arvaemu://{scene}?speed=0&frames=80", timeout=2) as port:
         assert port.read(len(out) + 100) == out
     d = [int(line.split(b",")[5]) for line in out.splitlines()]
-    from emulator.closed_loop import ClosedLoop
+    from emulator.closed_loop.loop import ClosedLoop
 
     run = ClosedLoop(load_case(4)).run(80.0, stop_when_found=False)  # hovers once located
     assert len(d) == 80 and d == run.d[:, 0].tolist()
@@ -127,9 +127,9 @@ def test_closed_loop_stream_on_stdout_matches_the_in_process_port():
 def test_plots_without_matplotlib_say_which_extra_before_flying(tmp_path):
     from without_extra import run_without
 
-    p = run_without("matplotlib", "emulator.case_study:main", ["--out", str(tmp_path)])
+    p = run_without("matplotlib", "emulator.closed_loop.case_study:main", ["--out", str(tmp_path)])
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr == (
-        "python -m emulator.case_study: case-study plots (--out) needs matplotlib "
+        "python -m emulator.closed_loop.case_study: case-study plots (--out) needs matplotlib "
         "(install the extra: pip install 'arva-bench[plot]')\n"
     )

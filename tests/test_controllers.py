@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from emulator.controllers import (
+from emulator.closed_loop.controllers import (
     FluxFollower,
     Observation,
     ReceiverOnlySearch,
@@ -12,7 +12,7 @@ from emulator.controllers import (
     make_controller,
     speed_law,
 )
-from emulator.vehicle import VehicleSpec
+from emulator.closed_loop.vehicle import VehicleSpec
 
 SPEC = VehicleSpec(v_max=1.0, k_c=0.2, k_z=1.5, r_s=1.0, control_rate_hz=10.0)
 

@@ -29,7 +29,7 @@ from bench.dash.sources import DeviceFeed, LiveSource, ReplaySource, SceneTruth
 from bench.dash.widgets import ChannelTable, DirectionIndicator, GroundTruthPanel, LinkPanel, ReceiverPanel, StatusBar
 from bench.logger import DeviceSpec
 from bench.session import SessionWriter, read_jsonl, read_manifest, read_raw
-from emulator.geodesy import Origin, enu_to_geodetic
+from emulator.frames.geodesy import Origin, enu_to_geodetic
 from firmware_proto.errors import InputError
 
 pytestmark = pytest.mark.timeout(60)

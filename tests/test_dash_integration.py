@@ -138,7 +138,7 @@ orientation = [1.0, 0.0, 0.0, 0.0]
 def test_dash_ground_truth_from_emulated_gps_and_attitude_ptys(tmp_path):
     """Receiver, GPS and $PASHR on three ptys; a surveyed transmitter: the true distance
     sqrt(12^2 + 5^2 + 2^2) = 13.15 m appears next to d, and the receiver's ENU pose."""
-    from emulator.geodesy import Origin, enu_to_geodetic
+    from emulator.frames.geodesy import Origin, enu_to_geodetic
 
     scene = tmp_path / "truth.toml"
     scene.write_text(SCENE_WITH_TRUTH)

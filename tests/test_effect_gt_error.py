@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from emulator.effects.ground_truth_error import GroundTruthError, GroundTruthErrorConfig
+from emulator.truth.error import GroundTruthError, GroundTruthErrorConfig
 from firmware_proto.errors import InputError, PoseError
 
 N = 200_000

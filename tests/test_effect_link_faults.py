@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from emulator.effects.link_faults import SPLIT_GAP_S, FaultyPort, LinkFaultConfig
-from emulator.ports import Port
+from emulator.output.link_faults import SPLIT_GAP_S, FaultyPort, LinkFaultConfig
+from emulator.output.ports import Port
 from firmware_proto.errors import InputError
 
 

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from emulator.effects.pulses import PulseConfig, PulseEffect
+from emulator.receiver.pulses import PulseConfig, PulseEffect
 from firmware_proto.errors import InputError
 
 

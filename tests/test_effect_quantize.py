@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from emulator.effects.quantize import PROFILES, QuantizeConfig, QuantizeEffect
+from emulator.receiver.quantize import PROFILES, QuantizeConfig, QuantizeEffect
 from firmware_proto.errors import InputError
 
 

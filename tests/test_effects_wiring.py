@@ -7,9 +7,9 @@ from functools import reduce
 import numpy as np
 import pytest
 
-from emulator.receiver import Receiver
-from emulator.scene import default_scene, loads_scene
-from emulator.streams import scene_streams
+from emulator.receiver.receiver import Receiver
+from emulator.scene.reader import default_scene, loads_scene
+from emulator.output.streams import scene_streams
 from firmware_proto.errors import SceneError
 
 PAPER = (

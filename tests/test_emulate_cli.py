@@ -110,7 +110,7 @@ def test_chunking_does_not_change_noisy_output(tmp_path):
             [
                 sys.executable,
                 "-c",
-                f"import emulator.scheduler as s; s.FAST_BATCH={batch}; "
+                f"import emulator.output.scheduler as s; s.FAST_BATCH={batch}; "
                 f"import emulator.cli as c; c.main(['--scene', {s!r}, '--frames', '50', '--speed', '0'])",
             ],
             capture_output=True,

@@ -6,8 +6,8 @@ import pytest
 
 from bench.export import export_rows
 from bench.session import SessionWriter, read_manifest
-from emulator.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
-from emulator.nmea_ground_truth import gps_sentences, pashr_sentence
+from emulator.frames.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
+from emulator.truth.nmea import gps_sentences, pashr_sentence
 from firmware_proto.sentences import encode_parva
 
 ORIGIN = Origin(46.5, 8.0, 2500.0)

@@ -11,8 +11,8 @@ import pytest
 from bench.cli import main
 from bench.fit.campaign import emulate_campaign
 from bench.fit.table import COLUMNS, Table
-from emulator.model import ModelParams, measure
-from emulator.scene import load_scene
+from emulator.receiver.model import ModelParams, measure
+from emulator.scene.reader import load_scene
 
 
 @pytest.fixture(scope="module")

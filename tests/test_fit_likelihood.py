@@ -2,7 +2,7 @@
 
 * the closed-form pieces against numerical integration;
 * P(d = k) summed over every outcome is 1;
-* P(d = k) against the emulator's own frequencies (emulator.model.measure + the noise
+* P(d = k) against the emulator's own frequencies (emulator.receiver.model.measure + the noise
   effect) for fixed geometries;
 * likelihood.simulate is the emulator, integer for integer, for the same noise points.
 """
@@ -16,9 +16,9 @@ from scipy.stats import norm
 
 from bench.fit.likelihood import Likelihood, Params, Rows, geometry, simulate
 from bench.fit.special import ball_disk_cdf, epan_gauss_cdf, epan_gauss_interval, smoothed_ball_disk_cdf
-from emulator.effects.noise import NoiseEffect
-from emulator.model import ModelParams, measure
-from emulator.rotation import rotation_components, unit_quaternion_components
+from emulator.receiver.noise import NoiseEffect
+from emulator.receiver.model import ModelParams, measure
+from emulator.frames.rotation import rotation_components, unit_quaternion_components
 
 
 def quad_epan_gauss(u, e, s):

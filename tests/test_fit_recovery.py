@@ -13,7 +13,7 @@ import pytest
 from bench.fit.campaign import Walk, emulate_campaign
 from bench.fit.fit import FitOptions, fit_table
 from bench.fit.likelihood import Params
-from emulator.model import ModelParams
+from emulator.receiver.model import ModelParams
 
 PAIRS = [(1.542, 80.0), (1.2, 60.0), (2.0, 120.0), (1.542, 40.0)]
 
@@ -65,7 +65,7 @@ def test_naive_regression_is_biased_near_the_range_limit_and_ours_is_not():
 
 def test_no_noise_in_the_data_does_not_converge():
     from bench.fit.table import Table
-    from emulator.model import measure
+    from emulator.receiver.model import measure
 
     tab = emulate_campaign(10, ModelParams(), seed=1)
     clean = measure(tab.rx_pos, tab.rx_quat, tab.tx_pos[:1], tab.tx_quat[:1], ModelParams()).d[:, 0]
@@ -101,8 +101,8 @@ def test_optional_parameters():
 
 def test_time_offset_is_recovered():
     from bench.fit.table import Table
-    from emulator.effects.noise import NoiseEffect
-    from emulator.model import measure
+    from emulator.receiver.noise import NoiseEffect
+    from emulator.receiver.model import measure
     from bench.fit.campaign import walk_poses
 
     walk = Walk(wobble_sd=0.0)  # a smooth path: the track between samples is the truth

@@ -11,11 +11,11 @@ import pytest
 from bench.cli import main
 from bench.fit.campaign import Walk, walk_poses
 from bench.session import SessionWriter
-from emulator.attitude_convention import quaternion_to_hpr
-from emulator.geodesy import Origin, enu_to_geodetic
-from emulator.model import ModelParams
-from emulator.scene import loads_scene
-from emulator.streams import scene_streams
+from emulator.frames.attitude import quaternion_to_hpr
+from emulator.frames.geodesy import Origin, enu_to_geodetic
+from emulator.receiver.model import ModelParams
+from emulator.scene.reader import loads_scene
+from emulator.output.streams import scene_streams
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import Epoch
 

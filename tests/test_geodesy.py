@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from emulator.geodesy import (
+from emulator.frames.geodesy import (
     WGS84_A,
     WGS84_B,
     GeodeticError,

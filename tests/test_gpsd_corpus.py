@@ -33,7 +33,7 @@ from pathlib import Path
 import pytest
 
 from bench.ground_truth import Attitude, GpsFix, GroundTruthReader
-from emulator.attitude_convention import hpr_to_quaternion
+from emulator.frames.attitude import hpr_to_quaternion
 
 CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "gpsd-nmea"
 LOGS = sorted(p.name for p in CORPUS.glob("*.log")) if CORPUS.is_dir() else []

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from emulator.geodesy import Origin, enu_to_geodetic
+from emulator.frames.geodesy import Origin, enu_to_geodetic
 from emulator_proc import EmulatorProcess
 
 GPSD = shutil.which("gpsd") or (shutil.which("gpsd", path="/usr/sbin:/sbin"))

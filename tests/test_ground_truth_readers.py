@@ -21,15 +21,15 @@ from bench.ground_truth import (
     GroundTruthReader,
     LineSplitter,
 )
-from emulator.attitude_convention import hpr_to_quaternion
-from emulator.nmea_ground_truth import (
+from emulator.frames.attitude import hpr_to_quaternion
+from emulator.truth.nmea import (
     gga_sentence,
     gps_sentences,
     pashr_from_quaternion,
     pashr_sentence,
     rmc_sentence,
 )
-from emulator.rotation import quaternion_matrices
+from emulator.frames.rotation import quaternion_matrices
 
 UTC = timezone.utc
 
@@ -420,7 +420,7 @@ def test_gps_sentences_give_two_matching_records(t, lat, lon, alt):
 # decimals >= 1 as for GGA: NMEA prints llll.ll, and pynmeagps leaves "4807" (no point) untyped.
 @given(instants, latitudes, longitudes, st.sampled_from(["A", "D", "N", ""]), st.integers(1, 8))
 def test_gll_round_trip(t, lat, lon, mode, decimals):
-    from emulator.nmea_ground_truth import _position  # the generator's own lat/lon formatting
+    from emulator.truth.nmea import _position  # the generator's own lat/lon formatting
 
     r = GpsReader()
     feed_all(r, s(f"GPZDA,{t:%H%M%S},{t:%d},{t:%m},{t:%Y},,"))  # the date comes from elsewhere

@@ -13,9 +13,9 @@ import pytest
 
 from bench.export import COLUMNS, export_rows
 from bench.session import read_jsonl, read_manifest, read_raw
-from emulator.geodesy import Origin, enu_to_geodetic
-from emulator.scene import loads_scene
-from emulator.streams import scene_streams
+from emulator.frames.geodesy import Origin, enu_to_geodetic
+from emulator.scene.reader import loads_scene
+from emulator.output.streams import scene_streams
 from emulator_proc import EmulatorProcess
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import Epoch

@@ -18,7 +18,7 @@ from bench.export import export_rows
 from bench.ground_truth.mavlink import MavlinkAttitudeReader
 from bench.records import decoder_for
 from bench.session import read_jsonl, read_manifest
-from emulator.attitude_convention import hpr_to_quaternion
+from emulator.frames.attitude import hpr_to_quaternion
 from emulator_proc import EmulatorProcess
 
 pytest.importorskip("pymavlink")

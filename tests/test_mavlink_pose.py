@@ -15,10 +15,10 @@ pytest.importorskip("pymavlink")
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
 
-from emulator.mavlink_pose import MavlinkPoseSource, Pose, frd_ned_to_flu_enu, ned_to_enu  # noqa: E402
-from emulator.model import measure_one  # noqa: E402
-from emulator.scene import loads_scene  # noqa: E402
-from emulator.streams import ArvaStream  # noqa: E402
+from emulator.closed_loop.mavlink import MavlinkPoseSource, Pose, frd_ned_to_flu_enu, ned_to_enu  # noqa: E402
+from emulator.receiver.model import measure_one  # noqa: E402
+from emulator.scene.reader import loads_scene  # noqa: E402
+from emulator.output.streams import ArvaStream  # noqa: E402
 from firmware_proto.sentences import encode_parva  # noqa: E402
 
 T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # NED -> ENU

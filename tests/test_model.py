@@ -8,8 +8,8 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 
 import reference_model as ref
-from emulator.effects import NoiseEffect
-from emulator.model import (
+from emulator.receiver.noise import NoiseEffect
+from emulator.receiver.model import (
     ZONE_INNER,
     ZONE_MID,
     ZONE_OUTER,

@@ -15,8 +15,8 @@ from pynmeagps import NMEAReader
 from pynmeagps.nmeatypes_core import VALCKSUM, VALMSGID
 from scipy.spatial.transform import Rotation
 
-from emulator.attitude_convention import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
-from emulator.nmea_ground_truth import (
+from emulator.frames.attitude import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
+from emulator.truth.nmea import (
     KNOTS_PER_MPS,
     gga_sentence,
     gps_sentences,
@@ -26,7 +26,7 @@ from emulator.nmea_ground_truth import (
     rmc_sentence,
     speed_course_from_enu,
 )
-from emulator.rotation import quaternion_matrices
+from emulator.frames.rotation import quaternion_matrices
 from firmware_proto.errors import InputError, PoseError
 
 UTC = timezone.utc

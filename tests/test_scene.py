@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from emulator.receiver import Receiver
-from emulator.scene import default_scene, load_scene, loads_scene
+from emulator.receiver.receiver import Receiver
+from emulator.scene.reader import default_scene, load_scene, loads_scene
 from firmware_proto.errors import SceneError
 
 MINIMAL = """

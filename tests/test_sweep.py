@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from emulator.sweep import COLUMNS, SweepConfig, burial, summarize, summary_table, sweep, write_table
+from emulator.closed_loop.sweep import COLUMNS, SweepConfig, burial, summarize, summary_table, sweep, write_table
 
 CONFIG = SweepConfig(n=4, seed=3, t_max=900.0, chunk=2)
 
@@ -99,7 +99,7 @@ def test_summary_of_nothing_found():
 def test_command_line(tmp_path):
     out = tmp_path / "sweep.csv"
     proc = subprocess.run(
-        [sys.executable, "-m", "emulator.sweep", "--n", "2", "--seed", "3", "--strategies", "receiver_only",
+        [sys.executable, "-m", "emulator.closed_loop.sweep", "--n", "2", "--seed", "3", "--strategies", "receiver_only",
          "--workers", "1", "--out", str(out)],
         capture_output=True, text=True, timeout=120,
     )
@@ -108,7 +108,7 @@ def test_command_line(tmp_path):
     assert "| receiver_only | 1 | 0.2 | 2 |" in proc.stdout
     assert "x real time, in process)" in proc.stderr
     assert out.read_text().splitlines()[0] == ",".join(COLUMNS)
-    bad = subprocess.run([sys.executable, "-m", "emulator.sweep", "--strategies", "magic"], capture_output=True,
+    bad = subprocess.run([sys.executable, "-m", "emulator.closed_loop.sweep", "--strategies", "magic"], capture_output=True,
                          text=True, timeout=60)
     assert bad.returncode == 2 and "unknown strategy 'magic'" in bad.stderr
 
@@ -124,7 +124,7 @@ def test_parquet_table_has_the_csv_columns_and_values(local, tmp_path):
 
 def test_bad_output_is_refused_before_the_sweep_runs(tmp_path):
     def run(*args):
-        return subprocess.run([sys.executable, "-m", "emulator.sweep", "--n", "1000000", *args],
+        return subprocess.run([sys.executable, "-m", "emulator.closed_loop.sweep", "--n", "1000000", *args],
                               capture_output=True, text=True, timeout=60)  # fmt: skip
 
     for out, why in [
@@ -135,10 +135,10 @@ def test_bad_output_is_refused_before_the_sweep_runs(tmp_path):
         assert (p.returncode, p.stdout, p.stderr) == (2, "", why)
     from without_extra import run_without
 
-    p = run_without("pyarrow", "emulator.sweep:main", ["--n", "1000000", "--out", str(tmp_path / "rows.parquet")])
+    p = run_without("pyarrow", "emulator.closed_loop.sweep:main", ["--n", "1000000", "--out", str(tmp_path / "rows.parquet")])
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr == "arva-sweep: Parquet output needs pyarrow (install the extra: pip install 'arva-bench[parquet]')\n"
-    p = run_without("distributed", "emulator.sweep:main", ["--n", "2", "--scheduler", "tcp://127.0.0.1:1"])
+    p = run_without("distributed", "emulator.closed_loop.sweep:main", ["--n", "2", "--scheduler", "tcp://127.0.0.1:1"])
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr == (
         "arva-sweep: --scheduler (a dask cluster) needs dask.distributed (install the extra: pip install 'arva-bench[cluster]')\n"

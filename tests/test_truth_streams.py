@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from bench.ground_truth import AttitudeReader, GpsReader
-from emulator.attitude_convention import quaternion_to_hpr
-from emulator.geodesy import geodetic_to_enu
-from emulator.scene import load_scene, loads_scene
-from emulator.streams import scene_streams
+from emulator.frames.attitude import quaternion_to_hpr
+from emulator.frames.geodesy import geodetic_to_enu
+from emulator.scene.reader import load_scene, loads_scene
+from emulator.output.streams import scene_streams
 from firmware_proto.errors import SceneError
 
 FIELD_WALK = Path(__file__).resolve().parents[1] / "emulator" / "scenes" / "field_walk.toml"

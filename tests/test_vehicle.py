@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from emulator.closed_loop import ClosedLoop
-from emulator.scene import loads_scene
-from emulator.vehicle import UAV, FlatTerrain, GridTerrain, RangeSensor
+from emulator.closed_loop.loop import ClosedLoop
+from emulator.scene.reader import loads_scene
+from emulator.closed_loop.vehicle import UAV, FlatTerrain, GridTerrain, RangeSensor
 from firmware_proto.errors import SceneError
 
 
@@ -179,7 +179,7 @@ def test_dem_path_is_relative_to_the_scene_file(tmp_path):
     scene_file.write_text(
         VEHICLE.format(body='terrain = "dem.npy"\nterrain_origin = [-1, -1]\nterrain_spacing = [1, 1]')
     )
-    from emulator.scene import load_scene
+    from emulator.scene.reader import load_scene
 
     s = load_scene(scene_file)
     assert s.receiver.vehicle.terrain.height(0.3, 0.3) == 7.0
@@ -201,7 +201,7 @@ def test_height_hold_converges_to_r_s_over_a_slope(tmp_path):
             'terrain = "dem.npy"\nterrain_origin = [-10, -5]\nterrain_spacing = [2, 1]'
         ).replace("position = [20.0, 5.0, 0.0]", "position = [200.0, 0.0, 0.0]")  # out of range: hover
     )
-    from emulator.scene import load_scene
+    from emulator.scene.reader import load_scene
 
     loop = ClosedLoop(load_scene(f))
     r = loop.run(15.0)

@@ -24,7 +24,7 @@ from textual.containers import Horizontal, VerticalScroll
 from textual.screen import ModalScreen
 from textual.widgets import Footer, Static
 
-from emulator.geodesy import Origin
+from emulator.frames.geodesy import Origin
 from firmware_proto.errors import InputError
 
 from ..logger import DeviceSpec

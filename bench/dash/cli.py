@@ -25,7 +25,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from emulator.ports import baud_rate
+from emulator.output.ports import baud_rate
 from firmware_proto.errors import InputError
 
 from ..log import _device, add_truth_arguments, device_specs

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import serial
 
-from emulator.scene import default_scene, load_scene
+from emulator.scene.reader import default_scene, load_scene
 from firmware_proto.errors import InputError
 
 from ..logger import BACKOFF_MAX, BACKOFF_START, DeviceSpec

@@ -16,8 +16,8 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from emulator.attitude_convention import hpr_to_quaternion, quaternion_to_hpr
-from emulator.geodesy import Origin, geodetic_to_enu
+from emulator.frames.attitude import hpr_to_quaternion, quaternion_to_hpr
+from emulator.frames.geodesy import Origin, geodetic_to_enu
 
 from .messages import LinkCounters
 

@@ -8,7 +8,7 @@ small per-second wobble, so the antennas see the field from many directions. The
 outputs one epoch per second (channel 1, one transmitter); rows with d = -1 keep the
 transmitter's pose, as the session export writes them.
 
-Rows are produced by :func:`emulator.model.measure` with :class:`NoiseEffect` noise, so a
+Rows are produced by :func:`emulator.receiver.model.measure` with :class:`NoiseEffect` noise, so a
 campaign is exactly what ``arva-emulate`` would print for that walk (BRIEF 3, 3.2).
 """
 
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from emulator.effects.noise import NoiseEffect
-from emulator.model import ModelParams, measure
+from emulator.receiver.noise import NoiseEffect
+from emulator.receiver.model import ModelParams, measure
 
 from .table import Table
 

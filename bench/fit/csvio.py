@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from emulator.rotation import MIN_QUATERNION_NORM
+from emulator.frames.rotation import MIN_QUATERNION_NORM
 
 from .table import COLUMNS, INTEGER_COLUMNS, FitInputError, Table
 

@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import CubicSpline
 
-from emulator.rotation import rotation_components, unit_quaternion_components, x_axis_components
+from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
 
 from .special import epan_gauss_cdf, epan_gauss_interval, smoothed_ball_disk_cdf
 from .table import Table
@@ -107,7 +107,7 @@ class Geometry:
 
 
 def geometry(rx_pos, rx_quat, tx_pos, tx_quat) -> Geometry:
-    """r and g for each row (the emulator's formulas, emulator/model.py). r = 0 gives log r = -inf."""
+    """r and g for each row (the emulator's formulas, emulator/receiver/model.py). r = 0 gives log r = -inf."""
     rr = rotation_components(unit_quaternion_components(rx_quat, "rx_q"))  # (3, 3, N)
     m = x_axis_components(unit_quaternion_components(tx_quat, "tx_q"))  # (3, N)
     diff = (np.asarray(rx_pos, float) - np.asarray(tx_pos, float)).T
@@ -407,7 +407,7 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator) -> NDArray[np.i
 
     The receiver of BRIEF 3 with ball noise (drawn in the receiver frame: R_r^T w is
     uniform in the ball whenever w is), and the pose error exp(sigma Z) on both distances.
-    With pose_sigma = 0 it returns exactly what :func:`emulator.model.measure` returns for
+    With pose_sigma = 0 it returns exactly what :func:`emulator.receiver.model.measure` returns for
     noise points u = R_r^T w (tested).
     """
     n = geo.log_r.shape[0]

@@ -3,7 +3,7 @@
 If FILE is an existing scene, its ``[model]`` table is replaced (or inserted before the
 first table) and everything else is kept byte for byte; otherwise a minimal scene is
 created around it, with the noise effect on (r_en only matters with noise). Either way
-the result is loaded with :func:`emulator.scene.load_scene` before we return, and an
+the result is loaded with :func:`emulator.scene.reader.load_scene` before we return, and an
 existing file is restored if that fails.
 """
 
@@ -82,7 +82,7 @@ def _replace_model(text: str, block: str, path: Path) -> str:
 
 def write_scene(path: str | Path, result: FitResult) -> str:
     """Write or update the scene at ``path``; returns "updated" or "created"."""
-    from emulator.scene import load_scene
+    from emulator.scene.reader import load_scene
 
     path = Path(path)
     block = model_block(result)

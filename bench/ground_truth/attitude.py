@@ -1,7 +1,7 @@
 """Streaming attitude reader: ``$PASHR`` (OxTS / Applanix layout) -> :class:`Attitude`.
 
-Layout, conventions and units are those of :mod:`emulator.nmea_ground_truth` and
-:mod:`emulator.attitude_convention`: heading degrees true clockwise from north, pitch
+Layout, conventions and units are those of :mod:`emulator.truth.nmea` and
+:mod:`emulator.frames.attitude`: heading degrees true clockwise from north, pitch
 positive nose up, roll positive right side down (intrinsic Z-Y-X on NED / FRD). Each
 record also carries the equivalent quaternion ``[w, x, y, z]`` rotating our body frame
 (x forward, y left, z up) into ENU, ready for the export table.
@@ -24,7 +24,7 @@ from datetime import datetime, time
 
 from pynmeagps import NMEAMessage
 
-from emulator.attitude_convention import hpr_to_quaternion
+from emulator.frames.attitude import hpr_to_quaternion
 
 from .lines import SentenceReader
 from .nmea import PLAIN_NUMBER, FieldError, parse_checked, sentence_type, time_of_day

@@ -12,7 +12,7 @@ send an extra GLL fix between their GGA/RMC pairs; it is dated like GGA.
   pynmeagps (rounded to 1e-10 deg).
 * Altitude: GGA's altitude is above mean sea level (``alt_msl``) and its geoid separation
   N (``geoid_sep``) is the height of the geoid above the WGS-84 ellipsoid; when both are
-  sent, ``alt_hae = alt_msl + geoid_sep`` (the height :mod:`emulator.geodesy` uses).
+  sent, ``alt_hae = alt_msl + geoid_sep`` (the height :mod:`emulator.frames.geodesy` uses).
   Receivers that leave N empty (some report the ellipsoid height in the MSL field then)
   give ``alt_hae = None``: we have no geoid model to guess with.
 * Time: ``time_of_day`` (UTC, from the sentence) and ``utc`` (aware datetime), dated by a

@@ -7,7 +7,7 @@ This reader feeds those bytes to pymavlink's own parser (the ``mavlink`` extra, 
 :class:`~bench.ground_truth.attitude.Attitude` records as ``$PASHR``:
 
 * ``ATTITUDE_QUATERNION`` (#31): q1..q4 = [w, x, y, z] rotating the FRD body frame into
-  NED; converted to our FLU -> ENU quaternion (:func:`emulator.mavlink_pose.frd_ned_to_flu_enu`).
+  NED; converted to our FLU -> ENU quaternion (:func:`emulator.closed_loop.mavlink.frd_ned_to_flu_enu`).
   ``repr_offset_q`` is a display hint for tail-sitters and is not applied.
 * ``ATTITUDE`` (#30): roll, pitch, yaw in radians, the same aerospace Z-Y-X convention as
   ``$PASHR`` (yaw = heading clockwise from north). ArduPilot streams it by default, PX4
@@ -29,8 +29,8 @@ from __future__ import annotations
 import math
 from collections import Counter
 
-from emulator.attitude_convention import hpr_to_quaternion, quaternion_to_hpr
-from emulator.mavlink_pose import frd_ned_to_flu_enu
+from emulator.frames.attitude import hpr_to_quaternion, quaternion_to_hpr
+from emulator.closed_loop.mavlink import frd_ned_to_flu_enu
 from firmware_proto.errors import MissingExtra
 
 from .attitude import Attitude

@@ -20,8 +20,8 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Tim
 
 from firmware_proto.errors import InputError
 
-from ..scene import default_scene, load_scene
-from ..streams import ArvaStream
+from emulator.scene.reader import default_scene, load_scene
+from emulator.output.streams import ArvaStream
 
 
 class Serial(SerialBase):

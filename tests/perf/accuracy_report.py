@@ -35,13 +35,13 @@ sys.path.insert(0, str(HERE.parent))
 
 from _report import ROOT, git_revision, machine, markdown_table  # noqa: E402
 
-from emulator.case_study import load_case  # noqa: E402
-from emulator.closed_loop import ClosedLoop  # noqa: E402
-from emulator.model import measure  # noqa: E402
-from emulator.receiver import Receiver  # noqa: E402
-from emulator.scene import loads_scene  # noqa: E402
-from emulator.sweep import SweepConfig, summary_table, sweep, write_table  # noqa: E402
-from emulator.trajectory import Trajectory  # noqa: E402
+from emulator.closed_loop.case_study import load_case  # noqa: E402
+from emulator.closed_loop.loop import ClosedLoop  # noqa: E402
+from emulator.receiver.model import measure  # noqa: E402
+from emulator.receiver.receiver import Receiver  # noqa: E402
+from emulator.scene.reader import loads_scene  # noqa: E402
+from emulator.closed_loop.sweep import SweepConfig, summary_table, sweep, write_table  # noqa: E402
+from emulator.frames.trajectory import Trajectory  # noqa: E402
 
 ACCURACY_MD = ROOT / "docs" / "accuracy.md"
 IMG = ROOT / "docs" / "img"
@@ -178,7 +178,7 @@ def plain_measure(rx_p, rx_q, tx_p, tx_m, dtype):
     zones, outer = -1) computed entirely in ``dtype``: no overflow guards, no scaling.
 
     For this report only: the model itself computes in float64 with guards
-    (:mod:`emulator.model`); this is what a float32 pipeline such as arva_sim's does,
+    (:mod:`emulator.receiver.model`); this is what a float32 pipeline such as arva_sim's does,
     timed against the same code in float64.
     """
     rx_p, rx_q, tx_p, tx_m = (np.asarray(a, dtype=dtype) for a in (rx_p, rx_q, tx_p, tx_m))
@@ -324,7 +324,7 @@ def section_fidelity(n_epochs: int, n_float: int) -> str:
             [[n, f"{us:.2f} µs", f"{us / base:.2f}", f"{100 * c:.1f} %"] for n, us, c in effects],
         ),
         "",
-        "**float32 versus float64 poses** (`emulator.model.measure`, "
+        "**float32 versus float64 poses** (`emulator.receiver.model.measure`, "
         f"{n_float:,} random poses x 4 transmitters; the model always computes in float64, so "
         "float32 only rounds the inputs, as a float32 pipeline such as arva_sim's would):",
         "",
@@ -430,7 +430,7 @@ def section_search(n: int, v_max, k_c, seed: int) -> str:
     parts = [
         "## (c) Search speed versus localisation error and time to locate",
         "",
-        f"`emulator.sweep`: {n} seeded random burials (seed {seed}; 1-4 transmitters uniform in an "
+        f"`emulator.closed_loop.sweep`: {n} seeded random burials (seed {seed}; 1-4 transmitters uniform in an "
         f"80 m x 80 m area, {config.depth[0]:g}-{config.depth[1]:g} m deep, uniformly random "
         "orientations, EMI noise on), flown by each strategy at each (v_max, k_c) from the area's "
         "south-west corner: lawnmower strips 30 m apart until a signal, r_s = 1 m, 1 Hz receiver, "

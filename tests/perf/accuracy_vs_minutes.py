@@ -30,7 +30,7 @@ from _report import ROOT, git_revision, machine, markdown_table  # noqa: E402
 
 from bench.fit.campaign import Walk, emulate_campaign  # noqa: E402
 from bench.fit.fit import fit_table  # noqa: E402
-from emulator.model import ModelParams  # noqa: E402
+from emulator.receiver.model import ModelParams  # noqa: E402
 
 ACCURACY_MD = ROOT / "docs" / "accuracy.md"
 CALIBRATION_MD = ROOT / "docs" / "calibration.md"

@@ -151,9 +151,9 @@ def effect_costs(frames: int) -> list[list[str]]:
     """Render time per epoch of the default scene's receiver stream, ideal and with one
     effect on; link faults are timed through a FaultyPort writing to a null port, and the
     ground-truth error on the GPS stream it perturbs (compared with that stream ideal)."""
-    from emulator.effects.link_faults import FaultyPort
-    from emulator.scene import loads_scene
-    from emulator.streams import scene_streams
+    from emulator.output.link_faults import FaultyPort
+    from emulator.scene.reader import loads_scene
+    from emulator.output.streams import scene_streams
 
     base = DEFAULT.replace('name = "paper-case-study"\n', "")
     rows = []

@@ -32,7 +32,7 @@ from bench.fit.campaign import emulate_campaign  # noqa: E402
 from bench.fit.csvio import read_csv  # noqa: E402
 from bench.fit.fit import FitOptions, fit_table, usable  # noqa: E402
 from bench.fit.likelihood import Likelihood, Params, _log_eps, rows_from_table  # noqa: E402
-from emulator.model import ModelParams  # noqa: E402
+from emulator.receiver.model import ModelParams  # noqa: E402
 
 TRUTH = (1.542, 80.0)
 

@@ -2,7 +2,7 @@
 
 Usage: python tests/perf/bench_model.py [--poses N]
 
-* batch: emulator.model.measure on N receiver poses x 4 transmitters (pairs/s);
+* batch: emulator.receiver.model.measure on N receiver poses x 4 transmitters (pairs/s);
 * C loop: the same formulas in tests/perf/model_loop.c, compiled now with `cc -O3`;
 * Python loop: tests/reference_model.measure per pair (a plain per-sample loop);
 * arva-emulate --speed 0 > /dev/null, whole process, paper scene on a moving path.
@@ -29,8 +29,8 @@ sys.path.insert(0, str(HERE.parent))
 import reference_model  # noqa: E402
 from _report import ROOT, markdown_table, write_section  # noqa: E402
 
-from emulator.model import ModelParams, measure  # noqa: E402
-from emulator.rotation import normalize_quaternions, quaternion_matrices  # noqa: E402
+from emulator.receiver.model import ModelParams, measure  # noqa: E402
+from emulator.frames.rotation import normalize_quaternions, quaternion_matrices  # noqa: E402
 
 PAPER_TX = np.array([[20, 5, 0], [10, 0, 1], [20, -20, -1], [-6, 5, 0]], dtype=float)
 
@@ -126,7 +126,7 @@ def main(argv=None) -> int:
     emu = bench_emulate(args.frames, rate_hz=args.frames / 350.0)
 
     rows = [
-        ["batch API `emulator.model.measure` (numpy)", f"{batch:,.0f} pairs/s", "1.00x", f"{args.poses:,} poses x 4 tx"],
+        ["batch API `emulator.receiver.model.measure` (numpy)", f"{batch:,.0f} pairs/s", "1.00x", f"{args.poses:,} poses x 4 tx"],
         ["plain C loop, `cc -O3`", "skipped" if c_rate is None else f"{c_rate:,.0f} pairs/s",
          "-" if c_rate is None else f"{batch / c_rate:.2f}x", c_note],
         ["per-sample Python loop (tests/reference_model.py)", f"{py:,.0f} pairs/s", f"{batch / py:,.0f}x",

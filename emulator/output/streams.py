@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from firmware_proto.sentences import encode_epochs
 
-from .receiver import Receiver
-from .scene import Scene
+from emulator.receiver.receiver import Receiver
+from emulator.scene.reader import Scene
 
 
 class Stream:
@@ -35,7 +35,7 @@ class ArvaStream(Stream):
         super().__init__(label, scene.rate_hz)
         if scene.receivers[index].vehicle is not None:
             # Closed loop: poses come from the vehicle (or an autopilot), epoch by epoch.
-            from .closed_loop import ClosedLoop
+            from emulator.closed_loop.loop import ClosedLoop
 
             self.receiver = ClosedLoop(scene, index, record=False)
         else:
@@ -52,7 +52,7 @@ class ArvaStream(Stream):
 def scene_streams(scene: Scene) -> list[Stream]:
     """Every stream the scene asks for: receivers first (the first one counts --frames),
     then the ground-truth GPS and attitude streams."""
-    from .truth_streams import ground_truth_streams  # imports pynmeagps: only when needed
+    from emulator.truth.streams import ground_truth_streams  # imports pynmeagps: only when needed
 
     several = len(scene.receivers) > 1
     arva: list[Stream] = [

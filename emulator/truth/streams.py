@@ -15,12 +15,12 @@ import datetime as _dt
 
 import numpy as np
 
-from .effects.ground_truth_error import GroundTruthError
-from .geodesy import enu_to_geodetic
-from .nmea_ground_truth import gga_sentence, gps_sentences, pashr_from_quaternions, rmc_sentence
-from .scene import Scene
-from .streams import Stream
-from .trajectory import Trajectory
+from emulator.truth.error import GroundTruthError
+from emulator.frames.geodesy import enu_to_geodetic
+from emulator.truth.nmea import gga_sentence, gps_sentences, pashr_from_quaternions, rmc_sentence
+from emulator.scene.reader import Scene
+from emulator.output.streams import Stream
+from emulator.frames.trajectory import Trajectory
 
 #: Half the interval of the central difference that gives the GPS velocity (s).
 VELOCITY_HALF_STEP = 0.05

@@ -3,18 +3,18 @@
 Per epoch k (scene time t_k = k / rate_hz, BRIEF 3 step 7):
 
 1. the receiver is evaluated at the vehicle's pose *now* (the whole effects pipeline of
-   :class:`~emulator.receiver.Receiver`: noise, pulses, quantize, channel selection);
+   :class:`~emulator.receiver.receiver.Receiver`: noise, pulses, quantize, channel selection);
 2. the controller runs ``control_rate_hz / rate_hz`` ticks of dt = 1 / control_rate_hz,
    each with the range-sensor reading and that epoch (held), and the vehicle integrates
    its velocity command (paper eq. 9).
 
 Epoch k+1 depends on where epoch k sent the vehicle, so rendering is sequential: the
 :class:`ClosedLoop` object has the ``next_batch(count)`` interface of a Receiver and is
-what :class:`~emulator.streams.ArvaStream` drives for a receiver with a ``vehicle``, so
+what :class:`~emulator.output.streams.ArvaStream` drives for a receiver with a ``vehicle``, so
 the closed-loop receiver's ``$PARVA`` goes out on a port through the usual scheduler
 (``arva-emulate --scene case_study_1.toml --port pty``). With ``controller =
 "external_mavlink"`` there is no simulated vehicle: each epoch uses the latest pose
-from the autopilot (:mod:`emulator.mavlink_pose`).
+from the autopilot (:mod:`emulator.closed_loop.mavlink`).
 
 For search experiments use :meth:`ClosedLoop.run`, which stops when every transmitter
 has been located (or the search gave up, or ``t_max``) and returns a :class:`RunResult`.
@@ -29,11 +29,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .controllers import Controller, Located, Observation, make_controller
-from .model import Epochs
-from .receiver import EpochBatch, Receiver
-from .scene import Scene
-from .vehicle import UAV, VehicleSpec
+from emulator.closed_loop.controllers import Controller, Located, Observation, make_controller
+from emulator.receiver.model import Epochs
+from emulator.receiver.receiver import EpochBatch, Receiver
+from emulator.scene.reader import Scene
+from emulator.closed_loop.vehicle import UAV, VehicleSpec
 
 log = logging.getLogger("arva-emulate")
 
@@ -110,7 +110,7 @@ class ClosedLoop:
         self._epochs: list[tuple[float, list, list, list]] = []
         self.external = spec.controller == "external_mavlink"
         if self.external:
-            from .mavlink_pose import MavlinkPoseSource
+            from emulator.closed_loop.mavlink import MavlinkPoseSource
 
             self.uav = None
             self.controller: Controller | None = None

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from firmware_proto.errors import InputError, PoseError
 
-from .rotation import rotation_components, unit_quaternion_components, x_axis_components
+from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
 
 ZONE_INNER, ZONE_MID, ZONE_OUTER = 0, 1, 2
 ZONE_NAMES = ("inner", "mid", "outer")
@@ -166,13 +166,13 @@ def measure(
     ``rx_position`` (N, 3) and ``rx_orientation`` (N, 4); ``tx_position`` (M, 3) or
     (N, M, 3) and ``tx_orientation`` (M, 4) or (N, M, 4) for moving transmitters.
     Quaternions need not be normalised. ``noise``, when given, is (N, M, 3) points of
-    the unit ball in the world frame (see :mod:`emulator.effects`); they are scaled by
+    the unit ball in the world frame (see :mod:`emulator.receiver.noise`); they are scaled by
     ``params.w_en`` and mapped by Q R_r^T (BRIEF 3.2). ``noise=None`` is the ideal
     receiver and costs nothing extra.
     """
     rx_p = as_positions(rx_position, "receiver.position")
     tx_p = as_positions(tx_position, "transmitter.position")
-    # Component-major (see emulator.rotation): receiver matrices (3, 3, N), transmitter
+    # Component-major (see emulator.frames.rotation): receiver matrices (3, 3, N), transmitter
     # dipole axes (3, M) or (3, N, M).
     rx_r = rotation_components(unit_quaternion_components(rx_orientation, "receiver.orientation"))
     tx_m = x_axis_components(unit_quaternion_components(tx_orientation, "transmitter.orientation"))

@@ -17,8 +17,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from .ports import Port
-from .streams import Stream
+from emulator.output.ports import Port
+from emulator.output.streams import Stream
 
 #: Epochs per batch of the fastest stream when running as fast as possible.
 FAST_BATCH = 4096

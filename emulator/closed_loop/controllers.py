@@ -40,8 +40,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .model import ModelParams
-from .vehicle import VehicleSpec
+from emulator.receiver.model import ModelParams
+from emulator.closed_loop.vehicle import VehicleSpec
 
 #: Inner zone: d <= this many centimetres (BRIEF 3: r_inner = 3 m) and delta = 0.
 INNER_CM = 300

@@ -14,11 +14,11 @@ written as CSV (or Parquet when pyarrow is installed and the name ends in .parqu
 and a summary per (strategy, v_max, k_c): fraction located, time-to-locate and final
 horizontal error distributions (median, p90, max).
 
-Command line (``python -m emulator.sweep``; console script ``arva-sweep``)::
+Command line (``python -m emulator.closed_loop.sweep``; console script ``arva-sweep``)::
 
-    python -m emulator.sweep --n 1000 --seed 1 --out sweep.csv
-    python -m emulator.sweep --n 200 --v-max 0.5,1,2 --k-c 0.1,0.2,0.4 --out grid.csv
-    python -m emulator.sweep --n 5000 --scheduler tcp://10.0.0.5:8786 --out big.csv
+    python -m emulator.closed_loop.sweep --n 1000 --seed 1 --out sweep.csv
+    python -m emulator.closed_loop.sweep --n 200 --v-max 0.5,1,2 --k-c 0.1,0.2,0.4 --out grid.csv
+    python -m emulator.closed_loop.sweep --n 5000 --scheduler tcp://10.0.0.5:8786 --out big.csv
 
 The default executor is a local process pool (``--workers``, default the CPU count);
 ``--scheduler ADDRESS`` runs the same chunks on a dask.distributed cluster (extra
@@ -112,7 +112,7 @@ def burial(config: SweepConfig, i: int) -> list[dict]:
 
 def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: float):
     """The validated closed-loop scene of one run."""
-    from .scene import parse_scene
+    from emulator.scene.reader import parse_scene
 
     txs = burial(config, i)
     seed = int(np.random.SeedSequence(config.seed, spawn_key=(i, 1)).generate_state(1)[0])
@@ -144,7 +144,7 @@ def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: 
 
 def run_one(config: SweepConfig, strategy: str, v_max: float, k_c: float, i: int) -> tuple[list[dict], float]:
     """Fly one burial; its rows and the scene time flown."""
-    from .closed_loop import ClosedLoop
+    from emulator.closed_loop.loop import ClosedLoop
 
     scene, txs = burial_scene(config, i, strategy, v_max, k_c)
     result = ClosedLoop(scene, record=False).run(config.t_max)

@@ -20,15 +20,15 @@ import numpy as np
 from firmware_proto.errors import InputError, PoseError, SceneError
 from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
 
-from .effects.ground_truth_error import GroundTruthErrorConfig
-from .geodesy import Origin
-from .effects.link_faults import LinkFaultConfig
-from .effects.pulses import PulseConfig
-from .effects.quantize import QuantizeConfig
-from .model import ModelParams
-from .rotation import normalize_quaternions
-from .trajectory import IDENTITY, Trajectory
-from .vehicle import VehicleSpec, parse_vehicle
+from emulator.truth.error import GroundTruthErrorConfig
+from emulator.frames.geodesy import Origin
+from emulator.output.link_faults import LinkFaultConfig
+from emulator.receiver.pulses import PulseConfig
+from emulator.receiver.quantize import QuantizeConfig
+from emulator.receiver.model import ModelParams
+from emulator.frames.rotation import normalize_quaternions
+from emulator.frames.trajectory import IDENTITY, Trajectory
+from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
 
 #: The newest scene format this program reads.
 SPEC_VERSION = 1
@@ -497,7 +497,7 @@ def _receivers(rd: _Reader, data: dict, rate_hz: float = 1.0) -> tuple[ReceiverS
 
 
 def _vehicle(rd: _Reader, r: dict, path: str, rate_hz: float) -> VehicleSpec:
-    """``[receiver.vehicle]``: the receiver rides on a vehicle (emulator.vehicle)."""
+    """``[receiver.vehicle]``: the receiver rides on a vehicle (emulator.closed_loop.vehicle)."""
     for key in ("position", "orientation", "path", "gps", "attitude"):
         if key in r:
             why = "its pose comes from the vehicle" if key in ("position", "orientation", "path") else (

@@ -11,7 +11,7 @@
   heading in degrees true [0, 360), 'T' = true, roll and pitch in degrees, heave in
   metres (positive up), the three 1-sigma accuracies in degrees, GPS quality flag
   (0 no position, 1 non-RTK fix, 2 RTK) and INS status flag (0 not aligned, 1 aligned).
-  Angles follow :mod:`emulator.attitude_convention` (heading clockwise from true north,
+  Angles follow :mod:`emulator.frames.attitude` (heading clockwise from true north,
   pitch positive nose up, roll positive right side down; intrinsic Z-Y-X on NED/FRD).
   Its conversions are re-exported here.
 
@@ -31,7 +31,7 @@ Precision (what the bench reader gets back, exactly to these digits):
   as u-blox "high precision NMEA"); 4-5 give the classic <= 82-character sentences.
 * altitude: GGA carries height above mean sea level and the geoid separation N, with
   HAE = MSL + N. We take the height above the ellipsoid (HAE, as in
-  :mod:`emulator.geodesy`) and a separation (default 0.0: then MSL = HAE), and print both
+  :mod:`emulator.frames.geodesy`) and a separation (default 0.0: then MSL = HAE), and print both
   to millimetres, so a reader adds them back to HAE to the millimetre.
 * speed over ground in knots (3 decimals), course over ground in degrees true
   (2 decimals), from an ENU velocity in m/s; the course is left empty when the speed
@@ -54,7 +54,7 @@ from pynmeagps.nmeatypes_core import GET
 
 from firmware_proto.errors import InputError, PoseError
 
-from .attitude_convention import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
+from emulator.frames.attitude import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
 
 __all__ = [
     "KNOTS_PER_MPS",

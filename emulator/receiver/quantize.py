@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from firmware_proto.errors import InputError
 
-from ..model import MAX_DELTA_DEG, round_half_away
+from emulator.receiver.model import MAX_DELTA_DEG, round_half_away
 
 #: Display profiles: preset values of the step fields.
 PROFILES: dict[str, dict[str, int]] = {

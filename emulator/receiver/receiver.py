@@ -8,11 +8,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .effects.noise import NoiseEffect
-from .effects.pulses import PulseEffect
-from .effects.quantize import QuantizeEffect
-from .model import ZONE_OUTER, Epochs, Measurement, measure, select_channels
-from .scene import Scene
+from emulator.receiver.noise import NoiseEffect
+from emulator.receiver.pulses import PulseEffect
+from emulator.receiver.quantize import QuantizeEffect
+from emulator.receiver.model import ZONE_OUTER, Epochs, Measurement, measure, select_channels
+from emulator.scene.reader import Scene
 
 
 @dataclass

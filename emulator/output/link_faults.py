@@ -1,6 +1,6 @@
 """Link faults on a port (BRIEF 3.1 ``link_faults``): what a flaky cable or radio does.
 
-:class:`FaultyPort` wraps any :class:`~emulator.ports.Port` and is one itself. Per write,
+:class:`FaultyPort` wraps any :class:`~emulator.output.ports.Port` and is one itself. Per write,
 in this order:
 
 1. Disconnect schedule: outages start at scene times k * ``disconnect_every_s``
@@ -40,7 +40,7 @@ import numpy as np
 
 from firmware_proto.errors import InputError, LinkError
 
-from ..ports import Port
+from emulator.output.ports import Port
 
 #: Pause between the pieces of a split write, seconds.
 SPLIT_GAP_S = 0.001

@@ -12,7 +12,7 @@ What the paper leaves open, and what we chose:
   scenes share a DEM, ``case_study_terrain.csv`` (1 m grid, x -40..60, y -50..40):
   the thin-plate spline through the start (0, 0, 0) and the four transmitter
   positions, so each transmitter lies on the snow surface and the UAV ends r_s above
-  it. :func:`terrain_grid` regenerates it (``python -m emulator.case_study --terrain``).
+  it. :func:`terrain_grid` regenerates it (``python -m emulator.closed_loop.case_study --terrain``).
 * **Transmitter orientations.** Not given. The paper reports that in all four tests the
   distance "shows a limited growth before decreasing", most evidently in the fourth.
   Along a dipole's flux line r = C sin^2(theta), which is largest broadside
@@ -24,7 +24,7 @@ What the paper leaves open, and what we chose:
   evident") and yaw the others so that theta_0 is 70-75 deg (growth 5-40 %): case 1
   yaw 120 deg, case 2 yaw 110 deg, case 3 yaw 60 deg.
 
-``python -m emulator.case_study --out docs/img`` flies all four (both strategies), prints
+``python -m emulator.closed_loop.case_study --out docs/img`` flies all four (both strategies), prints
 a table and draws Figs. 8-11 (trajectory over the horizontal field lines, distance
 versus time).
 """
@@ -41,8 +41,8 @@ import numpy as np
 
 from firmware_proto.errors import MissingExtra
 
-from .closed_loop import ClosedLoop, RunResult
-from .scene import Scene, load_scene
+from emulator.closed_loop.loop import ClosedLoop, RunResult
+from emulator.scene.reader import Scene, load_scene
 
 #: (transmitter position, dipole yaw in degrees) per test case, paper Figs. 8-11.
 CASES = {
@@ -55,7 +55,7 @@ CASES = {
 TERRAIN_ORIGIN = (-40.0, -50.0)
 TERRAIN_SPACING = (1.0, 1.0)
 TERRAIN_SHAPE = (91, 101)  # rows (y), columns (x)
-SCENES_DIR = Path(__file__).resolve().parent / "scenes"
+SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 
 
 def scene_path(case: int) -> Path:
@@ -98,7 +98,7 @@ def terrain_grid() -> np.ndarray:
 def write_terrain(path: Path) -> None:
     z = terrain_grid()
     header = (
-        "# Case-study DEM (emulator/case_study.py): elevation in metres; row j, column i is\n"
+        "# Case-study DEM (emulator/closed_loop/case_study.py): elevation in metres; row j, column i is\n"
         f"# (x, y) = ({TERRAIN_ORIGIN[0]:g} + {TERRAIN_SPACING[0]:g} i, {TERRAIN_ORIGIN[1]:g} + "
         f"{TERRAIN_SPACING[1]:g} j); row 0 is the southern edge.\n"
     )
@@ -146,7 +146,7 @@ def plot_case(case: int, results: dict[str, RunResult], path: Path) -> None:
     """Paper-style figure: the 2-D trajectory over the horizontal field direction at
     flight height, and the distance to the transmitter versus time."""
     plt = _pyplot()
-    from .model import measure
+    from emulator.receiver.model import measure
 
     scene = load_case(case)
     (px, py, pz), yaw = CASES[case]
@@ -195,7 +195,7 @@ def plot_case(case: int, results: dict[str, RunResult], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m emulator.case_study", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m emulator.closed_loop.case_study", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, help="write case_study_<n>.png here")
     p.add_argument("--controllers", default="flux,receiver_only", help="comma-separated (default: both)")
     p.add_argument("--terrain", action="store_true", help="regenerate emulator/scenes/case_study_terrain.csv")

@@ -51,7 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from firmware_proto.errors import InputError
 
-from .rotation import normalize_quaternions, quaternion_matrices
+from emulator.frames.rotation import normalize_quaternions, quaternion_matrices
 
 _GIMBAL_LOCK_COS = 1e-10
 
