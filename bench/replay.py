@@ -4,7 +4,9 @@ with its recorded timing (``--speed X`` times real time; ``0`` as fast as possib
 Ports are created like the emulator's: ``--port pty`` (default) makes one
 pseudo-terminal per device, announced on stdout as ``<device> <path>`` before any data;
 ``--device NAME=PORT`` sends one device elsewhere (a path, a URL or ``-``); ``--link
-DIR`` adds stable symlinks. Reads are replayed in the order and at the times the logger
+DIR`` adds stable symlinks. ``rfc2217-server:HOST:PORT`` and ``tcp-server:HOST:PORT``
+serve a device to network clients (loopback only unless ``--serve-any-host``; the URL to
+open is announced like a pty; line 115200 8N1 until an RFC 2217 client sets its own). Reads are replayed in the order and at the times the logger
 saw them (its monotonic clock), so interleaving across devices is preserved.
 """
 
@@ -18,6 +20,7 @@ import threading
 import time
 from pathlib import Path
 
+from emulator.output.net_ports import ServerPort, open_server_port
 from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
 from firmware_proto.errors import InputError
 
@@ -33,10 +36,16 @@ def register(sub) -> None:
     p.add_argument("--device", action="append", default=[], metavar="NAME=PORT", help="one device to its own port")
     p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<device> to the ptys")
     p.add_argument("--delay", type=float, default=0.0, metavar="S", help="wait S seconds after announcing the ptys")
+    p.add_argument("--serve-any-host", action="store_true",
+                   help="let rfc2217-server/tcp-server ports listen on non-loopback addresses")
     p.set_defaults(func=run)
 
 
-def _open(name: str, spec: str, link_dir: Path | None) -> Port:
+def _open(name: str, spec: str, link_dir: Path | None, serve_any_host: bool = False) -> Port:
+    notify = lambda text: print(f"arva-bench: replay: {text}", file=sys.stderr, flush=True)  # noqa: E731
+    server = open_server_port(name, spec, serve_any_host=serve_any_host, notify=notify)
+    if server is not None:
+        return server
     if spec == "-":
         return StdoutPort(name)
     if spec == "pty":
@@ -73,8 +82,8 @@ def run(args: argparse.Namespace) -> int:
         # Announcements go to stdout, unless a device's data does.
         announce_to = sys.stderr if "-" in ports_for.values() else sys.stdout
         for name in names:
-            ports[name] = _open(name, ports_for[name], args.link)
-            if isinstance(ports[name], PtyPort):
+            ports[name] = _open(name, ports_for[name], args.link, args.serve_any_host)
+            if isinstance(ports[name], (PtyPort, ServerPort)):
                 print(f"{name} {ports[name].path}", file=announce_to, flush=True)
         if args.speed == 0:
             for port in ports.values():

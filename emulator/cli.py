@@ -21,6 +21,7 @@ from pathlib import Path
 from firmware_proto.errors import InputError, LinkError, SceneError
 
 from emulator import __version__
+from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port
 from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
 from emulator.scene.reader import default_scene, load_scene
 from emulator.output.link_faults import FaultyPort
@@ -70,7 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
         default="-",
         metavar="PORT",
         help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
-        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL",
+        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
+        "'rfc2217-server:HOST:PORT' or 'tcp-server:HOST:PORT' (served to network clients; "
+        "port 0: any free port; the URL to open is announced like a pty)",
     )
     p.add_argument(
         "--stream",
@@ -79,6 +82,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="LABEL=PORT",
         help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port",
+    )
+    p.add_argument(
+        "--serve-any-host",
+        action="store_true",
+        help="let rfc2217-server/tcp-server ports listen on non-loopback addresses (a lab network)",
     )
     p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
     p.add_argument("--frames", type=_non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
@@ -136,7 +144,7 @@ def assign_ports(labels: list[str], default: str, overrides: list[tuple[str, str
         ports[label] = port
     users: dict[str, list[str]] = {}
     for label, port in ports.items():
-        if port != "pty":
+        if port != "pty" and not is_ephemeral(port):  # ptys and port 0 servers: one each
             users.setdefault(port, []).append(label)
     for port, names in users.items():
         if len(names) > 1:
@@ -158,6 +166,11 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
                 raise InputError(f"--link {args.link}: not a directory")
             link = args.link / label.replace(":", "-")
         return PtyPort(label, link)
+    line = LineSettings(args.baud, args.bytesize, args.parity, args.stopbits)
+    notify = lambda text: print(f"arva-emulate: {text}", file=sys.stderr, flush=True)  # noqa: E731
+    server = open_server_port(label, spec, line, args.serve_any_host, notify)
+    if server is not None:
+        return server
     return SerialPort(label, spec, _serial_options(args, spec))
 
 
@@ -175,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
         for i, stream in enumerate(streams):
             port = open_port(stream.label, specs[stream.label], args)
             routes.append(Route(stream, port))
-            if isinstance(port, PtyPort):
+            if isinstance(port, (PtyPort, ServerPort)):
                 # Announced before any data, flushed at once: a test harness or a human
                 # reads the path from here and opens it (again after a simulated unplug).
                 port.on_reconnect = announce
