@@ -13,6 +13,7 @@ saw them (its monotonic clock), so interleaving across devices is preserved.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import heapq
 import signal
 import sys
@@ -22,6 +23,7 @@ from pathlib import Path
 
 from emulator.output.net_ports import ServerPort, open_server_port
 from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
+from emulator.progress import progress
 from firmware_proto.errors import InputError
 
 from .session import read_manifest, read_raw
@@ -78,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    stack = contextlib.ExitStack()  # the progress bar, closed before the summary line
     try:
         # Announcements go to stdout, unless a device's data does.
         announce_to = sys.stderr if "-" in ports_for.values() else sys.stdout
@@ -95,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
         t0 = queue[0][0]  # the heap's smallest
         start = time.monotonic()
         sent = 0
+        t_last = max(r[-1].mono for r in reads.values() if r)
+        bar = stack.enter_context(progress("replay", total=t_last - t0, unit="s of session"))
         while queue and not stop.is_set():
             mono, i, name, j = heapq.heappop(queue)
             if args.speed > 0:
@@ -102,10 +107,12 @@ def run(args: argparse.Namespace) -> int:
                 if delay > 0 and stop.wait(delay):
                     break
             ports[name].write(reads[name][j].data)
+            bar.update(completed=mono - t0)
             sent += 1
             if j + 1 < len(reads[name]):
                 heapq.heappush(queue, (reads[name][j + 1].mono, i, name, j + 1))
     finally:
+        stack.close()
         for port in ports.values():
             port.close()
     dropped = sum(p.bytes_dropped for p in ports.values())
