@@ -237,6 +237,23 @@ def test_tcp_server_with_a_plain_socket():
     assert f"{len(expected)} bytes sent, 0 dropped (line 115200 8N1)" in finish(proc)
 
 
+def test_a_fixed_port_is_the_one_served_and_a_busy_one_is_an_error():
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        free = probe.getsockname()[1]
+    port = ServerPort("arva", parse_server_spec(f"tcp-server:127.0.0.1:{free}"))
+    try:
+        assert port.path == f"socket://127.0.0.1:{free}"
+        proc = subprocess.run([*EMULATE, "--port", f"rfc2217-server:127.0.0.1:{free}", "--frames", "1"],
+                              capture_output=True, timeout=60)
+        assert proc.returncode == 2
+        assert proc.stderr == (
+            f"arva-emulate: port rfc2217-server:127.0.0.1:{free}: cannot listen: Address already in use\n".encode()
+        )
+    finally:
+        port.close()
+
+
 @pytest.mark.timeout(60)
 def test_a_vanished_client_costs_nothing():
     proc, urls = start([*EMULATE, "--port", "tcp-server:127.0.0.1:0", "--frames", "40", "--speed", "20",

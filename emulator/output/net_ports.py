@@ -366,7 +366,7 @@ class ServerPort(Port):
         self.settings = settings or LineSettings()
         self.notify = notify or (lambda _line: None)
         text = spec_text or f"{spec.kind}:{spec.host}:{spec.port}"
-        addresses = _resolve(spec.host, text)
+        addresses = _resolve(spec.host, spec.port, text)
         if not serve_any_host and not all(ipaddress.ip_address(a[4][0]).is_loopback for a in addresses):
             raise InputError(
                 f"port {text}: {spec.host} is not a loopback address; add --serve-any-host to serve other hosts"
@@ -375,7 +375,7 @@ class ServerPort(Port):
         self._listener = socket.socket(family, socket.SOCK_STREAM)
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
-            self._listener.bind(sockaddr[:2] if family == socket.AF_INET else sockaddr)
+            self._listener.bind(sockaddr)
             self._listener.listen(8)
         except OSError as exc:
             self._listener.close()
@@ -478,9 +478,9 @@ def _shut(sock: socket.socket) -> None:
     sock.close()
 
 
-def _resolve(host: str, text: str):
+def _resolve(host: str, port: int, text: str):
     try:
-        return socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM)
+        return socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as exc:
         raise InputError(f"port {text}: cannot resolve {host!r}: {exc.strerror}") from None
 
