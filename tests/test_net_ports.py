@@ -302,3 +302,27 @@ def test_replayed_session_served_over_rfc2217(tmp_path):
     err = finish(proc)
     assert f"arva-bench: replay: {len(lines)} reads, {len(expected)} bytes written, 0 bytes dropped\n" in err
     assert f"arva-bench: replay: arva: client 127.0.0.1:" in err
+
+
+def test_a_malformed_rfc2217_request_disconnects_that_client_only():
+    lines: list[str] = []
+    port = ServerPort("arva", parse_server_spec("rfc2217-server:127.0.0.1:0"), notify=lines.append)
+    host, number = port.path.removeprefix("rfc2217://").rsplit(":", 1)
+    try:
+        with socket.create_connection((host, int(number)), timeout=5) as sock:
+            sock.settimeout(5)
+            # IAC SB COM-PORT-OPTION SET-BAUDRATE with one byte instead of four, IAC SE
+            sock.sendall(b"\xff\xfa\x2c\x01\x00\xff\xf0")
+            deadline = time.monotonic() + 10
+            while sock.recv(4096):  # the server's option requests, then EOF
+                assert time.monotonic() < deadline
+        deadline = time.monotonic() + 10
+        while port.clients:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        assert port.write(b"$PARVA\r\n") == 0  # nobody connected now: dropped, counted
+        assert port.bytes_dropped == 8
+    finally:
+        port.close()
+    assert any("bad RFC 2217 request" in line and "disconnecting" in line for line in lines), lines
+    assert lines[-1].endswith("left: 0 bytes sent, 0 dropped (line 115200 8N1)")

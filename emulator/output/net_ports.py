@@ -279,6 +279,11 @@ class _Client:
     def _purge(self) -> None:
         self.line.purge()
         with self._cond:
+            # Purged bytes never reach the client: count them dropped, not sent (each
+            # data 0xFF is queued doubled by the Telnet escaping).
+            n = len(self._data) - (self._data.count(0xFF) // 2 if self.manager is not None else 0)
+            self.bytes_sent -= n
+            self.bytes_dropped += n
             del self._data[:]
 
     # --- stream data, from the emulator's thread
@@ -292,9 +297,9 @@ class _Client:
             if self.manager is not None:
                 chunk = chunk.replace(b"\xff", b"\xff\xff")  # Telnet IAC escaping
             self._data += chunk
+            self.bytes_sent += n
+            self.bytes_dropped += len(data) - n
             self._cond.notify()
-        self.bytes_sent += n
-        self.bytes_dropped += len(data) - n
 
     def _send_loop(self) -> None:
         try:
@@ -322,6 +327,8 @@ class _Client:
                         pass  # bytes for the device: an emulated receiver takes no input
         except OSError:
             pass
+        except Exception as exc:  # noqa: BLE001 - a malformed request must not kill the thread silently
+            self.port.notify(f"{self.port.label}: client {self.name}: bad RFC 2217 request ({exc!r}); disconnecting")
         self._vanish()
 
     def _vanish(self) -> None:
