@@ -63,19 +63,25 @@ class _RichTracker(Tracker):
         self._bar.update(self._task, completed=completed, total=total, description=description, **fields)
 
 
-def _count_column(unit: str):
-    from rich.progress import ProgressColumn
+def _columns(unit: str):
+    """The count (``12/40 runs``; ``12 runs`` without a total; nothing for a stage that
+    counts nothing) and the ETA (only with a total)."""
+    from rich.progress import ProgressColumn, TimeRemainingColumn
     from rich.text import Text
 
     class CountColumn(ProgressColumn):
-        """``12/40 runs`` (or ``12 runs`` without a total); fractions as whole units."""
-
         def render(self, task) -> Text:
+            if task.total is None and not task.completed:
+                return Text("")
             done = f"{task.completed:,.0f}"
             text = done if task.total is None else f"{done}/{task.total:,.0f}"
             return Text(f"{text} {unit}".rstrip())
 
-    return CountColumn()
+    class EtaColumn(TimeRemainingColumn):
+        def render(self, task) -> Text:
+            return Text("") if task.total is None else Text("ETA ") + super().render(task)
+
+    return CountColumn(), EtaColumn()
 
 
 @contextmanager
@@ -98,17 +104,17 @@ def progress(
         yield Tracker()
         return
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     console = Console(file=stream, force_terminal=True)
+    count, eta = _columns(unit)
     bar = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
-        _count_column(unit),
+        count,
         TextColumn("{task.fields[note]}"),
         TimeElapsedColumn(),
-        TextColumn("ETA"),
-        TimeRemainingColumn(),
+        eta,
         console=console,
         transient=True,
         redirect_stdout=False,  # stdout may be data (a pipe): never touch it
