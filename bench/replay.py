@@ -21,7 +21,7 @@ import threading
 import time
 from pathlib import Path
 
-from emulator.output.net_ports import ServerPort, open_server_port
+from emulator.output.net_ports import ServerPort, open_server_port, stderr_notifier
 from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
 from emulator.progress import progress
 from firmware_proto.errors import InputError
@@ -44,8 +44,7 @@ def register(sub) -> None:
 
 
 def _open(name: str, spec: str, link_dir: Path | None, serve_any_host: bool = False) -> Port:
-    notify = lambda text: print(f"arva-bench: replay: {text}", file=sys.stderr, flush=True)  # noqa: E731
-    server = open_server_port(name, spec, serve_any_host=serve_any_host, notify=notify)
+    server = open_server_port(name, spec, serve_any_host=serve_any_host, notify=stderr_notifier("arva-bench: replay"))
     if server is not None:
         return server
     if spec == "-":

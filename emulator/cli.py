@@ -21,7 +21,7 @@ from pathlib import Path
 from firmware_proto.errors import InputError, LinkError, SceneError
 
 from emulator import __version__
-from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port
+from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port, stderr_notifier
 from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
 from emulator.scene.reader import default_scene, load_scene
 from emulator.output.link_faults import FaultyPort
@@ -167,8 +167,7 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
             link = args.link / label.replace(":", "-")
         return PtyPort(label, link)
     line = LineSettings(args.baud, args.bytesize, args.parity, args.stopbits)
-    notify = lambda text: print(f"arva-emulate: {text}", file=sys.stderr, flush=True)  # noqa: E731
-    server = open_server_port(label, spec, line, args.serve_any_host, notify)
+    server = open_server_port(label, spec, line, args.serve_any_host, stderr_notifier("arva-emulate"))
     if server is not None:
         return server
     return SerialPort(label, spec, _serial_options(args, spec))

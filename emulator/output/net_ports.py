@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import ipaddress
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -497,6 +498,17 @@ def _format_addr(addr) -> str:
     return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
+def stderr_notifier(prefix: str) -> Callable[[str], None]:
+    """Client events as ``PREFIX: TEXT`` lines on stderr (from the server's threads). On a
+    terminal the line first clears a live status line (``\\r`` + erase to end of line)."""
+
+    def notify(text: str) -> None:
+        clear = "\r\x1b[K" if sys.stderr.isatty() else ""
+        print(f"{clear}{prefix}: {text}", file=sys.stderr, flush=True)
+
+    return notify
+
+
 def open_server_port(
     label: str,
     text: str,
@@ -521,4 +533,5 @@ __all__ = [
     "is_ephemeral",
     "open_server_port",
     "parse_server_spec",
+    "stderr_notifier",
 ]
