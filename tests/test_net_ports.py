@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import select
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -151,7 +152,7 @@ def test_loopback_only_unless_allowed():
 def test_rfc2217_clients_read_exactly_the_stdout_sentences():
     expected = reference("--frames", "10")
     proc, urls = start([*EMULATE, "--port", "rfc2217-server:127.0.0.1:0", "--frames", "10", "--speed", "0",
-                        "--delay", "3"])
+                        "--delay", "5"])
     assert urls["arva"].startswith("rfc2217://127.0.0.1:")
     # Two clients at once, one at 9600 baud (1070 bytes fit its 4 KB FIFO): both get it all.
     with serial.serial_for_url(urls["arva"], baudrate=9600, timeout=2) as a, \
@@ -179,7 +180,7 @@ def test_a_baud_too_low_for_the_stream_drops_what_the_uart_cannot_carry():
     # FIFO's worth at once and drops the rest, as a device's UART would.
     expected = reference("--frames", "100")
     proc, urls = start([*EMULATE, "--port", "rfc2217-server:127.0.0.1:0", "--frames", "100", "--speed", "0",
-                        "--delay", "3"])
+                        "--delay", "5"])
     with serial.serial_for_url(urls["arva"], baudrate=1200, timeout=2) as s:
         got = read_exactly(s.read, UART_FIFO_BYTES)
     assert got == expected[:UART_FIFO_BYTES]
@@ -196,7 +197,7 @@ def test_client_changing_the_baud_mid_stream():
     frames = 80
     expected = reference("--frames", str(frames))
     proc, urls = start([*EMULATE, "--port", "rfc2217-server:127.0.0.1:0", "--frames", str(frames),
-                        "--speed", "20", "--delay", "3"])
+                        "--speed", "20", "--delay", "5"])
     received = b""
     with serial.serial_for_url(urls["arva"], baudrate=115200, timeout=1.0) as s:
         head = read_exactly(s.read, len(b"".join(expected.splitlines(keepends=True)[:8])))  # 2 epochs
@@ -227,7 +228,7 @@ def test_client_changing_the_baud_mid_stream():
 def test_tcp_server_with_a_plain_socket():
     expected = reference("--frames", "10")
     proc, urls = start([*EMULATE, "--port", "tcp-server:127.0.0.1:0", "--frames", "10", "--speed", "0",
-                        "--delay", "3"])
+                        "--delay", "5"])
     host, port = urls["arva"].removeprefix("socket://").rsplit(":", 1)
     with socket.create_connection((host, int(port)), timeout=5) as sock:
         sock.settimeout(5)
@@ -256,16 +257,17 @@ def test_a_fixed_port_is_the_one_served_and_a_busy_one_is_an_error():
 
 @pytest.mark.timeout(60)
 def test_a_vanished_client_costs_nothing():
+    expected = reference("--frames", "40")
     proc, urls = start([*EMULATE, "--port", "tcp-server:127.0.0.1:0", "--frames", "40", "--speed", "20",
                         "--delay", "3"])
     host, port = urls["arva"].removeprefix("socket://").rsplit(":", 1)
     sock = socket.create_connection((host, int(port)), timeout=5)
-    sock.close()  # gone before the first epoch
-    t0 = time.monotonic()
-    err = finish(proc)
-    assert time.monotonic() - t0 < 10  # 40 epochs at 20x real time after the delay: ~5 s
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    sock.close()  # reset, gone before the first epoch
+    err = finish(proc)  # the run ends on time (finish() waits 20 s at most)
     assert "left: 0 bytes sent, 0 dropped" in err
-    assert "40 epochs sent (arva 40)" in err
+    # Nobody heard any epoch: every byte is counted dropped, none is queued anywhere.
+    assert f"40 epochs sent (arva 40), {len(expected)} bytes dropped" in err
 
 
 @pytest.mark.timeout(60)
@@ -296,7 +298,7 @@ def test_replayed_session_served_over_rfc2217(tmp_path):
         w.raw("arva", line, mono=100.0 + 0.01 * k, utc=0.0)
     w.close()
     proc, urls = start([sys.executable, "-m", "bench.cli", "replay", str(tmp_path / "s"),
-                        "--port", "rfc2217-server:127.0.0.1:0", "--delay", "3", "--speed", "0"])
+                        "--port", "rfc2217-server:127.0.0.1:0", "--delay", "5", "--speed", "0"])
     with serial.serial_for_url(urls["arva"], baudrate=115200, timeout=2) as s:
         assert read_exactly(s.read, len(expected)) == expected
     err = finish(proc)
