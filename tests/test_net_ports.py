@@ -82,6 +82,30 @@ def test_parse_server_spec():
         parse_server_spec("rfc2217-server:4000")
 
 
+@settings(max_examples=200, deadline=None)
+@given(st.sampled_from(["rfc2217-server", "tcp-server"]),
+       st.sampled_from(["127.0.0.1", "localhost", "[::1]", "0.0.0.0", "lab-host.example"]),
+       st.integers(0, 65535))
+def test_server_specs_round_trip(kind, host, port):
+    spec = parse_server_spec(f"{kind}:{host}:{port}")
+    assert (spec.kind, spec.host, spec.port) == (kind, host.strip("[]"), port)
+    assert is_ephemeral(f"{kind}:{host}:{port}") == (port == 0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(max_size=40))
+def test_any_port_text_parses_or_fails_with_one_input_error(text):
+    """Never another exception: a spec is None (not a server port), a ServerSpec, or an
+    InputError naming the text."""
+    for candidate in (text, f"tcp-server:{text}", f"rfc2217-server:127.0.0.1:{text}"):
+        try:
+            spec = parse_server_spec(candidate)
+        except InputError as exc:
+            assert str(exc).startswith(f"port {candidate}: ")
+            continue
+        assert spec is None or 0 <= spec.port <= 65535
+
+
 def test_line_settings():
     assert LineSettings().bits_per_char == 10
     assert LineSettings(9600, 7, "E", 2).bits_per_char == 11
