@@ -352,3 +352,19 @@ def test_a_malformed_rfc2217_request_disconnects_that_client_only():
         port.close()
     assert any("bad RFC 2217 request" in line and "disconnecting" in line for line in lines), lines
     assert lines[-1].endswith("left: 0 bytes sent, 0 dropped (line 115200 8N1)")
+
+
+def test_a_baud_rate_out_of_limits_is_refused_like_a_real_port_server():
+    lines: list[str] = []
+    port = ServerPort("arva", parse_server_spec("rfc2217-server:127.0.0.1:0"), notify=lines.append)
+    try:
+        with serial.serial_for_url(port.path, baudrate=9600, timeout=1) as s:
+            with pytest.raises(ValueError, match="remote rejected value for option 'baudrate'"):
+                s.baudrate = 20_000_000  # above BAUD_LIMITS: answered with the current 9600
+    finally:
+        port.close()
+    assert [line.split(" ", 3)[3] for line in lines] == [
+        "connected (rfc2217-server, line 115200 8N1)",
+        "set line 9600 8N1",
+        "left: 0 bytes sent, 0 dropped (line 9600 8N1)",
+    ]
