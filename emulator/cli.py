@@ -21,6 +21,7 @@ from pathlib import Path
 from firmware_proto.errors import InputError, LinkError, SceneError
 
 from emulator import __version__
+from emulator.control import runtime as control_runtime
 from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
 from emulator.scene.reader import default_scene, load_scene
 from emulator.output.link_faults import FaultyPort
@@ -103,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     serial_opts.add_argument("--stopbits", type=float, choices=(1, 1.5, 2), default=1)
     serial_opts.add_argument("--rtscts", action="store_true", help="hardware flow control")
     serial_opts.add_argument("--xonxoff", action="store_true", help="software flow control")
+    control_runtime.add_arguments(p)
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return p
@@ -162,6 +164,7 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
 
 
 def run(args: argparse.Namespace) -> int:
+    with_control = control_runtime.wanted(args)
     scene = load_scene(args.scene) if args.scene else default_scene()
     streams = scene_streams(scene)
     specs = assign_ports([s.label for s in streams], args.port, args.stream)
@@ -169,7 +172,8 @@ def run(args: argparse.Namespace) -> int:
     _stop_on_signals(stop)
     scene_clock = SceneClock()
     # Pty announcements go to stdout, unless a stream's data does (--stream arva=-).
-    announce = _announcer(sys.stderr if "-" in specs.values() else sys.stdout)
+    announce_to = sys.stderr if "-" in specs.values() else sys.stdout
+    announce = _announcer(announce_to)
     routes: list[Route] = []
     try:
         for i, stream in enumerate(streams):
@@ -180,8 +184,11 @@ def run(args: argparse.Namespace) -> int:
                 # reads the path from here and opens it (again after a simulated unplug).
                 port.on_reconnect = announce
                 announce(port)
-            routes[-1].port = _with_link_faults(scene, port, i, args.speed, scene_clock)
-        status = status_printer() if sys.stderr.isatty() and args.speed != 0 else None
+            # Under the step clock a scene's link-fault stalls cost no wall time.
+            speed = args.speed if args.clock == "real" else 0
+            routes[-1].port = _with_link_faults(scene, port, i, speed, scene_clock)
+        real = args.clock == "real"
+        status = status_printer() if sys.stderr.isatty() and args.speed != 0 and real else None
         lf = scene.effects.link_faults
         scheduler = EpochScheduler(
             routes,
@@ -194,10 +201,16 @@ def run(args: argparse.Namespace) -> int:
             # on the right epochs even as fast as possible.
             fast_batch=1 if lf is not None and lf.disconnect_every_s > 0 else None,
         )
+        control = None
+        if with_control:
+            control = control_runtime.ControlSession(args, scene, routes, scheduler, scene_clock, stop)
+            control.start(lambda line: print(line, file=announce_to, flush=True))
         try:
             scheduler.wait(args.delay)
-            scheduler.run()
+            control.run() if control is not None else scheduler.run()
         finally:
+            if control is not None:
+                control.close()
             if status is not None:
                 sys.stderr.write("\r\x1b[K")
             print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)

@@ -5,6 +5,16 @@ on the monotonic clock. Deadlines are absolute, so sleep overshoot never accumul
 (hours of 1 Hz epochs stay on the second), and each epoch is rendered ahead of its
 deadline so only the write happens at the deadline. As fast as possible (``speed == 0``):
 epochs are rendered in batches covering a window of scene time, stream by stream.
+
+Step clock (``arva-emulate --clock step``, BRIEF 9): nothing is emitted on its own;
+:meth:`EpochScheduler.step` renders and writes the next N epochs of the first stream and
+every other stream's epochs up to the same scene time, in scene-time order, and returns
+once they are written. A live control channel changes the scene between epochs; every
+render and write happens under :attr:`EpochScheduler.lock`, which the channel holds while
+it applies a change, so a change takes effect from the next epoch rendered
+(:attr:`EpochScheduler.next_epoch`). :meth:`EpochScheduler.pause` stops the real clock
+emitting (epochs still advance with time and are rendered, then discarded: a resume
+continues with the epoch due then and replays nothing).
 """
 
 from __future__ import annotations
@@ -91,6 +101,11 @@ class EpochScheduler:
         # An Event rather than a flag so a signal handler installed before the scheduler
         # exists (while ports are being opened) can already request the stop.
         self._stop_event = stop_event if stop_event is not None else threading.Event()
+        #: Held while rendering and writing; a control channel holds it to change the scene.
+        self.lock = threading.RLock()
+        self.paused = False
+        #: Epochs of the first stream rendered but not written because the clock was paused.
+        self.epochs_paused = 0
         if frames is not None:
             rate0 = routes[0].stream.rate_hz
             for r in routes:
@@ -104,6 +119,55 @@ class EpochScheduler:
     @property
     def _stop(self) -> bool:
         return self._stop_event.is_set()
+
+    @property
+    def next_epoch(self) -> int:
+        """Index of the first stream's next epoch to be rendered: the first a change made
+        now affects (in real time the next epoch due is already rendered)."""
+        r = self.routes[0]
+        return r.next_k + (1 if r.pending is not None else 0)
+
+    def pause(self) -> None:
+        """Real clock: stop emitting (epochs keep their deadlines and are discarded)."""
+        self.paused = True
+
+    def resume(self) -> None:
+        self.paused = False
+
+    def remaining(self) -> int | None:
+        """Epochs of the first stream still to send under ``frames`` (None: no limit)."""
+        r = self.routes[0]
+        return None if r.end_k is None else max(0, r.end_k - r.next_k)
+
+    def step(self, n: int) -> None:
+        """Step clock: render and write the first stream's next ``n`` epochs and every
+        other stream's epochs before the scene time that follows them, in scene-time
+        order (at equal times in route order), and return once all are written."""
+        r0 = self.routes[0]
+        target = r0.next_k + n
+        if r0.end_k is not None:
+            target = min(target, r0.end_k)
+        t_end = target / r0.stream.rate_hz
+        limits = []
+        for r in self.routes:
+            k_hi = target if r is r0 else math.ceil(t_end * r.stream.rate_hz - 1e-9)
+            limits.append(k_hi if r.end_k is None else min(k_hi, r.end_k))
+        with self.lock:
+            for r in self.routes:
+                r.port.set_drain_wait(FAST_DRAIN_WAIT)  # a reader that keeps up loses nothing
+            heap = [(r.next_k / r.stream.rate_hz, i) for i, r in enumerate(self.routes) if r.next_k < limits[i]]
+            heapq.heapify(heap)
+            single = len(heap) == 1
+            batch = self.fast_batch or FAST_BATCH
+            while heap and not self._stop:
+                _, i = heapq.heappop(heap)
+                r = self.routes[i]
+                # One stream alone renders in batches unless faults need epoch-exact times.
+                count = min(batch, limits[i] - r.next_k) if single else 1
+                self._write(r, r.stream.render(r.next_k, count))
+                r.next_k += count
+                if r.next_k < limits[i]:
+                    heapq.heappush(heap, (r.next_k / r.stream.rate_hz, i))
 
     def wait(self, seconds: float) -> None:
         """Sleep ``seconds`` before the first epoch, interruptible by :meth:`stop`."""
@@ -119,6 +183,9 @@ class EpochScheduler:
 
     def _write(self, route: Route, data: bytes) -> None:
         self.scene_clock.t = route.next_k / route.stream.rate_hz
+        if self.paused:
+            self.epochs_paused += route is self.routes[0]
+            return
         route.port.write(data)
 
     def _run_fast(self) -> None:
@@ -130,13 +197,14 @@ class EpochScheduler:
         next_status = self.clock() + 0.5
         while not self._stop and not all(r.done for r in self.routes):
             t_end += window
-            for r in self.routes:
-                k_hi = math.ceil(t_end * r.stream.rate_hz)
-                if r.end_k is not None:
-                    k_hi = min(k_hi, r.end_k)
-                if k_hi > r.next_k:
-                    self._write(r, r.stream.render(r.next_k, k_hi - r.next_k))
-                    r.next_k = k_hi
+            with self.lock:
+                for r in self.routes:
+                    k_hi = math.ceil(t_end * r.stream.rate_hz)
+                    if r.end_k is not None:
+                        k_hi = min(k_hi, r.end_k)
+                    if k_hi > r.next_k:
+                        self._write(r, r.stream.render(r.next_k, k_hi - r.next_k))
+                        r.next_k = k_hi
             if self.status is not None and self.clock() >= next_status:
                 self.status(self.routes)
                 next_status += 0.5
@@ -145,10 +213,11 @@ class EpochScheduler:
         start = self.clock()
         due = lambda r: start + r.next_k / (r.stream.rate_hz * self.speed)  # noqa: E731
         heap = []
-        for i, r in enumerate(self.routes):
-            if not r.done:
-                r.pending = r.stream.render(r.next_k, 1)
-                heapq.heappush(heap, (due(r), i))
+        with self.lock:
+            for i, r in enumerate(self.routes):
+                if not r.done:
+                    r.pending = r.stream.render(r.next_k, 1)
+                    heapq.heappush(heap, (due(r), i))
         next_status = start + 0.5
         while heap and not self._stop:
             deadline, i = heap[0]
@@ -162,11 +231,13 @@ class EpochScheduler:
                 continue  # spin
             heapq.heappop(heap)
             r = self.routes[i]
-            self._write(r, r.pending)
-            r.next_k += 1
-            if not r.done:
-                r.pending = r.stream.render(r.next_k, 1)  # ahead of its deadline
-                heapq.heappush(heap, (due(r), i))
+            with self.lock:
+                self._write(r, r.pending)
+                r.next_k += 1
+                r.pending = None
+                if not r.done:
+                    r.pending = r.stream.render(r.next_k, 1)  # ahead of its deadline
+                    heapq.heappush(heap, (due(r), i))
             if self.status is not None and self.clock() >= next_status:
                 self.status(self.routes)
                 next_status = self.clock() + 0.5

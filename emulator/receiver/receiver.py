@@ -46,20 +46,33 @@ class Receiver:
         # Each receiver draws noise from its own stream of the scene seed; pulse trains
         # belong to the transmitters, so every receiver hears the same ones.
         self.noise = NoiseEffect(scene.seed, index) if fx.noise else None
-        self.pulses = PulseEffect(fx.pulses, self.ids, scene.seed) if fx.pulses and len(self.ids) else None
         self.quantize = QuantizeEffect(fx.quantize) if fx.quantize else None
+        self.next_k = 0
+        #: The receiver's pose over time: the scene's, or a pose pinned over the control
+        #: channel (assign a Trajectory; epochs rendered after that use it).
+        self.trajectory = self.spec.trajectory
+        self.set_transmitters(self.ids, [tx.trajectory for tx in scene.transmitters])
+
+    def set_transmitters(self, ids, trajectories) -> None:
+        """Replace the transmitters heard from the next epoch rendered on (the live control
+        channel adds, moves, silences and removes them). ``ids`` (M,) distinct, ascending
+        or not; ``trajectories`` their poses over time, in the same order."""
+        self.ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        self._tx_traj = list(trajectories)
+        fx = self.scene.effects
+        # Pulse timings are a pure function of (seed, id, time): rebuilding keeps every
+        # transmitter's train where it was.
+        self.pulses = PulseEffect(fx.pulses, self.ids, self.scene.seed) if fx.pulses and len(self.ids) else None
         self._before_selection: list[Callable[[np.ndarray, Measurement], None]] = []
         self._after_selection: list[Callable[[Epochs], None]] = []
         if self.pulses is not None:
             self._before_selection.append(self._apply_pulses)
         if self.quantize is not None:
             self._after_selection.append(self._apply_quantize)
-        self.next_k = 0
-        txs = scene.transmitters
-        self._static_tx = all(tx.trajectory.is_static for tx in txs)
-        if self._static_tx and txs:
-            self._tx_pos = np.stack([tx.trajectory.positions[0] for tx in txs])
-            self._tx_quat = np.stack([tx.trajectory.orientations[0] for tx in txs])
+        self._static_tx = all(tr.is_static for tr in self._tx_traj)
+        if self._static_tx and self._tx_traj:
+            self._tx_pos = np.stack([tr.positions[0] for tr in self._tx_traj])
+            self._tx_quat = np.stack([tr.orientations[0] for tr in self._tx_traj])
 
     def next_batch(self, count: int) -> EpochBatch:
         k0 = self.next_k
@@ -71,7 +84,7 @@ class Receiver:
         """Channel-selected epochs at scene times ``t`` (draws noise if enabled)."""
         if len(self.ids) == 0:
             return self.evaluate_poses(t, None, None)
-        rx_pos, rx_quat = self.spec.trajectory.at(t)
+        rx_pos, rx_quat = self.trajectory.at(t)
         return self.evaluate_poses(t, rx_pos, rx_quat)
 
     def evaluate_poses(self, t: np.ndarray, rx_pos, rx_quat) -> Epochs:
@@ -85,7 +98,7 @@ class Receiver:
         if self._static_tx:
             tx_pos, tx_quat = self._tx_pos, self._tx_quat
         else:
-            poses = [tx.trajectory.at(t) for tx in self.scene.transmitters]
+            poses = [tr.at(t) for tr in self._tx_traj]
             tx_pos = np.stack([p for p, _ in poses], axis=1)
             tx_quat = np.stack([q for _, q in poses], axis=1)
         noise = self.noise.draw(n, m) if self.noise is not None else None

@@ -101,4 +101,6 @@ def ground_truth_streams(scene: Scene) -> list[Stream]:
             # One error stream per ground-truth stream, after the receivers' noise streams.
             error = GroundTruthError(fx, scene.seed, stream=1000 + len(streams)) if fx is not None else None
             streams.append(cls(scene, dev.trajectory, label, error))
+            # Which device it rides on, so a live change of that device's pose reaches it.
+            streams[-1].carrier = ("tx" if name.startswith("tx") else "rx", dev.id)
     return streams
