@@ -18,12 +18,18 @@ at the stream's next write (the next epoch rendered):
 * ``corrupt`` (``count``): the next ``count`` bytes written are each XOR-ed with
   :data:`CORRUPT_XOR` (so each one changes, and a decoder sees bad checksums).
 
+With ``--capture DIR`` every byte handed to the port (after these faults, before the
+scene's ``link_faults`` and before a full buffer drops any) is also appended to
+``DIR/<stream>.bytes`` (``:`` in a label becomes ``-``), unbuffered, so a test harness
+can save what a device under test was sent.
+
 Nothing is wrapped without ``--control``, so without a control channel this costs nothing.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import BinaryIO
 
 from firmware_proto.errors import LinkError
 
@@ -38,9 +44,11 @@ CORRUPT_XOR = 0x55
 class ControlledPort(Port):
     """A port that takes faults from the control channel (see the module docstring)."""
 
-    def __init__(self, port: Port, clock: Callable[[], float]) -> None:
+    def __init__(self, port: Port, clock: Callable[[], float], capture: BinaryIO | None = None) -> None:
         super().__init__(port.label)
         self.inner = port
+        #: Receives a copy of every byte handed to the port (``--capture``).
+        self.capture = capture
         self._clock = clock
         self._disconnect_s: float | None = None  # asked for, starts at the next write
         self._down_until: float | None = None
@@ -105,6 +113,8 @@ class ControlledPort(Port):
             n += held
         if self._corrupt_left:
             data = self._corrupt(data)
+        if self.capture is not None:
+            self.capture.write(data)
         return self._account(n, self.inner.write(data))
 
     def _corrupt(self, data: bytes) -> bytes:
@@ -136,6 +146,8 @@ class ControlledPort(Port):
 
     def close(self, *args, **kwargs) -> None:
         self.inner.close(*args, **kwargs)
+        if self.capture is not None:
+            self.capture.close()
 
     def __getattr__(self, name: str):
         # pending(), link, counters of the wrapped port read through.

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import threading
 from collections.abc import Callable
+from pathlib import Path
 
 from firmware_proto.errors import InputError
 
@@ -49,6 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(loopback only; port 0 picks one); announced as 'control ADDRESS'",
     )
     g.add_argument(
+        "--capture",
+        type=Path,
+        metavar="DIR",
+        help="with --control: append every byte sent on each stream to DIR/<stream>.bytes (test artefacts)",
+    )
+    g.add_argument(
         "--control-any-host",
         action="store_true",
         help="allow a non-loopback HOST in --control tcp:HOST:PORT (anyone who can reach it controls the emulator)",
@@ -61,6 +68,11 @@ def wanted(args: argparse.Namespace) -> bool:
         raise InputError("--clock step: nothing would ever be emitted without --control ADDRESS to send 'step'")
     if args.control_any_host and args.control is None:
         raise InputError("--control-any-host: given without --control")
+    if args.capture is not None:
+        if args.control is None:
+            raise InputError("--capture: given without --control")
+        if not args.capture.is_dir():
+            raise InputError(f"--capture {args.capture}: not a directory")
     return args.control is not None
 
 
@@ -81,7 +93,10 @@ class ControlSession:
         self.stop = stop
         ports: dict[str, ControlledPort] = {}
         for r in routes:
-            r.port = ports[r.stream.label] = ControlledPort(r.port, scene_clock)
+            capture = None
+            if args.capture is not None:
+                capture = open(args.capture / (r.stream.label.replace(":", "-") + ".bytes"), "ab", buffering=0)
+            r.port = ports[r.stream.label] = ControlledPort(r.port, scene_clock, capture)
         self.live = LiveScene(scene, [r.stream for r in routes])
         self.controller = Controller(scheduler, self.live, self.clock, ports)
         self.server = ControlServer(args.control, self.controller.handle, self._quit, any_host=args.control_any_host)

@@ -1,0 +1,60 @@
+"""The pytest plugin as a firmware team meets it: a test file in a folder outside this
+repository, run by pytest in a subprocess with only the installed package (the plugin
+comes from the ``pytest11`` entry point, nothing from our conftest or sys.path)."""
+
+import os
+import re
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+HERE = Path(__file__).parent
+
+FAILING = '''
+def test_fails_after_two_epochs(arva_emulator):
+    emu = arva_emulator(scene={"spec": 1, "seed": 5, "transmitters": [{"id": 1, "position": [20.0, 5.0, 0.0]}],
+                               "receiver": {"position": [0.0, 0.0, 0.0]}})
+    emu.step(2)
+    assert False, "the device under test misbehaved"
+'''
+
+
+def run_pytest(folder: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTEST_ADDOPTS", "PYTEST_PLUGINS")}
+    return subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--rootdir", str(folder), *args],
+        cwd=folder, env=env, capture_output=True, text=True, timeout=170,
+    )
+
+
+@pytest.mark.timeout(180)
+def test_step_session_outside_the_repository(tmp_path):
+    (tmp_path / "test_step_session.py").write_text((HERE / "outside" / "step_session.py").read_text())
+    junit = tmp_path / "junit.xml"
+    result = run_pytest(tmp_path, f"--junitxml={junit}", f"--basetemp={tmp_path / 'bt'}")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "1 passed" in result.stdout
+    props = {p.get("name"): p.get("value") for p in ET.parse(junit).iter("property")}
+    assert props["arva_seed"] == "11"
+    assert props["arva_scene"].endswith(".toml") and Path(props["arva_scene"]).name.startswith("scene-")
+    # A passing test leaves no artefacts behind.
+    assert not list((tmp_path / "bt").rglob("control.jsonl"))
+
+
+@pytest.mark.timeout(120)
+def test_a_failing_test_keeps_the_streams_and_the_transcript(tmp_path):
+    (tmp_path / "test_fails.py").write_text(FAILING)
+    result = run_pytest(tmp_path, f"--basetemp={tmp_path / 'bt'}")
+    assert result.returncode == 1
+    out = result.stdout
+    assert "arva emulator artefacts" in out, out
+    folder = Path(re.search(r"kept in:\n(\S+)", out).group(1))
+    assert folder.is_dir() and folder.parent.parent == tmp_path / "bt"
+    assert (folder / "streams" / "arva.bytes").read_bytes() == b"$PARVA,0,1,1,1,1905,21*5B\r\n$PARVA,1,1,1,1,1905,21*5A\r\n"
+    transcript = (folder / "control.jsonl").read_text().splitlines()
+    ops = [line.split(" ", 2)[1:] for line in transcript]
+    assert ops[:4] == [[">", '{"op": "status"}'], ["<", ops[1][1]], [">", '{"op": "step", "n": 2}'], ["<", '{"ok": true, "epoch": 2}']]
+    assert ops[-2] == [">", '{"op": "quit"}']  # teardown stopped it
