@@ -59,6 +59,27 @@ class Route:
     def done(self) -> bool:
         return self.end_k is not None and self.next_k >= self.end_k
 
+    @property
+    def t_next(self) -> float:
+        """Scene time (s) of the next epoch to write."""
+        return self.next_k / self.stream.rate_hz
+
+    def send(self, count: int, clock: SceneClock) -> None:
+        """Render the next ``count`` epochs and write them, with ``clock`` at the scene
+        time of what is written. One write for them all, or one per epoch when the port's
+        faults depend on the scene time (outages): bytes are the same either way."""
+        if count <= 0:
+            return
+        if getattr(self.port, "time_dependent", False):
+            for _ in range(count):
+                clock.t = self.t_next
+                self.port.write(self.stream.render(self.next_k, 1))
+                self.next_k += 1
+            return
+        clock.t = self.t_next
+        self.port.write(self.stream.render(self.next_k, count))
+        self.next_k += count
+
 
 class EpochScheduler:
     """Runs routes until ``frames`` epochs of the first stream were sent, or :meth:`stop`.
@@ -134,9 +155,7 @@ class EpochScheduler:
                 k_hi = math.ceil(t_end * r.stream.rate_hz)
                 if r.end_k is not None:
                     k_hi = min(k_hi, r.end_k)
-                if k_hi > r.next_k:
-                    self._write(r, r.stream.render(r.next_k, k_hi - r.next_k))
-                    r.next_k = k_hi
+                r.send(k_hi - r.next_k, self.scene_clock)
             if self.status is not None and self.clock() >= next_status:
                 self.status(self.routes)
                 next_status += 0.5
