@@ -14,7 +14,6 @@ import os
 import signal
 import sys
 import threading
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,11 +21,10 @@ from firmware_proto.errors import InputError, LinkError, SceneError
 
 from emulator import __version__
 from emulator.control import runtime as control_runtime
-from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
+from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, baud_rate, is_file_spec
 from emulator.scene.reader import default_scene, load_scene
-from emulator.output.link_faults import FaultyPort
-from emulator.output.scheduler import EpochScheduler, Route, SceneClock, status_printer, summary_line
-from emulator.output.streams import scene_streams
+from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
+from emulator.pipeline import Pipeline
 
 log = logging.getLogger("arva-emulate")
 
@@ -71,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
         default="-",
         metavar="PORT",
         help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
-        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL",
+        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
+        "or any other path: a file to write",
     )
     p.add_argument(
         "--stream",
@@ -79,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="LABEL=PORT",
-        help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port",
+        help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
+        "(as --port: -, pty, a device, a URL or a file)",
     )
     p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
     p.add_argument("--frames", type=_non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
@@ -156,54 +156,54 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
     if spec == "pty":
         link = None
         if args.link is not None:
-            if not args.link.is_dir():
-                raise InputError(f"--link {args.link}: not a directory")
+            try:
+                args.link.mkdir(parents=True, exist_ok=True)  # a fresh machine has no DIR yet
+            except FileExistsError:
+                raise InputError(f"--link {args.link}: not a directory") from None
+            except OSError as exc:
+                raise InputError(f"--link {args.link}: cannot create: {exc.strerror or exc}") from None
             link = args.link / label.replace(":", "-")
         return PtyPort(label, link)
+    if is_file_spec(spec):
+        return FilePort(label, spec)
     return SerialPort(label, spec, _serial_options(args, spec))
 
 
 def run(args: argparse.Namespace) -> int:
     with_control = control_runtime.wanted(args)
     scene = load_scene(args.scene) if args.scene else default_scene()
-    streams = scene_streams(scene)
-    specs = assign_ports([s.label for s in streams], args.port, args.stream)
+    pipe = Pipeline(scene)
+    specs = assign_ports(pipe.labels, args.port, args.stream)
     stop = threading.Event()
     _stop_on_signals(stop)
-    scene_clock = SceneClock()
     # Pty announcements go to stdout, unless a stream's data does (--stream arva=-).
     announce_to = sys.stderr if "-" in specs.values() else sys.stdout
     announce = _announcer(announce_to)
-    routes: list[Route] = []
+    ports: dict[str, Port] = {}
     try:
-        for i, stream in enumerate(streams):
-            port = open_port(stream.label, specs[stream.label], args)
-            routes.append(Route(stream, port))
+        for label in pipe.labels:
+            port = ports[label] = open_port(label, specs[label], args)
             if isinstance(port, PtyPort):
                 # Announced before any data, flushed at once: a test harness or a human
                 # reads the path from here and opens it (again after a simulated unplug).
                 port.on_reconnect = announce
                 announce(port)
-            # Under the step clock a scene's link-fault stalls cost no wall time.
-            speed = args.speed if args.clock == "real" else 0
-            routes[-1].port = _with_link_faults(scene, port, i, speed, scene_clock)
+        # Under the step clock a scene's link-fault stalls cost no wall time.
+        routes = pipe.bind(ports, args.speed if args.clock == "real" else 0)
         real = args.clock == "real"
         status = status_printer() if sys.stderr.isatty() and args.speed != 0 and real else None
-        lf = scene.effects.link_faults
         scheduler = EpochScheduler(
             routes,
             args.speed,
             args.frames,
             status=status,
             stop_event=stop,
-            scene_clock=scene_clock,
-            # Outages are scheduled in scene time: render epoch by epoch so they land
-            # on the right epochs even as fast as possible.
-            fast_batch=1 if lf is not None and lf.disconnect_every_s > 0 else None,
+            scene_clock=pipe.clock,
+            fast_batch=pipe.fast_batch,
         )
         control = None
         if with_control:
-            control = control_runtime.ControlSession(args, scene, routes, scheduler, scene_clock, stop)
+            control = control_runtime.ControlSession(args, pipe, scheduler, stop)
             control.start(lambda line: print(line, file=announce_to, flush=True))
         try:
             scheduler.wait(args.delay)
@@ -215,8 +215,9 @@ def run(args: argparse.Namespace) -> int:
                 sys.stderr.write("\r\x1b[K")
             print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
     finally:
-        for r in routes:
-            r.port.close()
+        for port in ports.values():
+            port.close()
+        pipe.close_sources()
     return 0
 
 
@@ -225,17 +226,6 @@ def _announcer(stream):
         print(f"{port.label} {port.path}", file=stream, flush=True)
 
     return announce
-
-
-def _with_link_faults(scene, port: Port, index: int, speed: float, clock: SceneClock) -> Port:
-    """Wrap ``port`` in the scene's link faults if they apply to its stream."""
-    fx = scene.effects
-    if fx.link_faults is None or (fx.link_fault_streams and port.label not in fx.link_fault_streams):
-        return port
-    # Stalls and split gaps are real pauses in real time; as fast as possible they
-    # cost nothing (the bytes still split and stall counters still count).
-    sleep = time.sleep if speed > 0 else (lambda _s: None)
-    return FaultyPort(port, fx.link_faults, scene.seed, stream=index, sleep=sleep, clock=clock)
 
 
 def _stop_on_signals(stop: threading.Event) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 from emulator.receiver.receiver import Receiver
 from emulator.scene.reader import default_scene, loads_scene
-from emulator.output.streams import scene_streams
+from emulator.pipeline import scene_streams
 from firmware_proto.errors import SceneError
 
 PAPER = (

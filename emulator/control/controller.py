@@ -1,19 +1,34 @@
 """Serves control requests (BRIEF 9) against a running emulator: the scheduler (clock,
-epochs, pause), the live scene (transmitters, receivers) and the streams' fault ports.
+epoch index, pause) and the :class:`~emulator.pipeline.Pipeline` (transmitters,
+receiver pins, faults on demand, the step clock's :meth:`~emulator.pipeline.Pipeline.step`).
 
 :meth:`Controller.handle` takes a parsed request and returns the reply object. It holds
 the scheduler's lock while it works, so a change lands between two epochs and takes
 effect from the next epoch rendered, whose index the reply carries (``epoch``). Errors
-are :class:`~emulator.control.requests.ControlError` and change nothing: every check is
-made before the first change.
+raise :class:`~emulator.control.requests.ControlError` and change nothing: requests
+are validated when parsed, and the pipeline checks before it changes anything.
+
+Semantics of the changes (BRIEF 9): ``set_transmitter`` pins a transmitter at the pose
+given (fields not given keep their value at the next epoch), ``enabled: false`` leaves
+it out of every receiver's channel selection (its slot frees); an unknown id adds one
+(it has no ground-truth streams: those are fixed at start). ``remove_transmitter``
+takes it out of every receiver (its ground-truth streams, if any, keep its last pose).
+``set_receiver`` pins a receiver (its ground-truth streams follow), ``path: resume``
+hands it back to its scene path at the scene time of the next epoch; a receiver on a
+vehicle cannot be pinned. ``fault``: see :meth:`emulator.pipeline.Pipeline.fault`; the
+fault starts at the scene time of the stream's next epoch.
 """
 
 from __future__ import annotations
 
-from emulator.output.scheduler import EpochScheduler
+import numpy as np
 
-from emulator.control.faults import ControlledPort
-from emulator.control.live import LiveScene
+from firmware_proto.errors import InputError
+
+from emulator.closed_loop.loop import ClosedLoop
+from emulator.output.scheduler import FAST_DRAIN_WAIT, EpochScheduler
+from emulator.pipeline import Pipeline
+
 from emulator.control.requests import (
     ControlError,
     Fault,
@@ -33,28 +48,26 @@ CLOCKS = ("real", "step")
 
 
 class Controller:
-    """``clock`` is ``"step"`` or ``"real"``; ``ports`` maps stream label -> its
-    :class:`ControlledPort`. ``quit`` only replies: the server ends the run once the
-    reply is sent (its ``on_quit``)."""
+    """``clock`` is ``"step"`` or ``"real"``. ``quit`` only replies: the server ends
+    the run once the reply is sent."""
 
-    def __init__(
-        self,
-        scheduler: EpochScheduler,
-        live: LiveScene,
-        clock: str,
-        ports: dict[str, ControlledPort],
-    ) -> None:
+    def __init__(self, scheduler: EpochScheduler, pipe: Pipeline, clock: str) -> None:
         if clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, got {clock!r}")
         self.scheduler = scheduler
-        self.live = live
+        self.pipe = pipe
         self.clock = clock
-        self.ports = ports
         self.rate0 = scheduler.routes[0].stream.rate_hz
+        pipe.stall_hold = clock == "step"
 
     def handle(self, req: Request) -> dict:
         with self.scheduler.lock:
-            return {"ok": True, **self._dispatch(req)}
+            try:
+                return {"ok": True, **self._dispatch(req)}
+            except ControlError:
+                raise
+            except InputError as exc:  # the pipeline's own checks: already one line
+                raise ControlError(str(exc)) from None
 
     def _epoch(self) -> dict:
         return {"epoch": self.scheduler.next_epoch}
@@ -62,8 +75,16 @@ class Controller:
     def _t(self) -> float:
         return self.scheduler.next_epoch / self.rate0
 
+    def _receiver_index(self, rx_id: int | None, op: str) -> int:
+        ids = [rx.id for rx in self.pipe.scene.receivers]
+        if rx_id is None:
+            return 0
+        if rx_id not in ids:
+            raise ControlError(f"{op}: no receiver {rx_id} (ids: {', '.join(map(str, ids))})")
+        return ids.index(rx_id)
+
     def _dispatch(self, req: Request) -> dict:
-        sch = self.scheduler
+        sch, pipe = self.scheduler, self.pipe
         if isinstance(req, Status):
             return {
                 "epoch": sch.next_epoch,
@@ -78,7 +99,9 @@ class Controller:
             left = sch.remaining()
             if left is not None and req.n > left:
                 raise ControlError(f"step: n = {req.n} but only {left} epochs are left (--frames)")
-            sch.step(req.n)
+            for r in sch.routes:
+                r.port.set_drain_wait(FAST_DRAIN_WAIT)  # a reader that keeps up loses nothing
+            pipe.step(req.n)
             return self._epoch()
         if isinstance(req, (Pause, Resume)):
             if self.clock != "real":
@@ -86,34 +109,61 @@ class Controller:
             sch.pause() if isinstance(req, Pause) else sch.resume()
             return self._epoch()
         if isinstance(req, SetTransmitter):
-            self.live.set_transmitter(req, self._t())
+            pipe.set_transmitter(req.id, req.position, req.orientation, req.enabled)
             return self._epoch()
         if isinstance(req, RemoveTransmitter):
-            self.live.remove_transmitter(req.id)
+            if req.id not in pipe.transmitters:
+                known = ", ".join(map(str, sorted(pipe.transmitters))) or "none"
+                raise ControlError(f"remove_transmitter: no transmitter {req.id} (ids: {known})")
+            pipe.remove_transmitter(req.id)
             return self._epoch()
         if isinstance(req, SetReceiver):
-            self.live.set_receiver(req, self._t())
+            index = self._receiver_index(req.id, "set_receiver")
+            if req.resume_path:
+                pipe.release_receiver(index)
+            else:
+                pipe.pin_receiver(index, req.position, req.orientation)
             return self._epoch()
         if isinstance(req, Fault):
-            port = self.ports.get(req.stream)
-            if port is None:
-                raise ControlError(f"fault: no stream {req.stream!r} (streams: {', '.join(self.ports)})")
-            if req.kind == "disconnect":
-                port.disconnect_for(req.seconds)
-            elif req.kind == "stall":
-                port.stall_for(req.ms)
-            else:
-                port.corrupt_next(req.count)
-            sch.fast_batch = 1  # faults are timed per epoch: never batch epochs again
+            if req.stream not in pipe.streams:
+                raise ControlError(f"fault: no stream {req.stream!r} (streams: {', '.join(pipe.streams)})")
+            amount = {"disconnect": req.seconds, "stall": req.ms, "corrupt": req.count}[req.kind]
+            # The fault starts with the stream's next epoch, at its scene time.
+            pipe.clock.t = pipe.route(req.stream).t_next
+            pipe.fault(req.stream, req.kind, amount)
             return self._epoch()
         if isinstance(req, Truth):
-            rxs, txs = self.live.truth(self._t())
-            return {
-                **self._epoch(),
-                "t": self._t(),
-                "receivers": [p.as_dict() for p in rxs],
-                "transmitters": [p.as_dict() for p in txs],
-            }
+            t = self._t()
+            return {**self._epoch(), "t": t, "receivers": self._receivers(t), "transmitters": self._transmitters(t)}
         if isinstance(req, Quit):
             return {}
         raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
+
+    def _receivers(self, t: float) -> list[dict]:
+        out = []
+        for info in self.pipe.layout:
+            if info.kind != "arva" or info.label not in self.pipe.streams:
+                continue
+            spec = self.pipe.scene.receivers[info.receiver]
+            src = self.pipe.streams[info.label].receiver
+            if isinstance(src, ClosedLoop):
+                if src.uav is not None:  # where the vehicle is now: the next epoch's pose
+                    pos, quat = list(map(float, src.uav.position)), list(map(float, src.uav.orientation))
+                else:
+                    pos, quat = _pose(src.receiver.trajectory, t)
+            else:
+                pos, quat = _pose(src.trajectory, t)
+            out.append({"id": spec.id, "position": pos, "orientation": quat})
+        return out
+
+    def _transmitters(self, t: float) -> list[dict]:
+        return [
+            {"id": tx_id, **dict(zip(("position", "orientation"), _pose(tx.trajectory, t))),
+             "enabled": tx_id not in self.pipe.silenced}
+            for tx_id, tx in sorted(self.pipe.transmitters.items())
+        ]
+
+
+def _pose(trajectory, t: float) -> tuple[list[float], list[float]]:
+    pos, quat = trajectory.at(np.array([t]))
+    return [float(v) for v in pos[0]], [float(v) for v in quat[0]]

@@ -1,10 +1,10 @@
 """Wiring of the step clock and the control channel into ``arva-emulate`` (BRIEF 9).
 
 ``arva-emulate`` adds this module's options (:func:`add_arguments`) and, when either
-``--control`` or ``--clock step`` is given, builds a :class:`ControlSession` around its
-scheduler: every stream's port is wrapped in a
-:class:`~emulator.control.faults.ControlledPort` (faults), the live scene is bound to
-the streams, the socket server starts and ``control ADDRESS`` is announced, and
+``--control`` is given, builds a :class:`ControlSession` around its pipeline and
+scheduler: the socket server starts and ``control ADDRESS`` is announced, requests are
+served by :class:`~emulator.control.controller.Controller`, ``--capture`` copies every
+stream's bytes to files (:mod:`emulator.control.capture`), and
 :meth:`ControlSession.run` replaces the scheduler's own run under the step clock.
 """
 
@@ -17,12 +17,12 @@ from pathlib import Path
 
 from firmware_proto.errors import InputError
 
-from emulator.output.scheduler import EpochScheduler, Route, SceneClock
-from emulator.scene.reader import Scene
+from emulator.output.link_faults import FaultyPort
+from emulator.output.scheduler import EpochScheduler
+from emulator.pipeline import Pipeline
 
+from emulator.control.capture import CapturePort
 from emulator.control.controller import CLOCKS, Controller
-from emulator.control.faults import ControlledPort
-from emulator.control.live import LiveScene
 from emulator.control.server import ControlAddress, ControlServer, control_address
 
 
@@ -79,26 +79,19 @@ def wanted(args: argparse.Namespace) -> bool:
 class ControlSession:
     """The control channel of one run (see the module docstring)."""
 
-    def __init__(
-        self,
-        args: argparse.Namespace,
-        scene: Scene,
-        routes: list[Route],
-        scheduler: EpochScheduler,
-        scene_clock: SceneClock,
-        stop: threading.Event,
-    ) -> None:
+    def __init__(self, args: argparse.Namespace, pipe: Pipeline, scheduler: EpochScheduler, stop: threading.Event) -> None:
         self.clock = args.clock
         self.scheduler = scheduler
         self.stop = stop
-        ports: dict[str, ControlledPort] = {}
-        for r in routes:
-            capture = None
-            if args.capture is not None:
-                capture = open(args.capture / (r.stream.label.replace(":", "-") + ".bytes"), "ab", buffering=0)
-            r.port = ports[r.stream.label] = ControlledPort(r.port, scene_clock, capture)
-        self.live = LiveScene(scene, [r.stream for r in routes])
-        self.controller = Controller(scheduler, self.live, self.clock, ports)
+        if args.capture is not None:
+            for r in pipe.routes:
+                path = args.capture / (r.stream.label.replace(":", "-") + ".bytes")
+                # On the device port, below any link faults: what the device was offered.
+                if isinstance(r.port, FaultyPort):
+                    r.port.inner = CapturePort(r.port.inner, path)
+                else:
+                    r.port = CapturePort(r.port, path)
+        self.controller = Controller(scheduler, pipe, self.clock)
         self.server = ControlServer(args.control, self.controller.handle, self._quit, any_host=args.control_any_host)
 
     def _quit(self) -> None:

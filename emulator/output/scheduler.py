@@ -6,15 +6,13 @@ on the monotonic clock. Deadlines are absolute, so sleep overshoot never accumul
 deadline so only the write happens at the deadline. As fast as possible (``speed == 0``):
 epochs are rendered in batches covering a window of scene time, stream by stream.
 
-Step clock (``arva-emulate --clock step``, BRIEF 9): nothing is emitted on its own;
-:meth:`EpochScheduler.step` renders and writes the next N epochs of the first stream and
-every other stream's epochs up to the same scene time, in scene-time order, and returns
-once they are written. A live control channel changes the scene between epochs; every
-render and write happens under :attr:`EpochScheduler.lock`, which the channel holds while
-it applies a change, so a change takes effect from the next epoch rendered
-(:attr:`EpochScheduler.next_epoch`). :meth:`EpochScheduler.pause` stops the real clock
-emitting (epochs still advance with time and are rendered, then discarded: a resume
-continues with the epoch due then and replays nothing).
+A live control channel (:mod:`emulator.control`) changes the scene between epochs: every
+render and write here happens under :attr:`EpochScheduler.lock`, which the channel holds
+while it applies a change (or steps the step clock, :meth:`emulator.pipeline.Pipeline.step`),
+so a change takes effect from the next epoch rendered (:attr:`EpochScheduler.next_epoch`).
+:meth:`EpochScheduler.pause` stops the real clock emitting: epochs keep their deadlines
+and are rendered, then discarded, so a resume continues with the epoch due then and
+replays nothing (as fast as possible, where nothing is ever due, pause just waits).
 """
 
 from __future__ import annotations
@@ -68,6 +66,27 @@ class Route:
     @property
     def done(self) -> bool:
         return self.end_k is not None and self.next_k >= self.end_k
+
+    @property
+    def t_next(self) -> float:
+        """Scene time (s) of the next epoch to write."""
+        return self.next_k / self.stream.rate_hz
+
+    def send(self, count: int, clock: SceneClock) -> None:
+        """Render the next ``count`` epochs and write them, with ``clock`` at the scene
+        time of what is written. One write for them all, or one per epoch when the port's
+        faults depend on the scene time (outages): bytes are the same either way."""
+        if count <= 0:
+            return
+        if getattr(self.port, "time_dependent", False):
+            for _ in range(count):
+                clock.t = self.t_next
+                self.port.write(self.stream.render(self.next_k, 1))
+                self.next_k += 1
+            return
+        clock.t = self.t_next
+        self.port.write(self.stream.render(self.next_k, count))
+        self.next_k += count
 
 
 class EpochScheduler:
@@ -139,36 +158,6 @@ class EpochScheduler:
         r = self.routes[0]
         return None if r.end_k is None else max(0, r.end_k - r.next_k)
 
-    def step(self, n: int) -> None:
-        """Step clock: render and write the first stream's next ``n`` epochs and every
-        other stream's epochs before the scene time that follows them, in scene-time
-        order (at equal times in route order), and return once all are written."""
-        r0 = self.routes[0]
-        target = r0.next_k + n
-        if r0.end_k is not None:
-            target = min(target, r0.end_k)
-        t_end = target / r0.stream.rate_hz
-        limits = []
-        for r in self.routes:
-            k_hi = target if r is r0 else math.ceil(t_end * r.stream.rate_hz - 1e-9)
-            limits.append(k_hi if r.end_k is None else min(k_hi, r.end_k))
-        with self.lock:
-            for r in self.routes:
-                r.port.set_drain_wait(FAST_DRAIN_WAIT)  # a reader that keeps up loses nothing
-            heap = [(r.next_k / r.stream.rate_hz, i) for i, r in enumerate(self.routes) if r.next_k < limits[i]]
-            heapq.heapify(heap)
-            single = len(heap) == 1
-            batch = self.fast_batch or FAST_BATCH
-            while heap and not self._stop:
-                _, i = heapq.heappop(heap)
-                r = self.routes[i]
-                # One stream alone renders in batches unless faults need epoch-exact times.
-                count = min(batch, limits[i] - r.next_k) if single else 1
-                self._write(r, r.stream.render(r.next_k, count))
-                r.next_k += count
-                if r.next_k < limits[i]:
-                    heapq.heappush(heap, (r.next_k / r.stream.rate_hz, i))
-
     def wait(self, seconds: float) -> None:
         """Sleep ``seconds`` before the first epoch, interruptible by :meth:`stop`."""
         end = self.clock() + seconds
@@ -197,14 +186,14 @@ class EpochScheduler:
         next_status = self.clock() + 0.5
         while not self._stop and not all(r.done for r in self.routes):
             t_end += window
+            while self.paused and not self._stop:  # nothing is due as fast as possible: wait
+                self.sleep(0.01)
             with self.lock:
                 for r in self.routes:
                     k_hi = math.ceil(t_end * r.stream.rate_hz)
                     if r.end_k is not None:
                         k_hi = min(k_hi, r.end_k)
-                    if k_hi > r.next_k:
-                        self._write(r, r.stream.render(r.next_k, k_hi - r.next_k))
-                        r.next_k = k_hi
+                    r.send(k_hi - r.next_k, self.scene_clock)
             if self.status is not None and self.clock() >= next_status:
                 self.status(self.routes)
                 next_status += 0.5

@@ -3,7 +3,7 @@ pipeline and channel selection, producing epochs in order."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,7 +12,8 @@ from emulator.receiver.noise import NoiseEffect
 from emulator.receiver.pulses import PulseEffect
 from emulator.receiver.quantize import QuantizeEffect
 from emulator.receiver.model import ZONE_OUTER, Epochs, Measurement, measure, select_channels
-from emulator.scene.reader import Scene
+from emulator.frames.trajectory import Trajectory
+from emulator.scene.reader import Scene, Transmitter
 
 
 @dataclass
@@ -39,7 +40,6 @@ class Receiver:
         self.scene = scene
         self.spec = scene.receivers[index]
         self.channels = self.spec.channels
-        self.ids = scene.transmitter_ids
         # The field rides along for $PARVH, or when a closed-loop controller needs it.
         self.want_field = scene.effects.research_sentences if want_field is None else want_field
         fx = scene.effects
@@ -47,32 +47,38 @@ class Receiver:
         # belong to the transmitters, so every receiver hears the same ones.
         self.noise = NoiseEffect(scene.seed, index) if fx.noise else None
         self.quantize = QuantizeEffect(fx.quantize) if fx.quantize else None
-        self.next_k = 0
-        #: The receiver's pose over time: the scene's, or a pose pinned over the control
-        #: channel (assign a Trajectory; epochs rendered after that use it).
-        self.trajectory = self.spec.trajectory
-        self.set_transmitters(self.ids, [tx.trajectory for tx in scene.transmitters])
-
-    def set_transmitters(self, ids, trajectories) -> None:
-        """Replace the transmitters heard from the next epoch rendered on (the live control
-        channel adds, moves, silences and removes them). ``ids`` (M,) distinct, ascending
-        or not; ``trajectories`` their poses over time, in the same order."""
-        self.ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-        self._tx_traj = list(trajectories)
-        fx = self.scene.effects
-        # Pulse timings are a pure function of (seed, id, time): rebuilding keeps every
-        # transmitter's train where it was.
-        self.pulses = PulseEffect(fx.pulses, self.ids, self.scene.seed) if fx.pulses and len(self.ids) else None
-        self._before_selection: list[Callable[[np.ndarray, Measurement], None]] = []
         self._after_selection: list[Callable[[Epochs], None]] = []
-        if self.pulses is not None:
-            self._before_selection.append(self._apply_pulses)
         if self.quantize is not None:
             self._after_selection.append(self._apply_quantize)
-        self._static_tx = all(tr.is_static for tr in self._tx_traj)
-        if self._static_tx and self._tx_traj:
-            self._tx_pos = np.stack([tr.positions[0] for tr in self._tx_traj])
-            self._tx_quat = np.stack([tr.orientations[0] for tr in self._tx_traj])
+        self.next_k = 0
+        #: Where the receiver is: the scene trajectory, or a pose pinned by :meth:`pin`.
+        self.trajectory: Trajectory = self.spec.trajectory
+        self.set_transmitters(scene.transmitters)
+
+    def set_transmitters(self, transmitters: Sequence[Transmitter]) -> None:
+        """Hear these transmitters from the next epoch on (ids distinct; any order).
+
+        The scene's transmitters at construction; a control channel may add, move,
+        silence (leave out) or remove them between epochs. Pulse trains depend only on
+        the ids and the seed, so a transmitter keeps its timing across changes.
+        """
+        txs = tuple(sorted(transmitters, key=lambda tx: tx.id))
+        self.transmitters = txs
+        self.ids = np.array([tx.id for tx in txs], dtype=np.int64)
+        fx = self.scene.effects
+        self.pulses = PulseEffect(fx.pulses, self.ids, self.scene.seed) if fx.pulses and len(self.ids) else None
+        self._before_selection: list[Callable[[np.ndarray, Measurement], None]] = []
+        if self.pulses is not None:
+            self._before_selection.append(self._apply_pulses)
+        self._static_tx = all(tx.trajectory.is_static for tx in txs)
+        if self._static_tx and txs:
+            self._tx_pos = np.stack([tx.trajectory.positions[0] for tx in txs])
+            self._tx_quat = np.stack([tx.trajectory.orientations[0] for tx in txs])
+
+    def pin(self, trajectory: Trajectory | None) -> None:
+        """Take poses from ``trajectory`` from the next epoch on (e.g. a static pose a
+        control channel pinned); None hands the receiver back to its scene path."""
+        self.trajectory = self.spec.trajectory if trajectory is None else trajectory
 
     def next_batch(self, count: int) -> EpochBatch:
         k0 = self.next_k
@@ -98,7 +104,7 @@ class Receiver:
         if self._static_tx:
             tx_pos, tx_quat = self._tx_pos, self._tx_quat
         else:
-            poses = [tr.at(t) for tr in self._tx_traj]
+            poses = [tx.trajectory.at(t) for tx in self.transmitters]
             tx_pos = np.stack([p for p, _ in poses], axis=1)
             tx_quat = np.stack([q for _, q in poses], axis=1)
         noise = self.noise.draw(n, m) if self.noise is not None else None

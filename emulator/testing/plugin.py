@@ -13,8 +13,9 @@ Registered by installing the project (entry point group ``pytest11``, name ``arv
 emulator a test started is stopped at teardown, whatever happened. The streams' bytes and
 the control transcript are kept under the test's ``tmp_path`` (folder ``arva-emulator-N``)
 when the test fails, and the failure report names the folder; on success they are
-removed. The scene (path) and its seed are recorded with ``record_property`` (JUnit XML
-``<property>`` elements ``arva_scene``, ``arva_seed``). ``--arva-port DEVICE`` sends the
+removed. The scene (path) and its seed are recorded as test properties, as ``record_property``
+does (JUnit XML ``<property>`` elements ``arva_scene`` and ``arva_seed``; ``_1``, ``_2``
+... for further emulators of the same test). ``--arva-port DEVICE`` sends the
 first receiver's stream to DEVICE (a serial adapter wired to a real device under test)
 instead of a pty. See docs/hil_testing.md.
 
@@ -58,7 +59,7 @@ _ARTEFACTS_KEY = pytest.StashKey[list]()
 
 
 @pytest.fixture
-def arva_emulator(request: pytest.FixtureRequest, tmp_path, record_property):
+def arva_emulator(request: pytest.FixtureRequest, tmp_path):
     """A factory: ``arva_emulator(scene=None, clock="step", speed=1.0)`` -> Emulator."""
     from emulator.testing.harness import Emulator
 
@@ -73,8 +74,10 @@ def arva_emulator(request: pytest.FixtureRequest, tmp_path, record_property):
         emu = Emulator.start(scene, clock=clock, speed=speed, workdir=work, arva_port=device)
         started.append(emu)
         suffix = "" if len(started) == 1 else f"_{len(started) - 1}"
-        record_property(f"arva_scene{suffix}", emu.scene_path or "<embedded default.toml>")
-        record_property(f"arva_seed{suffix}", emu.seed)
+        # What record_property does, without its warning under junit_family xunit2
+        # (pytest's default), which writes these properties all the same.
+        request.node.user_properties.append((f"arva_scene{suffix}", emu.scene_path or "<embedded default.toml>"))
+        request.node.user_properties.append((f"arva_seed{suffix}", emu.seed))
         return emu
 
     yield start

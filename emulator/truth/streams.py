@@ -12,13 +12,14 @@ attitudes get body-side angular noise.
 from __future__ import annotations
 
 import datetime as _dt
+from dataclasses import dataclass
 
 import numpy as np
 
 from emulator.truth.error import GroundTruthError
 from emulator.frames.geodesy import enu_to_geodetic
 from emulator.truth.nmea import gga_sentence, gps_sentences, pashr_from_quaternions, rmc_sentence
-from emulator.scene.reader import Scene
+from emulator.scene.reader import ReceiverSpec, Scene, Transmitter
 from emulator.output.streams import Stream
 from emulator.frames.trajectory import Trajectory
 
@@ -83,24 +84,47 @@ class AttitudeStream(Stream):
         return pashr_from_quaternions([start + _dt.timedelta(seconds=float(x)) for x in t], quat)
 
 
-def ground_truth_streams(scene: Scene) -> list[Stream]:
-    """GPS and attitude streams of every device that asks for them, receivers first.
+@dataclass(frozen=True)
+class TruthCarrier:
+    """One ground-truth stream of the scene: its label, kind (``gps`` / ``attitude``), the
+    device that carries it and the spawn key of its ``ground_truth_error`` draws."""
+
+    label: str
+    kind: str
+    device: ReceiverSpec | Transmitter
+    error_stream: int
+
+
+def ground_truth_carriers(scene: Scene) -> list[TruthCarrier]:
+    """GPS and attitude streams of every device that asks for them, receivers first
+    (GPS streams before attitude streams).
 
     Labels: ``gps`` / ``attitude`` when one device streams that kind, else suffixed
     with the device, ``gps:rx`` (``gps:rx<id>`` with several receivers), ``gps:tx<id>``.
     """
     several_rx = len(scene.receivers) > 1
-    devices = [(f"rx{rx.id}" if several_rx else "rx", rx) for rx in scene.receivers]
+    devices: list[tuple[str, ReceiverSpec | Transmitter]] = [
+        (f"rx{rx.id}" if several_rx else "rx", rx) for rx in scene.receivers
+    ]
     devices += [(f"tx{tx.id}", tx) for tx in scene.transmitters]
-    fx = scene.effects.ground_truth_error
-    streams: list[Stream] = []
-    for kind, cls in (("gps", GpsStream), ("attitude", AttitudeStream)):
+    out: list[TruthCarrier] = []
+    for kind in ("gps", "attitude"):
         carriers = [(name, dev) for name, dev in devices if getattr(dev, kind)]
         for name, dev in carriers:
             label = kind if len(carriers) == 1 else f"{kind}:{name}"
             # One error stream per ground-truth stream, after the receivers' noise streams.
-            error = GroundTruthError(fx, scene.seed, stream=1000 + len(streams)) if fx is not None else None
-            streams.append(cls(scene, dev.trajectory, label, error))
-            # Which device it rides on, so a live change of that device's pose reaches it.
-            streams[-1].carrier = ("tx" if name.startswith("tx") else "rx", dev.id)
-    return streams
+            out.append(TruthCarrier(label, kind, dev, 1000 + len(out)))
+    return out
+
+
+def ground_truth_stream(scene: Scene, carrier: TruthCarrier) -> Stream:
+    """The stream of one carrier (see :func:`ground_truth_carriers`)."""
+    fx = scene.effects.ground_truth_error
+    error = GroundTruthError(fx, scene.seed, stream=carrier.error_stream) if fx is not None else None
+    cls = GpsStream if carrier.kind == "gps" else AttitudeStream
+    return cls(scene, carrier.device.trajectory, carrier.label, error)
+
+
+def ground_truth_streams(scene: Scene) -> list[Stream]:
+    """Every ground-truth stream of the scene, in :func:`ground_truth_carriers` order."""
+    return [ground_truth_stream(scene, c) for c in ground_truth_carriers(scene)]

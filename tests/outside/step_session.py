@@ -85,7 +85,7 @@ def test_step_session(arva_emulator):
         assert truth["receivers"] == [{"id": 1, "position": [1.0, 4.0, 0.0], "orientation": pytest.approx(list(YAW_90))}]
         assert [(t["id"], t["enabled"]) for t in truth["transmitters"]] == [(1, False), (2, True)]
         # A refused request changes nothing.
-        with pytest.raises(ControlReplyError, match="position is required"):
+        with pytest.raises(ControlReplyError, match="new: position required"):
             emu.set_transmitter(3, enabled=True)
         step_and_check()
         # Remove 2, bring 1 back.

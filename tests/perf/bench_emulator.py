@@ -153,7 +153,7 @@ def effect_costs(frames: int) -> list[list[str]]:
     ground-truth error on the GPS stream it perturbs (compared with that stream ideal)."""
     from emulator.output.link_faults import FaultyPort
     from emulator.scene.reader import loads_scene
-    from emulator.output.streams import scene_streams
+    from emulator.pipeline import scene_streams
 
     base = DEFAULT.replace('name = "paper-case-study"\n', "")
     rows = []
