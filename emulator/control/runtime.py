@@ -23,7 +23,7 @@ from emulator.pipeline import Pipeline
 
 from emulator.control.capture import CapturePort
 from emulator.control.controller import CLOCKS, Controller
-from emulator.control.server import ControlAddress, ControlServer, control_address
+from emulator.control.server import ControlAddress, ControlServer, check_host, control_address
 
 
 def _address(text: str) -> ControlAddress:
@@ -68,6 +68,8 @@ def wanted(args: argparse.Namespace) -> bool:
         raise InputError("--clock step: nothing would ever be emitted without --control ADDRESS to send 'step'")
     if args.control_any_host and args.control is None:
         raise InputError("--control-any-host: given without --control")
+    if args.control is not None:
+        check_host(args.control, args.control_any_host)  # before any port is opened
     if args.capture is not None:
         if args.control is None:
             raise InputError("--capture: given without --control")

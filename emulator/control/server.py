@@ -89,6 +89,15 @@ def is_loopback(host: str) -> bool:
     return bool(infos) and all(ipaddress.ip_address(i[4][0].split("%")[0]).is_loopback for i in infos)
 
 
+def check_host(address: ControlAddress, any_host: bool) -> None:
+    """InputError unless ``address`` is unix, loopback TCP, or ``any_host`` allows any."""
+    if address.kind == "tcp" and not any_host and not is_loopback(address.host):
+        raise InputError(
+            f"--control {address}: {address.host} is not a loopback address "
+            "(the channel has no authentication; add --control-any-host to serve other hosts)"
+        )
+
+
 class _Client:
     def __init__(self, sock: socket.socket) -> None:
         self.sock = sock
@@ -134,11 +143,7 @@ class ControlServer:
             sock = self._bind_unix(a.path)
             bound = a
         else:
-            if not self.any_host and not is_loopback(a.host):
-                raise InputError(
-                    f"--control {a}: {a.host} is not a loopback address "
-                    "(the channel has no authentication; add --control-any-host to serve other hosts)"
-                )
+            check_host(a, self.any_host)
             try:
                 infos = socket.getaddrinfo(a.host, a.port, type=socket.SOCK_STREAM)
             except OSError as exc:

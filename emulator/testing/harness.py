@@ -151,6 +151,8 @@ class EmulatorProcess:
         )
         self.ports: dict[str, str] = {}
         self.control: str | None = None
+        #: Every announcement line so far (a pty re-created after an unplug is announced again).
+        self.announcements: list[str] = []
         self._err = bytearray()
         self._announced = threading.Condition()
         self._readers = [
@@ -180,6 +182,7 @@ class EmulatorProcess:
             line = raw.decode("utf-8", "replace").strip()
             label, _, rest = line.partition(" ")
             with self._announced:
+                self.announcements.append(line)
                 if label == "control":
                     self.control = rest
                 elif rest:
