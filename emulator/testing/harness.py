@@ -189,6 +189,17 @@ class EmulatorProcess:
                     self.ports[label] = rest
                 self._announced.notify_all()
 
+    def wait_announcement(self, count: int, timeout: float = 10.0) -> str:
+        """The ``count``-th announcement line (1-based), waiting up to ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        with self._announced:
+            while len(self.announcements) < count:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise EmulatorError(f"no announcement #{count} within {timeout} s: {self.announcements}")
+                self._announced.wait(left)
+            return self.announcements[count - 1]
+
     def _read_stderr(self) -> None:
         for chunk in iter(lambda: self.proc.stderr.read(4096), b""):
             self._err += chunk
