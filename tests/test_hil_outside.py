@@ -30,14 +30,23 @@ def run_pytest(folder: Path, *args: str) -> subprocess.CompletedProcess:
     )
 
 
+def readme_example() -> str:
+    """The README's pytest example, verbatim."""
+    text = (HERE.parent / "README.md").read_text()
+    section = text[text.index("## Testing your code against the emulator"):]
+    return section.split("```python\n", 1)[1].split("```", 1)[0]
+
+
 @pytest.mark.timeout(180)
 def test_step_session_outside_the_repository(tmp_path):
     (tmp_path / "test_step_session.py").write_text((HERE / "outside" / "step_session.py").read_text())
+    (tmp_path / "test_readme.py").write_text(readme_example())
     junit = tmp_path / "junit.xml"
     result = run_pytest(tmp_path, f"--junitxml={junit}", f"--basetemp={tmp_path / 'bt'}")
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "1 passed" in result.stdout
-    props = {p.get("name"): p.get("value") for p in ET.parse(junit).iter("property")}
+    assert "2 passed" in result.stdout
+    (case,) = [c for c in ET.parse(junit).iter("testcase") if c.get("name") == "test_step_session"]
+    props = {p.get("name"): p.get("value") for p in case.iter("property")}
     assert props["arva_seed"] == "11"
     assert props["arva_scene"].endswith(".toml") and Path(props["arva_scene"]).name.startswith("scene-")
     # A passing test leaves no artefacts behind.
