@@ -67,3 +67,41 @@ def test_a_failing_test_keeps_the_streams_and_the_transcript(tmp_path):
     ops = [line.split(" ", 2)[1:] for line in transcript]
     assert ops[:4] == [[">", '{"op": "status"}'], ["<", ops[1][1]], [">", '{"op": "step", "n": 2}'], ["<", '{"ok": true, "epoch": 2}']]
     assert ops[-2] == [">", '{"op": "quit"}']  # teardown stopped it
+
+
+ON_A_BENCH = '''
+import os
+
+def test_on_the_bench(arva_emulator):
+    emu = arva_emulator(scene={"spec": 1, "transmitters": [{"id": 1, "position": [20.0, 5.0, 0.0]}],
+                               "receiver": {"position": [0.0, 0.0, 0.0]}})
+    assert emu.port == os.environ["DEVICE"]
+    assert emu.step(2) == 2
+    emu.fault("disconnect", seconds=1.0)  # a serial device cannot vanish: the bytes are dropped
+    assert emu.step(2) == 4
+'''
+
+
+@pytest.mark.timeout(120)
+def test_arva_port_sends_the_first_receiver_to_a_device(tmp_path, monkeypatch):
+    """--arva-port DEVICE: the stream goes to the device (here one end of a pty pair
+    standing in for a USB-serial adapter), read at the other end."""
+    import select
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    device = os.ttyname(slave)
+    (tmp_path / "test_bench.py").write_text(ON_A_BENCH)
+    monkeypatch.setenv("DEVICE", device)
+    result = run_pytest(tmp_path, f"--arva-port={device}", f"--basetemp={tmp_path / 'bt'}")
+    got = bytearray()
+    while select.select([master], [], [], 0.5)[0]:
+        got += os.read(master, 4096)
+    os.close(master)
+    os.close(slave)
+    assert result.returncode == 0, result.stdout + result.stderr
+    # Epochs 0 and 1, then 2 and 3 lost to the outage [2 s, 3 s) ... epoch 3 at t = 3 s is back.
+    assert bytes(got) == (b"$PARVA,0,1,1,1,1905,21*5B\r\n$PARVA,1,1,1,1,1905,21*5A\r\n"
+                          b"$PARVA,3,1,1,1,1905,21*58\r\n")
