@@ -48,7 +48,7 @@ from emulator.output.ports import Port
 from emulator.output.scheduler import Route, SceneClock
 from emulator.output.streams import ArvaStream, EpochSource, Stream
 from emulator.receiver.receiver import Receiver
-from emulator.scene.reader import Scene, Transmitter
+from emulator.scene.types import Scene, Transmitter
 from emulator.truth.streams import TruthCarrier, ground_truth_carriers, ground_truth_stream
 
 

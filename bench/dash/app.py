@@ -27,7 +27,9 @@ from textual.widgets import Footer, Static
 from emulator.frames.geodesy import Origin
 from firmware_proto.errors import InputError
 
+from ..log import manifest
 from ..logger import DeviceSpec
+from .launch import start_sources
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkStatus, TruthPose
 from .recorder import SessionRecorder
 from .state import LinkView, ReceiverState, TruthState
@@ -142,8 +144,6 @@ class DashApp(App):
         if self._tick:
             self.set_interval(self._tick, self.tick)
         if self.config.start_sources:
-            from .cli import start_sources
-
             self.sources = start_sources(self.config, self.post_message)
 
     # -- messages from the source threads ---------------------------------------------------
@@ -278,8 +278,6 @@ class DashApp(App):
         return path
 
     def _manifest(self) -> dict:
-        from ..log import manifest
-
         args = argparse.Namespace(note=self.config.note, origin=self.config.origin, tx_pose=self.config.tx_poses)
         out = manifest(args, self.config.specs, self.config.argv)
         if self.config.replay is not None:

@@ -35,38 +35,9 @@ import numpy as np
 
 from firmware_proto.errors import MissingExtra
 
-_SQRT_HALF = math.sqrt(0.5)
-_Q_T = (0.0, _SQRT_HALF, _SQRT_HALF, 0.0)  # NED <-> ENU (its own inverse)
-_Q_F = (0.0, 1.0, 0.0, 0.0)  # FLU <-> FRD (its own inverse)
+from emulator.frames.mavlink import attitude_euler_to_flu_enu, frd_ned_to_flu_enu, ned_to_enu
 
-
-def ned_to_enu(v) -> tuple[float, float, float]:
-    """(north, east, down) -> (east, north, up)."""
-    return (float(v[1]), float(v[0]), -float(v[2]))
-
-
-def quat_multiply(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a * b of [w, x, y, z] quaternions."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-def frd_ned_to_flu_enu(q_ned_frd) -> tuple[float, float, float, float]:
-    """ATTITUDE_QUATERNION's [q1, q2, q3, q4] (FRD -> NED) as our [w, x, y, z] (FLU -> ENU),
-    normalised, with w >= 0."""
-    q = quat_multiply(quat_multiply(_Q_T, tuple(float(c) for c in q_ned_frd)), _Q_F)
-    n = math.sqrt(sum(c * c for c in q))
-    if not n > 1e-9 or not math.isfinite(n):
-        raise ValueError(f"ATTITUDE_QUATERNION: degenerate quaternion {list(q_ned_frd)}")
-    s = 1.0 / n if q[0] >= 0 else -1.0 / n
-    return tuple(c * s for c in q)
-
+__all__ = ["MavlinkPoseSource", "Pose", "attitude_euler_to_flu_enu", "frd_ned_to_flu_enu", "ned_to_enu", "pose_arrays"]
 
 @dataclass(frozen=True)
 class Pose:

@@ -19,7 +19,7 @@ import numpy as np
 from emulator.truth.error import GroundTruthError
 from emulator.frames.geodesy import enu_to_geodetic
 from emulator.truth.nmea import gga_sentence, gps_sentences, pashr_from_quaternions, rmc_sentence
-from emulator.scene.reader import ReceiverSpec, Scene, Transmitter
+from emulator.scene.types import ReceiverSpec, Scene, Transmitter
 from emulator.output.streams import Stream
 from emulator.frames.trajectory import Trajectory
 
