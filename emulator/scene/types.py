@@ -58,8 +58,8 @@ class GroundTruthSpec:
     gps_rate_hz: float = 1.0
     attitude_rate_hz: float = 10.0
     talker: str = "GP"
-    #: Decimals of arc-minutes in GGA/RMC: 5 (1.9 cm) keeps sentences within NMEA's 82
-    #: bytes; 7 (0.2 mm) is u-blox "high precision" NMEA, longer than 82.
+    #: Decimals of arc-minutes in GGA/RMC, 4..7: 5 = 1.9 cm, 7 = 0.2 mm (u-blox "high
+    #: precision" NMEA). Every value keeps the emulated sentences within NMEA's 82 bytes.
     lat_lon_decimals: int = 5
 
 
