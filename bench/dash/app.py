@@ -27,9 +27,7 @@ from textual.widgets import Footer, Static
 from emulator.frames.geodesy import Origin
 from firmware_proto.errors import InputError
 
-from ..log import manifest
 from ..logger import DeviceSpec
-from .launch import start_sources
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkStatus, TruthPose
 from .recorder import SessionRecorder
 from .state import LinkView, ReceiverState, TruthState
@@ -144,6 +142,11 @@ class DashApp(App):
         if self._tick:
             self.set_interval(self._tick, self.tick)
         if self.config.start_sources:
+            # Imported here, once the screen is up: the sources pull in the emulator
+            # (scenes, scipy) for arvaemu:// and scene truth, about a second of imports
+            # the terminal would otherwise wait through. (launch imports nothing of app.)
+            from .launch import start_sources
+
             self.sources = start_sources(self.config, self.post_message)
 
     # -- messages from the source threads ---------------------------------------------------
@@ -278,6 +281,8 @@ class DashApp(App):
         return path
 
     def _manifest(self) -> dict:
+        from ..log import manifest  # only when recording: bench.log imports every transport
+
         args = argparse.Namespace(note=self.config.note, origin=self.config.origin, tx_pose=self.config.tx_poses)
         out = manifest(args, self.config.specs, self.config.argv)
         if self.config.replay is not None:
