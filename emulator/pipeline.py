@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from firmware_proto.errors import InputError, PoseError
+from firmware_proto.sentences import MAX_ID
 
 from emulator.closed_loop.loop import ClosedLoop
 from emulator.frames.rotation import normalize_quaternions
@@ -48,7 +49,7 @@ from emulator.output.ports import Port
 from emulator.output.scheduler import Route, SceneClock
 from emulator.output.streams import ArvaStream, EpochSource, Stream
 from emulator.receiver.receiver import Receiver
-from emulator.scene.reader import Scene, Transmitter
+from emulator.scene.types import Scene, Transmitter
 from emulator.truth.streams import TruthCarrier, ground_truth_carriers, ground_truth_stream
 
 
@@ -260,20 +261,34 @@ class Pipeline:
         enabled: bool | None = None,
     ) -> None:
         """Move, turn, silence or re-enable transmitter ``tx_id``; an unknown id adds one
-        (``position`` required). Takes effect from the next epoch rendered."""
+        (``position`` required). Takes effect from the next epoch rendered.
+
+        A position or orientation given holds the transmitter there (a scene path stops);
+        a field not given keeps its value at the next epoch's time. A silenced transmitter
+        is left out of every receiver's evaluation, so its slot frees. Its ground-truth
+        streams (``gps:tx<id>`` ...) follow the new pose.
+        """
+        if isinstance(tx_id, bool) or not isinstance(tx_id, int) or not 0 <= tx_id <= MAX_ID:
+            raise InputError(f"set_transmitter: id must be an integer in 0..{MAX_ID}, got {tx_id!r}")
+        if enabled is not None and not isinstance(enabled, bool):
+            raise InputError(f"set_transmitter: enabled must be true or false, got {enabled!r}")
         old = self.transmitters.get(tx_id)
         if old is None and position is None:
             raise InputError(f"set_transmitter: transmitter {tx_id} is new: position required")
-        if position is None:
-            pos = old.trajectory.at(np.array([self._t_next()]))[0][0]
-        else:
-            pos = _vector(position, "position")
-        if orientation is None:
-            quat = IDENTITY if old is None else old.trajectory.at(np.array([self._t_next()]))[1][0]
-        else:
-            quat = _quaternion(orientation)
-        base = old if old is not None else Transmitter(tx_id, Trajectory.static(pos, quat))
-        self.transmitters[tx_id] = replace(base, trajectory=Trajectory.static(pos, quat))
+        pos = None if position is None else _vector(position, "position")
+        quat = None if orientation is None else _quaternion(orientation)
+        if pos is not None or quat is not None:
+            if old is not None:
+                cur_p, cur_q = old.trajectory.at(np.array([self._t_next()]))
+                pos = cur_p[0] if pos is None else pos
+                quat = cur_q[0] if quat is None else quat
+            trajectory = Trajectory.static(pos, IDENTITY if quat is None else quat)
+            new = Transmitter(tx_id, trajectory) if old is None else replace(old, trajectory=trajectory)
+            self.transmitters[tx_id] = new
+            for label, info in self.infos.items():
+                dev = info.carrier.device if info.carrier is not None else None
+                if isinstance(dev, Transmitter) and dev.id == tx_id:
+                    self.streams[label].trajectory = trajectory
         if enabled is not None:
             (self.silenced.discard if enabled else self.silenced.add)(tx_id)
         self._push_transmitters()
@@ -353,23 +368,29 @@ class Pipeline:
                 self.streams[label].trajectory = rx.trajectory
 
 
-def _vector(value: Sequence[float], what: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise InputError(f"{what}: expected 3 finite numbers, got {list(value)!r}")
+def _numbers(value, n: int, what: str) -> np.ndarray:
+    """``n`` finite numbers (not booleans), as scene values are checked."""
+    ok = (
+        isinstance(value, (list, tuple, np.ndarray))
+        and len(value) == n
+        and all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in value)
+    )
+    arr = np.asarray(value, dtype=np.float64) if ok else None
+    if arr is None or not np.all(np.isfinite(arr)):
+        raise InputError(f"{what}: expected {n} finite numbers, got {value!r}")
     return arr
 
 
+def _vector(value: Sequence[float], what: str) -> np.ndarray:
+    return _numbers(value, 3, what)
+
+
 def _quaternion(value: Sequence[float]) -> np.ndarray:
+    q = _numbers(value, 4, "orientation")
     try:
-        arr = np.asarray(value, dtype=np.float64)
-        if arr.shape != (4,):
-            raise InputError(f"orientation: expected 4 numbers [w, x, y, z], got {list(value)!r}")
-        return normalize_quaternions(arr, "orientation")
+        return normalize_quaternions(q, "orientation")
     except PoseError as exc:
         raise InputError(str(exc)) from None
-    except (TypeError, ValueError):
-        raise InputError(f"orientation: expected 4 numbers [w, x, y, z], got {value!r}") from None
 
 
 __all__ = [

@@ -106,3 +106,53 @@ def test_faults_on_demand():
         pipe.fault("arva", "melt", 1)
     with pytest.raises(InputError, match="no stream 'gps'"):
         pipe.fault("gps", "stall", 1)
+
+
+TX_GPS = (
+    "spec = 1\n[origin]\nlat = 46.0\nlon = 7.0\n"
+    "[[transmitters]]\nid = 3\ngps = true\nposition = [20.0, 5.0, 0.0]\n"
+    "[receiver]\nposition = [0.0, 0.0, 0.0]\n"
+)
+
+
+def test_a_moved_transmitter_takes_its_gps_along():
+    pipe, ports = bound(TX_GPS)
+    assert pipe.labels == ["arva", "gps"]
+    pipe.set_transmitter(3, position=[1.0, 2.0, 3.0])
+    assert pipe.streams["gps"].trajectory.positions[0].tolist() == [1.0, 2.0, 3.0]
+    pipe.set_transmitter(3, orientation=[0.0, 0.0, 0.0, 2.0])  # turned in place, normalised
+    tr = pipe.streams["gps"].trajectory
+    assert tr.positions[0].tolist() == [1.0, 2.0, 3.0] and tr.orientations[0].tolist() == [0.0, 0.0, 0.0, 1.0]
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda p: p.set_transmitter(1, position=[1.0, "x", 2.0]), r"position: expected 3 finite numbers, got \[1.0, 'x', 2.0\]"),
+        (lambda p: p.set_transmitter(1, position=[True, 0, 0]), "position: expected 3 finite numbers"),
+        (lambda p: p.set_transmitter(1, position=[float("inf"), 0, 0]), "position: expected 3 finite numbers"),
+        (lambda p: p.set_transmitter(1, orientation=[0, 0, 0, 0]), "orientation: quaternion norm 0 is below 1e-09"),
+        (lambda p: p.set_transmitter(1, orientation=[1, 0, 0]), "orientation: expected 4 finite numbers"),
+        (lambda p: p.set_transmitter(1, enabled="yes"), "enabled must be true or false"),
+        (lambda p: p.set_transmitter(-1, position=[0, 0, 0]), r"id must be an integer in 0..\d+, got -1"),
+        (lambda p: p.pin_receiver(3, position=[0, 0, 0]), "no receiver index 3"),
+        (lambda p: p.step(-1), "step: n must be >= 0"),
+    ],
+)
+def test_bad_requests_change_nothing(call, message):
+    pipe, ports = bound(ONE)
+    with pytest.raises(InputError, match=message):
+        call(pipe)
+    pipe.step(1)
+    d1, a1 = measure_one([0, 0, 0], [1, 0, 0, 0], [20.0, 5.0, 0.0])
+    assert bytes(ports["arva"].data) == encode_parva(0, 2, 1, 1, d1, a1) + empty(0, 2)
+
+
+def test_a_vehicle_borne_receiver_cannot_be_pinned():
+    scene = loads_scene(
+        "spec = 1\n[[transmitters]]\nid = 1\nposition = [15.0, 0.0, 0.0]\n"
+        "[receiver]\n[receiver.vehicle]\ncontroller = \"flux\"\n", "v.toml"
+    )
+    pipe = Pipeline(scene)
+    with pytest.raises(InputError, match="receiver 1 rides a vehicle: its pose cannot be pinned"):
+        pipe.pin_receiver(0, position=[0.0, 0.0, 1.0])

@@ -66,7 +66,7 @@ def read_url(url: str) -> bytes:
     return bytes(out)
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(text=scenes(), frames=st.integers(1, 30))
 def test_arva_emulate_and_arvaemu_give_identical_bytes(tmp_path_factory, capsysbinary, text, frames):
     d = tmp_path_factory.mktemp("doors")
@@ -119,3 +119,19 @@ def test_only_the_streams_asked_for_are_built_and_faults_keep_their_stream_index
     whole.step(5)
     route.send(5, part.clock)
     assert mine.data == bufs["arva:9"].data and mine.data != bufs["arva:4"].data
+
+
+def test_closed_loop_receiver_through_both_doors(tmp_path, capsysbinary):
+    """A receiver on a flux-following UAV, noise, quantize and link faults on."""
+    path = tmp_path / "uav.toml"
+    path.write_text(
+        "spec = 1\nseed = 11\n[effects]\nnoise = true\nquantize = true\nresearch_sentences = true\n"
+        "link_faults = true\n[quantize]\nprofile = \"leds5\"\n"
+        "[link_faults]\ncorrupt = 0.01\nloss = 0.01\ndisconnect_every_s = 7.0\ndisconnect_s = 2.0\n"
+        "[[transmitters]]\nid = 1\nposition = [20.0, 5.0, 0.0]\n"
+        "[receiver]\nchannels = 2\n[receiver.vehicle]\ncontroller = \"flux\"\n"
+    )
+    assert main(["--scene", str(path), "--port", "-", "--speed", "0", "--frames", "40"]) == 0
+    cli = capsysbinary.readouterr().out
+    assert cli.count(b"$PARVA") > 40  # most of 80 slots survive the faults
+    assert read_url(f"arvaemu://{path}?speed=0&frames=40") == cli

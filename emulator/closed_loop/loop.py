@@ -32,7 +32,7 @@ import numpy as np
 from emulator.closed_loop.controllers import Controller, Located, Observation, make_controller
 from emulator.receiver.model import Epochs
 from emulator.receiver.receiver import EpochBatch, Receiver
-from emulator.scene.reader import Scene
+from emulator.scene.types import Scene
 from emulator.closed_loop.vehicle import UAV, VehicleSpec
 
 log = logging.getLogger("arva-emulate")

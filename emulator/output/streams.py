@@ -12,8 +12,6 @@ from typing import Protocol
 
 from firmware_proto.sentences import encode_epochs
 
-from emulator.receiver.model import Epochs
-
 
 class Stream:
     """Base class: ``render(k0, count)`` returns the bytes of those epochs, in order."""
@@ -52,7 +50,7 @@ class ArvaStream(Stream):
         if k0 != self.receiver.next_k:
             raise ValueError(f"{self.label}: epochs must be rendered in order ({k0} != {self.receiver.next_k})")
         batch = self.receiver.next_batch(count)
-        ep: Epochs = batch.epochs
+        ep = batch.epochs  # receiver.model.Epochs: ids, d, delta (N, channels), field or None
         return encode_epochs(batch.k0, ep.ids, ep.d, ep.delta, ep.field)
 
     def close(self) -> None:

@@ -13,7 +13,7 @@ from emulator.receiver.pulses import PulseEffect
 from emulator.receiver.quantize import QuantizeEffect
 from emulator.receiver.model import ZONE_OUTER, Epochs, Measurement, measure, select_channels
 from emulator.frames.trajectory import Trajectory
-from emulator.scene.reader import Scene, Transmitter
+from emulator.scene.types import Scene, Transmitter
 
 
 @dataclass

@@ -3,10 +3,14 @@ a receiver or a transmitter, each on its own port, from the device's scene traje
 
 Epoch k of a ground-truth stream is at scene time k / rate and carries the UTC time
 ``ground_truth.start_utc + k / rate``. ENU positions are mapped to WGS-84 through the
-scene's ``[origin]``; velocity (for RMC speed and course) is the central difference of
-the trajectory over 0.1 s. With the ``ground_truth_error`` effect, positions get bias,
-noise and dropouts (a dropped fix is sent as a no-fix RMC + GGA, as a receiver does) and
-attitudes get body-side angular noise.
+scene's ``[origin]``; velocity (for RMC speed and course) is that of the path segment
+being travelled (:meth:`~emulator.frames.trajectory.Trajectory.velocity`: at a waypoint,
+the segment that starts there; zero once the path has ended). GGA carries HDOP and the
+geoid separation in their short form (``0.8``, ``0.0``), so every sentence stays within
+NMEA's 82 characters for every ``lat_lon_decimals`` a scene accepts (4-7; altitudes
+above -10 km and below 1000 km). With the ``ground_truth_error`` effect, positions get
+bias, noise and dropouts (a dropped fix is sent as a no-fix RMC + GGA, as a receiver
+does) and attitudes get body-side angular noise.
 """
 
 from __future__ import annotations
@@ -19,12 +23,9 @@ import numpy as np
 from emulator.truth.error import GroundTruthError
 from emulator.frames.geodesy import enu_to_geodetic
 from emulator.truth.nmea import gga_sentence, gps_sentences, pashr_from_quaternions, rmc_sentence
-from emulator.scene.reader import ReceiverSpec, Scene, Transmitter
+from emulator.scene.types import ReceiverSpec, Scene, Transmitter
 from emulator.output.streams import Stream
 from emulator.frames.trajectory import Trajectory
-
-#: Half the interval of the central difference that gives the GPS velocity (s).
-VELOCITY_HALF_STEP = 0.05
 
 
 class GpsStream(Stream):
@@ -40,9 +41,7 @@ class GpsStream(Stream):
     def render(self, k0: int, count: int) -> bytes:
         t = (k0 + np.arange(count, dtype=np.float64)) / self.rate_hz
         pos, _ = self.trajectory.at(t)
-        ahead, _ = self.trajectory.at(t + VELOCITY_HALF_STEP)
-        behind, _ = self.trajectory.at(t - VELOCITY_HALF_STEP)
-        velocity = (ahead - behind) / (2 * VELOCITY_HALF_STEP)
+        velocity = self.trajectory.velocity(t)
         valid = np.ones(count, dtype=bool)
         if self.error is not None:
             pos, valid = self.error.gps(pos)
@@ -55,7 +54,7 @@ class GpsStream(Stream):
                 out.append(
                     gps_sentences(
                         utc, float(lat[i]), float(lon[i]), float(alt[i]), velocity_enu=velocity[i],
-                        talker=talker, lat_lon_decimals=self.spec.lat_lon_decimals,
+                        talker=talker, lat_lon_decimals=self.spec.lat_lon_decimals, short=True,
                     )
                 )
             else:
