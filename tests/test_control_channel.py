@@ -305,3 +305,14 @@ def test_real_clock_changes_take_effect_from_the_epoch_named(arva_emulator):
         by_seq = {int(line.split(b",")[1]): line for line in lines}
         assert by_seq[k] == parva(k, 917, 0)
         assert by_seq[k - 1] == parva(k - 1) if k - 1 in by_seq else True
+
+
+def test_a_vehicle_borne_receiver_steps_but_cannot_be_pinned(arva_emulator):
+    scene = Path(__file__).parents[1] / "emulator" / "scenes" / "case_study_1.toml"
+    emu = arva_emulator(scene=str(scene), clock="step")
+    start = emu.truth()["receivers"][0]["position"]
+    with pytest.raises(ControlReplyError) as info:
+        emu.set_receiver(position=[0.0, 0.0, 10.0])
+    assert info.value.error == "set_receiver: receiver 1 rides a vehicle: its pose cannot be pinned"
+    emu.step(3)
+    assert emu.truth()["receivers"][0]["position"] != start  # the vehicle flew

@@ -66,8 +66,9 @@ class Controller:
                 return {"ok": True, **self._dispatch(req)}
             except ControlError:
                 raise
-            except InputError as exc:  # the pipeline's own checks: already one line
-                raise ControlError(str(exc)) from None
+            except InputError as exc:  # the pipeline's own checks: one line, named by op
+                text = str(exc)
+                raise ControlError(text if text.startswith(f"{req.op}:") else f"{req.op}: {text}") from None
 
     def _epoch(self) -> dict:
         return {"epoch": self.scheduler.next_epoch}

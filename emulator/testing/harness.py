@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import select
 import signal
 import socket
 import subprocess
@@ -437,12 +436,6 @@ def read_lines(ser, count: int, timeout: float = 10.0) -> list[bytes]:
         if line:
             lines.append(line)
     return lines
-
-
-def readable(fd_or_file, timeout: float) -> bool:
-    """True if a read would not block within ``timeout`` seconds."""
-    ready, _, _ = select.select([fd_or_file], [], [], timeout)
-    return bool(ready)
 
 
 def process_rss_kb(pid: int) -> int:
