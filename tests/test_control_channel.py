@@ -316,3 +316,12 @@ def test_a_vehicle_borne_receiver_steps_but_cannot_be_pinned(arva_emulator):
     assert info.value.error == "set_receiver: receiver 1 rides a vehicle: its pose cannot be pinned"
     emu.step(3)
     assert emu.truth()["receivers"][0]["position"] != start  # the vehicle flew
+
+
+def test_a_bad_scene_is_a_clear_error_from_the_fixture(arva_emulator):
+    from emulator.testing import EmulatorError
+
+    with pytest.raises(EmulatorError) as info:
+        arva_emulator(scene={"spec": 1, "receiver": {"position": [0, 0, 0]}, "colour": "red"})
+    assert str(info.value).startswith("arva-emulate exited with status 2: ")
+    assert str(info.value).endswith(".toml: colour: unknown key")

@@ -29,7 +29,8 @@ import shutil
 
 import pytest
 
-_REPORT_KEY = pytest.StashKey[dict]()
+_REPORT_KEY = pytest.StashKey[dict]()  # the test's reports by phase
+_ARTEFACTS_KEY = pytest.StashKey[list]()  # folders of the emulators it started
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -43,19 +44,17 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
-@pytest.hookimpl(wrapper=True, tryfirst=True)
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
 def pytest_runtest_makereport(item: pytest.Item, call):
-    report = yield
+    outcome = yield
+    report = outcome.get_result()
     item.stash.setdefault(_REPORT_KEY, {})[report.when] = report
     folders = item.stash.get(_ARTEFACTS_KEY, None)
     if report.failed and folders and report.when in ("setup", "call"):
         report.sections.append(
             ("arva emulator artefacts", "streams' bytes and control transcript kept in:\n" + "\n".join(map(str, folders)))
         )
-    return report
 
-
-_ARTEFACTS_KEY = pytest.StashKey[list]()
 
 
 @pytest.fixture
