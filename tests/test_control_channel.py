@@ -325,3 +325,20 @@ def test_a_bad_scene_is_a_clear_error_from_the_fixture(arva_emulator):
         arva_emulator(scene={"spec": 1, "receiver": {"position": [0, 0, 0]}, "colour": "red"})
     assert str(info.value).startswith("arva-emulate exited with status 2: ")
     assert str(info.value).endswith(".toml: colour: unknown key")
+
+
+def test_set_receiver_by_id_pins_that_receiver_only(arva_emulator):
+    scene = {
+        "spec": 1,
+        "transmitters": [{"id": 1, "position": [20.0, 5.0, 0.0]}],
+        "receivers": [{"id": 1, "position": [0.0, 0.0, 0.0]}, {"id": 7, "position": [0.0, 0.0, 0.0]}],
+    }
+    emu = arva_emulator(scene=scene, clock="step")
+    with emu.open("arva:1", timeout=5) as a, emu.open("arva:7", timeout=5) as b:
+        assert emu.set_receiver(position=[10.0, 5.0, 0.0], id=7) == 0
+        emu.step()
+        assert read_lines(a, 1) == [parva(0)]
+        assert read_lines(b, 1) == [parva(0, 917, 0)]  # 10 m on the dipole axis
+        emu.set_receiver(id=7, path="resume")
+        emu.step()
+        assert read_lines(b, 1) == [parva(1)]
