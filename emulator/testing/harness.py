@@ -258,13 +258,16 @@ class Emulator:
         scene_path: str | None,
         seed: int | None,
         artefacts: Path | None = None,
+        cleanup: Sequence[str | Path] = (),
     ) -> None:
         self.process = process
         self.client = client
         self.ports = ports
         self.scene_path = scene_path
         self.seed = seed
+        #: The folder with stream captures, transcript, symlinks (see :meth:`start`).
         self.artefacts = artefacts
+        self._cleanup = list(cleanup)  # folders removed at stop
         self._stopped = False
 
     @classmethod
@@ -281,8 +284,8 @@ class Emulator:
         """Start ``arva-emulate --port pty --control unix:... --clock CLOCK``.
 
         ``scene``: a scene file, a dict with the TOML structure (written to ``workdir``)
-        or None for the embedded default. ``workdir`` (default: a new temporary folder)
-        receives the stream captures (``<stream>.bytes``), the control transcript
+        or None for the embedded default. ``workdir`` (default: a temporary folder,
+        removed by :meth:`stop`) receives the stream captures (``<stream>.bytes``), the control transcript
         (``control.jsonl``) and stable pty symlinks (``pty/<stream>``). ``arva_port``
         sends the first receiver's stream to that device instead of a pty.
         """
@@ -324,9 +327,9 @@ class Emulator:
         for label, path in status["streams"].items():
             link = links / label.replace(":", "-")
             ports[label] = str(link) if path != "-" and os.path.islink(link) else path
-        emu = cls(proc, client, ports, scene_path, seed, work)
-        emu._sock_dir = sock_dir
-        return emu
+        # The socket's folder always goes at stop; a temporary work folder of ours too.
+        cleanup = [sock_dir] + ([work] if workdir is None else [])
+        return cls(proc, client, ports, scene_path, seed, work, cleanup)
 
     # --- the control requests -----------------------------------------------------------
 
@@ -403,7 +406,8 @@ class Emulator:
         finally:
             self.process.kill()
             self.client.close()
-            _remove_dir(getattr(self, "_sock_dir", None))
+            for folder in self._cleanup:
+                _remove_dir(folder)
 
     def __enter__(self) -> "Emulator":
         return self
@@ -416,9 +420,7 @@ def _given(**fields) -> dict:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in fields.items() if v is not None}
 
 
-def _remove_dir(path: str | None) -> None:
-    if path is None:
-        return
+def _remove_dir(path: str | Path) -> None:
     import shutil
 
     shutil.rmtree(path, ignore_errors=True)
