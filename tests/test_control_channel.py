@@ -342,3 +342,21 @@ def test_set_receiver_by_id_pins_that_receiver_only(arva_emulator):
         emu.set_receiver(id=7, path="resume")
         emu.step()
         assert read_lines(b, 1) == [parva(1)]
+
+
+def test_real_clock_stall_holds_bytes_in_scene_time_and_loses_none(arva_emulator):
+    emu = arva_emulator(scene=dict(ONE, rate_hz=10.0), clock="real", speed=1.0)
+    with emu.open(timeout=5) as ser:
+        read_lines(ser, 2)
+        k = emu.fault("stall", ms=600)
+        t_fault = time.monotonic()
+        arrivals = []
+        for _ in range(15):
+            line = read_lines(ser, 1)[0]
+            arrivals.append((time.monotonic(), int(line.split(b",")[1])))
+        assert emu.status()["epoch"] > k  # the channel answered throughout
+    seqs = [s for _, s in arrivals]
+    assert seqs == list(range(seqs[0], seqs[0] + 15))  # in order, none lost
+    # ~0.6 s of silence while the bytes were held, then the held epochs at once.
+    assert arrivals[0][0] - t_fault >= 0.4
+    assert arrivals[4][0] - arrivals[0][0] < 0.05

@@ -58,7 +58,9 @@ class Controller:
         self.pipe = pipe
         self.clock = clock
         self.rate0 = scheduler.routes[0].stream.rate_hz
-        pipe.stall_hold = clock == "step"
+        # A stall asked for holds the stream's bytes in scene time, under both clocks: a
+        # sleep would hold the scheduler (and this channel) for as long as asked.
+        pipe.stall_hold = True
 
     def handle(self, req: Request) -> dict:
         with self.scheduler.lock:
