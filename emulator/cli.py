@@ -26,6 +26,7 @@ from emulator.scene.reader import default_scene, load_scene
 from emulator.output.link_faults import FaultyPort
 from emulator.output.scheduler import EpochScheduler, Route, SceneClock, status_printer, summary_line
 from emulator.output.streams import scene_streams
+from emulator.receiver.profile import profile_table
 
 log = logging.getLogger("arva-emulate")
 
@@ -103,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     serial_opts.add_argument("--stopbits", type=float, choices=(1, 1.5, 2), default=1)
     serial_opts.add_argument("--rtscts", action="store_true", help="hardware flow control")
     serial_opts.add_argument("--xonxoff", action="store_true", help="software flow control")
+    p.add_argument("--list-profiles", action="store_true", help="list the receiver profiles ([receiver] profile) and exit")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return p
@@ -162,6 +164,9 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.list_profiles:
+        sys.stdout.write(profile_table())
+        return 0
     scene = load_scene(args.scene) if args.scene else default_scene()
     streams = scene_streams(scene)
     specs = assign_ports([s.label for s in streams], args.port, args.stream)

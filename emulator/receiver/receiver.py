@@ -47,7 +47,10 @@ class Receiver:
         # belong to the transmitters, so every receiver hears the same ones.
         self.noise = NoiseEffect(scene.seed, index) if fx.noise else None
         self.pulses = PulseEffect(fx.pulses, self.ids, scene.seed) if fx.pulses and len(self.ids) else None
-        self.quantize = QuantizeEffect(fx.quantize) if fx.quantize else None
+        # The receiver's class and constants (its profile and the scene's [model]).
+        self.model = scene.receiver_model(index)
+        display = self.spec.display or fx.quantize  # the profile's display unless the scene sets one
+        self.quantize = QuantizeEffect(display) if display else None
         self._before_selection: list[Callable[[np.ndarray, Measurement], None]] = []
         self._after_selection: list[Callable[[Epochs], None]] = []
         if self.pulses is not None:
@@ -89,7 +92,7 @@ class Receiver:
             tx_pos = np.stack([p for p, _ in poses], axis=1)
             tx_quat = np.stack([q for _, q in poses], axis=1)
         noise = self.noise.draw(n, m) if self.noise is not None else None
-        meas = measure(rx_pos, rx_quat, tx_pos, tx_quat, self.scene.model, noise, self.want_field)
+        meas = measure(rx_pos, rx_quat, tx_pos, tx_quat, self.model, noise, self.want_field)
         for stage in self._before_selection:
             stage(t, meas)
         epochs = select_channels(meas, self.ids, self.channels)
