@@ -115,6 +115,13 @@ class TestTwoAntennaHardCases:
         # Straight above a dipole lying along x the field is horizontal: 2 antennas hear it.
         assert m.zone[3, 0] == ZONE_INNER and m.d[3, 0] == 0
 
+    def test_field_has_no_z_component_with_two_antennas(self):
+        rx = [(2.0, 1.0, 0.5), (0.0, 0.0, 3.0)]
+        m2 = measure(rx, [I, I], [ORIGIN], [VERTICAL], TWO, want_field=True)
+        m3 = measure(rx, [I, I], [ORIGIN], [VERTICAL], THREE, want_field=True)
+        assert m2.field[..., :2].tolist() == m3.field[..., :2].tolist()
+        assert m2.field[..., 2].tolist() == [[0.0], [0.0]] and m3.field[1, 0, 2] > 0
+
     def test_default_is_three_antennas(self):
         assert ModelParams() == THREE
         assert ModelParams().antennas == 3

@@ -111,7 +111,8 @@ class Measurement:
 
     ``d`` in centimetres and ``delta`` in degrees (int64; -1, -1 in the outer zone);
     ``zone`` is ZONE_INNER / ZONE_MID / ZONE_OUTER; ``field`` (N, M, 3), only when asked
-    for, is the receiver-frame field in scene units (saturated at +-FIELD_SATURATION).
+    for, is the receiver-frame field in scene units (saturated at +-FIELD_SATURATION;
+    its z component is 0 for a 2-antenna receiver, which has no z antenna).
     """
 
     d: NDArray[np.int64]
@@ -297,6 +298,8 @@ def _measure_chunk(rx_p, rx_r, tx_p, tx_m, params, noise, d_out, delta_out, zone
                 h = np.where(g == 0.0, 0.0, g * field_scale)
             h[at_tx] = 0.0
             field_out[..., i] = np.clip(h, -FIELD_SATURATION, FIELD_SATURATION)
+        if params.antennas == 2:
+            field_out[..., 2] = 0.0  # no z antenna: a 2-antenna unit cannot report h_z
 
 
 def _add_noise(g0, g1, g2, r, rx_r, noise, params, want_scale):
