@@ -226,3 +226,15 @@ class TestSceneKeys:
         assert s.rate_hz == 4.0
         assert [s.receiver_model(i).antennas for i in range(2)] == [2, 3]
         assert [rx.channels for rx in s.receivers] == [2, 1]
+
+
+def test_shipped_two_antenna_spike_scene():
+    from emulator.scene.reader import load_scene
+    from pathlib import Path
+
+    s = load_scene(Path(__file__).parents[1] / "emulator" / "scenes" / "two_antenna_spike.toml")
+    two, three = (Receiver(s, i).next_batch(13).epochs for i in (0, 1))
+    # x = -1.5 .. 1.5 m in 0.25 m steps over a vertical transmitter 2 m deep.
+    assert two.d[:, 0].tolist() == [260, 250, 240, 250, 270, 330, -1, 330, 270, 250, 240, 250, 260]  # 0.1 m display
+    assert three.d[:, 0].tolist() == [242, 225, 211, 199, 190, 185, 183, 185, 190, 199, 211, 225, 242]
+    assert two.delta[6, 0] == -1 and two.ids[6, 0] == -1  # the spike: no signal above the victim

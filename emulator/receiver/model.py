@@ -185,7 +185,8 @@ def measure(
     Quaternions need not be normalised. ``noise``, when given, is (N, M, 3) points of
     the unit ball in the world frame (see :mod:`emulator.receiver.noise`); they are scaled by
     ``params.w_en`` and mapped by Q R_r^T (BRIEF 3.2). ``noise=None`` is the ideal
-    receiver and costs nothing extra.
+    receiver and costs nothing extra. ``params.antennas`` selects the receiver class
+    (3: BRIEF 3; 2: the horizontal field in every zone, see the module docstring).
     """
     rx_p = as_positions(rx_position, "receiver.position")
     tx_p = as_positions(tx_position, "transmitter.position")
