@@ -238,3 +238,27 @@ def test_shipped_two_antenna_spike_scene():
     assert two.d[:, 0].tolist() == [260, 250, 240, 250, 270, 330, -1, 330, 270, 250, 240, 250, 260]  # 0.1 m display
     assert three.d[:, 0].tolist() == [242, 225, 211, 199, 190, 185, 183, 185, 190, 199, 211, 225, 242]
     assert two.delta[6, 0] == -1 and two.ids[6, 0] == -1  # the spike: no signal above the victim
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_values = st.recursive(
+    st.none().map(lambda _: 0) | st.booleans() | st.integers(-5, 200) | st.floats(allow_nan=True) | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.sampled_from(["q", "r_outer", "profile", "x", "delta_step_deg"]), inner, max_size=3),
+    max_leaves=8,
+)
+_keys = st.sampled_from(sorted(GOOD) + ["moment", "extra"])
+
+
+@settings(max_examples=300, deadline=None)
+@given(changes=st.dictionaries(_keys, _values, max_size=4), drop=st.sets(st.sampled_from(sorted(GOOD)), max_size=2))
+def test_any_document_is_a_profile_or_one_scene_error(changes, drop):
+    data = {k: v for k, v in {**GOOD, **changes}.items() if k not in drop}
+    try:
+        p = parse_profile(data, "t.toml", "t")
+    except SceneError as exc:
+        text = str(exc)
+        assert text.startswith("t.toml: ") and "\n" not in text
+        return
+    assert p.antennas in (2, 3) and 1 <= p.channels <= 99 and p.rate_hz > 0
