@@ -160,7 +160,7 @@ class TestSceneKeys:
                   tables="[model]\nr_outer = 45.0\nkappa_eq = 1.5\n")  # fmt: skip
         assert (s.receiver.channels, s.rate_hz) == (3, 2.0)
         assert s.receiver_model() == ModelParams(kappa_eq=1.5, r_outer=45.0, antennas=3)
-        assert s.model == ModelParams(kappa_eq=1.5, r_outer=45.0)  # the scene-wide [model]
+        assert s.model == s.receiver_model(0)  # the first receiver's
 
     def test_scene_quantize_overrides_the_profile_display(self):
         off = scene('profile = "digital2"', tables="[effects]\nquantize = false\n")
@@ -224,7 +224,7 @@ class TestSceneKeys:
         )
         s = loads_scene(two.format(top="rate_hz = 4.0"), "s.toml")
         assert s.rate_hz == 4.0
-        assert [s.receiver_model(i).antennas for i in range(2)] == [2, 3]
+        assert [s.receiver_model(i).antennas for i in range(2)] == [2, 3] and s.model.antennas == 2
         assert [rx.channels for rx in s.receivers] == [2, 1]
 
 

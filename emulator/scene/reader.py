@@ -104,6 +104,8 @@ class Scene:
     spec: int
     seed: int
     rate_hz: float
+    #: The first receiver's model (its class, profile and the scene's [model]); see
+    #: :meth:`receiver_model` for the others.
     model: ModelParams
     effects: Effects
     transmitters: tuple[Transmitter, ...]
@@ -375,7 +377,8 @@ def parse_scene(data: dict, source: str) -> Scene:
     if effects.ground_truth_error is not None and not any(d.gps or d.attitude for d in (*transmitters, *receivers)):
         raise rd.fail("effects.ground_truth_error", "no device has gps or attitude streams to apply it to")
     return Scene(
-        source, spec, seed, rate_hz, model, effects, tuple(transmitters), receivers, name, origin, ground_truth
+        source, spec, seed, rate_hz, receivers[0].model or model, effects, tuple(transmitters), receivers, name,
+        origin, ground_truth,
     )
 
 
