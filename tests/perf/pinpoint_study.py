@@ -186,7 +186,6 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     plot(result, IMG)
     body = (
-        "### Pinpointing study: the offset of the signal maximum\n\n"
         f"`{SCRIPT}`: {args.orientations} transmitter orientations uniform over the sphere (seed {args.seed}) "
         f"at each burial depth; a level receiver on the surface; the horizontal distance from the victim to "
         f"where d is smallest, as a fraction of the depth (method in the script's docstring). "

@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         f"(3 antennas) and {ro(2, 'located', 100):.1f} % (2 antennas) of the transmitters, in a median "
         f"{ro(3, 't_locate_median_s'):.0f} s and {ro(2, 't_locate_median_s'):.0f} s. With 2 antennas it brackets "
         "the maximum of the horizontal field, which lies off the victim for any tilted transmitter (0 for a "
-        "horizontal, D/2 for a vertical one; [model.md](model.md) sections 8-9): the p90 error goes from "
+        "horizontal, D/2 for a vertical one; [model.md](model.md) sections 8 and 10): the p90 error goes from "
         f"{ro(3, 'error_p90_m'):.2f} m to {ro(2, 'error_p90_m'):.2f} m and the share located within 1 m from "
         f"{ro(3, 'within_1m', 100):.1f} % to {ro(2, 'within_1m', 100):.1f} %.\n"
         "- **flux** and **flux_reverse** (eq. 10 on the field vector) stop where the horizontal field "
