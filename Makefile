@@ -32,7 +32,7 @@ run: $(RUN_STAMP)
 	$(BIN)/arva-emulate --port - --frames 10 --speed 0
 
 test: $(DEV_STAMP)
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q tests docs/examples
 
 # Benchmarks: each script prints its table and rewrites its section of docs/performance.md.
 bench: $(DEV_STAMP)
