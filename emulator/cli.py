@@ -25,6 +25,7 @@ from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPor
 from emulator.scene.reader import default_scene, load_scene
 from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
 from emulator.pipeline import Pipeline
+from emulator.receiver.profile import profile_table
 
 log = logging.getLogger("arva-emulate")
 
@@ -105,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     serial_opts.add_argument("--rtscts", action="store_true", help="hardware flow control")
     serial_opts.add_argument("--xonxoff", action="store_true", help="software flow control")
     control_runtime.add_arguments(p)
+    p.add_argument("--list-profiles", action="store_true", help="list the receiver profiles ([receiver] profile) and exit")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return p
@@ -170,6 +172,9 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.list_profiles:
+        sys.stdout.write(profile_table())
+        return 0
     with_control = control_runtime.wanted(args)
     scene = load_scene(args.scene) if args.scene else default_scene()
     pipe = Pipeline(scene)

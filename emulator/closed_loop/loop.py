@@ -123,7 +123,7 @@ class ClosedLoop:
             self.uav = UAV(
                 spec.terrain, spec.start, spec.height_start, spec.yaw_deg, spec.v_max, spec.v_z_max, spec.range_sigma_m, rng
             )
-            self.controller = make_controller(spec, scene.model)
+            self.controller = make_controller(spec, self.receiver.model)
             self.controller.dt = self.dt
             self.pose_source = None
 

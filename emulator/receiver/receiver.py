@@ -46,7 +46,10 @@ class Receiver:
         # Each receiver draws noise from its own stream of the scene seed; pulse trains
         # belong to the transmitters, so every receiver hears the same ones.
         self.noise = NoiseEffect(scene.seed, index) if fx.noise else None
-        self.quantize = QuantizeEffect(fx.quantize) if fx.quantize else None
+        # The receiver's class and constants (its profile and the scene's [model]).
+        self.model = scene.receiver_model(index)
+        display = self.spec.display or fx.quantize  # the profile's display unless the scene sets one
+        self.quantize = QuantizeEffect(display) if display else None
         self._after_selection: list[Callable[[Epochs], None]] = []
         if self.quantize is not None:
             self._after_selection.append(self._apply_quantize)
@@ -108,7 +111,7 @@ class Receiver:
             tx_pos = np.stack([p for p, _ in poses], axis=1)
             tx_quat = np.stack([q for _, q in poses], axis=1)
         noise = self.noise.draw(n, m) if self.noise is not None else None
-        meas = measure(rx_pos, rx_quat, tx_pos, tx_quat, self.scene.model, noise, self.want_field)
+        meas = measure(rx_pos, rx_quat, tx_pos, tx_quat, self.model, noise, self.want_field)
         for stage in self._before_selection:
             stage(t, meas)
         epochs = select_channels(meas, self.ids, self.channels)

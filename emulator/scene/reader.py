@@ -12,8 +12,10 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import tomllib
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from firmware_proto.errors import InputError, SceneError
 from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
@@ -22,7 +24,8 @@ from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
 from emulator.frames.geodesy import Origin
 from emulator.frames.trajectory import Trajectory
 from emulator.output.link_faults import LinkFaultConfig
-from emulator.receiver.model import ModelParams
+from emulator.receiver.model import ANTENNAS, ModelParams
+from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig
 from emulator.scene.tables import TableReader, type_name
@@ -82,7 +85,7 @@ _EFFECT_CONFIGS = {
     "ground_truth_error": GroundTruthErrorConfig,
     "link_faults": LinkFaultConfig,
 }
-_RX_KEYS = {"id", "channels", "position", "orientation", "path", "gps", "attitude", "vehicle"}
+_RX_KEYS = {"id", "channels", "position", "orientation", "path", "gps", "attitude", "vehicle", "antennas", "profile"}
 
 
 def parse_scene(data: dict, source: str) -> Scene:
@@ -95,7 +98,8 @@ def parse_scene(data: dict, source: str) -> Scene:
         raise rd.fail("spec", f"version {spec} is newer than this program supports ({SPEC_VERSION})")
     rd.known_keys(data, "", _TOP_KEYS)
     seed = rd.integer(data, "seed", "seed", 0, 0, 2**63 - 1)
-    rate_hz = rd.rate(data, "rate_hz", "rate_hz", 1.0)
+    profiles = _profiles(rd, data)
+    rate_hz = rd.rate(data, "rate_hz", "rate_hz", 1.0 if "rate_hz" in data else _profile_rate(rd, profiles))
     name = data.get("name", "")
     if not isinstance(name, str):
         raise rd.fail("name", f"expected a string, got {type_name(name)}")
@@ -149,12 +153,13 @@ def parse_scene(data: dict, source: str) -> Scene:
     transmitters.sort(key=lambda tx: tx.id)
     effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
 
-    receivers = _receivers(rd, data, rate_hz)
+    receivers = _receivers(rd, data, rate_hz, profiles, m, "quantize" in e)
     origin, ground_truth = _ground_truth(rd, data, transmitters, receivers)
     if effects.ground_truth_error is not None and not any(d.gps or d.attitude for d in (*transmitters, *receivers)):
         raise rd.fail("effects.ground_truth_error", "no device has gps or attitude streams to apply it to")
     return Scene(
-        source, spec, seed, rate_hz, model, effects, tuple(transmitters), receivers, name, origin, ground_truth
+        source, spec, seed, rate_hz, receivers[0].model or model, effects, tuple(transmitters), receivers, name,
+        origin, ground_truth,
     )
 
 
@@ -251,8 +256,66 @@ def _param(rd: TableReader, table: dict, key: str, path: str, kind: object):
     return tuple(rd.vector(table[key], path, kind[1]))
 
 
-def _receivers(rd: TableReader, data: dict, rate_hz: float = 1.0) -> tuple[ReceiverSpec, ...]:
-    """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port)."""
+def _receiver_tables(data: dict) -> list[tuple[Any, str]]:
+    """The raw receiver tables with their key paths (unchecked; :func:`_receivers` checks)."""
+    if "receivers" in data and isinstance(data["receivers"], list):
+        return [(r, f"receivers[{i}]") for i, r in enumerate(data["receivers"])]
+    return [(data.get("receiver"), "receiver")]
+
+
+def _profiles(rd: TableReader, data: dict) -> list[ReceiverProfile | None]:
+    """Each receiver's profile (``profile = "NAME"``), None where it names none."""
+    out: list[ReceiverProfile | None] = []
+    for table, path in _receiver_tables(data):
+        name = table.get("profile") if isinstance(table, dict) else None
+        if name is None:
+            out.append(None)
+            continue
+        if not isinstance(name, str):
+            raise rd.fail(f"{path}.profile", f"expected a string, got {type_name(name)}")
+        try:
+            out.append(load_profile(name))
+        except InputError as exc:
+            raise rd.fail(f"{path}.profile", str(exc)) from None
+    return out
+
+
+def _profile_rate(rd: TableReader, profiles: list[ReceiverProfile | None]) -> float:
+    """The epoch rate the profiles ask for when the scene gives no ``rate_hz`` (one rate
+    per scene: profiles that disagree need the scene to choose)."""
+    rates = {p.rate_hz: p.name for p in profiles if p is not None}
+    if len(rates) > 1:
+        names = ", ".join(f"{n} {r:g} Hz" for r, n in rates.items())
+        raise rd.fail("rate_hz", f"missing: the receivers' profiles differ in epoch rate ({names}); set rate_hz")
+    return next(iter(rates), 1.0)
+
+
+def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, m: dict, r: dict, path: str) -> ModelParams:
+    """Defaults, then the profile, then the scene's ``[model]`` keys, then ``antennas``."""
+    base = profile.model if profile is not None else ModelParams()
+    values = {k: rd.number(m, k, f"model.{k}", None, positive=True) for k in sorted(_MODEL_KEYS - {"q"}) if k in m}
+    if "q" in m:
+        values["q"] = tuple(rd.vector(m["q"], "model.q", 3))
+    values["antennas"] = rd.integer(r, "antennas", f"{path}.antennas", base.antennas, min(ANTENNAS), max(ANTENNAS))
+    try:
+        return replace(base, **values)
+    except InputError as exc:
+        raise rd.fail("model", str(exc)) from None
+
+
+def _receivers(
+    rd: TableReader,
+    data: dict,
+    rate_hz: float = 1.0,
+    profiles: list[ReceiverProfile | None] | None = None,
+    model_keys: dict | None = None,
+    scene_sets_quantize: bool = False,
+) -> tuple[ReceiverSpec, ...]:
+    """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port).
+
+    A receiver's ``profile`` gives its class, channels, model constants and display;
+    the scene's own keys (``channels``, ``antennas``, ``[model]``, ``effects.quantize``)
+    override it."""
     if "receiver" in data and "receivers" in data:
         raise rd.fail("receivers", "give either [receiver] or [[receivers]], not both")
     if "receivers" not in data:
@@ -274,7 +337,10 @@ def _receivers(rd: TableReader, data: dict, rate_hz: float = 1.0) -> tuple[Recei
         if rx_id in seen:
             raise rd.fail(f"{path}.id", f"duplicate id {rx_id} (also {seen[rx_id]}.id)")
         seen[rx_id] = path
-        channels = rd.integer(r, "channels", f"{path}.channels", 1, 1, MAX_CHANNELS)
+        profile = profiles[i] if profiles else None
+        channels = rd.integer(r, "channels", f"{path}.channels", profile.channels if profile else 1, 1, MAX_CHANNELS)
+        model = _receiver_model(rd, profile, model_keys or {}, r, path)
+        display = profile.display if profile is not None and not scene_sets_quantize else None
         vehicle = _vehicle(rd, r, path, rate_hz) if "vehicle" in r else None
         out.append(
             ReceiverSpec(
@@ -284,6 +350,9 @@ def _receivers(rd: TableReader, data: dict, rate_hz: float = 1.0) -> tuple[Recei
                 rd.boolean(r, "gps", f"{path}.gps", False),
                 rd.boolean(r, "attitude", f"{path}.attitude", False),
                 vehicle,
+                model,
+                display,
+                profile.name if profile is not None else "",
             )
         )
     return tuple(out)

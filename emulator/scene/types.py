@@ -75,6 +75,14 @@ class ReceiverSpec:
     #: Closed loop: the vehicle that carries this receiver (its pose then comes from the
     #: vehicle, ``trajectory`` is only the start pose). None: the scene's trajectory.
     vehicle: VehicleSpec | None = None
+    #: This receiver's model: its class (antennas) and constants, from its profile with
+    #: the scene's keys over it. None: the scene's ``model``.
+    model: ModelParams | None = None
+    #: Display quantisation from the profile, used when the scene says nothing about
+    #: ``effects.quantize`` (None: the scene's ``effects.quantize``).
+    display: QuantizeConfig | None = None
+    #: Name of the receiver profile (emulator/receiver/profiles), "" for none.
+    profile: str = ""
 
 
 @dataclass(frozen=True)
@@ -85,6 +93,8 @@ class Scene:
     spec: int
     seed: int
     rate_hz: float
+    #: The first receiver's model (its class, profile and the scene's [model]); see
+    #: :meth:`receiver_model` for the others.
     model: ModelParams
     effects: Effects
     transmitters: tuple[Transmitter, ...]
@@ -97,6 +107,10 @@ class Scene:
     def receiver(self) -> ReceiverSpec:
         """The first (usually the only) receiver."""
         return self.receivers[0]
+
+    def receiver_model(self, index: int = 0) -> ModelParams:
+        """The model receiver ``index`` measures with (its class and constants)."""
+        return self.receivers[index].model or self.model
 
     @property
     def transmitter_ids(self) -> np.ndarray:
