@@ -121,6 +121,13 @@ class BatchLoop:
         self.terrain = [sp.terrain for sp in specs]
         self.flat = all(isinstance(t, FlatTerrain) for t in self.terrain)
         self.elevation = np.array([t.elevation if isinstance(t, FlatTerrain) else 0.0 for t in self.terrain])
+        index: dict[int, int] = {}
+        self.terrains = []
+        for t in self.terrain:
+            if id(t) not in index:
+                index[id(t)] = len(self.terrains)
+                self.terrains.append(t)
+        self.terrain_group = np.array([index[id(t)] for t in self.terrain])
         # Strip search waypoints, padded.
         strips = [c.strips for c in self.ctrl]
         w = max((len(st.waypoints) for st in strips if st is not None), default=0)
@@ -168,12 +175,11 @@ class BatchLoop:
         if self.flat:
             return self.elevation[live]
         out = np.empty(live.size)
-        groups: dict[int, list[int]] = {}
-        for i, j in enumerate(live.tolist()):
-            groups.setdefault(id(self.terrain[j]), []).append(i)
-        for rows in groups.values():
-            r = np.array(rows)
-            out[r] = self.terrain[live[r[0]]].heights(x[r], y[r])
+        group = self.terrain_group[live]
+        for g, terrain in enumerate(self.terrains):
+            r = np.flatnonzero(group == g)
+            if r.size:
+                out[r] = terrain.heights(x[r], y[r])
         return out
 
     def _height_reading(self, live: np.ndarray) -> np.ndarray:
