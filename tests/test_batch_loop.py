@@ -32,7 +32,7 @@ def test_batch_rows_equal_per_run_rows(strategy):
     reference = []
     for i in burials:
         reference += run_one(CONFIG, strategy, 1.0, 0.2, i)[0]
-    batched, _ = run_batch_rows(CONFIG, strategy, 1.0, 0.2, burials)
+    batched, _ = run_batch_rows(CONFIG, [(strategy, 1.0, 0.2, i) for i in burials])
     assert exact(batched) == exact(reference)
     found = sum(r["found"] for r in reference)
     # The comparison covers located transmitters, misses and runs that end early.
@@ -63,7 +63,8 @@ def test_batch_equals_per_run_on_a_dem_with_range_noise():
 
 
 def test_sweep_engines_give_the_same_rows():
-    cfg = SweepConfig(n=6, seed=2, t_max=900.0)
+    """Mixed batches: every strategy and two gains in one BatchLoop."""
+    cfg = SweepConfig(n=6, seed=2, t_max=900.0, k_c=(0.1, 0.4), chunk=36)
     a = sweep(cfg, workers=1)
     b = sweep(replace(cfg, engine="run"), workers=1)
     assert exact(a.rows) == exact(b.rows) and a.scene_s == b.scene_s

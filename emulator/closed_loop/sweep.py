@@ -15,8 +15,8 @@ and a summary per (strategy, v_max, k_c): fraction located, time-to-locate and f
 horizontal error distributions (median, p90, p99, max; the p99 and max with seeded
 burial-bootstrap 95 % intervals, :func:`bootstrap_tail`).
 
-Engines: ``batch`` (default) flies the runs of one (strategy, v_max, k_c) in a task
-together with :class:`~emulator.closed_loop.batch.BatchLoop`; ``run`` flies them one by
+Engines: ``batch`` (default) flies the runs of a task (a chunk of the task list, any
+strategies and gains) together with :class:`~emulator.closed_loop.batch.BatchLoop`; ``run`` flies them one by
 one with :class:`~emulator.closed_loop.loop.ClosedLoop`, the reference. Both give the
 same rows, bit for bit (``tests/test_batch_loop.py``).
 
@@ -163,16 +163,17 @@ def run_one(config: SweepConfig, strategy: str, v_max: float, k_c: float, i: int
     return run_rows(strategy, v_max, k_c, i, txs, result), result.t_end
 
 
-def run_batch_rows(config: SweepConfig, strategy: str, v_max: float, k_c: float, burials: list[int]) -> tuple[list[dict], float]:
-    """Fly several burials of one (strategy, v_max, k_c) together (:class:`BatchLoop`):
-    the rows :func:`run_one` gives for each, in order, and the scene time flown."""
+def run_batch_rows(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
+    """Fly several runs together (:class:`BatchLoop`; strategies and gains may differ
+    within a batch): the rows :func:`run_one` gives for each task, in order, and the
+    scene time flown."""
     from emulator.closed_loop.batch import run_batch
 
-    made = [burial_scene(config, i, strategy, v_max, k_c) for i in burials]
+    made = [burial_scene(config, i, strategy, v_max, k_c) for strategy, v_max, k_c, i in tasks]
     results = run_batch([scene for scene, _ in made], config.t_max)
     rows: list[dict] = []
-    for i, (_, txs), result in zip(burials, made, results):
-        rows += run_rows(strategy, v_max, k_c, i, txs, result)
+    for task, (_, txs), result in zip(tasks, made, results):
+        rows += run_rows(*task[:3], task[3], txs, result)
     return rows, sum(r.t_end for r in results)
 
 
@@ -193,8 +194,8 @@ def run_rows(strategy: str, v_max: float, k_c: float, i: int, txs: list[dict], r
 
 
 def run_chunk(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
-    """Several runs in one worker call: one batch per (strategy, v_max, k_c) with the
-    batch engine, else one after the other. Rows in task order either way."""
+    """Several runs in one worker call: one batch with the batch engine, else one after
+    the other. Rows in task order either way."""
     rows: list[dict] = []
     scene_s = 0.0
     if config.engine == "run":
@@ -203,14 +204,7 @@ def run_chunk(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -
             rows += r
             scene_s += t
         return rows, scene_s
-    groups: dict[tuple[str, float, float], list[int]] = {}
-    for strategy, v_max, k_c, i in tasks:
-        groups.setdefault((strategy, v_max, k_c), []).append(i)
-    for key, burials in groups.items():
-        r, t = run_batch_rows(config, *key, burials)
-        rows += r
-        scene_s += t
-    return rows, scene_s
+    return run_batch_rows(config, tasks)
 
 
 #: Largest number of runs per task with the batch engine (memory stays ~100 MB).
