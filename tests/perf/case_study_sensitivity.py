@@ -86,8 +86,9 @@ def summarize(rows: list[dict], k_cs) -> list[list[object]]:
                 ours = min(rs, key=lambda r: abs(((r["yaw"] - our_yaw + 180) % 360) - 180))
                 ours_txt = f"{ours['t']:.1f} s" if ours["found"] else "not located"
                 span = f"{np.median(t):.0f} / {min(t):.0f} / {max(t):.0f}" if t else "-"
+                missed = ", ".join(f"{r['yaw']:g}" for r in sorted(rs, key=lambda r: r["yaw"]) if not r["found"])
                 out.append([case, strategy, f"{k:g}", f"{100 * len(t) / len(rs):.0f} %", span,
-                            f"{ours_txt} (yaw {ours['yaw']:g})"])
+                            f"{ours_txt} (yaw {ours['yaw']:g})", missed or "-"])
     return out
 
 
@@ -151,7 +152,8 @@ def main(argv=None) -> int:
     IMG.mkdir(parents=True, exist_ok=True)
     paths = plot(rows, k_cs, lambda s: IMG / f"case_study_sensitivity_{s}.png")
     table = markdown_table(
-        ["case", "strategy", "k_c", "located (over yaws)", "t locate median / min / max [s]", "at our yaw"],
+        ["case", "strategy", "k_c", "located (over yaws)", "t locate median / min / max [s]", "at our yaw",
+         "not located at yaw [deg]"],
         summarize(rows, k_cs),
     )
     print(table)
