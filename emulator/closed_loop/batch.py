@@ -283,7 +283,7 @@ class BatchLoop:
                 z[i, : self.m[j]] = self.noise[j].normals(1, int(self.m[j]))[0]
             noise = ball_points(z)
         pos = np.stack([self.x[live], self.y[live], self.z[live]], axis=1)
-        meas = measure(pos, self.quat[live], self.tx_pos[live], self.tx_quat[live], self.model, noise, True)
+        meas = measure(pos, self.quat[live], self.tx_pos[live], self.tx_quat[live], self.model, noise=noise, want_field=True)
         return select_channels(meas, self.ids, self.channels)
 
     def _epoch(self, live: np.ndarray) -> None:
