@@ -415,8 +415,9 @@ def sweep_in_parts(config: SweepConfig, cache: Path | None):
     rows are kept there (pickled) and reused, so an interrupted run resumes and a
     partial one can be reported (``--partial``)."""
     rows, scene_s, wall, executor, done = [], 0.0, 0.0, "", []
-    for strategy in config.strategies:
-        for v in config.v_max:
+    # Fastest searches first, every strategy at each speed: a partial run covers them all.
+    for v in sorted(config.v_max, reverse=True):
+        for strategy in config.strategies:
             part = replace(config, strategies=(strategy,), v_max=(v,))
             file = None if cache is None else cache / f"search_{config.seed}_{config.n}_{strategy}_{v:g}.pickle"
             if file is not None and file.exists():
@@ -435,6 +436,7 @@ def sweep_in_parts(config: SweepConfig, cache: Path | None):
             executor = r[3]
             done.append((strategy, v))
             print(f"search: {strategy} v_max {v:g} done ({len(rows)} rows)", flush=True)
+    rows.sort(key=lambda r: (config.strategies.index(r["strategy"]), r["v_max"], r["k_c"], r["burial"], r["tx_id"]))
     summary = summarize(rows, config.bootstrap, config.seed)
     return SweepResult(config, rows, summary, wall, scene_s, executor), done
 
