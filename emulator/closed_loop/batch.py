@@ -27,13 +27,19 @@ operands: numpy's element-wise +, -, *, /, sqrt, min/max and comparisons are IEE
 correctly rounded, so they equal Python's float arithmetic; the functions that are not
 (``math.hypot``, ``math.atan2``; CPython's ``hypot`` is not libm's) are applied element
 by element with the very ``math`` function (``np.frompyfunc``). The receiver model is
-the same numpy code on a larger array; ``tests/test_batch_loop.py`` checks that rows,
-times, errors and path lengths are identical for seeded burials with noise on.
+the same numpy code on a larger array, and so is the noise's mapping into the ball; the
+one assumption IEEE does not guarantee is that numpy's vectorised ``cbrt``, ``arctan``
+and ``einsum`` give an element the same result whatever the length of the array around
+it (numpy's SIMD loops treat an array's tail with the same kernel). That holds for the
+numpy on which ``tests/test_batch_loop.py`` runs: it checks that rows, times, errors and
+path lengths are identical for seeded burials with noise on, so a numpy where it does
+not hold fails that test rather than drifting silently.
 
 Not batched (``ValueError``: use :class:`ClosedLoop`): ``external_mavlink``, moving
-transmitters, the pulses and quantize effects, and runs that differ in rate, control
-rate, channels, model parameters, noise switch or transmitter ids (beyond a common
-prefix).
+transmitters, scenes without transmitters, the pulses and quantize effects, and runs
+that differ in rate, control rate, channels, model parameters, noise switch or
+transmitter ids (beyond a common prefix). Runs may differ in everything else: burial,
+seed, strategy, gains, speeds, terrain, start.
 """
 
 from __future__ import annotations
@@ -163,6 +169,8 @@ class BatchLoop:
             why = "the same channels, model and noise switch"
         elif s.effects.pulses or s.effects.quantize:
             why = "no pulses or quantize effect"
+        elif not s.transmitters:
+            why = "at least one transmitter"
         elif not all(tx.trajectory.is_static for tx in s.transmitters):
             why = "static transmitters"
         elif list(s.transmitter_ids) != self.ids[: len(s.transmitter_ids)].tolist():
