@@ -12,7 +12,8 @@ batch steps all of them one epoch at a time:
    :func:`~emulator.receiver.model.select_channels`. Each run's noise is drawn from its
    own stream (the normals of ``draw(1, m)``), and all are mapped into the unit ball together;
 2. **controllers at the epoch tick**: each run's controller decides on the new epoch
-   (``command`` with ``new_epoch``), exactly the per-run code; it then states its
+   (``command`` with ``new_epoch``), exactly the per-run code (the observation's
+   ``field`` is None for a controller whose ``uses_field`` is false); it then states its
    :class:`~emulator.closed_loop.controllers.TickPlan` for the ticks until the next
    epoch;
 3. **the other ticks, batched**: the plans (hold a velocity, strip search, fly back to a
@@ -146,6 +147,7 @@ class BatchLoop:
                 self.wp_count[j] = len(st.waypoints)
                 self.wp_next[j] = st.next
         self.sets_heading = np.array([c.search_sets_heading for c in self.ctrl])
+        self.uses_field = np.array([c.uses_field for c in self.ctrl])
         # Tick plans (filled at each epoch).
         self.mode = np.full(n, PLAN_CONST, dtype=np.int8)
         self.pvx = np.zeros(n)
@@ -298,9 +300,11 @@ class BatchLoop:
         t_k = self.next_k / self.rate_hz
         ep = self._measure(live)
         self.next_k += 1
-        rows = zip(ep.ids.tolist(), ep.d.tolist(), ep.delta.tolist(), ep.field.tolist())
+        # The field as nested lists only for controllers that read it (the costliest part).
+        fields = ep.field.tolist() if self.uses_field[live].any() else [None] * live.size
+        rows = zip(ep.ids.tolist(), ep.d.tolist(), ep.delta.tolist(), fields)
         for j, (ids, d, delta, fld) in zip(live.tolist(), rows):
-            self.held[j] = (ids, d, delta, fld)
+            self.held[j] = (ids, d, delta, fld if self.uses_field[j] else None)
         dt = self.dt
         n = live.size
         for i in range(self.ticks):

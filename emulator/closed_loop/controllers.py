@@ -133,6 +133,8 @@ class Controller:
     name = "controller"
     #: The search phase sets ``heading`` from each non-zero strip velocity.
     search_sets_heading = False
+    #: Reads ``Observation.field`` (a batch loop skips building it for those that do not).
+    uses_field = True
 
     def __init__(self, spec: VehicleSpec, model: ModelParams = ModelParams(), dt: float | None = None) -> None:
         self.spec = spec
@@ -311,6 +313,7 @@ class ReceiverOnlySearch(Controller):
 
     name = "receiver_only"
     search_sets_heading = True
+    uses_field = False  # (id, d, delta) only
     REVERSE_FRACTION = 0.1
     REVERSE_CM = 100
     REVERSE_EVERY = 5
