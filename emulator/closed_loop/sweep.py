@@ -213,12 +213,14 @@ MAX_CHUNK = 2048
 
 def chunk_size(config: SweepConfig, n_tasks: int, workers: int) -> int:
     """Runs per task: ``config.chunk``, or about two tasks per worker (a batch is faster
-    the larger it is, a pool wants a few tasks per worker to balance), at most MAX_CHUNK."""
+    the larger it is, a pool wants a few tasks per worker to balance; a single process
+    takes one batch), at most MAX_CHUNK."""
     if config.chunk > 0:
         return config.chunk
     if config.engine == "run":
         return 8
-    return max(1, min(MAX_CHUNK, math.ceil(n_tasks / (2 * max(1, workers)))))
+    per_worker = 1 if workers <= 1 else 2  # one process: one batch is fastest
+    return max(1, min(MAX_CHUNK, math.ceil(n_tasks / (per_worker * max(1, workers)))))
 
 
 # --------------------------------------------------------------------------- executors
