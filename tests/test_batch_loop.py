@@ -17,7 +17,7 @@ from emulator.closed_loop.loop import ClosedLoop
 from emulator.closed_loop.sweep import SweepConfig, burial, run_batch_rows, run_one, sweep
 
 #: 50 burials, 1-4 transmitters each (most have several), EMI noise on.
-CONFIG = SweepConfig(n=50, seed=11, t_max=600.0, noise=True)
+CONFIG = SweepConfig(n=50, seed=11, t_max=450.0, noise=True)
 
 
 def exact(rows):
@@ -25,6 +25,7 @@ def exact(rows):
     return [tuple(None if isinstance(v, float) and math.isnan(v) else v for v in r.values()) for r in rows]
 
 
+@pytest.mark.timeout(900)  # ~10 s alone; the per-run reference is the slow half
 @pytest.mark.parametrize("strategy", ["receiver_only", "flux_reverse", "flux"])
 def test_batch_rows_equal_per_run_rows(strategy):
     assert sum(len(burial(CONFIG, i)) > 1 for i in range(CONFIG.n)) >= 35  # several transmitters
@@ -40,6 +41,7 @@ def test_batch_rows_equal_per_run_rows(strategy):
     assert len({r["t_end_s"] for r in reference}) > 10
 
 
+@pytest.mark.timeout(600)
 def test_batch_equals_per_run_on_a_dem_with_range_noise():
     """The case-study scenes: a DEM terrain, 2 cm range noise, a 4 m take-off, no strips
     (waiting for a signal), different yaws and gains in one batch."""
@@ -62,6 +64,7 @@ def test_batch_equals_per_run_on_a_dem_with_range_noise():
     assert sum(bool(b.located) for b in batch) >= 12
 
 
+@pytest.mark.timeout(600)
 def test_sweep_engines_give_the_same_rows():
     """Mixed batches: every strategy and two gains in one BatchLoop."""
     cfg = SweepConfig(n=6, seed=2, t_max=900.0, k_c=(0.1, 0.4), chunk=36)
