@@ -79,3 +79,18 @@ def test_batch_refuses_what_it_does_not_batch():
         BatchLoop([s, replace(s, rate_hz=2.0)])
     with pytest.raises(ValueError, match="a batch needs at least one scene"):
         BatchLoop([])
+
+
+@pytest.mark.timeout(600)
+def test_the_receiver_class_passes_through():
+    """A 2-antenna receiver (ModelParams.antennas) in the batch: the same rows as per run,
+    and not the 3-antenna rows."""
+    cfg = replace(CONFIG, n=12, antennas=2)
+    tasks = [("receiver_only", 1.0, 0.2, i) for i in range(cfg.n)]
+    batched, _ = run_batch_rows(cfg, tasks)
+    reference = []
+    for task in tasks:
+        reference += run_one(cfg, *task)[0]
+    assert exact(batched) == exact(reference)
+    three, _ = run_batch_rows(replace(cfg, antennas=3), tasks)
+    assert exact(three) != exact(batched)

@@ -37,8 +37,9 @@ path lengths are identical for seeded burials with noise on, so a numpy where it
 not hold fails that test rather than drifting silently.
 
 Not batched (``ValueError``: use :class:`ClosedLoop`): ``external_mavlink``, moving
-transmitters, scenes without transmitters, the pulses and quantize effects, and runs
-that differ in rate, control rate, channels, model parameters, noise switch or
+transmitters, scenes without transmitters, the pulses and quantize effects (or a
+profile's display), and runs that differ in rate, control rate, channels, receiver model
+(class and constants: ``Scene.receiver_model``), noise switch or
 transmitter ids (beyond a common prefix). Runs may differ in everything else: burial,
 seed, strategy, gains, speeds, terrain, start.
 """
@@ -55,7 +56,7 @@ from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
 from emulator.closed_loop.vehicle import FlatTerrain
 from emulator.receiver.model import measure, select_channels
 from emulator.receiver.noise import NoiseEffect, ball_points
-from emulator.scene.reader import Scene
+from emulator.scene.types import Scene
 
 # The exact Python functions, element by element (see the module docstring).
 _hypot = np.frompyfunc(math.hypot, 2, 1)
@@ -86,7 +87,7 @@ class BatchLoop:
         self.rate_hz = first.rate_hz
         self.ticks, self.dt = control_ticks(first, index)
         self.channels = first.receivers[index].channels
-        self.model = first.model
+        self.model = first.receiver_model(index)  # the receiver's class and constants
         self.noise_on = first.effects.noise
         ids = max((s.transmitter_ids for s in scenes), key=len)
         self.ids = np.asarray(ids, dtype=np.int64)
@@ -167,10 +168,10 @@ class BatchLoop:
             why = "a simulated vehicle with an onboard controller"
         elif s.rate_hz != self.rate_hz or control_ticks(s, index) != (self.ticks, self.dt):
             why = "the same rate_hz and control_rate_hz"
-        elif rx.channels != self.channels or s.model != self.model or s.effects.noise != self.noise_on:
-            why = "the same channels, model and noise switch"
-        elif s.effects.pulses or s.effects.quantize:
-            why = "no pulses or quantize effect"
+        elif rx.channels != self.channels or s.receiver_model(index) != self.model or s.effects.noise != self.noise_on:
+            why = "the same channels, receiver model (class, constants) and noise switch"
+        elif s.effects.pulses or s.effects.quantize or rx.display:
+            why = "no pulses, quantize effect or profile display"
         elif not s.transmitters:
             why = "at least one transmitter"
         elif not all(tx.trajectory.is_static for tx in s.transmitters):

@@ -32,7 +32,7 @@ import numpy as np
 from emulator.closed_loop.controllers import Controller, Located, Observation, make_controller
 from emulator.receiver.model import Epochs
 from emulator.receiver.receiver import EpochBatch, Receiver
-from emulator.scene.reader import Scene
+from emulator.scene.types import Scene
 from emulator.closed_loop.vehicle import UAV, VehicleSpec
 
 log = logging.getLogger("arva-emulate")
@@ -99,7 +99,7 @@ def make_vehicle(scene: Scene, index: int, dt: float) -> tuple[UAV, Controller]:
     spec = scene.receivers[index].vehicle
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(scene.seed, spawn_key=(index, RANGE_STREAM))))
     uav = UAV(spec.terrain, spec.start, spec.height_start, spec.yaw_deg, spec.v_max, spec.v_z_max, spec.range_sigma_m, rng)
-    controller = make_controller(spec, scene.model)
+    controller = make_controller(spec, scene.receiver_model(index))
     controller.dt = dt
     return uav, controller
 

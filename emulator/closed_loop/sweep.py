@@ -82,6 +82,7 @@ class SweepConfig:
     chunk: int = 0  # runs per task; 0: about two tasks per worker, at most MAX_CHUNK
     engine: str = "batch"  # "batch": BatchLoop, runs stepped together; "run": ClosedLoop one by one
     bootstrap: int = 1000  # resamples for the tail statistics' confidence intervals
+    antennas: int = 3  # receiver class (emulator.receiver.model.ModelParams.antennas)
 
     def tasks(self) -> list[tuple[str, float, float, int]]:
         return [
@@ -137,6 +138,7 @@ def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: 
         "transmitters": [{k: tx[k] for k in ("id", "position", "orientation")} for tx in txs],
         "receiver": {
             "channels": config.max_transmitters,
+            "antennas": config.antennas,
             "vehicle": {
                 "controller": STRATEGIES[strategy],
                 "start": [xmin, ymin],
@@ -446,6 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--engine", choices=ENGINES, default="batch",
                    help="batch: runs of one strategy stepped together (default); run: one by one (the reference)")
     p.add_argument("--bootstrap", type=int, default=1000, help="resamples for the p99/max confidence intervals (default 1000)")
+    p.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     p.add_argument("--workers", type=int, help="local processes (default: CPU count)")
     p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
     p.add_argument("--out", type=Path, help="write the rows here (.csv, or .parquet with the parquet extra)")
@@ -459,7 +462,7 @@ def main(argv: list[str] | None = None) -> int:
     config = SweepConfig(
         n=args.n, seed=args.seed, strategies=strategies, v_max=args.v_max, k_c=args.k_c,
         area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
-        noise=not args.no_noise, engine=args.engine, bootstrap=args.bootstrap,
+        noise=not args.no_noise, engine=args.engine, bootstrap=args.bootstrap, antennas=args.antennas,
     )
     try:
         if args.out is not None:
