@@ -9,19 +9,17 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
-import os
 import signal
 import sys
 import threading
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
-from firmware_proto.errors import InputError, LinkError, SceneError
+from firmware_proto.errors import InputError
 
 from emulator import __version__
-from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
+from emulator.cli_types import OneLineParser, baud_rate, existing_dir, non_negative_int, run_main, scene_file, seconds, speed
+from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
 from emulator.scene.reader import default_scene, load_scene
 from emulator.output.link_faults import FaultyPort
 from emulator.output.scheduler import EpochScheduler, Route, SceneClock, status_printer, summary_line
@@ -32,26 +30,6 @@ log = logging.getLogger("arva-emulate")
 _PARITIES = {"N": "N", "E": "E", "O": "O", "M": "M", "S": "S"}
 
 
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
-
-
-def _speed(text: str) -> float:  # also used for --delay: a finite number >= 0
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
-
-
 def _stream_port(text: str) -> tuple[str, str]:
     label, sep, port = text.partition("=")
     if not sep or not label or not port:
@@ -60,11 +38,11 @@ def _stream_port(text: str) -> tuple[str, str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="arva-emulate",
         description="Emulate an ARVA receiver: stream $PARVA sentences for a scene to a port.",
     )
-    p.add_argument("--scene", metavar="FILE", help="scene TOML file (default: the embedded paper case study)")
+    p.add_argument("--scene", type=scene_file, metavar="FILE", help="scene TOML file (default: the embedded paper case study)")
     p.add_argument(
         "--port",
         default="-",
@@ -80,18 +58,18 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="LABEL=PORT",
         help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port",
     )
-    p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
-    p.add_argument("--frames", type=_non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
+    p.add_argument("--link", type=existing_dir, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
+    p.add_argument("--frames", type=non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
     p.add_argument(
         "--speed",
-        type=_speed,
+        type=speed,
         default=1.0,
         metavar="X",
         help="run X times real time; 0 = as fast as possible (default 1)",
     )
     p.add_argument(
         "--delay",
-        type=_speed,
+        type=seconds,
         default=0.0,
         metavar="S",
         help="wait S seconds after announcing ptys before the first epoch (time for clients to open them)",
@@ -162,7 +140,7 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
 
 
 def run(args: argparse.Namespace) -> int:
-    scene = load_scene(args.scene) if args.scene else default_scene()
+    scene = load_scene(args.scene) if args.scene is not None else default_scene()
     streams = scene_streams(scene)
     specs = assign_ports([s.label for s in streams], args.port, args.stream)
     stop = threading.Event()
@@ -234,23 +212,15 @@ def _stop_on_signals(stop: threading.Event) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
-    logging.basicConfig(
-        level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-emulate: %(message)s"
-    )
-    try:
-        return run(args)
-    except SceneError as exc:
-        print(exc, file=sys.stderr)  # exactly FILE: key.path: reason, the form editors jump to
-        return 2
-    except (InputError, LinkError) as exc:
-        print(f"arva-emulate: {exc}", file=sys.stderr)
-        return 2
-    except BrokenPipeError:
-        # The reader went away (e.g. `| head`): stop quietly, like any Unix filter, and
-        # keep the interpreter's final flush of stdout from complaining.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    def parse() -> argparse.Namespace:
+        args = parse_args(argv)
+        logging.basicConfig(
+            level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-emulate: %(message)s"
+        )
+        return args
+
+    # SceneError bare: exactly FILE: key.path: reason, the form editors jump to.
+    return run_main("arva-emulate", parse, run, bare_scene_errors=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -25,10 +25,10 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from emulator.output.ports import baud_rate
+from emulator.cli_types import baud_rate, device_spec, output_dir, positive_seconds, speed
 from firmware_proto.errors import InputError
 
-from ..log import _device, add_truth_arguments, device_specs
+from ..log import add_truth_arguments, device_specs
 from ..logger import DeviceSpec
 from ..session import MANIFEST, read_manifest
 
@@ -38,15 +38,15 @@ DEFAULT_SOURCE = "arvaemu://"
 def register(sub) -> None:
     p = sub.add_parser("dash", help="live terminal view of receivers, ground truth and links", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("source", nargs="*", type=_device("arva"), metavar="SOURCE[,role=rxN]",
+    p.add_argument("source", nargs="*", type=device_spec("arva"), metavar="SOURCE[,role=rxN]",
                    help="a receiver (path or pyserial URL) or a session directory; default arvaemu://")
     add_truth_arguments(p, origin_help="ENU origin for GPS positions (default: the session's, else the first receiver fix)")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
-    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+    p.add_argument("--speed", type=speed, default=1.0, metavar="X",
                    help="replay a session directory X times real time; 0 = as fast as possible (default 1)")
-    p.add_argument("--stale", type=float, default=3.0, metavar="S",
+    p.add_argument("--stale", type=positive_seconds, default=3.0, metavar="S",
                    help="a device silent for S seconds is marked STALE and reopened (default 3)")
-    p.add_argument("--record-dir", type=Path, default=Path("sessions"), metavar="DIR",
+    p.add_argument("--record-dir", type=output_dir, default=Path("sessions"), metavar="DIR",
                    help="where r records sessions: DIR/<UTC start> (default ./sessions)")
     p.add_argument("--no-scene-truth", action="store_true",
                    help="do not take ground truth from an arvaemu:// source's scene")

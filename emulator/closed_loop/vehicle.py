@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from emulator.output.ports import BAUD_LIMITS
+from emulator.cli_types import BAUD_LIMITS
 
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")
 
