@@ -321,7 +321,7 @@ MAX_V_MAX = 20.0  # m/s, as the scene reader's receiver.vehicle.v_max
 MAX_K_C = 100.0
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="arva-sweep", description="Seeded random burials per search strategy, in closed loop.")
     p.add_argument("--n", type=integer(1, MAX_RUNS), default=100, help="burials per strategy and gain (default 100)")
     p.add_argument("--seed", type=seed, default=0)
@@ -365,7 +365,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_main("arva-sweep", lambda: _parser().parse_args(argv), run)
+    return run_main("arva-sweep", lambda: build_parser().parse_args(argv), run)
 
 
 if __name__ == "__main__":  # pragma: no cover

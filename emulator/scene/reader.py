@@ -29,6 +29,7 @@ from emulator.receiver.model import ModelParams
 from emulator.frames.rotation import normalize_quaternions
 from emulator.frames.trajectory import IDENTITY, Trajectory
 from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
+from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_Q, MODEL_LIMITS, stream_labels
 
 #: The newest scene format this program reads.
 SPEC_VERSION = 1
@@ -157,7 +158,10 @@ class _Reader:
             raise self.fail(path, f"must be within [{lo:g}, {hi:g}] Hz, got {value:g}")
         return value
 
-    def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False) -> float:
+    def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False,
+               limits: tuple[float, float] | None = None) -> float:
+        """A finite number; ``positive``: > 0; ``limits`` (lo, hi): within [lo, hi]
+        (with ``positive`` and lo = 0: within (0, hi]). See :mod:`emulator.scene.limits`."""
         value = data.get(key, default)
         if value is None:
             raise self.fail(path, "missing")
@@ -168,6 +172,10 @@ class _Reader:
             raise self.fail(path, f"must be finite, got {value}")
         if positive and not value > 0:
             raise self.fail(path, f"must be > 0, got {value:g}")
+        if limits is not None and value < limits[0]:
+            raise self.fail(path, f"must be >= {limits[0]:.10g}, got {value:g}")
+        if limits is not None and value > limits[1]:
+            raise self.fail(path, f"must be <= {limits[1]:.10g}, got {value:g}")
         return value
 
     def boolean(self, data: dict, key: str, path: str, default: bool) -> bool:
@@ -315,7 +323,12 @@ def parse_scene(data: dict, source: str) -> Scene:
     for i, qi in enumerate(q):
         if not 0 < qi <= 1:
             raise rd.fail(f"model.q[{i}]", f"must be in (0, 1], got {qi:g}")
-    values = {k: rd.number(m, k, f"model.{k}", getattr(defaults, k), positive=True) for k in sorted(_MODEL_KEYS - {"q"})}
+        if qi < MIN_Q:
+            raise rd.fail(f"model.q[{i}]", f"must be >= {MIN_Q:g}, got {qi:g}")
+    values = {
+        k: rd.number(m, k, f"model.{k}", getattr(defaults, k), positive=True, limits=MODEL_LIMITS[k])
+        for k in sorted(_MODEL_KEYS - {"q"})
+    }
     try:
         model = ModelParams(q=q, **values)
     except InputError as exc:
@@ -357,6 +370,15 @@ def parse_scene(data: dict, source: str) -> Scene:
     effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
 
     receivers = _receivers(rd, data, rate_hz)
+    if effects.link_fault_streams:
+        labels = stream_labels(
+            len(receivers),
+            [(rx.id, rx.gps, rx.attitude) for rx in receivers],
+            [(tx.id, tx.gps, tx.attitude) for tx in transmitters],
+        )
+        for i, label in enumerate(effects.link_fault_streams):
+            if label not in labels:
+                raise rd.fail(f"link_faults.streams[{i}]", f"no stream {label!r} in this scene (streams: {', '.join(labels)})")
     origin, ground_truth = _ground_truth(rd, data, transmitters, receivers)
     if effects.ground_truth_error is not None and not any(d.gps or d.attitude for d in (*transmitters, *receivers)):
         raise rd.fail("effects.ground_truth_error", "no device has gps or attitude streams to apply it to")
@@ -512,6 +534,12 @@ def _vehicle(rd: _Reader, r: dict, path: str, rate_hz: float) -> VehicleSpec:
             f"{path}.vehicle.control_rate_hz",
             f"must be a whole multiple of rate_hz = {rate_hz:g}, got {vehicle.control_rate_hz:g}",
         )
+    if round(ratio) > MAX_CONTROL_STEPS_PER_EPOCH:
+        raise rd.fail(
+            f"{path}.vehicle.control_rate_hz",
+            f"at most {MAX_CONTROL_STEPS_PER_EPOCH} control steps per epoch (rate_hz = {rate_hz:g}), "
+            f"got {vehicle.control_rate_hz:g} Hz",
+        )
     return vehicle
 
 
@@ -541,6 +569,8 @@ def loads_scene(raw: bytes | str, source: str) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(source, "", f"TOML syntax: {exc}") from None
+    except RecursionError:  # tomllib recurses once per nesting level
+        raise SceneError(source, "", "TOML nested too deeply") from None
     return parse_scene(data, source)
 
 
