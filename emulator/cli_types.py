@@ -414,6 +414,8 @@ def one_line(text: str) -> str:
 
 def _os_error_line(exc: OSError) -> str:
     reason = exc.strerror or str(exc) or type(exc).__name__
+    if exc.filename is not None and getattr(exc, "filename2", None) is not None:
+        return f"{exc.filename} -> {exc.filename2}: {reason}"  # symlink, rename
     if exc.filename is not None:
         return f"{exc.filename}: {reason}"
     return reason

@@ -225,3 +225,65 @@ def test_every_option_is_listed():
             assert opts == set()  # --json only
             continue
         assert opts == listed[label], label
+
+
+#: The issue's own examples (issue 16), each with its exact one-line error.
+ISSUE_CASES = [
+    (EMULATE, ["--speed", "1e-308"], "arva-emulate: error: argument --speed: must be 0 (as fast as possible) or within 1e-06..1e+06, got 1e-308"),
+    (EMULATE, ["--delay", "1e308"], "arva-emulate: error: argument --delay: must be <= 3.1536e+07, got 1e308"),
+    (EMULATE, ["--scene", ""], "arva-emulate: error: argument --scene: expected a path, got ''"),
+    (EMULATE, ["--port", "pty", "--link", "/proc", "--frames", "1", "--speed", "0"], None),
+    (EMULATE, ["--scene", "{scene_deep}"], "{scene_deep}: TOML nested too deeply"),
+    ((*BENCH, "replay"), ["{session}", "--delay", "inf"], "arva-bench replay: error: argument --delay: expected a finite number, got 'inf'"),
+    ((*BENCH, "replay"), ["{session}", "--delay", "nan"], "arva-bench replay: error: argument --delay: expected a finite number, got 'nan'"),
+    ((*BENCH, "replay"), ["{session}", "--delay", "-1"], "arva-bench replay: error: argument --delay: must be >= 0, got -1"),
+    ((*BENCH, "export"), ["{session}", "--csv", "o.csv", "--latency", "nan"], "arva-bench export: error: argument --latency: expected a finite number, got 'nan'"),
+    ((*BENCH, "export"), ["{session}", "--csv", "o.csv", "--max-gap", "-1"], "arva-bench export: error: argument --max-gap: must be > 0, got -1"),
+    ((*BENCH, "export"), ["{session}", "--csv", "/proc"], "arva-bench export: error: argument --csv: /proc: is a directory, expected a file"),
+    ((*BENCH, "log"), ["--arva", "arvaemu://", "--out", "{file}", "--duration", "1"], "arva-bench log: error: argument --out: {file}: exists and is not a directory"),
+    ((*BENCH, "log"), ["--arva", "arvaemu://", "--out", "/proc/x", "--duration", "1"], "arva-bench: /proc/x: cannot create: No such file or directory"),
+    ((*BENCH, "fit"), ["{csv}", "--time-offset", "inf"], "arva-bench fit: error: argument --time-offset: expected a finite number, got 'inf'"),
+    ((*BENCH, "fit"), ["{csv}", "--report", "{file}"], "arva-bench fit: error: argument --report: {file}: exists and is not a directory"),
+    ((*BENCH, "fit"), ["{csv_delta}"], "arva-bench: fit: {csv_delta}: line 2: column delta: must be within -89..89 degrees, got 200"),
+    (SWEEP, ["--t-max", "nan"], "arva-sweep: error: argument --t-max: expected a finite number, got 'nan'"),
+    (SWEEP, ["--t-max", "inf"], "arva-sweep: error: argument --t-max: expected a finite number, got 'inf'"),
+    (SWEEP, ["--t-max", "0"], "arva-sweep: error: argument --t-max: must be > 0, got 0"),
+    (SWEEP, ["--t-max", "-1"], "arva-sweep: error: argument --t-max: must be > 0, got -1"),
+    (SWEEP, ["--workers", "-1"], "arva-sweep: error: argument --workers: must be >= 1, got -1"),
+    (SWEEP, ["--strategies", ""], "arva-sweep: error: argument --strategies: unknown strategy '' (choose from flux, flux_reverse, receiver_only)"),
+    (SWEEP, ["--seed", "-1"], "arva-sweep: error: argument --seed: must be >= 0, got -1"),
+    (SWEEP, ["--scheduler", "garbage"], "arva-sweep: error: argument --scheduler: expected [SCHEME://]HOST:PORT (e.g. tcp://10.0.0.5:8786), got 'garbage'"),
+    (SWEEP, ["--area", "1e308,1e308"], "arva-sweep: error: argument --area: must be <= 10000, got 1e308"),
+    (SWEEP, ["--out", "/proc/x.csv", "--n", "1"], "arva-sweep: --out /proc/x.csv: cannot write: No such file or directory"),
+]
+
+
+def test_the_issues_examples_are_one_line_errors(inputs):
+    root: Path = inputs["root"]
+    deep = root / "deep.toml"
+    deep.write_text("spec = 1\nx = " + "[" * 5000 + "]" * 5000 + "\n")
+    delta = root / "delta.csv"
+    lines = Path(inputs["csv"]).read_text().splitlines()
+    cols = lines[1].split(",")
+    cols[lines[0].split(",").index("delta")] = "200"
+    delta.write_text("\n".join([lines[0], ",".join(cols), *lines[2:]]) + "\n")
+    names = {**{n: inputs[n] for n in ("session", "csv", "file")}, "scene_deep": str(deep), "csv_delta": str(delta)}
+
+    def fill(text: str) -> str:
+        for key, value in names.items():
+            text = text.replace("{" + key + "}", value)
+        return text
+
+    cwd = root / "issue-cases"
+    cwd.mkdir(exist_ok=True)
+    procs = [
+        (argv, expected, subprocess.Popen([sys.executable, *module, *map(fill, argv)], cwd=cwd, stdin=subprocess.DEVNULL,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))  # fmt: skip
+        for module, argv, expected in ISSUE_CASES
+    ]
+    for argv, expected, proc in procs:
+        _, err = proc.communicate(timeout=TIMEOUT_S)
+        text = err.decode()
+        assert proc.returncode == 2 and text.count("\n") == 1 and "Traceback" not in text, (argv, text)
+        if expected is not None:
+            assert text == fill(expected) + "\n", argv

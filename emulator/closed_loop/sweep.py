@@ -197,6 +197,8 @@ def sweep(config: SweepConfig, workers: int | None = None, scheduler: str | None
             client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
         except (OSError, TimeoutError) as exc:
             raise LinkError(f"--scheduler {scheduler}: cannot reach it within {SCHEDULER_TIMEOUT_S:g} s ({exc})") from None
+        except Exception as exc:  # noqa: BLE001  something answered, but not a dask scheduler
+            raise LinkError(f"--scheduler {scheduler}: not a dask scheduler ({type(exc).__name__})") from None
         with client:
             futures = client.map(run_chunk, [config] * len(chunks), chunks, pure=False)
             parts = client.gather(futures)
