@@ -178,7 +178,8 @@ def run(args: argparse.Namespace) -> int:
         finally:
             if status is not None:
                 sys.stderr.write("\r\x1b[K")
-            print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
+        # Only after a normal end: an error is then the one line on stderr.
+        print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
     finally:
         for r in routes:
             r.port.close()
