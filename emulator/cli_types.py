@@ -43,6 +43,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from firmware_proto.errors import InputError, LinkError, SceneError
+from firmware_proto.sentences import MAX_ID
 
 #: Baud rates a serial option may take: the slowest teletype to a 12 Mbaud FTDI bridge.
 #: Outside them pyserial either refuses or overflows inside termios with a traceback.
@@ -208,8 +209,8 @@ def origin(text: str) -> list[float]:
 def tx_pose(text: str) -> tuple[int, list[float]]:
     """``ID=LAT,LON,ALT[,HEADING,ROLL,PITCH]``: a transmitter's surveyed pose (degrees, m)."""
     tx, sep, rest = text.partition("=")
-    if not sep or not tx.isascii() or not tx.isdigit() or not 1 <= int(tx) <= 99:
-        _fail(f"expected ID=lat,lon,alt[,heading,roll,pitch] with ID 1..99, got {text!r}")
+    if not sep or not tx.isascii() or not tx.isdigit() or len(tx) > 5 or int(tx) > MAX_ID:
+        _fail(f"expected ID=lat,lon,alt[,heading,roll,pitch] with ID 0..{MAX_ID}, got {text!r}")
     what = f"--tx-pose {tx}"
     return int(tx), list(_geodetic(real_list(3, 6, what=what)(rest), rest, what))
 
