@@ -55,6 +55,9 @@ SCENES = [
     ("spec = 1\n" + TX + RX + "gps = true\n[origin]\nlat = 46.0\nlon = 8.0\n[effects]\nlink_faults = true\n"
      "[link_faults]\nloss = 0.1\nstreams = [\"gps:rx\"]\n",
      "s.toml: link_faults.streams[0]: no stream 'gps:rx' in this scene (streams: arva, gps)"),
+    ("spec = 1\n[model]\nr_outer = 99999.99\n[effects]\nquantize = true\n[quantize]\nd_step_cm = 6000000\n" + TX + RX,
+     "s.toml: quantize.d_step_cm: the largest reading (9999999 cm, from model.r_inner / r_outer) would round to 12000000 cm, "
+     "beyond the protocol's 9999999"),
     (b"spec = 1\nname = \"\xff\"\n", "s.toml: not UTF-8 text (byte offset 17)"),
 ]
 
@@ -155,3 +158,108 @@ def test_malformed_fit_csv_is_one_exact_line(text, message):
     with pytest.raises(FitInputError) as info:
         parse_csv(text.encode(), "c.csv")
     assert str(info.value) == "fit: " + message  # the command prints arva-bench: fit: ...
+
+
+# --------------------------------------------------------------------------- scene fuzz
+#: A scene with every stream kind and every effect that has numbers; one key at a time is
+#: replaced by a hostile value.
+BASE = """spec = 1
+seed = 3
+rate_hz = {rate_hz}
+[origin]
+lat = {lat}
+lon = 8.0
+[model]
+kappa_eq = {kappa_eq}
+moment = {moment}
+r_inner = {r_inner}
+r_outer = {r_outer}
+r_en = {r_en}
+q = [1.0, {q}, 1.0]
+[effects]
+noise = true
+research_sentences = true
+quantize = true
+link_faults = true
+ground_truth_error = true
+[quantize]
+d_step_cm = {d_step_cm}
+[link_faults]
+loss = {loss}
+stall_ms = {stall_ms}
+[ground_truth_error]
+gps_sigma_m = [{gps_sigma}, 0.1, 0.1]
+[[transmitters]]
+id = 1
+position = [{tx_x}, 5.0, 0.0]
+orientation = [{qw}, 0.0, 0.0, 1.0]
+gps = true
+[receiver]
+channels = 2
+gps = true
+attitude = true
+path = [{{ t = 0.0, position = [0.0, 0.0, 0.0] }}, {{ t = {t1}, position = [{rx_x}, 0.0, 0.0] }}]
+"""
+DEFAULTS = {
+    "rate_hz": "1.0", "lat": "46.0", "kappa_eq": "1.542", "moment": "1.0", "r_inner": "3.0", "r_outer": "50.0",
+    "r_en": "80.0", "q": "1.0", "d_step_cm": "1", "loss": "0.1", "stall_ms": "10.0", "gps_sigma": "0.1",
+    "tx_x": "20.0", "qw": "1.0", "t1": "10.0", "rx_x": "5.0",
+}
+VEHICLE_SCENE = """spec = 1
+rate_hz = 1.0
+[effects]
+noise = true
+[[transmitters]]
+id = 1
+position = [20.0, 5.0, -1.0]
+[receiver]
+channels = 1
+[receiver.vehicle]
+{key} = {value}
+"""
+VEHICLE_KEYS = ("v_max", "v_z_max", "r_s", "k_c", "k_z", "control_rate_hz", "range_sigma_m", "strip_width", "v_stop",
+                "v_fine", "start_height", "yaw", "terrain_height")
+HOSTILE = st.one_of(
+    st.sampled_from(["0", "-0.0", "-1", "1e-300", "5e-324", "1e300", "1.7976931348623157e308", "-1e308", "1e-7",
+                     "99999.99", "100000", "1e9", "1e30", "0.5", "2", "10000", "1e4"]),
+    st.floats(allow_nan=False, allow_infinity=False).map(repr),
+)
+
+
+def _run_scene(scene) -> None:
+    for stream in scene_streams(scene):
+        stream.render(0, 3)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.dictionaries(st.sampled_from(sorted(DEFAULTS)), HOSTILE, min_size=1, max_size=3))
+def test_any_scene_that_validates_runs(values):
+    """Whatever one to three numbers of a scene are: a one-line SceneError, or three epochs
+    of every stream (receiver with noise and quantisation, $PARVH, GPS, attitude) render."""
+    text = BASE.format(**{**DEFAULTS, **values})
+    try:
+        scene = loads_scene(text, "s.toml")
+    except SceneError as exc:
+        assert "\n" not in str(exc)
+        return
+    _run_scene(scene)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from(VEHICLE_KEYS), HOSTILE)
+def test_any_vehicle_scene_that_validates_runs(key, value):
+    try:
+        scene = loads_scene(VEHICLE_SCENE.format(key=key, value=value), "v.toml")
+    except SceneError as exc:
+        assert "\n" not in str(exc) and f"receiver.vehicle.{key}" in str(exc)
+        return
+    _run_scene(scene)
+
+
+def test_the_fuzzed_scenes_validate_with_their_defaults():
+    """Else the two fuzz tests above would only ever see errors."""
+    scene = loads_scene(BASE.format(**DEFAULTS), "s.toml")
+    labels = [s.label for s in scene_streams(scene)]
+    assert labels == ["arva", "gps:rx", "gps:tx1", "attitude"]
+    _run_scene(scene)
+    _run_scene(loads_scene(VEHICLE_SCENE.format(key="v_max", value="2.0"), "v.toml"))

@@ -18,13 +18,13 @@ from typing import Any
 import numpy as np
 
 from firmware_proto.errors import InputError, PoseError, SceneError
-from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
+from firmware_proto.sentences import MAX_CHANNELS, MAX_D_CM, MAX_ID
 
 from emulator.truth.error import GroundTruthErrorConfig
 from emulator.frames.geodesy import Origin
 from emulator.output.link_faults import LinkFaultConfig
 from emulator.receiver.pulses import PulseConfig
-from emulator.receiver.quantize import QuantizeConfig
+from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
 from emulator.receiver.model import ModelParams
 from emulator.frames.rotation import normalize_quaternions
 from emulator.frames.trajectory import IDENTITY, Trajectory
@@ -368,6 +368,8 @@ def parse_scene(data: dict, source: str) -> Scene:
                 target[tx_id] = rd.number(tx, key, f"{path}.{key}", None)
     transmitters.sort(key=lambda tx: tx.id)
     effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
+    if effects.quantize is not None:
+        _check_quantized_range(rd, model, effects.quantize)
 
     receivers = _receivers(rd, data, rate_hz)
     if effects.link_fault_streams:
@@ -385,6 +387,17 @@ def parse_scene(data: dict, source: str) -> Scene:
     return Scene(
         source, spec, seed, rate_hz, model, effects, tuple(transmitters), receivers, name, origin, ground_truth
     )
+
+
+def _check_quantized_range(rd: _Reader, model: ModelParams, cfg: QuantizeConfig) -> None:
+    """The largest reading (r_inner or r_outer, in cm) must still encode once rounded to
+    the display steps: rounding is monotone, so checking the largest is enough."""
+    largest = int(round(max(model.r_inner, model.r_outer) * 100.0))
+    d, _ = QuantizeEffect(cfg).apply(np.array([largest]), np.array([0]), np.array([False]))
+    if int(d[0]) > MAX_D_CM:
+        key = "quantize.d_step_far_cm" if cfg.d_far_cm is not None and largest >= cfg.d_far_cm else "quantize.d_step_cm"
+        raise rd.fail(key, f"the largest reading ({largest} cm, from model.r_inner / r_outer) would round to {int(d[0])} cm, "
+                           f"beyond the protocol's {MAX_D_CM}")
 
 
 def _ground_truth(rd: _Reader, data: dict, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
