@@ -26,7 +26,17 @@ Ranges (all closed unless said otherwise; every float is finite: nan and inf are
                             created (its nearest existing parent is writable)
 ``new_dir``                 a directory that does not exist yet and can be created
 ``device_spec(kind, fmts)`` ``URL[,role=R][,format=F]`` with a known role / format
+``speed``                   0 (as fast as possible) or MIN_SPEED .. MAX_SPEED
+``seconds``                 0 .. MAX_SECONDS (``positive_seconds``: > 0;
+                            ``signed_seconds``: -MAX_SECONDS .. MAX_SECONDS)
+``seed``                    0 .. 2**63 - 1
+``origin``, ``tx_pose``     latitude -90..90, longitude -180..360, altitude in
+                            ALT_LIMITS, angles -360..360 degrees; tx id 0..65535
+``scheduler_address``       ``[SCHEME://]HOST:PORT`` (tcp, tls, ucx, ws, wss)
 ==========================  ======================================================
+
+``probe_writable(path)`` creates and removes a file to prove it can be written (for an
+output written only after a long run).
 
 Times are seconds, speeds are multiples of real time. The limits of the numeric options
 are constants next to the options that use them (e.g. :data:`MAX_SECONDS`): large
