@@ -58,6 +58,11 @@ SCENES = [
     ("spec = 1\n[model]\nr_outer = 99999.99\n[effects]\nquantize = true\n[quantize]\nd_step_cm = 6000000\n" + TX + RX,
      "s.toml: quantize.d_step_cm: the largest reading (9999999 cm, from model.r_inner / r_outer) would round to 12000000 cm, "
      "beyond the protocol's 9999999"),
+    ("spec = 1\n[effects]\nlink_faults = true\n[link_faults]\nstall = 0.5\nstall_ms = 1e308\n" + TX + RX,
+     "s.toml: link_faults.stall_ms: must be <= 60000, got 1e+308"),
+    ("spec = 1\n" + TX + RX + "gps = true\n[origin]\nlat = 46.0\nlon = 8.0\n[effects]\nground_truth_error = true\n"
+     "[ground_truth_error]\ngps_sigma_m = [1.7976931348623157e308, 0, 0]\n",
+     "s.toml: ground_truth_error.gps_sigma_m[0]: must be within [0, 10000], got 1.79769e+308"),
     (b"spec = 1\nname = \"\xff\"\n", "s.toml: not UTF-8 text (byte offset 17)"),
 ]
 
@@ -187,8 +192,11 @@ d_step_cm = {d_step_cm}
 [link_faults]
 loss = {loss}
 stall_ms = {stall_ms}
+disconnect_every_s = {disconnect_every_s}
 [ground_truth_error]
 gps_sigma_m = [{gps_sigma}, 0.1, 0.1]
+gps_bias_m = [{gps_bias}, 0.0, 0.0]
+attitude_sigma_deg = {attitude_sigma}
 [[transmitters]]
 id = 1
 position = [{tx_x}, 5.0, 0.0]
@@ -202,7 +210,7 @@ path = [{{ t = 0.0, position = [0.0, 0.0, 0.0] }}, {{ t = {t1}, position = [{rx_
 """
 DEFAULTS = {
     "rate_hz": "1.0", "lat": "46.0", "kappa_eq": "1.542", "moment": "1.0", "r_inner": "3.0", "r_outer": "50.0",
-    "r_en": "80.0", "q": "1.0", "d_step_cm": "1", "loss": "0.1", "stall_ms": "10.0", "gps_sigma": "0.1",
+    "r_en": "80.0", "q": "1.0", "d_step_cm": "1", "loss": "0.1", "stall_ms": "10.0", "gps_sigma": "0.1", "gps_bias": "0.5", "attitude_sigma": "1.0", "disconnect_every_s": "0",
     "tx_x": "20.0", "qw": "1.0", "t1": "10.0", "rx_x": "5.0",
 }
 VEHICLE_SCENE = """spec = 1

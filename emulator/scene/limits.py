@@ -41,6 +41,18 @@ MODEL_LIMITS: dict[str, tuple[float, float]] = {
     "moment": STRENGTH_LIMITS,
 }
 
+#: Effect parameters the effects' own checks leave open at the top: (lo, hi) per key.
+#: A stall is a real pause at speed > 0 (1e308 ms hung); outages are scene time but
+#: a day is plenty; GPS errors beyond 10 km overflow nothing but mean nothing either
+#: (1.8e308 overflowed the noise draw).
+EFFECT_PARAM_LIMITS: dict[str, tuple[float, float]] = {
+    "link_faults.stall_ms": (0.0, 60_000.0),
+    "link_faults.disconnect_every_s": (0.0, 86_400.0),
+    "link_faults.disconnect_s": (0.0, 86_400.0),
+    "ground_truth_error.gps_sigma_m": (0.0, 1e4),
+    "ground_truth_error.gps_bias_m": (-1e4, 1e4),
+}
+
 #: Control steps per epoch a closed loop may take (control_rate_hz / rate_hz).
 MAX_CONTROL_STEPS_PER_EPOCH = 1000
 

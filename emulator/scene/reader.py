@@ -29,7 +29,7 @@ from emulator.receiver.model import ModelParams
 from emulator.frames.rotation import normalize_quaternions
 from emulator.frames.trajectory import IDENTITY, Trajectory
 from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
-from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_Q, MODEL_LIMITS, stream_labels
+from emulator.scene.limits import EFFECT_PARAM_LIMITS, MAX_CONTROL_STEPS_PER_EPOCH, MIN_Q, MODEL_LIMITS, stream_labels
 
 #: The newest scene format this program reads.
 SPEC_VERSION = 1
@@ -476,8 +476,9 @@ def _effects(rd: _Reader, data: dict, enabled: dict[str, bool], periods: dict, p
 
 
 def _param(rd: _Reader, table: dict, key: str, path: str, kind: object):
+    limits = EFFECT_PARAM_LIMITS.get(path)
     if kind == "number":
-        return rd.number(table, key, path, None)
+        return rd.number(table, key, path, None, limits=limits)
     if kind == "integer":
         return rd.integer(table, key, path, None, -(2**31), 2**31)
     if kind == "string":
@@ -490,7 +491,12 @@ def _param(rd: _Reader, table: dict, key: str, path: str, kind: object):
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             raise rd.fail(path, "expected an array of strings")
         return value
-    return tuple(rd.vector(table[key], path, kind[1]))
+    values = rd.vector(table[key], path, kind[1])
+    if limits is not None:
+        for i, v in enumerate(values):
+            if not limits[0] <= v <= limits[1]:
+                raise rd.fail(f"{path}[{i}]", f"must be within [{limits[0]:.10g}, {limits[1]:.10g}], got {v:g}")
+    return tuple(values)
 
 
 def _receivers(rd: _Reader, data: dict, rate_hz: float = 1.0) -> tuple[ReceiverSpec, ...]:
