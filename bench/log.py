@@ -28,6 +28,7 @@ from . import __version__
 from .log_status import LiveStatus
 from .logger import DeviceLogger, DeviceSpec
 from .records import FORMATS, decoder_for
+from .preflight import check_sources
 from .session import SessionWriter
 from .transport import check_url
 
@@ -125,6 +126,7 @@ class _FirstFixOrigin:
 
 def run(args: argparse.Namespace) -> int:
     specs = device_specs(args)
+    check_sources(specs, "log")  # a source that can never work is an error, not hours of nothing
     writer = SessionWriter(args.out, manifest(args, specs, sys.argv))
     stop = threading.Event()
     fatal: list[Exception] = []

@@ -1,4 +1,4 @@
-"""``arva-bench dash`` refuses sources that can never work before its TUI starts (issue 16):
+"""``arva-bench dash`` and ``log`` refuse sources that can never work before they start (issue 16):
 exit 2, one line. A device path that does not exist (yet) is still retried by the TUI."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from bench.dash.preflight import check_source
+from bench.preflight import check_source
 from firmware_proto.errors import InputError
 
 
@@ -50,3 +50,11 @@ def test_sources_that_may_work_later_pass(files):
     check_source("socket://127.0.0.1:1")  # a server may come up later
     with pytest.raises(InputError):
         check_source("arvaemu://?speed=nan")
+
+
+def test_log_refuses_them_too_and_creates_no_session(files, tmp_path):
+    _, garbage, bad_scene, _ = files
+    p = subprocess.run([sys.executable, "-m", "bench.cli", "log", "--arva", "bogus://x", "--out", str(tmp_path / "s"),
+                        "--duration", "1"], capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert (p.returncode, p.stderr) == (2, "arva-bench: log: bogus://x: unknown URL scheme 'bogus'\n")
+    assert not (tmp_path / "s").exists()

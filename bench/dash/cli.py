@@ -31,7 +31,7 @@ from firmware_proto.errors import InputError
 from ..log import add_truth_arguments, device_specs
 from ..logger import DeviceSpec
 from ..session import MANIFEST, read_manifest
-from .preflight import check_sources
+from ..preflight import check_sources
 
 DEFAULT_SOURCE = "arvaemu://"
 
@@ -129,7 +129,7 @@ def start_sources(config, post) -> list:
 def run(args: argparse.Namespace) -> int:
     config = build_config(args)
     if config.replay is None:
-        check_sources(config.specs)  # sources that can never work fail here, not in the TUI
+        check_sources(config.specs, "dash")  # sources that can never work fail here, not in the TUI
     from .app import DashApp
 
     app = DashApp(config)

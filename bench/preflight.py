@@ -1,8 +1,8 @@
-"""Sources the dashboard cannot ever read, refused before the TUI starts (issue 16).
+"""Sources that can never be read, refused before ``dash`` or ``log`` starts (issue 16).
 
-The dashboard retries a device that is missing or fails (it may be plugged in later), so
-a source that can *never* work would otherwise redraw "reopening" for ever. These are
-refused up front, as one :class:`InputError` line (exit status 2):
+The dashboard and the logger retry a device that is missing or fails (it may be plugged
+in later), so a source that can *never* work would otherwise redraw "reopening" or log
+nothing for ever. These are refused up front, as one :class:`InputError` line (exit 2):
 
 * a URL whose scheme no pyserial handler knows (``bogus://x``) or whose extra is missing;
 * an ``arvaemu://`` URL whose scene is missing or does not validate, or whose options are
@@ -24,7 +24,7 @@ import serial
 from firmware_proto.decoder import Decoder
 from firmware_proto.errors import InputError
 
-from ..transport import check_url, open_device
+from .transport import check_url, open_device
 
 #: Bytes of a regular file read to find one valid sentence.
 SNIFF_BYTES = 64 * 1024
@@ -40,18 +40,18 @@ def _scheme_known(scheme: str) -> bool:
     return False
 
 
-def check_source(url: str, kind: str = "arva") -> None:
+def check_source(url: str, kind: str = "arva", command: str = "dash") -> None:
     """:class:`InputError` if ``url`` can never deliver data (see the module docstring)."""
     scheme, sep, _ = url.partition("://")
     if sep:
         check_url(url)  # MissingExtra for usb:// / cp2110:// without their extra
         if not scheme or not _scheme_known(scheme.lower()):
-            raise InputError(f"dash: {url}: unknown URL scheme {scheme!r}")
+            raise InputError(f"{command}: {url}: unknown URL scheme {scheme!r}")
         if scheme.lower() == "arvaemu":
             try:
                 open_device(url, timeout=0).close()
             except (serial.SerialException, ValueError) as exc:
-                raise InputError(f"dash: {exc}") from None
+                raise InputError(f"{command}: {exc}") from None
         return
     try:
         st = os.stat(url)
@@ -62,15 +62,16 @@ def check_source(url: str, kind: str = "arva") -> None:
             with open(url, "rb") as f:
                 head = f.read(SNIFF_BYTES)
         except OSError as exc:
-            raise InputError(f"dash: {url}: cannot read: {exc.strerror or exc}") from None
+            raise InputError(f"{command}: {url}: cannot read: {exc.strerror or exc}") from None
         dec = Decoder()
         dec.feed(head)
         dec.flush()
         if dec.stats.sentences_ok == 0:
-            raise InputError(f"dash: {url}: no valid $PARVA sentence in the first {len(head)} bytes")
+            raise InputError(f"{command}: {url}: no valid $PARVA sentence in the first {len(head)} bytes")
 
 
-def check_sources(specs) -> None:
-    """:func:`check_source` for every device spec (``.url``, ``.kind``) of the dashboard."""
+def check_sources(specs, command: str) -> None:
+    """:func:`check_source` for every device spec (``.url``, ``.kind``); ``command`` names
+    the sub-command in the message."""
     for spec in specs:
-        check_source(spec.url, spec.kind)
+        check_source(spec.url, spec.kind, command)
