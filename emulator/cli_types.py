@@ -11,20 +11,19 @@ Ranges (all closed unless said otherwise; every float is finite: nan and inf are
 
 ==========================  ======================================================
 ``real(lo, hi)``            a finite float in [lo, hi] (open ends with ``lo_open``)
-``integer(lo, hi)``         a whole number in [lo, hi] (decimal, no float syntax)
+``integer(lo, hi)``         a whole number in [lo, hi] (decimal, no float syntax);
+                            ``positive_int`` 1 .. 1e9, ``non_negative_int`` 0 .. 1e12
 ``baud_rate``               an integer in :data:`BAUD_LIMITS` (50 .. 12,000,000)
 ``real_list(n, lo, hi)``    n (or n_min..n_max) comma-separated reals in range
 ``choice_list(names)``      one or more comma-separated names from ``names``
-``input_file``              an existing regular file one can read
-``input_path``              an existing file or directory one can read, or ``-``
+``input_file``              an existing regular file one can read; ``''`` is refused
+                            (``scene_file``: the same, for ``--scene``)
 ``session_dir``             an existing directory
 ``existing_dir``            an existing directory one can write to (``--link``)
 ``output_file(suffixes)``   a file that can be created or overwritten: not a
                             directory, in an existing writable directory
-``new_output_file``         as ``output_file``, but must not exist yet
 ``output_dir``              an existing writable directory, or one that can be
                             created (its nearest existing parent is writable)
-``new_dir``                 a directory that does not exist yet and can be created
 ``device_spec(kind, fmts)`` ``URL[,role=R][,format=F]`` with a known role / format
 ``speed``                   0 (as fast as possible) or MIN_SPEED .. MAX_SPEED
 ``seconds``                 0 .. MAX_SECONDS (``positive_seconds``: > 0;
@@ -257,18 +256,6 @@ def input_file(text: str) -> Path:
     return path
 
 
-def input_path(text: str) -> str:
-    """``-`` (stdin), or an existing readable file or directory."""
-    if text == "-":
-        return text
-    path = _path(text)
-    if not path.exists():
-        _fail(f"{text}: no such file or directory")
-    if not os.access(path, os.R_OK):
-        _fail(f"{text}: not readable")
-    return text
-
-
 def session_dir(text: str) -> Path:
     """An existing directory (a session)."""
     path = _path(text)
@@ -291,15 +278,13 @@ def existing_dir(text: str) -> Path:
     return path
 
 
-def _creatable_file(text: str, suffixes: Sequence[str] | None, must_not_exist: bool) -> Path:
+def _creatable_file(text: str, suffixes: Sequence[str] | None) -> Path:
     path = _path(text)
     if suffixes and path.suffix not in suffixes:
         _fail(f"{text}: expected a {' or '.join(suffixes)} file")
     if path.is_dir():
         _fail(f"{text}: is a directory, expected a file")
     if path.exists() or path.is_symlink():
-        if must_not_exist:
-            _fail(f"{text}: already exists")
         if not path.is_file() or not os.access(path, os.W_OK):
             _fail(f"{text}: cannot be overwritten")
         return path
@@ -326,12 +311,7 @@ def probe_writable(path: Path, what: str) -> None:
 
 def output_file(suffixes: Sequence[str] | None = None) -> Callable[[str], Path]:
     """A file that can be created (or overwritten if it is a writable regular file)."""
-    return _named(lambda text: _creatable_file(text, suffixes, False), "output file")
-
-
-def new_output_file(text: str) -> Path:
-    """A file that does not exist yet, in an existing writable directory."""
-    return _creatable_file(text, None, True)
+    return _named(lambda text: _creatable_file(text, suffixes), "output file")
 
 
 def _nearest_existing(path: Path) -> Path:
@@ -357,14 +337,6 @@ def output_dir(text: str) -> Path:
     if not _writable_dir(base):
         _fail(f"{text}: cannot create it: {base} is not writable")
     return path
-
-
-def new_dir(text: str) -> Path:
-    """A directory that does not exist yet and can be created."""
-    path = _path(text)
-    if path.exists() or path.is_symlink():
-        _fail(f"{text}: already exists (give a new directory)")
-    return output_dir(text)
 
 
 def scene_file(text: str) -> Path:

@@ -77,11 +77,9 @@ def test_paths(tmp_path):
     assert out(str(tmp_path / "o.csv")) == tmp_path / "o.csv"
     assert refuses(out, str(tmp_path / "o.txt")) == f"{tmp_path / 'o.txt'}: expected a .csv file"
     assert refuses(out, str(tmp_path / "no" / "o.csv")) == f"{tmp_path / 'no' / 'o.csv'}: directory {tmp_path / 'no'} does not exist"
-    assert refuses(ct.new_output_file, str(f)) == f"{f}: already exists"
     assert ct.output_dir(str(tmp_path / "a" / "b")) == tmp_path / "a" / "b"  # creatable
     assert refuses(ct.output_dir, str(f)) == f"{f}: exists and is not a directory"
     assert refuses(ct.output_dir, str(f / "sub")) == f"{f / 'sub'}: {f} is not a directory"
-    assert refuses(ct.new_dir, str(tmp_path)) == f"{tmp_path}: already exists (give a new directory)"
     assert refuses(ct.existing_dir, str(f)) == f"{f}: not a directory"
     with pytest.raises(InputError, match="cannot write"):
         ct.probe_writable(tmp_path / "no" / "x.csv", "--out")
