@@ -66,7 +66,7 @@ COMMANDS = (
     Command("arva-emulate", EMULATE, ("--frames", "3", "--speed", "0"), (
         Opt("--scene"), Opt("--port"), Opt("--stream"), Opt("--link"), Opt("--frames", "3"),
         Opt("--speed", "0"), Opt("--delay", "0"), Opt("--baud"), Opt("--bytesize"), Opt("--parity"),
-        Opt("--stopbits"),
+        Opt("--stopbits"), Opt("--clock"), Opt("--control"), Opt("--capture"),
     )),
     Command("cat", (*BENCH, "cat"), ("{cat}",), (
         Opt(None), Opt("--baud"), Opt("--epochs"), Opt("--until-idle", "0.2"),
@@ -83,7 +83,7 @@ COMMANDS = (
     )),
     Command("fit", (*BENCH, "fit"), ("{csv}",), (
         Opt(None), Opt("--report"), Opt("--write-scene"), Opt("--fit"), Opt("--r-inner"), Opt("--r-outer"),
-        Opt("--q"), Opt("--pose-sigma"), Opt("--time-offset"), Opt("--seed"),
+        Opt("--q"), Opt("--pose-sigma"), Opt("--time-offset"), Opt("--seed"), Opt("--antennas"),
     ), codes=frozenset({0, 1, 2})),
     Command("dash", (*BENCH, "dash"), (), (
         Opt(None), Opt("--gps"), Opt("--attitude"), Opt("--tx-pose"), Opt("--origin"), Opt("--baud"),
@@ -92,7 +92,7 @@ COMMANDS = (
     Command("arva-sweep", SWEEP, ("--n", "1", "--t-max", "5", "--strategies", "flux", "--workers", "1", "--area", "20,20"), (
         Opt("--n", "1"), Opt("--seed"), Opt("--strategies", "flux"), Opt("--v-max"), Opt("--k-c"),
         Opt("--area", "20,20"), Opt("--max-transmitters"), Opt("--t-max", "5"), Opt("--workers", "1"),
-        Opt("--scheduler"), Opt("--out"),
+        Opt("--scheduler"), Opt("--out"), Opt("--antennas"),
     )),
 )
 

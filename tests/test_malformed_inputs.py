@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from bench.fit.csvio import parse_csv
 from bench.fit.table import COLUMNS, FitInputError
-from emulator.output.streams import scene_streams
+from emulator.pipeline import scene_streams
 from emulator.receiver.model import ModelParams, measure, select_channels
 from emulator.scene.limits import MAX_READING_M, MIN_Q, MODEL_LIMITS, stream_labels
 from emulator.scene.reader import loads_scene

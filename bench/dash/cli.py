@@ -22,13 +22,12 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from dataclasses import replace
 from pathlib import Path
 
-from emulator.cli_types import baud_rate, device_spec, output_dir, positive_seconds, speed
+from emulator.cli_types import baud_rate, output_dir, positive_seconds, speed
 from firmware_proto.errors import InputError
 
-from ..log import add_truth_arguments, device_specs
+from ..log import add_truth_arguments, device_arg, device_specs
 from ..logger import DeviceSpec
 from ..session import MANIFEST, read_manifest
 from ..preflight import check_sources
@@ -39,7 +38,7 @@ DEFAULT_SOURCE = "arvaemu://"
 def register(sub) -> None:
     p = sub.add_parser("dash", help="live terminal view of receivers, ground truth and links", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("source", nargs="*", type=device_spec("arva"), metavar="SOURCE[,role=rxN]",
+    p.add_argument("source", nargs="*", type=device_arg("arva"), metavar="SOURCE[,role=rxN]",
                    help="a receiver (path or pyserial URL) or a session directory; default arvaemu://")
     add_truth_arguments(p, origin_help="ENU origin for GPS positions (default: the session's, else the first receiver fix)")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
@@ -99,31 +98,10 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
         return DashConfig(specs=specs, replay=directory, replay_speed=args.speed, origin=origin,
                           tx_poses=tx_poses, scene_truth=False, **common)  # fmt: skip
     ns = argparse.Namespace(arva=sources, gps=args.gps, attitude=args.attitude, baud=args.baud)
-    try:
-        specs = device_specs(ns)
-    except InputError as exc:
-        raise InputError(str(exc).replace("log:", "dash:", 1)) from None
+    specs = device_specs(ns, command="dash")
     scene_truth = not (args.no_scene_truth or args.gps or args.attitude or args.tx_pose)
     return DashConfig(specs=specs, origin=args.origin, tx_poses=list(args.tx_pose), scene_truth=scene_truth,
                       **common)  # fmt: skip
-
-
-def start_sources(config, post) -> list:
-    """Start the reader threads of ``config``; they talk to the app only through ``post``."""
-    from .sources import DeviceFeed, LiveSource, ReplaySource, SceneTruth
-
-    if config.replay is not None:
-        # The links show where the bytes come from now: the session's raw logs.
-        feeds = [DeviceFeed(replace(s, url=str(config.replay / f"{s.name}.raw")), post) for s in config.specs]
-        sources = [ReplaySource(config.replay, feeds, config.replay_speed)]
-    else:
-        sources = []
-        for spec in config.specs:
-            truth = SceneTruth.for_url(spec.url, spec.role) if config.scene_truth and spec.kind == "arva" else None
-            sources.append(LiveSource(DeviceFeed(spec, post, truth), config.stale_after))
-    for source in sources:
-        source.start()
-    return sources
 
 
 def run(args: argparse.Namespace) -> int:

@@ -76,6 +76,7 @@ class SweepConfig:
     control_rate_hz: float = 10.0
     t_max: float = 1800.0
     chunk: int = 8  # burials per task
+    antennas: int = 3  # receiver class (emulator.receiver.model.ModelParams.antennas)
 
     def tasks(self) -> list[tuple[str, float, float, int]]:
         return [
@@ -131,6 +132,7 @@ def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: 
         "transmitters": [{k: tx[k] for k in ("id", "position", "orientation")} for tx in txs],
         "receiver": {
             "channels": config.max_transmitters,
+            "antennas": config.antennas,
             "vehicle": {
                 "controller": STRATEGIES[strategy],
                 "start": [xmin, ymin],
@@ -319,7 +321,7 @@ def summary_table(summary: list[dict]) -> str:
 MAX_RUNS = 1_000_000
 MAX_T_MAX_S = 86_400.0
 MAX_AREA_M = 10_000.0
-MAX_V_MAX = 20.0  # m/s, as the scene reader's receiver.vehicle.v_max
+MAX_V_MAX = 20.0  # m/s (a scene's receiver.vehicle.v_max may go to 100)
 MAX_K_C = 100.0
 
 
@@ -339,6 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-max", type=real(0.0, MAX_T_MAX_S, lo_open=True), default=1800.0,
                    help=f"scene-time budget per run, s, in (0, {MAX_T_MAX_S:g}]")
     p.add_argument("--no-noise", action="store_true", help="ideal receiver (EMI noise off)")
+    p.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     p.add_argument("--workers", type=integer(1, 1024), help="local processes (default: CPU count)")
     p.add_argument("--scheduler", type=scheduler_address, help="dask.distributed scheduler address, e.g. tcp://host:8786")
     p.add_argument("--out", type=output_file((".csv", ".parquet")),
@@ -350,7 +353,7 @@ def run(args: argparse.Namespace) -> int:
     config = SweepConfig(
         n=args.n, seed=args.seed, strategies=args.strategies, v_max=args.v_max, k_c=args.k_c,
         area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
-        noise=not args.no_noise,
+        noise=not args.no_noise, antennas=args.antennas,
     )
     if args.out is not None:
         check_output(args.out)

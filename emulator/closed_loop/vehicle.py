@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from emulator.cli_types import BAUD_LIMITS
 from emulator.scene.limits import MAX_VEHICLE_COORD_M, VEHICLE_LIMITS
+from emulator.scene.tables import TableReader
 
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")
 
@@ -247,8 +248,8 @@ _VEHICLE_KEYS = {
 _MAVLINK_ONLY = {"mavlink", "mavlink_origin", "mavlink_baud"}
 
 
-def parse_vehicle(rd: Any, data: Any, path: str, scene_dir: Path | None) -> VehicleSpec:
-    """Validate a ``vehicle`` table with the scene's ``_Reader`` ``rd``."""
+def parse_vehicle(rd: TableReader, data: Any, path: str, scene_dir: Path | None) -> VehicleSpec:
+    """Validate a ``vehicle`` table with the scene's reader ``rd`` (its file, its rules)."""
     if not isinstance(data, dict):
         raise rd.fail(path, "expected a table")
     rd.known_keys(data, path, _VEHICLE_KEYS)
@@ -313,20 +314,20 @@ def parse_vehicle(rd: Any, data: Any, path: str, scene_dir: Path | None) -> Vehi
     return spec
 
 
-def _coords(rd: Any, values: list[float], path: str) -> tuple[float, ...]:
+def _coords(rd: TableReader, values: list[float], path: str) -> tuple[float, ...]:
     for i, v in enumerate(values):
         if abs(v) > MAX_VEHICLE_COORD_M:
             raise rd.fail(f"{path}[{i}]", f"must be within [{-MAX_VEHICLE_COORD_M:g}, {MAX_VEHICLE_COORD_M:g}] m, got {v:g}")
     return tuple(values)
 
 
-def _non_negative(rd: Any, value: float, path: str) -> float:
+def _non_negative(rd: TableReader, value: float, path: str) -> float:
     if value < 0:
         raise rd.fail(path, f"must be >= 0, got {value:g}")
     return value
 
 
-def _terrain(rd: Any, data: dict, path: str, scene_dir: Path | None) -> tuple[Terrain, str]:
+def _terrain(rd: TableReader, data: dict, path: str, scene_dir: Path | None) -> tuple[Terrain, str]:
     p = lambda key: f"{path}.{key}"  # noqa: E731
     name = data.get("terrain", "flat")
     if not isinstance(name, str) or not name:

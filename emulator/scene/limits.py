@@ -83,7 +83,7 @@ def stream_labels(n_receivers: int, receivers_truth: list[tuple[int, bool, bool]
     receivers), then ``gps`` / ``attitude`` (suffixed ``:rx``, ``:rx<id>``, ``:tx<id>``
     when several devices stream the same kind). ``*_truth`` are (id, gps, attitude).
 
-    ``emulator.output.streams.scene_streams`` names its streams the same way
+    ``emulator.pipeline.stream_layout`` names its streams the same way
     (tests/test_scene_limits.py checks that they agree).
     """
     several = n_receivers > 1

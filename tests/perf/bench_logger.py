@@ -20,7 +20,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
 from _report import ROOT, markdown_table, write_section  # noqa: E402
-from emulator_proc import EmulatorProcess  # noqa: E402
+from emulator.testing import EmulatorProcess  # noqa: E402
 
 from bench.session import read_jsonl, read_raw  # noqa: E402
 
@@ -64,8 +64,8 @@ def ingest(tmp: Path, target: float, seconds: float) -> dict:
     out = tmp / f"ingest-{int(target)}"
     try:
         logger = subprocess.Popen(log_cmd(emu.ports, out, 600), stderr=subprocess.PIPE, text=True)
-        emu.proc.wait(timeout=600)
-        emu_err = emu.proc.stderr.read().decode().strip()
+        emu.wait(timeout=600)
+        emu_err = emu.stderr().strip()
         time.sleep(1.0)
         logger.terminate()
         logger.wait(timeout=60)
