@@ -25,7 +25,7 @@ import sys
 import time
 from typing import Protocol
 
-from emulator.output.ports import baud_rate
+from emulator.cli_types import baud_rate, positive_int, positive_seconds
 from firmware_proto.decoder import Decoder
 from firmware_proto.errors import LinkError
 from firmware_proto.events import DecoderStats, Epoch
@@ -122,26 +122,6 @@ def summary(stats: DecoderStats) -> str:
     return "arva-bench: cat: " + " ".join(f"{k}={v}" for k, v in stats.as_dict().items())
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number of seconds: {text!r}")
-    return value
-
-
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "cat",
@@ -156,9 +136,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("source", metavar="SOURCE", help="file path, device, pyserial URL, or - for stdin")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
-    p.add_argument("--epochs", type=_positive_int, metavar="N", help="stop after N epochs")
+    p.add_argument("--epochs", type=positive_int, metavar="N", help="stop after N epochs")
     p.add_argument(
-        "--until-idle", type=_positive_float, metavar="SECONDS", help="stop when no byte arrives for SECONDS"
+        "--until-idle", type=positive_seconds, metavar="SECONDS", help="stop when no byte arrives for SECONDS"
     )
     p.add_argument(
         "--expect-fields",

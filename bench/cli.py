@@ -13,7 +13,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from firmware_proto.errors import InputError, LinkError
+from emulator.cli_types import OneLineParser, run_main
 
 from . import __version__
 
@@ -22,7 +22,7 @@ SUBCOMMANDS: tuple[str, ...] = ("cat", "devices", "log", "export", "replay", "da
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="arva-bench",
         description="Log, replay, export and fit ARVA receivers and their ground truth.",
     )
@@ -38,21 +38,19 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:
-        parser.print_help(sys.stderr)
-        parser.exit(2)
+        parser.error(f"a command is required: one of {', '.join(SUBCOMMANDS)} (see arva-bench --help)")
     return args
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
-    logging.basicConfig(
-        level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-bench: %(message)s"
-    )
-    try:
-        return int(args.func(args) or 0)
-    except (InputError, LinkError) as exc:
-        print(f"arva-bench: {exc}", file=sys.stderr)
-        return 2
+    def parse() -> argparse.Namespace:
+        args = parse_args(argv)
+        logging.basicConfig(
+            level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-bench: %(message)s"
+        )
+        return args
+
+    return run_main("arva-bench", parse, lambda args: args.func(args))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from emulator.cli_types import origin as origin_type, output_file, positive_seconds, session_dir, signed_seconds
 from emulator.frames.attitude import hpr_to_quaternion
 from emulator.frames.geodesy import Origin, geodetic_to_enu
 from emulator.progress import Tracker, progress
@@ -255,27 +256,19 @@ def write_csv(columns: dict[str, np.ndarray], path: str | Path, tracker: Tracker
 def register(sub) -> None:
     p = sub.add_parser("export", help="the aligned CSV the fit consumes", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("session", metavar="DIR", help="session directory")
-    p.add_argument("--csv", required=True, metavar="FILE", help="output CSV (normative columns)")
-    p.add_argument("--origin", metavar="LAT,LON[,ALT]", help="ENU origin (default: the session's, else the first receiver fix)")
-    p.add_argument("--latency", type=float, default=0.0, metavar="S",
+    p.add_argument("session", type=session_dir, metavar="DIR", help="session directory")
+    p.add_argument("--csv", required=True, type=output_file(), metavar="FILE", help="output CSV (normative columns)")
+    p.add_argument("--origin", type=origin_type, metavar="LAT,LON[,ALT]", help="ENU origin (default: the session's, else the first receiver fix)")
+    p.add_argument("--latency", type=signed_seconds, default=0.0, metavar="S",
                    help="the receiver's output latency: poses are taken S seconds before each epoch's arrival")
-    p.add_argument("--max-gap", type=float, default=2.0, metavar="S",
+    p.add_argument("--max-gap", type=positive_seconds, default=2.0, metavar="S",
                    help="interpolate poses only between fixes at most S seconds apart (default 2)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    origin = None
-    if args.origin:
-        try:
-            origin = [float(v) for v in args.origin.split(",")]
-        except ValueError:
-            raise InputError(f"export: --origin {args.origin}: expected LAT,LON[,ALT]") from None
-        if len(origin) not in (2, 3):
-            raise InputError(f"export: --origin {args.origin}: expected LAT,LON[,ALT]")
     with progress("export: decoding", unit="rows") as bar:
-        result = export_rows(args.session, origin, args.latency, args.max_gap)
+        result = export_rows(args.session, args.origin, args.latency, args.max_gap)
         bar.update(description="export: writing", total=result.rows, completed=0)
         try:
             write_csv(result.columns, args.csv, tracker=bar)

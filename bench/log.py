@@ -21,65 +21,21 @@ import sys
 import threading
 import time
 
-from emulator.output.ports import baud_rate
+from emulator.cli_types import baud_rate, device_spec, origin, output_dir, positive_seconds, tx_pose
 from firmware_proto.errors import InputError, LinkError
 
 from . import __version__
 from .log_status import LiveStatus
 from .logger import DeviceLogger, DeviceSpec
 from .records import FORMATS, decoder_for
+from .preflight import check_sources
 from .session import SessionWriter
 from .transport import check_url
 
 
 def device_arg(kind: str):
-    """argparse type for ``URL[,role=R][,format=F]`` (options after the URL, in any order)."""
-    formats = FORMATS.get(kind)
-
-    def parse(text: str) -> tuple:
-        url, role, fmt = text, "rx", None
-        while True:
-            head, sep, value = url.rpartition(",")
-            key, eq, value = value.partition("=")
-            if not sep or not eq or key not in ("role", "format"):
-                break
-            url = head
-            if key == "role":
-                role = value
-            else:
-                fmt = value
-        if not (role == "rx" or (role.startswith(("rx", "tx")) and role[2:].isdigit())):
-            raise argparse.ArgumentTypeError(f"{text!r}: role must be rx, rx<ID> or tx<ID>, got {role!r}")
-        if fmt is not None and (formats is None or fmt not in formats):
-            allowed = "no format option" if formats is None else "format " + " or ".join(formats)
-            raise argparse.ArgumentTypeError(f"{text!r}: {kind} devices take {allowed}, got {fmt!r}")
-        if not url:
-            raise argparse.ArgumentTypeError(f"{text!r}: no device URL before the options")
-        return (url, role) if formats is None else (url, role, fmt)
-
-    parse.__name__ = f"{kind} device"
-    return parse
-
-
-def _floats(text: str, n_min: int, n_max: int, what: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{what}: expected numbers separated by commas, got {text!r}") from None
-    if not n_min <= len(values) <= n_max:
-        raise argparse.ArgumentTypeError(f"{what}: expected {n_min}..{n_max} numbers, got {len(values)}")
-    return values
-
-
-def _tx_pose(text: str) -> tuple[int, list[float]]:
-    tx, sep, rest = text.partition("=")
-    if not sep or not tx.isdigit():
-        raise argparse.ArgumentTypeError(f"expected ID=lat,lon,alt[,heading,roll,pitch], got {text!r}")
-    return int(tx), _floats(rest, 3, 6, f"--tx-pose {tx}")
-
-
-def _origin(text: str) -> list[float]:
-    return _floats(text, 2, 3, "--origin")
+    """argparse type for ``URL[,role=R][,format=F]`` of a device of ``kind`` (cli_types.device_spec)."""
+    return device_spec(kind, FORMATS.get(kind))
 
 
 def add_truth_arguments(p: argparse.ArgumentParser, origin_help: str) -> None:
@@ -90,9 +46,9 @@ def add_truth_arguments(p: argparse.ArgumentParser, origin_help: str) -> None:
                    metavar="URL[,role=R][,format=mavlink]",
                    help="an attitude unit ($PASHR; format=mavlink: an autopilot's MAVLink ATTITUDE_QUATERNION, "
                         "the mavlink extra); role rx (default) or tx<ID>")
-    p.add_argument("--tx-pose", action="append", default=[], type=_tx_pose, metavar="ID=LAT,LON,ALT[,H,R,P]",
+    p.add_argument("--tx-pose", action="append", default=[], type=tx_pose, metavar="ID=LAT,LON,ALT[,H,R,P]",
                    help="a transmitter's surveyed pose (degrees, metres HAE; heading/roll/pitch in degrees)")
-    p.add_argument("--origin", type=_origin, metavar="LAT,LON[,ALT]", help=origin_help)
+    p.add_argument("--origin", type=origin, metavar="LAT,LON[,ALT]", help=origin_help)
 
 
 def register(sub) -> None:
@@ -100,9 +56,9 @@ def register(sub) -> None:
     p.add_argument("--arva", action="append", default=[], type=device_arg("arva"), metavar="URL[,role=rxN]",
                    help="an ARVA receiver (repeatable)")
     add_truth_arguments(p, origin_help="geodetic origin of the session's ENU frame")
-    p.add_argument("--out", required=True, metavar="DIR", help="new session directory")
+    p.add_argument("--out", required=True, type=output_dir, metavar="DIR", help="new session directory")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--duration", type=positive_seconds, metavar="S", help="stop after S seconds")
     p.add_argument("--note", default="", help="free text stored in the manifest")
     p.set_defaults(func=run)
 
@@ -171,6 +127,7 @@ class _FirstFixOrigin:
 
 def run(args: argparse.Namespace) -> int:
     specs = device_specs(args)
+    check_sources(specs, "log")  # a source that can never work is an error, not hours of nothing
     writer = SessionWriter(args.out, manifest(args, specs, sys.argv))
     stop = threading.Event()
     fatal: list[Exception] = []

@@ -21,6 +21,7 @@ import threading
 import time
 from pathlib import Path
 
+from emulator.cli_types import existing_dir, seconds, session_dir, speed
 from emulator.output.net_ports import ServerPort, open_server_port, stderr_notifier
 from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
 from emulator.progress import progress
@@ -32,12 +33,12 @@ from .session import read_manifest, read_raw
 def register(sub) -> None:
     p = sub.add_parser("replay", help="replay a session's devices on ptys with their timing", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("session", metavar="DIR")
-    p.add_argument("--speed", type=float, default=1.0, metavar="X", help="X times real time; 0 = as fast as possible")
+    p.add_argument("session", type=session_dir, metavar="DIR")
+    p.add_argument("--speed", type=speed, default=1.0, metavar="X", help="X times real time; 0 = as fast as possible")
     p.add_argument("--port", default="pty", metavar="PORT", help="default port for every device (default pty)")
     p.add_argument("--device", action="append", default=[], metavar="NAME=PORT", help="one device to its own port")
-    p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<device> to the ptys")
-    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="wait S seconds after announcing the ptys")
+    p.add_argument("--link", type=existing_dir, metavar="DIR", help="stable symlinks DIR/<device> to the ptys")
+    p.add_argument("--delay", type=seconds, default=0.0, metavar="S", help="wait S seconds after announcing the ptys")
     p.add_argument("--serve-any-host", action="store_true",
                    help="let rfc2217-server/tcp-server ports listen on non-loopback addresses")
     p.set_defaults(func=run)

@@ -9,20 +9,18 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
-import os
 import signal
 import sys
 import threading
 from collections.abc import Sequence
-from pathlib import Path
 
-from firmware_proto.errors import InputError, LinkError, SceneError
+from firmware_proto.errors import InputError
 
 from emulator import __version__
+from emulator.cli_types import OneLineParser, baud_rate, non_negative_int, output_dir, run_main, scene_file, seconds, speed
 from emulator.control import runtime as control_runtime
 from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port, stderr_notifier
-from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, baud_rate, is_file_spec
+from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, is_file_spec
 from emulator.scene.reader import default_scene, load_scene
 from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
 from emulator.pipeline import Pipeline
@@ -33,26 +31,6 @@ log = logging.getLogger("arva-emulate")
 _PARITIES = {"N": "N", "E": "E", "O": "O", "M": "M", "S": "S"}
 
 
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
-
-
-def _speed(text: str) -> float:  # also used for --delay: a finite number >= 0
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
-
-
 def _stream_port(text: str) -> tuple[str, str]:
     label, sep, port = text.partition("=")
     if not sep or not label or not port:
@@ -61,11 +39,11 @@ def _stream_port(text: str) -> tuple[str, str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="arva-emulate",
         description="Emulate an ARVA receiver: stream $PARVA sentences for a scene to a port.",
     )
-    p.add_argument("--scene", metavar="FILE", help="scene TOML file (default: the embedded paper case study)")
+    p.add_argument("--scene", type=scene_file, metavar="FILE", help="scene TOML file (default: the embedded paper case study)")
     p.add_argument(
         "--port",
         default="-",
@@ -90,18 +68,18 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="let rfc2217-server/tcp-server ports listen on non-loopback addresses (a lab network)",
     )
-    p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
-    p.add_argument("--frames", type=_non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
+    p.add_argument("--link", type=output_dir, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
+    p.add_argument("--frames", type=non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
     p.add_argument(
         "--speed",
-        type=_speed,
+        type=speed,
         default=1.0,
         metavar="X",
         help="run X times real time; 0 = as fast as possible (default 1)",
     )
     p.add_argument(
         "--delay",
-        type=_speed,
+        type=seconds,
         default=0.0,
         metavar="S",
         help="wait S seconds after announcing ptys before the first epoch (time for clients to open them)",
@@ -188,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(profile_table())
         return 0
     with_control = control_runtime.wanted(args)
-    scene = load_scene(args.scene) if args.scene else default_scene()
+    scene = load_scene(args.scene) if args.scene is not None else default_scene()
     pipe = Pipeline(scene)
     specs = assign_ports(pipe.labels, args.port, args.stream)
     stop = threading.Event()
@@ -230,7 +208,8 @@ def run(args: argparse.Namespace) -> int:
                 control.close()
             if status is not None:
                 sys.stderr.write("\r\x1b[K")
-            print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
+        # Only after a normal end: an error is then the one line on stderr.
+        print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
     finally:
         for port in ports.values():
             port.close()
@@ -254,23 +233,15 @@ def _stop_on_signals(stop: threading.Event) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = parse_args(argv)
-    logging.basicConfig(
-        level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-emulate: %(message)s"
-    )
-    try:
-        return run(args)
-    except SceneError as exc:
-        print(exc, file=sys.stderr)  # exactly FILE: key.path: reason, the form editors jump to
-        return 2
-    except (InputError, LinkError) as exc:
-        print(f"arva-emulate: {exc}", file=sys.stderr)
-        return 2
-    except BrokenPipeError:
-        # The reader went away (e.g. `| head`): stop quietly, like any Unix filter, and
-        # keep the interpreter's final flush of stdout from complaining.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    def parse() -> argparse.Namespace:
+        args = parse_args(argv)
+        logging.basicConfig(
+            level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-emulate: %(message)s"
+        )
+        return args
+
+    # SceneError bare: exactly FILE: key.path: reason, the form editors jump to.
+    return run_main("arva-emulate", parse, run, bare_scene_errors=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -78,20 +78,21 @@ def _fast_constructor(cls: type, names: tuple[str, ...]):  # type: ignore[no-unt
 _new_parva = _fast_constructor(Parva, ("offset", "seq", "n", "k", "id", "d", "delta"))
 
 
-def _slot_ok(tx_id: int, d: int, delta: int) -> bool:
+def _slot_ok(tx_id: int, d: int, delta: int, max_d_cm: int = MAX_D_CM) -> bool:
     if tx_id == -1 and d == -1 and delta == -1:
         return True
-    return 0 <= tx_id <= MAX_ID and 0 <= d <= MAX_D_CM and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA
+    return 0 <= tx_id <= MAX_ID and 0 <= d <= max_d_cm and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA
 
 
-def parse_line(line: bytes, offset: int = 0) -> Parva | Parvh | ErrorKind:
+def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva | Parvh | ErrorKind:
     """Parse one complete line ``$...\\r\\n`` as delimited by the framing machine.
 
     The caller guarantees what framing guarantees: ``line`` starts with ``$``, ends with
     LF, is at most 82 bytes, and every other byte is printable ASCII (not ``$``) or CR.
     Checks, in this order (the first failure decides the kind): ``*hh`` CR LF framing with
     two upper-case hex digits (MALFORMED), checksum (BAD_CHECKSUM), address (UNKNOWN_SENTENCE),
-    field count and syntax (MALFORMED), field limits (OUT_OF_RANGE).
+    field count and syntax (MALFORMED), field limits (OUT_OF_RANGE; ``d`` above
+    ``max_d_cm``, the receiver's maximum range when the caller knows it, is out of range too).
     """
     if len(line) < 6 or line[-2] != 13 or line[-5] != 42:
         return ErrorKind.MALFORMED
@@ -110,7 +111,7 @@ def parse_line(line: bytes, offset: int = 0) -> Parva | Parvh | ErrorKind:
             if _INT.fullmatch(p) is None:
                 return ErrorKind.MALFORMED
         seq, n, k, tx_id, d, delta = map(int, parts[1:])
-        if not (0 <= seq < SEQ_MODULO and 1 <= n <= MAX_CHANNELS and 1 <= k <= n and _slot_ok(tx_id, d, delta)):
+        if not (0 <= seq < SEQ_MODULO and 1 <= n <= MAX_CHANNELS and 1 <= k <= n and _slot_ok(tx_id, d, delta, max_d_cm)):
             return ErrorKind.OUT_OF_RANGE
         return Parva(offset, seq, n, k, tx_id, d, delta)
     if addr == b"PARVH":
@@ -143,9 +144,17 @@ class Decoder:
     ``stats`` (:class:`DecoderStats`) counts everything. ``expect_fields=True`` holds every
     epoch for a possible ``$PARVH`` of its last slot from the start (by default that starts
     with the first ``$PARVH`` seen; see :mod:`firmware_proto.epochs`).
+
+    ``max_d_cm`` is a plausibility check on top of the XOR checksum: a ``$PARVA`` whose
+    ``d`` exceeds it is rejected as OUT_OF_RANGE. Give the receiver's maximum range (e.g.
+    5000 for r_outer = 50 m); the default, the protocol's 9,999,999 cm, adds no check.
+    See docs/protocol.md, "What the checksum misses".
     """
 
-    def __init__(self, expect_fields: bool = False) -> None:
+    def __init__(self, expect_fields: bool = False, max_d_cm: int = MAX_D_CM) -> None:
+        if not (isinstance(max_d_cm, int) and 0 <= max_d_cm <= MAX_D_CM):
+            raise ValueError(f"max_d_cm must be an integer in 0..{MAX_D_CM}, got {max_d_cm!r}")
+        self.max_d_cm = max_d_cm
         self.stats = DecoderStats()
         self.assembler = EpochAssembler(self.stats, expect_fields=expect_fields)
         self._partial = b""  # open sentence (starts with '$', at most 81 bytes)
@@ -177,6 +186,7 @@ class Decoder:
         tail = pieces.pop()
         px = _prefix_xor(buf) if len(buf) >= _PX_MIN else None
         fast = _FAST_PARVA.fullmatch
+        max_d = self.max_d_cm
         asm = self.assembler
         stats = self.stats
         on_parva = asm.on_parva
@@ -199,7 +209,7 @@ class Decoder:
                     and nn <= MAX_CHANNELS
                     and k <= nn
                     and (
-                        (0 <= tx_id <= MAX_ID and 0 <= d <= MAX_D_CM and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA)
+                        (0 <= tx_id <= MAX_ID and 0 <= d <= max_d and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA)
                         or (tx_id == -1 and d == -1 and delta == -1)
                     )
                 ):
@@ -275,7 +285,7 @@ class Decoder:
                 self._partial_offset = base + d
                 return
             line = s[d:] + b"\n"
-            result = parse_line(line, base + d)
+            result = parse_line(line, base + d, self.max_d_cm)
             if isinstance(result, ErrorKind):
                 self._error(result, base + d, len(line), out)
             else:
@@ -294,9 +304,9 @@ def _prefix_xor(buf: bytes) -> bytes:
     return np.bitwise_xor.accumulate(np.frombuffer(buf, dtype=np.uint8)).tobytes()
 
 
-def decode(data: bytes, expect_fields: bool = False) -> tuple[list[Event], DecoderStats]:
+def decode(data: bytes, expect_fields: bool = False, max_d_cm: int = MAX_D_CM) -> tuple[list[Event], DecoderStats]:
     """Decode a whole stream at once (feed + flush)."""
-    dec = Decoder(expect_fields=expect_fields)
+    dec = Decoder(expect_fields=expect_fields, max_d_cm=max_d_cm)
     events = dec.feed(data)
     events += dec.flush()
     return events, dec.stats

@@ -75,6 +75,8 @@ def build_library() -> ctypes.CDLL:
     size_t, p = ctypes.c_size_t, ctypes.c_void_p
     lib.arva_test_decoder_size.restype = size_t
     lib.arva_decoder_init.argtypes = [p, ctypes.c_int]
+    lib.arva_decoder_set_max_range.argtypes = [p, ctypes.c_long]
+    lib.arva_decoder_set_max_range.restype = ctypes.c_int
     lib.arva_test_feed.argtypes = [p, ctypes.c_char_p, size_t, p, size_t]
     lib.arva_test_feed.restype = size_t
     lib.arva_test_flush.argtypes = [p, p, size_t]
@@ -100,10 +102,12 @@ class CDecoder:
     """The C decoder behind the same calls as the Python one; events come back as the
     canonical text lines of :func:`firmware_proto.golden.event_text`."""
 
-    def __init__(self, expect_fields: bool = False) -> None:
+    def __init__(self, expect_fields: bool = False, max_d_cm: int | None = None) -> None:
         self.lib = build_library()
         self._state = ctypes.create_string_buffer(self.lib.arva_test_decoder_size())
         self.lib.arva_decoder_init(self._state, int(expect_fields))
+        if max_d_cm is not None and self.lib.arva_decoder_set_max_range(self._state, max_d_cm) != 0:
+            raise ValueError(f"max_d_cm {max_d_cm} refused")
 
     def _call(self, fn, *args, cap: int) -> list[str]:  # type: ignore[no-untyped-def]
         out = ctypes.create_string_buffer(cap)

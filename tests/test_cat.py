@@ -98,9 +98,9 @@ def test_garbage_only_stream_exits_zero_with_everything_counted() -> None:
         (["bogus://x"], "arva-bench: cat: bogus://x: invalid URL, protocol 'bogus' not known"),
         ([str(ROOT)], f"arva-bench: cat: {ROOT}: Is a directory"),
         ([], "arva-bench: cat: the following arguments are required: SOURCE (see arva-bench cat --help)"),
-        (["-", "--epochs", "0"], "arva-bench: cat: argument --epochs: must be at least 1: '0' (see arva-bench cat --help)"),
+        (["-", "--epochs", "0"], "arva-bench: cat: argument --epochs: must be >= 1, got 0 (see arva-bench cat --help)"),
         (["-", "--until-idle", "-1"],
-         "arva-bench: cat: argument --until-idle: must be a positive number of seconds: '-1' (see arva-bench cat --help)"),
+         "arva-bench: cat: argument --until-idle: must be > 0, got -1 (see arva-bench cat --help)"),
     ],  # fmt: skip
 )
 def test_bad_arguments_exit_2_with_one_line(args: list[str], message: str) -> None:

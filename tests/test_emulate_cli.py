@@ -125,8 +125,8 @@ def test_chunking_does_not_change_noisy_output(tmp_path):
     [
         (["--frames", "-1"], "argument --frames: must be >= 0, got -1"),
         (["--frames", "x"], "argument --frames: expected a whole number, got 'x'"),
-        (["--speed", "-2"], "argument --speed: must be a finite number >= 0, got -2"),
-        (["--speed", "nan"], "argument --speed: must be a finite number >= 0, got nan"),
+        (["--speed", "-2"], "argument --speed: must be 0 (as fast as possible) or within 1e-06..1e+06, got -2"),
+        (["--speed", "nan"], "argument --speed: must be 0 (as fast as possible) or within 1e-06..1e+06, got nan"),
     ],
 )
 def test_bad_arguments_exit_2(argv, fragment, capsys):

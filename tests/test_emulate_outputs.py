@@ -134,5 +134,7 @@ def test_link_dir_is_created(tmp_path, capsys):
 def test_link_that_is_a_file_is_refused(tmp_path, capsys):
     blocker = tmp_path / "links"
     blocker.write_text("not a directory")
-    assert main(["--port", "pty", "--link", str(blocker), "--frames", "1", "--speed", "0"]) == 2
-    assert capsys.readouterr().err == f"arva-emulate: --link {blocker}: not a directory\n"
+    with pytest.raises(SystemExit) as info:  # refused by its argparse type (cli_types.output_dir)
+        main(["--port", "pty", "--link", str(blocker), "--frames", "1", "--speed", "0"])
+    assert info.value.code == 2
+    assert capsys.readouterr().err == f"arva-emulate: error: argument --link: {blocker}: exists and is not a directory\n"

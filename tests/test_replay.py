@@ -63,7 +63,7 @@ def test_replay_to_stdout_as_fast_as_possible(tmp_path):
     "args, message",
     [
         (["--device", "nope=-"], "arva-bench: replay: --device nope=-: expected NAME=PORT with NAME one of arva, gps-rx\n"),
-        (["--speed", "-1"], "arva-bench: replay: --speed -1.0: must be a finite number >= 0\n"),
+        (["--speed", "-1"], "arva-bench replay: error: argument --speed: must be 0 (as fast as possible) or within 1e-06..1e+06, got -1\n"),
     ],
 )
 def test_replay_errors(tmp_path, args, message):

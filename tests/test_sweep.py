@@ -5,6 +5,7 @@ import csv
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -128,8 +129,9 @@ def test_bad_output_is_refused_before_the_sweep_runs(tmp_path):
                               capture_output=True, text=True, timeout=60)  # fmt: skip
 
     for out, why in [
-        (tmp_path / "rows.xlsx", f"arva-sweep: --out {tmp_path / 'rows.xlsx'}: give a .csv or .parquet file\n"),
-        (tmp_path / "no" / "rows.csv", f"arva-sweep: --out {tmp_path / 'no' / 'rows.csv'}: directory {tmp_path / 'no'} does not exist\n"),
+        (tmp_path / "rows.xlsx", f"arva-sweep: error: argument --out: {tmp_path / 'rows.xlsx'}: expected a .csv or .parquet file\n"),
+        (tmp_path / "no" / "rows.csv", f"arva-sweep: error: argument --out: {tmp_path / 'no' / 'rows.csv'}: directory {tmp_path / 'no'} does not exist\n"),
+        (Path("/proc/rows.csv"), "arva-sweep: --out /proc/rows.csv: cannot write: No such file or directory\n"),
     ]:  # fmt: skip
         p = run("--out", str(out))
         assert (p.returncode, p.stdout, p.stderr) == (2, "", why)

@@ -24,12 +24,13 @@ import os
 import sys
 from pathlib import Path
 
-from emulator.output.ports import baud_rate
+from emulator.cli_types import baud_rate, output_dir, positive_seconds, speed
 from firmware_proto.errors import InputError
 
 from ..log import add_truth_arguments, device_arg, device_specs
 from ..logger import DeviceSpec
 from ..session import MANIFEST, read_manifest
+from ..preflight import check_sources
 
 DEFAULT_SOURCE = "arvaemu://"
 
@@ -41,11 +42,11 @@ def register(sub) -> None:
                    help="a receiver (path or pyserial URL) or a session directory; default arvaemu://")
     add_truth_arguments(p, origin_help="ENU origin for GPS positions (default: the session's, else the first receiver fix)")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
-    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+    p.add_argument("--speed", type=speed, default=1.0, metavar="X",
                    help="replay a session directory X times real time; 0 = as fast as possible (default 1)")
-    p.add_argument("--stale", type=float, default=3.0, metavar="S",
+    p.add_argument("--stale", type=positive_seconds, default=3.0, metavar="S",
                    help="a device silent for S seconds is marked STALE and reopened (default 3)")
-    p.add_argument("--record-dir", type=Path, default=Path("sessions"), metavar="DIR",
+    p.add_argument("--record-dir", type=output_dir, default=Path("sessions"), metavar="DIR",
                    help="where r records sessions: DIR/<UTC start> (default ./sessions)")
     p.add_argument("--no-scene-truth", action="store_true",
                    help="do not take ground truth from an arvaemu:// source's scene")
@@ -105,6 +106,8 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
 
 def run(args: argparse.Namespace) -> int:
     config = build_config(args)
+    if config.replay is None:
+        check_sources(config.specs, "dash")  # sources that can never work fail here, not in the TUI
     from .app import DashApp
 
     app = DashApp(config)

@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
+from emulator.cli_types import output_dir, output_file, real, seed
 from emulator.progress import progress
 
 OPTIONAL_FREE = ("q", "r_outer", "time_offset")
@@ -37,9 +37,9 @@ def register(subparsers) -> None:
     )
     p.add_argument("input", metavar="INPUT", help="CSV file, '-' (stdin) or session directory")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
-    p.add_argument("--report", metavar="DIR", type=Path, help="write DIR/report.md and DIR/fit.png")
+    p.add_argument("--report", metavar="DIR", type=output_dir, help="write DIR/report.md and DIR/fit.png")
     p.add_argument(
-        "--write-scene", metavar="FILE", type=Path, help="write the fitted [model] table into scene FILE (created if missing)"
+        "--write-scene", metavar="FILE", type=output_file(), help="write the fitted [model] table into scene FILE (created if missing)"
     )
     p.add_argument(
         "--fit",
@@ -59,20 +59,16 @@ def register(subparsers) -> None:
     )
     fixed.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     fixed.add_argument(
-        "--time-offset", type=float, default=0.0, metavar="SEC", help="evaluate readings at the poses of t + SEC (default 0)"
+        "--time-offset", type=TIME_OFFSET, default=0.0, metavar="SEC", help="evaluate readings at the poses of t + SEC (default 0)"
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the report's simulations and the subsample (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the report's simulations and the subsample (default 0)")
     p.set_defaults(func=run)
 
 
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return v
+#: Model distances (m): above 0, at most what the protocol can carry (9,999,999 cm).
+_positive = real(0.0, 99_999.99, lo_open=True)
+#: A receiver's output latency is well under a minute; an hour is generous.
+TIME_OFFSET = real(-3600.0, 3600.0)
 
 
 def _q_triple(text: str) -> tuple[float, float, float]:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from emulator.frames.rotation import MIN_QUATERNION_NORM
+from firmware_proto.sentences import MAX_ABS_DELTA, MAX_D_CM
 
 from .table import COLUMNS, INTEGER_COLUMNS, FitInputError, Table
 
@@ -129,6 +130,17 @@ def validate(table: Table) -> None:
     if bad.any():
         k = int(np.argmax(bad))
         raise FitInputError(f"{table.where(k)}: column d: must be -1 or >= 0 cm, got {table.d[k]}")
+    # The protocol's ranges (BRIEF 4): a value no receiver can send is a corrupt row.
+    bad = table.d > MAX_D_CM
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise FitInputError(f"{table.where(k)}: column d: must be <= {MAX_D_CM} cm, got {table.d[k]}")
+    bad = np.abs(table.delta) > MAX_ABS_DELTA
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise FitInputError(
+            f"{table.where(k)}: column delta: must be within -{MAX_ABS_DELTA}..{MAX_ABS_DELTA} degrees, got {table.delta[k]}"
+        )
 
 
 def _raise_first_bad(source: str, name: str, cells, line_no) -> None:

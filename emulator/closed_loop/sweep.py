@@ -46,7 +46,10 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_proto.errors import InputError, MissingExtra
+from emulator.cli_types import (
+    OneLineParser, choice_list, integer, output_file, probe_writable, real, real_list, run_main, scheduler_address, seed,
+)
+from firmware_proto.errors import InputError, LinkError, MissingExtra
 
 from emulator.progress import Tracker
 from emulator.progress import progress as progress_bar
@@ -60,6 +63,9 @@ COLUMNS = (
 
 #: Sweep engines: runs stepped together (the default) or one by one (the reference).
 ENGINES = ("batch", "run")
+
+#: How long to wait for a dask scheduler before giving up (s).
+SCHEDULER_TIMEOUT_S = 10.0
 
 #: Strategy name -> the vehicle's controller (flux_reverse: eq. 10 with sign reversal).
 STRATEGIES = {"flux": "flux", "flux_reverse": "flux", "receiver_only": "receiver_only"}
@@ -257,7 +263,13 @@ def sweep(
 
         from distributed import as_completed
 
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+        except (OSError, TimeoutError) as exc:
+            raise LinkError(f"--scheduler {scheduler}: cannot reach it within {SCHEDULER_TIMEOUT_S:g} s ({exc})") from None
+        except Exception as exc:  # noqa: BLE001  something answered, but not a dask scheduler
+            raise LinkError(f"--scheduler {scheduler}: not a dask scheduler ({type(exc).__name__})") from None
+        with client:
             size = chunk_size(config, len(tasks), max(1, sum(client.nthreads().values())))
             chunks = [tasks[i : i + size] for i in range(0, len(tasks), size)]
             futures = client.map(run_chunk, [config] * len(chunks), chunks, pure=False)
@@ -275,6 +287,7 @@ def sweep(
             parts = [done(run_chunk(config, c), len(c)) for c in chunks]
             executor = "in process"
         else:
+            workers = min(workers, len(chunks))
             with ProcessPoolExecutor(max_workers=workers) as pool:
                 parts = [done(p, len(c)) for p, c in zip(pool.map(run_chunk, [config] * len(chunks), chunks), chunks)]
             executor = f"process pool x{workers}"
@@ -397,6 +410,7 @@ def check_output(path: Path) -> None:
         raise InputError(f"--out {path}: directory {path.parent} does not exist")
     if path.suffix == ".parquet":
         _pyarrow()
+    probe_writable(path, "--out")
 
 
 def write_table(rows: list[dict], path: str | Path) -> None:
@@ -445,56 +459,53 @@ def summary_table(summary: list[dict]) -> str:
 
 
 # --------------------------------------------------------------------------- CLI
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(",") if v)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if not values or not all(math.isfinite(v) and v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"expected numbers > 0, got {text!r}")
-    return values
+#: Option ranges: a sweep is hours at most, not years; an area a drone can fly.
+MAX_RUNS = 1_000_000
+MAX_T_MAX_S = 86_400.0
+MAX_AREA_M = 10_000.0
+MAX_V_MAX = 20.0  # m/s (a scene's receiver.vehicle.v_max may go to 100)
+MAX_K_C = 100.0
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="arva-sweep", description="Seeded random burials per search strategy, in closed loop.")
-    p.add_argument("--n", type=int, default=100, help="burials per strategy and gain (default 100)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--strategies", default="flux,flux_reverse,receiver_only", help="comma-separated (default: all three)")
-    p.add_argument("--v-max", type=_floats, default=(1.0,), help="m/s, comma-separated grid (default 1)")
-    p.add_argument("--k-c", type=_floats, default=(0.2,), help="eq. 10 gain, comma-separated grid (default 0.2)")
-    p.add_argument("--area", type=_floats, default=(80.0, 80.0), help="search area WIDTH,HEIGHT in m (default 80,80)")
-    p.add_argument("--max-transmitters", type=int, default=4)
-    p.add_argument("--t-max", type=float, default=1800.0, help="scene-time budget per run, s")
+def build_parser() -> argparse.ArgumentParser:
+    p = OneLineParser(prog="arva-sweep", description="Seeded random burials per search strategy, in closed loop.")
+    p.add_argument("--n", type=integer(1, MAX_RUNS), default=100, help="burials per strategy and gain (default 100)")
+    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--strategies", type=choice_list(STRATEGIES, "strategy"), default=tuple(STRATEGIES),
+                   help="comma-separated (default: all three)")
+    p.add_argument("--v-max", type=real_list(1, 64, 0.0, MAX_V_MAX, lo_open=True), default=(1.0,),
+                   help=f"m/s, comma-separated grid in (0, {MAX_V_MAX:g}] (default 1)")
+    p.add_argument("--k-c", type=real_list(1, 64, 0.0, MAX_K_C, lo_open=True), default=(0.2,),
+                   help="eq. 10 gain, comma-separated grid (default 0.2)")
+    p.add_argument("--area", type=real_list(2, 2, 0.0, MAX_AREA_M, lo_open=True), default=(80.0, 80.0),
+                   help=f"search area WIDTH,HEIGHT in m, each in (0, {MAX_AREA_M:g}] (default 80,80)")
+    p.add_argument("--max-transmitters", type=integer(1, 99), default=4)
+    p.add_argument("--t-max", type=real(0.0, MAX_T_MAX_S, lo_open=True), default=1800.0,
+                   help=f"scene-time budget per run, s, in (0, {MAX_T_MAX_S:g}]")
     p.add_argument("--no-noise", action="store_true", help="ideal receiver (EMI noise off)")
     p.add_argument("--engine", choices=ENGINES, default="batch",
                    help="batch: runs of one strategy stepped together (default); run: one by one (the reference)")
-    p.add_argument("--bootstrap", type=int, default=1000, help="resamples for the p99/max confidence intervals (default 1000)")
-    p.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
-    p.add_argument("--workers", type=int, help="local processes (default: CPU count)")
-    p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
-    p.add_argument("--out", type=Path, help="write the rows here (.csv, or .parquet with the parquet extra)")
-    args = p.parse_args(argv)
-    strategies = tuple(s for s in args.strategies.split(",") if s)
-    for s in strategies:
-        if s not in STRATEGIES:
-            p.error(f"--strategies: unknown strategy {s!r} ({', '.join(STRATEGIES)})")
-    if len(args.area) != 2 or args.n < 1 or not 1 <= args.max_transmitters <= 99 or args.bootstrap < 0:
-        p.error("--area takes WIDTH,HEIGHT; --n >= 1; --max-transmitters 1..99; --bootstrap >= 0")
+    p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000, help="resamples for the p99/max confidence intervals (default 1000)")
+    p.add_argument("--antennas", type=integer(2, 3), default=3, help="receiver class (default 3)")
+    p.add_argument("--workers", type=integer(1, 1024), help="local processes (default: CPU count)")
+    p.add_argument("--scheduler", type=scheduler_address, help="dask.distributed scheduler address, e.g. tcp://host:8786")
+    p.add_argument("--out", type=output_file((".csv", ".parquet")),
+                   help="write the rows here (.csv, or .parquet with the parquet extra)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
     config = SweepConfig(
-        n=args.n, seed=args.seed, strategies=strategies, v_max=args.v_max, k_c=args.k_c,
+        n=args.n, seed=args.seed, strategies=args.strategies, v_max=args.v_max, k_c=args.k_c,
         area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
         noise=not args.no_noise, engine=args.engine, bootstrap=args.bootstrap, antennas=args.antennas,
     )
-    try:
-        if args.out is not None:
-            check_output(args.out)
-        with progress_bar("arva-sweep", total=len(config.tasks()), unit="runs") as bar:
-            result = sweep(config, workers=args.workers, scheduler=args.scheduler, progress=bar)
-        if args.out is not None:
-            write_table(result.rows, args.out)
-    except InputError as exc:
-        print(f"arva-sweep: {exc}", file=sys.stderr)
-        return 2
+    if args.out is not None:
+        check_output(args.out)
+    with progress_bar("arva-sweep", total=len(config.tasks()), unit="runs") as bar:
+        result = sweep(config, workers=args.workers, scheduler=args.scheduler, progress=bar)
+    if args.out is not None:
+        write_table(result.rows, args.out)
     print(summary_table(result.summary))
     print(
         f"{len(config.tasks())} runs, {result.scene_s:,.0f} s of scene time in {result.wall_s:.1f} s "
@@ -502,6 +513,10 @@ def main(argv: list[str] | None = None) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_main("arva-sweep", lambda: build_parser().parse_args(argv), run)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from emulator.output.ports import BAUD_LIMITS
+from emulator.cli_types import BAUD_LIMITS
+from emulator.scene.limits import MAX_VEHICLE_COORD_M, VEHICLE_LIMITS
 from emulator.scene.tables import TableReader
 
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")
@@ -269,14 +270,16 @@ def parse_vehicle(rd: TableReader, data: Any, path: str, scene_dir: Path | None)
         for key in sorted(_MAVLINK_ONLY & set(data)):
             raise rd.fail(p(key), 'only with controller = "external_mavlink"')
     d = VehicleSpec()
-    num = lambda key, default, positive=False: rd.number(data, key, p(key), default, positive)  # noqa: E731
+    num = lambda key, default, positive=False: rd.number(  # noqa: E731
+        data, key, p(key), default, positive, limits=VEHICLE_LIMITS.get(key)
+    )
     nonneg = lambda key, default: _non_negative(rd, num(key, default), p(key))  # noqa: E731
 
-    start = tuple(rd.vector(data["start"], p("start"), 2)) if "start" in data else d.start
+    start = _coords(rd, rd.vector(data["start"], p("start"), 2), p("start")) if "start" in data else d.start
     terrain, source = _terrain(rd, data, path, scene_dir)
     area = None
     if "search_area" in data:
-        area = tuple(rd.vector(data["search_area"], p("search_area"), 4))
+        area = _coords(rd, rd.vector(data["search_area"], p("search_area"), 4), p("search_area"))
         if not (area[2] > area[0] and area[3] > area[1]):
             raise rd.fail(p("search_area"), "expected [xmin, ymin, xmax, ymax] with xmax > xmin and ymax > ymin")
     mavlink = None
@@ -317,6 +320,13 @@ def parse_vehicle(rd: TableReader, data: Any, path: str, scene_dir: Path | None)
     return spec
 
 
+def _coords(rd: TableReader, values: list[float], path: str) -> tuple[float, ...]:
+    for i, v in enumerate(values):
+        if abs(v) > MAX_VEHICLE_COORD_M:
+            raise rd.fail(f"{path}[{i}]", f"must be within [{-MAX_VEHICLE_COORD_M:g}, {MAX_VEHICLE_COORD_M:g}] m, got {v:g}")
+    return tuple(values)
+
+
 def _non_negative(rd: TableReader, value: float, path: str) -> float:
     if value < 0:
         raise rd.fail(path, f"must be >= 0, got {value:g}")
@@ -332,7 +342,8 @@ def _terrain(rd: TableReader, data: dict, path: str, scene_dir: Path | None) -> 
         for key in ("terrain_origin", "terrain_spacing"):
             if key in data:
                 raise rd.fail(p(key), "only with a DEM terrain file")
-        return FlatTerrain(rd.number(data, "terrain_height", p("terrain_height"), 0.0)), "flat"
+        height = rd.number(data, "terrain_height", p("terrain_height"), 0.0, limits=VEHICLE_LIMITS["terrain_height"])
+        return FlatTerrain(height), "flat"
     if "terrain_height" in data:
         raise rd.fail(p("terrain_height"), 'only with terrain = "flat" (a DEM gives the heights)')
     for key in ("terrain_origin", "terrain_spacing"):

@@ -52,7 +52,8 @@ from serial.serialutil import SerialBase
 
 from firmware_proto.errors import InputError, LinkError
 
-from emulator.output.ports import BAUD_LIMITS, Port
+from emulator.cli_types import BAUD_LIMITS
+from emulator.output.ports import Port
 
 #: Transmit FIFO of every emulated UART, bytes (the Linux serial core's xmit buffer).
 UART_FIFO_BYTES = 4096

@@ -21,25 +21,6 @@ from pathlib import Path
 
 from firmware_proto.errors import LinkError
 
-#: Baud rates a serial option may take: the slowest teletype to a 12 Mbaud FTDI bridge.
-#: Outside them pyserial either refuses or overflows inside termios with a traceback.
-BAUD_LIMITS = (50, 12_000_000)
-
-
-def baud_rate(text: str) -> int:
-    """argparse type for ``--baud`` (shared by arva-emulate and arva-bench)."""
-    import argparse
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    lo, hi = BAUD_LIMITS
-    if not lo <= value <= hi:
-        raise argparse.ArgumentTypeError(f"must be within {lo}..{hi}, got {value}")
-    return value
-
-
 class Port:
     """Base class of all ports. ``label`` names the stream (``arva``, ``gps:rx`` ...)."""
 

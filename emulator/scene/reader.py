@@ -13,12 +13,15 @@ import datetime as _dt
 import math
 import tomllib
 from dataclasses import replace
+
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from firmware_proto.errors import InputError, SceneError
-from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
+from firmware_proto.sentences import MAX_CHANNELS, MAX_D_CM, MAX_ID
 
 from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
 from emulator.frames.geodesy import Origin
@@ -27,7 +30,8 @@ from emulator.output.link_faults import LinkFaultConfig
 from emulator.receiver.model import ANTENNAS, ModelParams
 from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
-from emulator.receiver.quantize import QuantizeConfig
+from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
+from emulator.scene.limits import EFFECT_PARAM_LIMITS, MAX_CONTROL_STEPS_PER_EPOCH, MIN_Q, MODEL_LIMITS, stream_labels
 from emulator.scene.tables import TableReader, type_name
 from emulator.scene.types import (
     SPEC_VERSION,
@@ -112,7 +116,12 @@ def parse_scene(data: dict, source: str) -> Scene:
     for i, qi in enumerate(q):
         if not 0 < qi <= 1:
             raise rd.fail(f"model.q[{i}]", f"must be in (0, 1], got {qi:g}")
-    values = {k: rd.number(m, k, f"model.{k}", getattr(defaults, k), positive=True) for k in sorted(_MODEL_KEYS - {"q"})}
+        if qi < MIN_Q:
+            raise rd.fail(f"model.q[{i}]", f"must be >= {MIN_Q:g}, got {qi:g}")
+    values = {
+        k: rd.number(m, k, f"model.{k}", getattr(defaults, k), positive=True, limits=MODEL_LIMITS[k])
+        for k in sorted(_MODEL_KEYS - {"q"})
+    }
     try:
         model = ModelParams(q=q, **values)
     except InputError as exc:
@@ -154,6 +163,19 @@ def parse_scene(data: dict, source: str) -> Scene:
     effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
 
     receivers = _receivers(rd, data, rate_hz, profiles, m, "quantize" in e)
+    for rx in receivers:
+        quantize = effects.quantize if rx.display is None else rx.display
+        if quantize is not None:
+            _check_quantized_range(rd, rx.model or model, quantize)
+    if effects.link_fault_streams:
+        labels = stream_labels(
+            len(receivers),
+            [(rx.id, rx.gps, rx.attitude) for rx in receivers],
+            [(tx.id, tx.gps, tx.attitude) for tx in transmitters],
+        )
+        for i, label in enumerate(effects.link_fault_streams):
+            if label not in labels:
+                raise rd.fail(f"link_faults.streams[{i}]", f"no stream {label!r} in this scene (streams: {', '.join(labels)})")
     origin, ground_truth = _ground_truth(rd, data, transmitters, receivers)
     if effects.ground_truth_error is not None and not any(d.gps or d.attitude for d in (*transmitters, *receivers)):
         raise rd.fail("effects.ground_truth_error", "no device has gps or attitude streams to apply it to")
@@ -161,6 +183,28 @@ def parse_scene(data: dict, source: str) -> Scene:
         source, spec, seed, rate_hz, receivers[0].model or model, effects, tuple(transmitters), receivers, name,
         origin, ground_truth,
     )
+
+
+def _check_quantized_range(rd: TableReader, model: ModelParams, cfg: QuantizeConfig) -> None:
+    """The largest reading (r_inner or r_outer, in cm) must still encode once rounded to
+    the display steps: rounding is monotone, so checking the largest is enough."""
+    largest = int(round(max(model.r_inner, model.r_outer) * 100.0))
+    d, _ = QuantizeEffect(cfg).apply(np.array([largest]), np.array([0]), np.array([False]))
+    if int(d[0]) > MAX_D_CM:
+        key = "quantize.d_step_far_cm" if cfg.d_far_cm is not None and largest >= cfg.d_far_cm else "quantize.d_step_cm"
+        raise rd.fail(key, f"the largest reading ({largest} cm, from model.r_inner / r_outer) would round to {int(d[0])} cm, "
+                           f"beyond the protocol's {MAX_D_CM}")
+
+
+def _check_model_limits(rd: TableReader, model: ModelParams) -> None:
+    """A receiver's final model (defaults, profile, scene keys) within emulator.scene.limits."""
+    for key, (lo, hi) in MODEL_LIMITS.items():
+        value = getattr(model, key)
+        if not lo <= value <= hi:
+            raise rd.fail(f"model.{key}", f"must be within [{lo:.10g}, {hi:.10g}], got {value:g}")
+    for i, qi in enumerate(model.q):
+        if qi < MIN_Q:
+            raise rd.fail(f"model.q[{i}]", f"must be >= {MIN_Q:g}, got {qi:g}")
 
 
 def _ground_truth(rd: TableReader, data: dict, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
@@ -239,8 +283,9 @@ def _effects(rd: TableReader, data: dict, enabled: dict[str, bool], periods: dic
 
 
 def _param(rd: TableReader, table: dict, key: str, path: str, kind: object):
+    limits = EFFECT_PARAM_LIMITS.get(path)
     if kind == "number":
-        return rd.number(table, key, path, None)
+        return rd.number(table, key, path, None, limits=limits)
     if kind == "integer":
         return rd.integer(table, key, path, None, -(2**31), 2**31)
     if kind == "string":
@@ -253,7 +298,12 @@ def _param(rd: TableReader, table: dict, key: str, path: str, kind: object):
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             raise rd.fail(path, "expected an array of strings")
         return value
-    return tuple(rd.vector(table[key], path, kind[1]))
+    values = rd.vector(table[key], path, kind[1])
+    if limits is not None:
+        for i, v in enumerate(values):
+            if not limits[0] <= v <= limits[1]:
+                raise rd.fail(f"{path}[{i}]", f"must be within [{limits[0]:.10g}, {limits[1]:.10g}], got {v:g}")
+    return tuple(values)
 
 
 def _receiver_tables(data: dict) -> list[tuple[Any, str]]:
@@ -293,14 +343,20 @@ def _profile_rate(rd: TableReader, profiles: list[ReceiverProfile | None]) -> fl
 def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, m: dict, r: dict, path: str) -> ModelParams:
     """Defaults, then the profile, then the scene's ``[model]`` keys, then ``antennas``."""
     base = profile.model if profile is not None else ModelParams()
-    values = {k: rd.number(m, k, f"model.{k}", None, positive=True) for k in sorted(_MODEL_KEYS - {"q"}) if k in m}
+    values = {
+        k: rd.number(m, k, f"model.{k}", None, positive=True, limits=MODEL_LIMITS[k])
+        for k in sorted(_MODEL_KEYS - {"q"})
+        if k in m
+    }
     if "q" in m:
         values["q"] = tuple(rd.vector(m["q"], "model.q", 3))
     values["antennas"] = rd.integer(r, "antennas", f"{path}.antennas", base.antennas, min(ANTENNAS), max(ANTENNAS))
     try:
-        return replace(base, **values)
+        model = replace(base, **values)
     except InputError as exc:
         raise rd.fail("model", str(exc)) from None
+    _check_model_limits(rd, model)
+    return model
 
 
 def _receivers(
@@ -374,6 +430,12 @@ def _vehicle(rd: TableReader, r: dict, path: str, rate_hz: float) -> VehicleSpec
             f"{path}.vehicle.control_rate_hz",
             f"must be a whole multiple of rate_hz = {rate_hz:g}, got {vehicle.control_rate_hz:g}",
         )
+    if round(ratio) > MAX_CONTROL_STEPS_PER_EPOCH:
+        raise rd.fail(
+            f"{path}.vehicle.control_rate_hz",
+            f"at most {MAX_CONTROL_STEPS_PER_EPOCH} control steps per epoch (rate_hz = {rate_hz:g}), "
+            f"got {vehicle.control_rate_hz:g} Hz",
+        )
     return vehicle
 
 
@@ -403,6 +465,8 @@ def loads_scene(raw: bytes | str, source: str) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(source, "", f"TOML syntax: {exc}") from None
+    except RecursionError:  # tomllib recurses once per nesting level
+        raise SceneError(source, "", "TOML nested too deeply") from None
     return parse_scene(data, source)
 
 

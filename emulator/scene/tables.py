@@ -67,7 +67,10 @@ class TableReader:
             raise self.fail(path, f"must be within [{lo:g}, {hi:g}] Hz, got {value:g}")
         return value
 
-    def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False) -> float:
+    def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False,
+               limits: tuple[float, float] | None = None) -> float:
+        """A finite number; ``positive``: > 0; ``limits`` (lo, hi): within [lo, hi]
+        (with ``positive`` and lo = 0: within (0, hi]). See :mod:`emulator.scene.limits`."""
         value = data.get(key, default)
         if value is None:
             raise self.fail(path, "missing")
@@ -78,6 +81,10 @@ class TableReader:
             raise self.fail(path, f"must be finite, got {value}")
         if positive and not value > 0:
             raise self.fail(path, f"must be > 0, got {value:g}")
+        if limits is not None and value < limits[0]:
+            raise self.fail(path, f"must be >= {limits[0]:.10g}, got {value:g}")
+        if limits is not None and value > limits[1]:
+            raise self.fail(path, f"must be <= {limits[1]:.10g}, got {value:g}")
         return value
 
     def boolean(self, data: dict, key: str, path: str, default: bool) -> bool:

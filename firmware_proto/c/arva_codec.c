@@ -327,7 +327,7 @@ static int hex_value(uint8_t c)
 }
 
 /* line[0..len-1]: '$' ... '\n', len <= 82, framing guarantees the rest (see decoder.py). */
-static void parse_line(const uint8_t *line, size_t len, parse_result *r)
+static void parse_line(const uint8_t *line, size_t len, long max_d_cm, parse_result *r)
 {
     const uint8_t *body = line + 1;
     size_t blen, i, ntok = 0;
@@ -383,7 +383,7 @@ static void parse_line(const uint8_t *line, size_t len, parse_result *r)
             }
         }
         if (v[0] < 0 || v[0] >= ARVA_SEQ_MODULO || v[1] < 1 || v[1] > ARVA_MAX_CHANNELS || v[2] < 1 || v[2] > v[1] ||
-            !slot_ok(v[3], v[4], v[5])) {
+            !slot_ok(v[3], v[4], v[5]) || v[4] > max_d_cm) {
             r->kind = ARVA_OUT_OF_RANGE;
             return;
         }
@@ -607,7 +607,7 @@ static void on_error(arva_decoder *dec, arva_error_kind kind, uint32_t offset, u
 static void complete_line(arva_decoder *dec)
 {
     parse_result r;
-    parse_line(dec->line, dec->len, &r);
+    parse_line(dec->line, dec->len, (long)dec->max_d_cm, &r);
     if (r.kind != ARVA_OK) {
         on_error(dec, r.kind, dec->start, dec->len);
         return;
@@ -670,6 +670,16 @@ void arva_decoder_init(arva_decoder *dec, int expect_fields)
         p[i] = 0;
     }
     dec->expect_fields = (uint8_t)(expect_fields != 0);
+    dec->max_d_cm = ARVA_MAX_D_CM;
+}
+
+int arva_decoder_set_max_range(arva_decoder *dec, long max_d_cm)
+{
+    if (max_d_cm < 0 || max_d_cm > ARVA_MAX_D_CM) {
+        return -1;
+    }
+    dec->max_d_cm = (int32_t)max_d_cm;
+    return 0;
 }
 
 /* A byte that simply extends an open sentence: printable ASCII except '$', or CR. */

@@ -165,6 +165,7 @@ typedef struct {
     uint8_t expect_fields;
     uint8_t have_last_seq;
     uint16_t last_seq;
+    int32_t max_d_cm;     /* readings beyond it are OUT_OF_RANGE (arva_decoder_set_max_range) */
     /* events produced but not yet returned */
     arva_event queue[3];
     uint8_t qhead;
@@ -174,6 +175,12 @@ typedef struct {
 /* Resets everything. expect_fields: hold each epoch for a possible $PARVH of its last
  * slot from the start (otherwise that starts with the first $PARVH seen). */
 void arva_decoder_init(arva_decoder *dec, int expect_fields);
+
+/* Plausibility check on top of the XOR checksum (docs/protocol.md, "What the checksum
+ * misses"): reject as OUT_OF_RANGE every $PARVA whose d exceeds max_d_cm, the receiver's
+ * maximum range (e.g. 5000 for r_outer = 50 m). Default after init: ARVA_MAX_D_CM (no
+ * extra check). Returns 0, or -1 (and changes nothing) for a value outside 0..ARVA_MAX_D_CM. */
+int arva_decoder_set_max_range(arva_decoder *dec, long max_d_cm);
 
 /* Consumes bytes from *data / *len (advancing both) until one event is ready, then
  * stores it in *ev and returns 1; returns 0 when all input is consumed and no event is

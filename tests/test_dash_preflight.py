@@ -1,0 +1,60 @@
+"""``arva-bench dash`` and ``log`` refuse sources that can never work before they start (issue 16):
+exit 2, one line. A device path that does not exist (yet) is still retried by the TUI."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from bench.preflight import check_source
+from firmware_proto.errors import InputError
+
+
+def dash(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bench.cli", "dash", *argv], stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=60)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    root = tmp_path_factory.mktemp("preflight")
+    garbage = root / "garbage.bin"
+    garbage.write_bytes(bytes(range(256)) * 8)
+    bad_scene = root / "bad.toml"
+    bad_scene.write_text("spec = 1\n[model]\nr_en = 1e300\n[receiver]\nposition = [0, 0, 0]\n")
+    good = root / "good.nmea"
+    good.write_bytes(b"noise\r\n$PARVA,0,1,1,1,761,-62*4C\r\n")
+    return root, garbage, bad_scene, good
+
+
+def test_sources_that_can_never_work_exit_2_before_the_tui(files):
+    root, garbage, bad_scene, _ = files
+    cases = [
+        (["bogus://x"], "arva-bench: dash: bogus://x: unknown URL scheme 'bogus'\n"),
+        ([f"arvaemu://{root}/missing.toml"], f"arva-bench: dash: {root}/missing.toml: cannot read: No such file or directory\n"),
+        ([f"arvaemu://{bad_scene}"], f"arva-bench: dash: {bad_scene}: model.r_en: must be <= 1000000000, got 1e+300\n"),
+        ([str(garbage)], f"arva-bench: dash: {garbage}: no valid $PARVA sentence in the first 2048 bytes\n"),
+    ]
+    for argv, message in cases:
+        p = dash(*argv)
+        assert (p.returncode, p.stdout, p.stderr) == (2, "", message), argv
+
+
+def test_sources_that_may_work_later_pass(files):
+    root, _, _, good = files
+    check_source(str(root / "ttyUSB-not-plugged-yet"))  # retried by the TUI
+    check_source(str(good))
+    check_source("arvaemu://")
+    check_source("socket://127.0.0.1:1")  # a server may come up later
+    with pytest.raises(InputError):
+        check_source("arvaemu://?speed=nan")
+
+
+def test_log_refuses_them_too_and_creates_no_session(files, tmp_path):
+    _, garbage, bad_scene, _ = files
+    p = subprocess.run([sys.executable, "-m", "bench.cli", "log", "--arva", "bogus://x", "--out", str(tmp_path / "s"),
+                        "--duration", "1"], capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert (p.returncode, p.stderr) == (2, "arva-bench: log: bogus://x: unknown URL scheme 'bogus'\n")
+    assert not (tmp_path / "s").exists()
