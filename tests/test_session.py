@@ -16,7 +16,7 @@ from firmware_proto.errors import InputError, LinkError
 
 
 def test_layout_and_exact_lines(tmp_path):
-    w = SessionWriter(tmp_path / "s", {"devices": {"arva": {"url": "loop://"}}})
+    w = SessionWriter(tmp_path / "s", {"devices": {"arva": {"kind": "arva", "url": "loop://"}}})
     w.raw("arva", b"$PARVA,0,1,1,-1,-1,-1*78\r\n", mono=12.5, utc=1_800_000_000.25)
     w.record("arva", {"seq": 0, "complete": True, "slots": [[-1, -1, -1]]})
     w.close(epochs=1)
@@ -27,8 +27,8 @@ def test_layout_and_exact_lines(tmp_path):
     events = list(read_jsonl(tmp_path / "s" / "events.jsonl"))
     assert [e["event"] for e in events] == ["start", "stop"] and events[1]["epochs"] == 1
     m = read_manifest(tmp_path / "s")
-    assert m["format"] == "arva-session" and m["version"] == 1
-    assert m["devices"] == {"arva": {"url": "loop://"}} and m["summary"] == {"epochs": 1}
+    assert m["format"] == "arva-session" and m["version"] == 2  # 2: records stamped by the stamp rule
+    assert m["devices"] == {"arva": {"kind": "arva", "url": "loop://"}} and m["summary"] == {"epochs": 1}
     assert m["start_utc"] <= m["stop_utc"]
     assert read_raw(tmp_path / "s" / "arva.raw").reads[0].data == b"$PARVA,0,1,1,-1,-1,-1*78\r\n"
 
