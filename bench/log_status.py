@@ -28,7 +28,7 @@ def si(value: float, unit: str) -> str:
 
 
 class LiveStatus:
-    """Rates and the table for a list of :class:`~bench.logger.DeviceLogger`."""
+    """Rates and the table for a list of :class:`~bench.ingest.reader.Device`."""
 
     def __init__(self, loggers, window: float = WINDOW) -> None:
         self.loggers = loggers

@@ -193,7 +193,8 @@ def test_not_a_session(tmp_path):
 
 
 def test_a_full_disk_while_a_logger_stops_is_reported_not_raised(tmp_path):
-    from bench.logger import DeviceLogger, DeviceSpec
+    from bench.ingest.reader import Device, Notifier
+    from bench.logger import DeviceSpec, SessionListener
     from firmware_proto.sentences import encode_parva
 
     class FullWriter:
@@ -207,9 +208,10 @@ def test_a_full_disk_while_a_logger_stops_is_reported_not_raised(tmp_path):
             raise LinkError(f"{tmp_path}/arva.jsonl: write failed: No space left on device")
 
     fatal = []
-    lg = DeviceLogger(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty")), FullWriter(), fatal.append)
-    lg.start()
+    dev = Device(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty")))
+    notifier = Notifier([dev], [SessionListener(FullWriter())], on_error=fatal.append)
+    notifier.start()
     # One slot of a two-slot epoch: flushed at stop as an incomplete epoch record.
-    assert lg.decoder.feed(encode_parva(7, 2, 1, 1, 100, 0)) == []
-    lg.stop()  # must not raise: the session still gets closed by its owner
+    assert dev.decoder.feed(encode_parva(7, 2, 1, 1, 100, 0)) == []
+    notifier.stop()  # must not raise: the session still gets closed by its owner
     assert [str(e) for e in fatal] == [f"{tmp_path}/arva.jsonl: write failed: No space left on device"]

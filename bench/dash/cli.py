@@ -108,7 +108,7 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
 
 
 def start_sources(config, post) -> list:
-    """Start the reader threads of ``config``; they talk to the app only through ``post``."""
+    """Start the readers of ``config``; they talk to the app only through ``post``."""
     from .sources import DeviceFeed, LiveSource, ReplaySource, SceneTruth
 
     if config.replay is not None:
@@ -116,10 +116,11 @@ def start_sources(config, post) -> list:
         feeds = [DeviceFeed(replace(s, url=str(config.replay / f"{s.name}.raw")), post) for s in config.specs]
         sources = [ReplaySource(config.replay, feeds, config.replay_speed)]
     else:
-        sources = []
+        feeds = []
         for spec in config.specs:
             truth = SceneTruth.for_url(spec.url, spec.role) if config.scene_truth and spec.kind == "arva" else None
-            sources.append(LiveSource(DeviceFeed(spec, post, truth), config.stale_after))
+            feeds.append(DeviceFeed(spec, post, truth))
+        sources = [LiveSource(feeds, config.stale_after)]  # one selector loop reads them all
     for source in sources:
         source.start()
     return sources

@@ -14,7 +14,8 @@ returned; ``utc`` moves by the same amount. Stamps of one device never go backwa
 stamp earlier than the device's previous record's is raised to it (a link faster than
 its nominal baud, e.g. a socket or a pty, can deliver more bytes in a read than the
 baud allows; those records then tie, which the export accepts). A record released by
-``flush`` (end of input) or ``idle`` (a quiet link) is stamped with that moment.
+``flush`` (end of input), ``stop`` (the reading stopped) or ``idle`` (a quiet link) is
+stamped with that moment.
 
 Records complete on a line end (``\\n``) for every line format (``$PARVA``, NMEA); a
 binary format (MAVLink) completes records on any byte, so it is fed one byte at a time.
@@ -108,6 +109,14 @@ class StampedDecoder:
         if idle is not None:
             self._stamp(out, idle(), mono, utc)
         return out
+
+    def stop(self, mono: float, utc: float) -> tuple[list[Stamped], int]:
+        """The records pending when the reading stops, and the length of a sentence the
+        stop cut (not an error: see :meth:`bench.records.RecordDecoder.stop`)."""
+        records, cut = self.decoder.stop()
+        out: list[Stamped] = []
+        self._stamp(out, records, mono, utc)
+        return out, cut
 
     def flush(self, mono: float, utc: float) -> list[Stamped]:
         """The rest at end of input."""
