@@ -17,23 +17,35 @@ baud allows; those records then tie, which the export accepts). A record release
 ``flush`` (end of input), ``stop`` (the reading stopped) or ``idle`` (a quiet link) is
 stamped with that moment.
 
-Records complete on a line end (``\\n``) for every line format (``$PARVA``, NMEA); a
-binary format (MAVLink) completes records on any byte, so it is fed one byte at a time.
+To know the byte that completed each record, a read is fed to the decoder in pieces cut
+after every byte that can complete one: ``\\n`` for ``$PARVA``, ``\\r`` or ``\\n`` for NMEA
+(its line splitter ends a line at either); a binary format (MAVLink) can complete a
+record on any byte, so it is fed one byte at a time.
+
+The premise: a read returns once the line goes quiet, so it never holds bytes from both
+sides of a silence (the OS returns what it has; a USB adapter's latency timer flushes its
+buffer after a few milliseconds without data). An adapter that packs sentences sent
+with silences between them into one read compresses their spacing to line rate; the
+stamps then err early by at most the silences in that read (a few ms).
 
 Why not the sentence's own UTC (GGA, RMC and $PASHR carry one)? It is on the GPS's
 clock, the receiver's epochs carry no time at all, and the export interpolates every
 device on one clock, the logger's; the sentence times stay in the records (``time``)
 for whoever wants them. Consequence: however the bytes of a stream are cut into reads,
 a record gets the same stamp as long as each read is stamped at its last byte's arrival
-at line rate (tested in tests/test_ingest.py).
+and never spans a silence (tested in tests/test_ingest.py with reads of 1 byte to many
+sentences).
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 from ..records import RecordDecoder
+
+_NMEA_EOL = re.compile(rb"[\r\n]")
 
 #: Bits on the wire per byte (start, 8 data, stop).
 BITS_PER_BYTE = 10
@@ -64,7 +76,9 @@ class StampedDecoder:
     def __init__(self, decoder: RecordDecoder, baudrate: int) -> None:
         self.decoder = decoder
         self.byte_time = byte_time(baudrate)
-        self.line_based = getattr(decoder, "format", "nmea") != "mavlink"
+        fmt = getattr(decoder, "format", None)  # ground truth: nmea or mavlink; receivers: none
+        self.line_based = fmt != "mavlink"
+        self._eol = None if fmt is None else _NMEA_EOL  # None: b"\n" only (the fast path)
         self._last = -math.inf
 
     def _stamp(self, out: list[Stamped], records: list[dict], mono: float, utc: float) -> None:
@@ -87,6 +101,18 @@ class StampedDecoder:
                 if records:
                     back = (n - 1 - k) * bt
                     self._stamp(out, records, mono - back, utc - back)
+            return out
+        if self._eol is not None:
+            start = 0
+            for m in self._eol.finditer(data):
+                end = m.end()
+                records = feed(data[start:end])
+                if records:
+                    back = (n - end) * bt
+                    self._stamp(out, records, mono - back, utc - back)
+                start = end
+            if start < n:
+                self._stamp(out, feed(data[start:]), mono, utc)
             return out
         start = 0
         find = data.find
