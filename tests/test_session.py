@@ -215,3 +215,28 @@ def test_a_full_disk_while_a_logger_stops_is_reported_not_raised(tmp_path):
     assert dev.decoder.feed(encode_parva(7, 2, 1, 1, 100, 0)) == []
     notifier.stop()  # must not raise: the session still gets closed by its owner
     assert [str(e) for e in fatal] == [f"{tmp_path}/arva.jsonl: write failed: No space left on device"]
+
+
+def test_a_full_disk_still_leaves_a_finished_manifest(tmp_path, monkeypatch):
+    """The new manifest cannot be created: it is written over the old one's padding, and
+    no manifest.json.tmp stays behind."""
+    import builtins
+
+    w = SessionWriter(tmp_path / "s", {"devices": {"arva": {"kind": "arva", "url": "x"}}})
+    w.raw("arva", b"$PARVA,0,1,1,-1,-1,-1*78\r\n", mono=1.0, utc=1.8e9)
+    real_open = builtins.open
+
+    def full(path, mode="r", *a, **k):
+        if str(path).endswith(".tmp") and "w" in mode:
+            f = real_open(path, mode, *a, **k)
+            f.close()
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_open(path, mode, *a, **k)
+
+    monkeypatch.setattr(builtins, "open", full)
+    w.close(devices={"arva": {"reads": 1}}, stopped_by="disk error")
+    monkeypatch.undo()
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["arva.raw", "events.jsonl", "manifest.json"]
+    m = read_manifest(tmp_path / "s")
+    assert m["stop_utc"] >= m["start_utc"]
+    assert m["summary"] == {"devices": {"arva": {"reads": 1}}, "stopped_by": "disk error"}
