@@ -26,7 +26,7 @@ from firmware_proto.errors import InputError, LinkError
 
 from . import __version__
 from .log_status import LiveStatus
-from .ingest.reader import Device, Notifier
+from .ingest.reader import SWITCH_INTERVAL, Device, Notifier
 from .logger import DeviceSpec, SessionListener
 from .records import FORMATS, decoder_for
 from .session import SessionWriter
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     origin = None if args.origin else _FirstFixOrigin(writer, on_fatal)  # one for all receivers
     devices = [Device(spec) for spec in specs]
     session = SessionListener(writer, on_fix=origin)
-    notifier = Notifier(devices, [session], on_error=on_fatal, name="log")
+    notifier = Notifier(devices, [session], on_error=on_fatal, name="log", switch_interval=SWITCH_INTERVAL)
     notifier.start()
     t0 = time.monotonic()
     status = LiveStatus(devices) if sys.stderr.isatty() else None

@@ -4,26 +4,28 @@ Modelled on python-can's ``Notifier``/``Listener``: a :class:`Notifier` reads a 
 :class:`Device` objects and hands every read, decoded, to each :class:`Listener` (the
 session writer of ``arva-bench log``, the dashboard's feeds, the live status line).
 
-How devices are read:
+How devices are read (three threads, plus one per port without a descriptor):
 
-* One **selector loop** thread waits on every device with a file descriptor (serial
-  ports, ptys, ``socket://``): when ``select`` returns, every ready descriptor is read
-  (``os.read``, up to :data:`READ_CHUNK` bytes, whatever is there) and all of them are
-  stamped with the same clock reading before anything is decoded, so one device's
-  decoding never delays another device's stamp.
+* The **I/O thread** waits on every device with a file descriptor (serial ports, ptys,
+  ``socket://``) in one selector. When ``select`` returns, every ready descriptor is read
+  (``os.read``, up to :data:`READ_CHUNK` bytes, whatever is there), all stamped with the
+  same clock reading, and handed on. It does nothing else, so no device's decoding or
+  disk writing delays another device's stamp (with ``switch_interval`` the GIL comes back
+  to it within that time).
 * A port without a descriptor (pyserial's ``loop://``, ``arvaemu://``, ``usb://``,
   ``cp2110://``) gets a small thread that blocks in ``read`` for the first byte, takes
-  whatever else is waiting (chunks, not bytes), stamps the read and hands it to the loop.
-* An **opener** thread opens devices (opening can block) and hands open ports to the
-  loop. A device that is absent is retried every :data:`RETRY_INTERVAL` s (no growing
-  backoff); a device that vanishes is reopened at once, and the reopen keeps what the
-  OS buffered meanwhile (``open_device(keep_input=True)``), so a reconnect loses at most
-  about :data:`RETRY_INTERVAL` beyond the outage itself.
+  whatever else is waiting (chunks, not bytes) and stamps the read.
+* The **work thread** decodes each read (the stamp rule of :mod:`bench.ingest.stamp`) and
+  notifies the listeners, one read at a time and each device's reads in order; it also
+  releases a quiet link's pending records and reopens stale devices every :data:`TICK`.
+* The **opener** opens devices (opening can block). A device that is absent is retried
+  every :data:`RETRY_INTERVAL` s (no growing backoff); a device that vanishes is reopened
+  at once, and the reopen keeps what the OS buffered meanwhile
+  (``open_device(keep_input=True)``), so a reconnect loses at most about
+  :data:`RETRY_INTERVAL` beyond the outage itself.
 
-Decoding (the stamp rule of :mod:`bench.ingest.stamp`) and listener calls all happen in
-the loop thread, one read at a time, so listeners see each device's reads in order and
-never concurrently. A listener raising :class:`~firmware_proto.errors.LinkError` (a full
-disk) is reported through ``on_error`` and removed; the others keep receiving.
+A listener raising :class:`~firmware_proto.errors.LinkError` (a full disk) is reported
+through ``on_error`` and removed; the others keep receiving.
 
 Times: ``mono`` is this process's ``time.monotonic()`` (s), ``utc`` POSIX seconds.
 """
@@ -34,6 +36,7 @@ import heapq
 import os
 import queue
 import selectors
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -53,6 +56,8 @@ READ_CHUNK = 65536
 RETRY_INTERVAL = 0.05
 #: Seconds between ticks (idle decoder release, staleness checks, listener ``on_tick``).
 TICK = 0.1
+#: Thread switch interval (s) for a process that logs: see :class:`Notifier`.
+SWITCH_INTERVAL = 0.0002
 #: Read timeout (s) of ports read by a thread (no descriptor).
 THREAD_READ_TIMEOUT = 0.1
 
@@ -149,7 +154,7 @@ class Device:
 
 
 class Listener:
-    """Receives what a :class:`Notifier` reads; every method runs in the notifier's loop
+    """Receives what a :class:`Notifier` reads; every method runs in the notifier's work
     thread. Override what you need."""
 
     def on_read(self, device: Device, read: Read) -> None:
@@ -178,6 +183,7 @@ class _Port:
         self.quiet_since = time.monotonic()
         self.thread: threading.Thread | None = None
         self.closed = False
+        self.closing = False  # a stale close was asked for
 
     def close(self) -> None:
         self.closed = True
@@ -192,25 +198,31 @@ class Notifier:
 
     ``stale_after`` (s, None: never): a device open but silent that long is closed and
     reopened (a ``gap`` with that reason, then ``reconnect``). ``on_error(exc)``: a
-    listener raised :class:`LinkError` (it is then removed).
+    listener raised :class:`LinkError` (it is then removed). ``switch_interval`` (s, None:
+    leave it): the interpreter's thread switch interval is lowered to it at :meth:`start`
+    (a process-wide setting, for a command whose process only logs), so that the I/O
+    thread, woken by data, gets the GIL from the decoding thread within that time.
     """
 
     def __init__(self, devices: Iterable[Device], listeners: Iterable[Listener] = (),
                  stale_after: float | None = None, on_error: Callable[[Exception], None] | None = None,
-                 name: str = "ingest") -> None:  # fmt: skip
+                 name: str = "ingest", switch_interval: float | None = None) -> None:  # fmt: skip
         self.devices = list(devices)
         self._listeners: tuple[Listener, ...] = tuple(listeners)
         self.stale_after = stale_after
         self.on_error = on_error
+        self.switch_interval = switch_interval
         self._stop = threading.Event()
-        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self._work: queue.SimpleQueue = queue.SimpleQueue()  # -> the work thread
+        self._io_inbox: queue.SimpleQueue = queue.SimpleQueue()  # -> the I/O thread (plus a wake-up)
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._open_requests: queue.SimpleQueue = queue.SimpleQueue()
-        self.thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self.thread = threading.Thread(target=self._work_loop, name=name, daemon=True)
+        self._io = threading.Thread(target=self._io_loop, name=f"{name}-io", daemon=True)
         self._opener = threading.Thread(target=self._open_loop, name=f"{name}-open", daemon=True)
-        self._ports: dict[Device, _Port] = {}
+        self._ports: dict[Device, _Port] = {}  # the work thread's view: open ports
         self._ever_open: set[Device] = set()
         self._unavailable: dict[Device, str] = {}
 
@@ -223,10 +235,13 @@ class Notifier:
 
     # -- lifetime --------------------------------------------------------------------------
     def start(self) -> None:
+        if self.switch_interval is not None:
+            sys.setswitchinterval(self.switch_interval)
         self.thread.start()
+        self._io.start()
         self._opener.start()
         for dev in self.devices:
-            self._open_requests.put((0.0, dev))
+            self._open_requests.put(dev)
 
     def request_stop(self) -> None:
         self._stop.set()
@@ -239,48 +254,31 @@ class Notifier:
         self.join(timeout)
 
     def join(self, timeout: float = 5.0) -> None:
-        for t in (self.thread, self._opener):
+        for t in (self._io, self.thread, self._opener):
             if t.is_alive():
                 t.join(timeout)
+        if not any(t.is_alive() for t in (self._io, self.thread, self._opener)) and self._wake_w >= 0:
+            self._close_unclaimed()
+            os.close(self._wake_r)
+            os.close(self._wake_w)
+            self._wake_r = self._wake_w = -1  # closed only once nobody can write to it
 
-    # -- the loop ----------------------------------------------------------------------------
     def _wake(self) -> None:
         try:
             os.write(self._wake_w, b"x")
-        except (BlockingIOError, OSError):
-            pass  # already awake (pipe full) or closing
+        except OSError:
+            pass  # already awake (pipe full)
 
-    def _notify(self, method: str, device: Device, arg) -> None:
-        for listener in self._listeners:
-            try:
-                getattr(listener, method)(device, arg)
-            except LinkError as exc:
-                self.remove_listener(listener)
-                if self.on_error is not None:
-                    self.on_error(exc)
-
-    def _tick(self, mono: float) -> None:
-        for listener in self._listeners:
-            try:
-                listener.on_tick(mono)
-            except LinkError as exc:
-                self.remove_listener(listener)
-                if self.on_error is not None:
-                    self.on_error(exc)
-
-    def _link(self, device: Device, kind: str, reason: str = "") -> None:
-        device.reason = reason
-        self._notify("on_link", device, LinkEvent(kind, time.monotonic(), reason))
-
-    def _loop(self) -> None:
+    # -- the I/O thread: wait, read, stamp; nothing else ------------------------------------
+    def _io_loop(self) -> None:
         sel = selectors.DefaultSelector()
         sel.register(self._wake_r, selectors.EVENT_READ, None)
-        next_tick = time.monotonic() + TICK
+        work = self._work
+        ports: list[_Port] = []
         try:
             while not self._stop.is_set():
-                ready = sel.select(timeout=max(0.0, next_tick - time.monotonic()))
+                ready = sel.select(timeout=TICK)
                 mono, utc = time.monotonic(), time.time()  # one stamp for every ready device
-                reads: list[tuple[_Port, bytes]] = []
                 for key, _ in ready:
                     p = key.data
                     if p is None:
@@ -295,139 +293,189 @@ class Notifier:
                     except BlockingIOError:
                         continue
                     except OSError as exc:
-                        self._lost(sel, p, exc.strerror or str(exc))
+                        self._io_close(sel, ports, p, exc.strerror or str(exc))
                         continue
                     if not data:
-                        self._lost(sel, p, "end of file (the device closed)")
+                        self._io_close(sel, ports, p, "end of file (the device closed)")
                         continue
-                    reads.append((p, data))
-                for p, data in reads:
-                    p.quiet_since = mono
-                    self._notify("on_read", p.device, p.device.ingest(data, mono, utc))
-                self._drain_inbox(sel)
-                now = time.monotonic()
-                if now >= next_tick:
-                    next_tick = now + TICK
-                    self._idle(sel, now)
+                    work.put(("read", p, data, mono, utc))
+                while True:
+                    try:
+                        item = self._io_inbox.get_nowait()
+                    except queue.Empty:
+                        break
+                    if item[0] == "open":
+                        p = item[1]
+                        ports[:] = [q for q in ports if not q.closed]  # ports read by threads close themselves
+                        ports.append(p)
+                        work.put(("up", p))  # before any of its reads
+                        if p.fd is not None:
+                            sel.register(p.fd, selectors.EVENT_READ, p)
+                        else:
+                            p.thread = threading.Thread(target=self._thread_read, args=(p,),
+                                                        name=f"read-{p.device.spec.name}", daemon=True)  # fmt: skip
+                            p.thread.start()
+                    elif item[0] == "close" and item[1] in ports:
+                        self._io_close(sel, ports, item[1], item[2])
         finally:
-            mono, utc = time.monotonic(), time.time()
-            for p in list(self._ports.values()):
+            for p in ports:
                 p.close()
-            for p in list(self._ports.values()):
+            for p in ports:
                 if p.thread is not None:
                     p.thread.join(1.0)
-            self._drain_inbox(sel, final=True)
-            for dev in self.devices:
-                self._notify("on_read", dev, dev.stop(mono, utc))
-                dev.stats.connected = False
-            for listener in self._listeners:
-                listener.stop()
             sel.close()
-            os.close(self._wake_r)
-            os.close(self._wake_w)
+            work.put(("end",))
+            self._close_unclaimed()
 
-    def _drain_inbox(self, sel, final: bool = False) -> None:
+    def _close_unclaimed(self) -> None:
+        """Ports the opener handed over after the I/O thread stopped."""
         while True:
             try:
-                item = self._inbox.get_nowait()
+                item = self._io_inbox.get_nowait()
             except queue.Empty:
                 return
-            kind = item[0]
-            if kind == "read":
-                _, p, data, mono, utc = item
-                if p.closed and not final:
-                    continue
-                p.quiet_since = mono
-                self._notify("on_read", p.device, p.device.ingest(data, mono, utc))
-            elif kind == "lost":
-                _, p, reason = item
-                if not p.closed:
-                    self._lost(sel, p, reason)
-            elif kind == "open":
-                _, dev, port = item
-                if final or self._stop.is_set():
-                    try:
-                        port.close()
-                    except (serial.SerialException, OSError):
-                        pass
-                    continue
-                self._opened(sel, dev, port)
-            elif kind == "unavailable":
-                _, dev, reason = item
-                if dev not in self._ever_open:  # after a gap, the gap already says so
-                    self._link(dev, "unavailable", reason)
+            if item[0] == "open":
+                item[1].close()
 
-    def _opened(self, sel, dev: Device, port: serial.SerialBase) -> None:
-        p = _Port(dev, port)
-        self._ports[dev] = p
-        dev.opens += 1
-        dev.stats.connected = True
-        if dev in self._ever_open:
-            dev.reconnects += 1
-            self._link(dev, "reconnect")
-        else:
-            self._ever_open.add(dev)
-            self._link(dev, "up")
-        if p.fd is not None:
-            sel.register(p.fd, selectors.EVENT_READ, p)
-        else:
-            p.thread = threading.Thread(target=self._thread_read, args=(p,), name=f"read-{dev.spec.name}",
-                                        daemon=True)  # fmt: skip
-            p.thread.start()
-
-    def _lost(self, sel, p: _Port, reason: str) -> None:
-        dev = p.device
+    def _io_close(self, sel, ports: list[_Port], p: _Port, reason: str) -> None:
         if p.fd is not None:
             try:
                 sel.unregister(p.fd)
             except (KeyError, ValueError):
                 pass
         p.close()
-        self._ports.pop(dev, None)
+        if p in ports:
+            ports.remove(p)
+        self._work.put(("lost", p, reason))
+
+    def _thread_read(self, p: _Port) -> None:
+        """A port without a descriptor: block for the first byte, take what else waits."""
+        port, work = p.port, self._work
+        try:
+            while not p.closed:
+                data = port.read(1)  # blocks up to the port's timeout
+                if not data:
+                    continue
+                waiting = port.in_waiting
+                if waiting:
+                    data += port.read(min(waiting, READ_CHUNK))
+                work.put(("read", p, data, time.monotonic(), time.time()))
+        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            if not p.closed:
+                p.close()
+                work.put(("lost", p, str(exc) or type(exc).__name__))
+
+    # -- the work thread: decode, notify, tick ------------------------------------------------
+    def _notify(self, method: str, device: Device, arg) -> None:
+        for listener in self._listeners:
+            try:
+                getattr(listener, method)(device, arg)
+            except LinkError as exc:
+                self._dropped(listener, exc)
+
+    def _dropped(self, listener: Listener, exc: Exception) -> None:
+        self.remove_listener(listener)
+        if self.on_error is not None:
+            self.on_error(exc)
+
+    def _link(self, device: Device, kind: str, reason: str = "") -> None:
+        device.reason = reason
+        self._notify("on_link", device, LinkEvent(kind, time.monotonic(), reason))
+
+    def _work_loop(self) -> None:
+        work = self._work
+        next_tick = time.monotonic() + TICK
+        try:
+            while True:
+                try:
+                    item = work.get(timeout=max(0.0, next_tick - time.monotonic()))
+                except queue.Empty:
+                    item = None
+                if item is not None:
+                    kind = item[0]
+                    if kind == "read":
+                        _, p, data, mono, utc = item
+                        p.quiet_since = mono
+                        self._notify("on_read", p.device, p.device.ingest(data, mono, utc))
+                    elif kind == "up":
+                        self._up(item[1])
+                    elif kind == "lost":
+                        self._lost(item[1], item[2])
+                    elif kind == "unavailable":
+                        _, dev, reason = item
+                        if dev not in self._ever_open:  # after a gap, the gap already says so
+                            self._link(dev, "unavailable", reason)
+                    elif kind == "end":
+                        break
+                now = time.monotonic()
+                if now >= next_tick:
+                    next_tick = now + TICK
+                    self._idle(now)
+        finally:
+            mono, utc = time.monotonic(), time.time()
+            for dev in self.devices:
+                self._notify("on_read", dev, dev.stop(mono, utc))
+                dev.stats.connected = False
+            for listener in self._listeners:
+                listener.stop()
+
+    def _up(self, p: _Port) -> None:
+        dev = p.device
+        if self._stop.is_set():
+            return
+        self._ports[dev] = p
+        dev.opens += 1
+        dev.stats.connected = True
+        p.quiet_since = time.monotonic()
+        if dev in self._ever_open:
+            dev.reconnects += 1
+            self._link(dev, "reconnect")
+        else:
+            self._ever_open.add(dev)
+            self._link(dev, "up")
+
+    def _lost(self, p: _Port, reason: str) -> None:
+        dev = p.device
+        if self._ports.get(dev) is not p:
+            return  # already handled (a stale close racing a read error)
+        del self._ports[dev]
         dev.stats.connected = False
         if self._stop.is_set():
             return
         dev.stats.gaps += 1
         self._link(dev, "gap", reason)
-        self._open_requests.put((0.0, dev))  # reopen at once
+        self._open_requests.put(dev)  # reopen at once
 
-    def _idle(self, sel, now: float) -> None:
+    def _idle(self, now: float) -> None:
         utc = time.time()
         for p in list(self._ports.values()):
             if now - p.quiet_since >= TICK:
                 read = p.device.idle(now, utc)
                 if read.records:
                     self._notify("on_read", p.device, read)
-            if self.stale_after is not None and now - p.quiet_since > self.stale_after:
-                self._lost(sel, p, f"no data for {self.stale_after:g} s: reopening")
-        self._tick(now)
+            if self.stale_after is not None and now - p.quiet_since > self.stale_after and not p.closing:
+                p.closing = True
+                reason = f"no data for {self.stale_after:g} s: reopening"
+                if p.fd is not None:
+                    self._io_inbox.put(("close", p, reason))
+                    self._wake()
+                else:
+                    p.close()
+                    self._lost(p, reason)
+        for listener in self._listeners:
+            try:
+                listener.on_tick(now)
+            except LinkError as exc:
+                self._dropped(listener, exc)
 
-    # -- ports without a descriptor ---------------------------------------------------------
-    def _thread_read(self, p: _Port) -> None:
-        port, inbox = p.port, self._inbox
-        try:
-            while not p.closed:
-                data = port.read(1)  # blocks up to the port's timeout for the first byte
-                if not data:
-                    continue
-                waiting = port.in_waiting
-                if waiting:
-                    data += port.read(min(waiting, READ_CHUNK))
-                inbox.put(("read", p, data, time.monotonic(), time.time()))
-                self._wake()
-        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-            if not p.closed:
-                inbox.put(("lost", p, str(exc) or type(exc).__name__))
-                self._wake()
-
-    # -- opening ------------------------------------------------------------------------------
+    # -- the opener thread --------------------------------------------------------------------
     def _open_loop(self) -> None:
         due: list[tuple[float, int, Device]] = []
         while not self._stop.is_set():
-            timeout = max(0.0, due[0][0] - time.monotonic()) if due else TICK
+            timeout = min(TICK, max(0.0, due[0][0] - time.monotonic())) if due else TICK
             try:
-                delay, dev = self._open_requests.get(timeout=min(timeout, TICK))
-                heapq.heappush(due, (time.monotonic() + delay, id(dev), dev))
+                dev = self._open_requests.get(timeout=timeout)
+                heapq.heappush(due, (time.monotonic(), id(dev), dev))
             except queue.Empty:
                 pass
             while due and due[0][0] <= time.monotonic() and not self._stop.is_set():
@@ -439,10 +487,9 @@ class Notifier:
                     reason = str(exc) or type(exc).__name__
                     if self._unavailable.get(dev) != reason:
                         self._unavailable[dev] = reason
-                        self._inbox.put(("unavailable", dev, reason))
-                        self._wake()
+                        self._work.put(("unavailable", dev, reason))
                     heapq.heappush(due, (time.monotonic() + RETRY_INTERVAL, id(dev), dev))
                     continue
                 self._unavailable.pop(dev, None)
-                self._inbox.put(("open", dev, port))
+                self._io_inbox.put(("open", _Port(dev, port)))
                 self._wake()
