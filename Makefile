@@ -19,7 +19,7 @@ run: $(STAMP)
 	$(BIN)/arva-emulate --port - --frames 10 --speed 0
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q tests docs/examples
 
 # Benchmarks: each script prints its table and rewrites its section of docs/performance.md.
 bench: $(STAMP)

@@ -33,7 +33,7 @@ from .session import SessionWriter
 from .transport import check_url
 
 
-def _device(kind: str):
+def device_arg(kind: str):
     """argparse type for ``URL[,role=R][,format=F]`` (options after the URL, in any order)."""
     formats = FORMATS.get(kind)
 
@@ -85,9 +85,9 @@ def _origin(text: str) -> list[float]:
 
 def add_truth_arguments(p: argparse.ArgumentParser, origin_help: str) -> None:
     """The ground-truth options ``log`` and ``dash`` share: --gps, --attitude, --tx-pose, --origin."""
-    p.add_argument("--gps", action="append", default=[], type=_device("gps"), metavar="URL[,role=R]",
+    p.add_argument("--gps", action="append", default=[], type=device_arg("gps"), metavar="URL[,role=R]",
                    help="a GPS (NMEA GGA/RMC/GLL; the export uses GGA); role rx (default) or tx<ID>")
-    p.add_argument("--attitude", action="append", default=[], type=_device("attitude"),
+    p.add_argument("--attitude", action="append", default=[], type=device_arg("attitude"),
                    metavar="URL[,role=R][,format=mavlink]",
                    help="an attitude unit ($PASHR; format=mavlink: an autopilot's MAVLink ATTITUDE_QUATERNION, "
                         "the mavlink extra); role rx (default) or tx<ID>")
@@ -98,7 +98,7 @@ def add_truth_arguments(p: argparse.ArgumentParser, origin_help: str) -> None:
 
 def register(sub) -> None:
     p = sub.add_parser("log", help="log devices into a session directory", description=__doc__)
-    p.add_argument("--arva", action="append", default=[], type=_device("arva"), metavar="URL[,role=rxN]",
+    p.add_argument("--arva", action="append", default=[], type=device_arg("arva"), metavar="URL[,role=rxN]",
                    help="an ARVA receiver (repeatable)")
     add_truth_arguments(p, origin_help="geodetic origin of the session's ENU frame")
     p.add_argument("--out", required=True, metavar="DIR", help="new session directory")
@@ -108,7 +108,8 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def device_specs(args: argparse.Namespace) -> list[DeviceSpec]:
+def device_specs(args: argparse.Namespace, command: str = "log") -> list[DeviceSpec]:
+    """The devices of ``--arva`` / ``--gps`` / ``--attitude``; errors name ``command``."""
     specs: list[DeviceSpec] = []
     several = len(args.arva) > 1
     for i, (url, role) in enumerate(args.arva):
@@ -124,9 +125,9 @@ def device_specs(args: argparse.Namespace) -> list[DeviceSpec]:
     names = [s.name for s in specs]
     for name in names:
         if names.count(name) > 1:
-            raise InputError(f"log: two devices would both be {name!r}: give them different roles")
+            raise InputError(f"{command}: two devices would both be {name!r}: give them different roles")
     if not any(s.kind == "arva" for s in specs):
-        raise InputError("log: no receiver: give at least one --arva URL")
+        raise InputError(f"{command}: no receiver: give at least one --arva URL")
     return specs
 
 

@@ -14,18 +14,18 @@ import os
 import signal
 import sys
 import threading
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
 from firmware_proto.errors import InputError, LinkError, SceneError
 
 from emulator import __version__
-from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort, baud_rate
+from emulator.control import runtime as control_runtime
+from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, baud_rate, is_file_spec
 from emulator.scene.reader import default_scene, load_scene
-from emulator.output.link_faults import FaultyPort
-from emulator.output.scheduler import EpochScheduler, Route, SceneClock, status_printer, summary_line
-from emulator.output.streams import scene_streams
+from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
+from emulator.pipeline import Pipeline
+from emulator.receiver.profile import profile_table
 
 log = logging.getLogger("arva-emulate")
 
@@ -70,7 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
         default="-",
         metavar="PORT",
         help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
-        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL",
+        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
+        "or any other path: a file to write",
     )
     p.add_argument(
         "--stream",
@@ -78,7 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="LABEL=PORT",
-        help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port",
+        help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
+        "(as --port: -, pty, a device, a URL or a file)",
     )
     p.add_argument("--link", type=Path, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
     p.add_argument("--frames", type=_non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
@@ -103,6 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     serial_opts.add_argument("--stopbits", type=float, choices=(1, 1.5, 2), default=1)
     serial_opts.add_argument("--rtscts", action="store_true", help="hardware flow control")
     serial_opts.add_argument("--xonxoff", action="store_true", help="software flow control")
+    control_runtime.add_arguments(p)
+    p.add_argument("--list-profiles", action="store_true", help="list the receiver profiles ([receiver] profile) and exit")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return p
@@ -154,56 +158,71 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
     if spec == "pty":
         link = None
         if args.link is not None:
-            if not args.link.is_dir():
-                raise InputError(f"--link {args.link}: not a directory")
+            try:
+                args.link.mkdir(parents=True, exist_ok=True)  # a fresh machine has no DIR yet
+            except FileExistsError:
+                raise InputError(f"--link {args.link}: not a directory") from None
+            except OSError as exc:
+                raise InputError(f"--link {args.link}: cannot create: {exc.strerror or exc}") from None
             link = args.link / label.replace(":", "-")
         return PtyPort(label, link)
+    if is_file_spec(spec):
+        return FilePort(label, spec)
     return SerialPort(label, spec, _serial_options(args, spec))
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.list_profiles:
+        sys.stdout.write(profile_table())
+        return 0
+    with_control = control_runtime.wanted(args)
     scene = load_scene(args.scene) if args.scene else default_scene()
-    streams = scene_streams(scene)
-    specs = assign_ports([s.label for s in streams], args.port, args.stream)
+    pipe = Pipeline(scene)
+    specs = assign_ports(pipe.labels, args.port, args.stream)
     stop = threading.Event()
     _stop_on_signals(stop)
-    scene_clock = SceneClock()
     # Pty announcements go to stdout, unless a stream's data does (--stream arva=-).
-    announce = _announcer(sys.stderr if "-" in specs.values() else sys.stdout)
-    routes: list[Route] = []
+    announce_to = sys.stderr if "-" in specs.values() else sys.stdout
+    announce = _announcer(announce_to)
+    ports: dict[str, Port] = {}
     try:
-        for i, stream in enumerate(streams):
-            port = open_port(stream.label, specs[stream.label], args)
-            routes.append(Route(stream, port))
+        for label in pipe.labels:
+            port = ports[label] = open_port(label, specs[label], args)
             if isinstance(port, PtyPort):
                 # Announced before any data, flushed at once: a test harness or a human
                 # reads the path from here and opens it (again after a simulated unplug).
                 port.on_reconnect = announce
                 announce(port)
-            routes[-1].port = _with_link_faults(scene, port, i, args.speed, scene_clock)
-        status = status_printer() if sys.stderr.isatty() and args.speed != 0 else None
-        lf = scene.effects.link_faults
+        # Under the step clock a scene's link-fault stalls cost no wall time.
+        routes = pipe.bind(ports, args.speed if args.clock == "real" else 0)
+        real = args.clock == "real"
+        status = status_printer() if sys.stderr.isatty() and args.speed != 0 and real else None
         scheduler = EpochScheduler(
             routes,
             args.speed,
             args.frames,
             status=status,
             stop_event=stop,
-            scene_clock=scene_clock,
-            # Outages are scheduled in scene time: render epoch by epoch so they land
-            # on the right epochs even as fast as possible.
-            fast_batch=1 if lf is not None and lf.disconnect_every_s > 0 else None,
+            scene_clock=pipe.clock,
+            fast_batch=pipe.fast_batch,
         )
+        control = None
+        if with_control:
+            control = control_runtime.ControlSession(args, pipe, scheduler, stop)
+            control.start(lambda line: print(line, file=announce_to, flush=True))
         try:
             scheduler.wait(args.delay)
-            scheduler.run()
+            control.run() if control is not None else scheduler.run()
         finally:
+            if control is not None:
+                control.close()
             if status is not None:
                 sys.stderr.write("\r\x1b[K")
             print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
     finally:
-        for r in routes:
-            r.port.close()
+        for port in ports.values():
+            port.close()
+        pipe.close_sources()
     return 0
 
 
@@ -212,17 +231,6 @@ def _announcer(stream):
         print(f"{port.label} {port.path}", file=stream, flush=True)
 
     return announce
-
-
-def _with_link_faults(scene, port: Port, index: int, speed: float, clock: SceneClock) -> Port:
-    """Wrap ``port`` in the scene's link faults if they apply to its stream."""
-    fx = scene.effects
-    if fx.link_faults is None or (fx.link_fault_streams and port.label not in fx.link_fault_streams):
-        return port
-    # Stalls and split gaps are real pauses in real time; as fast as possible they
-    # cost nothing (the bytes still split and stall counters still count).
-    sleep = time.sleep if speed > 0 else (lambda _s: None)
-    return FaultyPort(port, fx.link_faults, scene.seed, stream=index, sleep=sleep, clock=clock)
 
 
 def _stop_on_signals(stop: threading.Event) -> None:

@@ -44,15 +44,22 @@ def field(rx_p, rx_q, tx_p, tx_q, s=1.0):
     return mat_t_vec(rr, mat_vec(rt, ht))
 
 
-def measure(rx_p, rx_q, tx_p, tx_q=(1, 0, 0, 0), kappa_eq=1.542, s=1.0, r_inner=3.0, r_outer=50.0):
-    """(d cm, delta deg) per BRIEF 3 steps 4-5."""
+def measure(rx_p, rx_q, tx_p, tx_q=(1, 0, 0, 0), kappa_eq=1.542, s=1.0, r_inner=3.0, r_outer=50.0, antennas=3):
+    """(d cm, delta deg) per BRIEF 3 steps 4-5; ``antennas=2``: dxy in every zone, with
+    (h_x, h_y) = (0, 0) outer (docs/model.md, receiver classes)."""
     if list(rx_p) == list(tx_p):
         return 0, 0
     hx, hy, hz = field(rx_p, rx_q, tx_p, tx_q, s)
-    d3 = (kappa_eq / (4 * math.pi * math.sqrt(hx * hx + hy * hy + hz * hz))) ** (1 / 3)
-    if d3 <= r_inner:
-        return round_half_away(100 * d3), 0
     hxy = math.sqrt(hx * hx + hy * hy)
+    if antennas == 2:
+        if hxy == 0:
+            return -1, -1
+        dxy = (kappa_eq / (4 * math.pi * hxy)) ** (1 / 3)
+        if dxy <= r_inner:
+            return round_half_away(100 * dxy), 0
+    d3 = (kappa_eq / (4 * math.pi * math.sqrt(hx * hx + hy * hy + hz * hz))) ** (1 / 3)
+    if antennas == 3 and d3 <= r_inner:
+        return round_half_away(100 * d3), 0
     if hxy > 0:
         dxy = (kappa_eq / (4 * math.pi * hxy)) ** (1 / 3)
         if dxy <= r_outer:

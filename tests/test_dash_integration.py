@@ -17,7 +17,7 @@ import time
 
 import pytest
 from dash_helpers import DEFAULT_SLOTS
-from emulator_proc import EmulatorProcess
+from emulator.testing import EmulatorProcess
 
 from bench.dash.app import DashApp, DashConfig
 from bench.dash.widgets import ChannelTable, GroundTruthPanel, LinkPanel

@@ -9,7 +9,7 @@ import pytest
 
 from emulator.receiver.receiver import Receiver
 from emulator.scene.reader import default_scene, loads_scene
-from emulator.output.streams import scene_streams
+from emulator.pipeline import scene_streams
 from firmware_proto.errors import SceneError
 
 PAPER = (
@@ -179,7 +179,7 @@ def test_faulted_stream_through_a_pty_in_real_time_equals_stdout_at_speed_0(tmp_
 
     import serial
 
-    from emulator_proc import EmulatorProcess
+    from emulator.testing import EmulatorProcess
 
     path = tmp_path / "faulty.toml"
     path.write_text(FAULTY)
@@ -201,8 +201,8 @@ def test_faulted_stream_through_a_pty_in_real_time_equals_stdout_at_speed_0(tmp_
             elif emu.proc.poll() is not None:
                 break
         # It ends by itself after its 2000 epochs (a SIGTERM here could race its exit).
-        rc = emu.proc.wait(timeout=30)
-        err = emu.proc.stderr.read().decode()
+        rc = emu.wait(timeout=30)
+        err = emu.stderr()
     finally:
         emu.kill()
     assert rc == 0, err

@@ -15,7 +15,7 @@ from emulator.frames.attitude import quaternion_to_hpr
 from emulator.frames.geodesy import Origin, enu_to_geodetic
 from emulator.receiver.model import ModelParams
 from emulator.scene.reader import loads_scene
-from emulator.output.streams import scene_streams
+from emulator.pipeline import scene_streams
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import Epoch
 

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from emulator.frames.geodesy import Origin, enu_to_geodetic
-from emulator_proc import EmulatorProcess
+from emulator.testing import EmulatorProcess
 
 GPSD = shutil.which("gpsd") or (shutil.which("gpsd", path="/usr/sbin:/sbin"))
 pytestmark = pytest.mark.skipif(GPSD is None, reason="gpsd not installed (apt-get install gpsd)")

@@ -15,8 +15,8 @@ from bench.export import COLUMNS, export_rows
 from bench.session import read_jsonl, read_manifest, read_raw
 from emulator.frames.geodesy import Origin, enu_to_geodetic
 from emulator.scene.reader import loads_scene
-from emulator.output.streams import scene_streams
-from emulator_proc import EmulatorProcess
+from emulator.pipeline import scene_streams
+from emulator.testing import EmulatorProcess
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import Epoch
 

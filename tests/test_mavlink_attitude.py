@@ -19,7 +19,7 @@ from bench.ground_truth.mavlink import MavlinkAttitudeReader
 from bench.records import decoder_for
 from bench.session import read_jsonl, read_manifest
 from emulator.frames.attitude import hpr_to_quaternion
-from emulator_proc import EmulatorProcess
+from emulator.testing import EmulatorProcess
 
 pytest.importorskip("pymavlink")
 from pymavlink.dialects.v10 import common as mavlink1  # noqa: E402

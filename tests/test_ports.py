@@ -11,7 +11,7 @@ from functools import reduce
 import pytest
 import serial
 
-from emulator_proc import EmulatorProcess, process_rss_kb, read_lines
+from emulator.testing import EmulatorProcess, process_rss_kb, read_lines
 
 ONE_TX = """spec = 1
 rate_hz = {rate}
@@ -222,7 +222,7 @@ def test_pty_unplug_and_replug_follows_the_link(scene, tmp_path):
                         raise serial.SerialException("EOF")
         # ... and comes back 0.3 s later as a new pty, announced again on stdout (Linux
         # may hand out the same /dev/pts number again once the old one is free).
-        line = emu.proc.stdout.readline().decode().split()
+        line = emu.wait_announcement(2).split()
         assert line[0] == "arva" and line[1].startswith("/dev/pts/")
         assert os.readlink(links / "arva") == line[1]
         with serial.Serial(str(links / "arva"), timeout=2) as ser:

@@ -11,7 +11,7 @@ from bench.ground_truth import AttitudeReader, GpsReader
 from emulator.frames.attitude import quaternion_to_hpr
 from emulator.frames.geodesy import geodetic_to_enu
 from emulator.scene.reader import load_scene, loads_scene
-from emulator.output.streams import scene_streams
+from emulator.pipeline import scene_streams
 from firmware_proto.errors import SceneError
 
 FIELD_WALK = Path(__file__).resolve().parents[1] / "emulator" / "scenes" / "field_walk.toml"

@@ -142,7 +142,10 @@ class DashApp(App):
         if self._tick:
             self.set_interval(self._tick, self.tick)
         if self.config.start_sources:
-            from .cli import start_sources
+            # Imported here, once the screen is up: the sources pull in the emulator
+            # (scenes, scipy) for arvaemu:// and scene truth, about a second of imports
+            # the terminal would otherwise wait through. (launch imports nothing of app.)
+            from .launch import start_sources
 
             self.sources = start_sources(self.config, self.post_message)
 
@@ -278,7 +281,7 @@ class DashApp(App):
         return path
 
     def _manifest(self) -> dict:
-        from ..log import manifest
+        from ..log import manifest  # only when recording: bench.log imports every transport
 
         args = argparse.Namespace(note=self.config.note, origin=self.config.origin, tx_pose=self.config.tx_poses)
         out = manifest(args, self.config.specs, self.config.argv)

@@ -22,15 +22,14 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from emulator.output.ports import baud_rate
 from firmware_proto.errors import InputError
 
-from ..log import _device, add_truth_arguments, device_specs
-from ..logger import DeviceSpec
 from ..ingest.pacer import check_speed, load_reads
+from ..log import add_truth_arguments, device_arg, device_specs
+from ..logger import DeviceSpec
 from ..session import MANIFEST, load_manifest
 
 DEFAULT_SOURCE = "arvaemu://"
@@ -39,7 +38,7 @@ DEFAULT_SOURCE = "arvaemu://"
 def register(sub) -> None:
     p = sub.add_parser("dash", help="live terminal view of receivers, ground truth and links", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("source", nargs="*", type=_device("arva"), metavar="SOURCE[,role=rxN]",
+    p.add_argument("source", nargs="*", type=device_arg("arva"), metavar="SOURCE[,role=rxN]",
                    help="a receiver (path or pyserial URL) or a session directory; default arvaemu://")
     add_truth_arguments(p, origin_help="ENU origin for GPS positions (default: the session's, else the first receiver fix)")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
@@ -98,32 +97,10 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
         return DashConfig(specs=specs, replay=directory, replay_speed=args.speed, origin=origin,
                           tx_poses=tx_poses, scene_truth=False, **common)  # fmt: skip
     ns = argparse.Namespace(arva=sources, gps=args.gps, attitude=args.attitude, baud=args.baud)
-    try:
-        specs = device_specs(ns)
-    except InputError as exc:
-        raise InputError(str(exc).replace("log:", "dash:", 1)) from None
+    specs = device_specs(ns, command="dash")
     scene_truth = not (args.no_scene_truth or args.gps or args.attitude or args.tx_pose)
     return DashConfig(specs=specs, origin=args.origin, tx_poses=list(args.tx_pose), scene_truth=scene_truth,
                       **common)  # fmt: skip
-
-
-def start_sources(config, post) -> list:
-    """Start the readers of ``config``; they talk to the app only through ``post``."""
-    from .sources import DeviceFeed, LiveSource, ReplaySource, SceneTruth
-
-    if config.replay is not None:
-        # The links show where the bytes come from now: the session's raw logs.
-        feeds = [DeviceFeed(replace(s, url=str(config.replay / f"{s.name}.raw")), post) for s in config.specs]
-        sources = [ReplaySource(config.replay, feeds, config.replay_speed)]
-    else:
-        feeds = []
-        for spec in config.specs:
-            truth = SceneTruth.for_url(spec.url, spec.role) if config.scene_truth and spec.kind == "arva" else None
-            feeds.append(DeviceFeed(spec, post, truth))
-        sources = [LiveSource(feeds, config.stale_after)]  # one selector loop reads them all
-    for source in sources:
-        source.start()
-    return sources
 
 
 def run(args: argparse.Namespace) -> int:

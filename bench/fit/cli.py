@@ -55,6 +55,7 @@ def register(subparsers) -> None:
     fixed.add_argument(
         "--pose-sigma", type=_positive, metavar="S", help="fix the relative pose error instead of fitting it (e.g. 0.01)"
     )
+    fixed.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     fixed.add_argument(
         "--time-offset", type=float, default=0.0, metavar="SEC", help="evaluate readings at the poses of t + SEC (default 0)"
     )
@@ -133,6 +134,7 @@ def options_from_args(args):
         q=tuple(args.q),
         pose_sigma=args.pose_sigma if args.pose_sigma is not None else 1e-3,
         time_offset=args.time_offset,
+        antennas=args.antennas,
     )
     if args.r_outer <= args.r_inner:
         raise FitInputError(f"--r-outer {args.r_outer:g} must exceed --r-inner {args.r_inner:g}")

@@ -101,6 +101,7 @@ class FitResult:
             out["q_ratio"] = self.estimate["q"]
             out["q_ratio_se"] = self.se.get("q")
         out["r_inner"] = self.params.r_inner
+        out["antennas"] = self.params.antennas
         out["moment"] = 1.0
         out.update(
             n_rows=self.n_rows,

@@ -62,6 +62,7 @@ class Params:
     r_outer: float = 50.0
     pose_sigma: float = 0.001
     time_offset: float = 0.0
+    antennas: int = 3  # 2: no z antenna, g_z = 0, so "d3" is dxy (emulator/receiver/model.py)
 
 
 #: Parameters the fit can estimate, with their transform to the optimiser's scale.
@@ -208,9 +209,8 @@ class Likelihood:
         return self.regimes
 
     def _geo(self, p: Params) -> Geometry:
-        if p.time_offset != 0.0 and self.rows.track is not None:
-            return self.rows.track.geometry(p.time_offset)
-        return self.rows.geo
+        geo = self.rows.track.geometry(p.time_offset) if p.time_offset != 0.0 and self.rows.track is not None else self.rows.geo
+        return geo if p.antennas == 3 else Geometry(geo.log_r, geo.g * np.array([[1.0], [1.0], [0.0]]))
 
     def logp(self, p: Params) -> NDArray[np.float64]:
         """log P(d_i) for each row, gross-error floor included."""
@@ -418,7 +418,7 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator) -> NDArray[np.i
     rho = 2.0 * (r / p.r_en) ** 3  # noise radius / signal scale, h * 4 pi r^3 = g + rho Q u
     hx = geo.g[0] + rho * qn[0] * u[:, 0]
     hy = geo.g[1] + rho * qn[1] * u[:, 1]
-    hz = geo.g[2] + rho * qn[2] * u[:, 2]
+    hz = geo.g[2] + rho * qn[2] * u[:, 2] if p.antennas == 3 else np.zeros(n)  # 2 antennas: no h_z
     jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if p.pose_sigma > 0 else 1.0
     scale = r * np.cbrt(p.kappa_eq) * jitter
     hxy = np.hypot(hx, hy)

@@ -57,7 +57,7 @@ def _new_scene(block: str, result: FitResult) -> str:
         f"{block}\n"
         "[effects]\nnoise = true  # r_en is the noise-equivalent distance: it needs the noise effect\n\n"
         "[[transmitters]]\nid = 1\nposition = [0.0, 0.0, -1.0]\n\n"
-        "[receiver]\nchannels = 1\nposition = [20.0, 0.0, 1.0]\n"
+        f"[receiver]\nchannels = 1\nantennas = {result.params.antennas}\nposition = [20.0, 0.0, 1.0]\n"
     )
 
 
@@ -100,7 +100,10 @@ def write_scene(path: str | Path, result: FitResult) -> str:
     except OSError as exc:
         raise FitInputError(f"{path}: cannot write: {exc.strerror or exc}") from None
     try:
-        load_scene(path)
+        scene = load_scene(path)
+        if scene.receiver_model().antennas != result.params.antennas:
+            raise InputError(f"its receiver has {scene.receiver_model().antennas} antennas, the fit assumed "
+                             f"{result.params.antennas} (--antennas); set [receiver] antennas")  # fmt: skip
     except InputError as exc:
         if old is not None:
             path.write_text(old, encoding="utf-8")

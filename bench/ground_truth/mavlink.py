@@ -7,7 +7,7 @@ This reader feeds those bytes to pymavlink's own parser (the ``mavlink`` extra, 
 :class:`~bench.ground_truth.attitude.Attitude` records as ``$PASHR``:
 
 * ``ATTITUDE_QUATERNION`` (#31): q1..q4 = [w, x, y, z] rotating the FRD body frame into
-  NED; converted to our FLU -> ENU quaternion (:func:`emulator.closed_loop.mavlink.frd_ned_to_flu_enu`).
+  NED; converted to our FLU -> ENU quaternion (:func:`emulator.frames.mavlink.frd_ned_to_flu_enu`).
   ``repr_offset_q`` is a display hint for tail-sitters and is not applied.
 * ``ATTITUDE`` (#30): roll, pitch, yaw in radians, the same aerospace Z-Y-X convention as
   ``$PASHR`` (yaw = heading clockwise from north). ArduPilot streams it by default, PX4
@@ -26,11 +26,10 @@ pymavlink keeps at most one frame (<= 280 bytes) pending.
 
 from __future__ import annotations
 
-import math
 from collections import Counter
 
 from emulator.frames.attitude import hpr_to_quaternion, quaternion_to_hpr
-from emulator.closed_loop.mavlink import frd_ned_to_flu_enu
+from emulator.frames.mavlink import attitude_euler_to_hpr, frd_ned_to_flu_enu
 from firmware_proto.errors import MissingExtra
 
 from .attitude import Attitude
@@ -105,10 +104,7 @@ class MavlinkAttitudeReader:
                 self._quaternion_seen = True
                 heading, roll, pitch = (float(a) for a in quaternion_to_hpr(q))
             elif kind == "ATTITUDE" and not self._quaternion_seen:
-                roll, pitch, heading = (math.degrees(a) for a in (msg.roll, msg.pitch, msg.yaw))
-                if not all(math.isfinite(a) for a in (roll, pitch, heading)):
-                    raise ValueError("non-finite angle")
-                heading %= 360.0
+                heading, roll, pitch = attitude_euler_to_hpr(msg.roll, msg.pitch, msg.yaw)
                 q = tuple(float(c) for c in hpr_to_quaternion(heading, roll, pitch))
             else:
                 st["ignored"] += 1

@@ -42,7 +42,8 @@ import numpy as np
 from firmware_proto.errors import MissingExtra
 
 from emulator.closed_loop.loop import ClosedLoop, RunResult
-from emulator.scene.reader import Scene, load_scene
+from emulator.scene.reader import load_scene
+from emulator.scene.types import Scene
 
 #: (transmitter position, dipole yaw in degrees) per test case, paper Figs. 8-11.
 CASES = {

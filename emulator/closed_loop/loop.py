@@ -32,7 +32,7 @@ import numpy as np
 from emulator.closed_loop.controllers import Controller, Located, Observation, make_controller
 from emulator.receiver.model import Epochs
 from emulator.receiver.receiver import EpochBatch, Receiver
-from emulator.scene.reader import Scene
+from emulator.scene.types import Scene
 from emulator.closed_loop.vehicle import UAV, VehicleSpec
 
 log = logging.getLogger("arva-emulate")
@@ -123,7 +123,7 @@ class ClosedLoop:
             self.uav = UAV(
                 spec.terrain, spec.start, spec.height_start, spec.yaw_deg, spec.v_max, spec.v_z_max, spec.range_sigma_m, rng
             )
-            self.controller = make_controller(spec, scene.model)
+            self.controller = make_controller(spec, self.receiver.model)
             self.controller.dt = self.dt
             self.pose_source = None
 

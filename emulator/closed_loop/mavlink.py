@@ -1,22 +1,20 @@
 """The receiver's pose from an autopilot over MAVLink (pymavlink; extra ``mavlink``).
 
 The emulator "rides along" a SITL or a real flight: it listens for the autopilot's
-``LOCAL_POSITION_NED`` (#32) and ``ATTITUDE_QUATERNION`` (#31) messages and keeps the
-latest pose; the closed-loop receiver evaluates each epoch at that pose.
+``LOCAL_POSITION_NED`` (#32) and its attitude, ``ATTITUDE_QUATERNION`` (#31, PX4's
+default) or ``ATTITUDE`` (#30, ArduPilot's default; once a link has carried a
+quaternion, later ``ATTITUDE`` messages are ignored: the same instant twice), and keeps
+the latest pose; the closed-loop receiver evaluates each epoch at that pose. Frame
+conversions (NED/FRD -> ENU/FLU) are :mod:`emulator.frames.mavlink`'s; the autopilot's
+local origin sits at ``origin`` in the scene's ENU frame.
 
-Frames (MAVLink common message set):
-
-* ``LOCAL_POSITION_NED``: x north, y east, z down (metres) in the autopilot's local
-  frame, velocities likewise. ENU (BRIEF 2) is (east, north, up) = (y, x, -z), i.e.
-  p_enu = T p_ned with T = [[0, 1, 0], [1, 0, 0], [0, 0, -1]]. The local origin (EKF
-  origin / home) sits at ``origin`` in the scene's ENU frame.
-* ``ATTITUDE_QUATERNION``: q1..q4 = [w, x, y, z] rotating the FRD body frame (x forward,
-  y right, z down) into NED. Our body frame is FLU (x forward, y left, z up,
-  BRIEF 2): v_frd = F v_flu with F = diag(1, -1, -1). So the receiver's rotation is
-  R_enu_flu = T R_ned_frd F. T is the rotation by pi about (1, 1, 0)/sqrt(2), quaternion
-  q_T = [0, 1/sqrt2, 1/sqrt2, 0]; F is the rotation by pi about x, q_F = [0, 1, 0, 0]; so
-  q_enu_flu = q_T * q_ned_frd * q_F (Hamilton products). Heading: a NED yaw psi
-  (clockwise from north) is the ENU yaw 90 deg - psi (counter-clockwise from east).
+Talking to a real autopilot: the source sends a ``HEARTBEAT`` (as a GCS) every second,
+so the autopilot knows a peer is there, and on each autopilot ``HEARTBEAT`` asks with
+``COMMAND_LONG`` ``MAV_CMD_SET_MESSAGE_INTERVAL`` (511) for ``LOCAL_POSITION_NED`` and
+``ATTITUDE_QUATERNION`` at ``rate_hz`` until both kinds have arrived (a request lost on
+UDP is simply repeated). If positions arrive without any attitude, or the reverse, for
+``WARN_AFTER_S`` seconds, one warning says so on stderr (logger ``arva-emulate``): the
+epochs would otherwise stay at the start pose with nothing saying why.
 
 Use a pymavlink connection string: ``udpin:0.0.0.0:14550`` (listen for a SITL's or a
 GCS-forwarded stream), ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, or a serial device
@@ -26,6 +24,7 @@ so :meth:`MavlinkPoseSource.close` is prompt; :meth:`wait` takes a timeout.
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -35,37 +34,22 @@ import numpy as np
 
 from firmware_proto.errors import MissingExtra
 
-_SQRT_HALF = math.sqrt(0.5)
-_Q_T = (0.0, _SQRT_HALF, _SQRT_HALF, 0.0)  # NED <-> ENU (its own inverse)
-_Q_F = (0.0, 1.0, 0.0, 0.0)  # FLU <-> FRD (its own inverse)
+from emulator.frames.mavlink import attitude_euler_to_flu_enu, frd_ned_to_flu_enu, ned_to_enu
 
+log = logging.getLogger("arva-emulate")
 
-def ned_to_enu(v) -> tuple[float, float, float]:
-    """(north, east, down) -> (east, north, up)."""
-    return (float(v[1]), float(v[0]), -float(v[2]))
+#: Message ids (MAVLink common) and the command that asks for a message stream.
+MSG_LOCAL_POSITION_NED = 32
+MSG_ATTITUDE_QUATERNION = 31
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_TYPE_GCS = 6
+MAV_AUTOPILOT_INVALID = 8
+#: Seconds between our heartbeats.
+HEARTBEAT_PERIOD_S = 1.0
+#: Positions without attitude (or the reverse) this long earn one warning.
+WARN_AFTER_S = 2.0
 
-
-def quat_multiply(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a * b of [w, x, y, z] quaternions."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-def frd_ned_to_flu_enu(q_ned_frd) -> tuple[float, float, float, float]:
-    """ATTITUDE_QUATERNION's [q1, q2, q3, q4] (FRD -> NED) as our [w, x, y, z] (FLU -> ENU),
-    normalised, with w >= 0."""
-    q = quat_multiply(quat_multiply(_Q_T, tuple(float(c) for c in q_ned_frd)), _Q_F)
-    n = math.sqrt(sum(c * c for c in q))
-    if not n > 1e-9 or not math.isfinite(n):
-        raise ValueError(f"ATTITUDE_QUATERNION: degenerate quaternion {list(q_ned_frd)}")
-    s = 1.0 / n if q[0] >= 0 else -1.0 / n
-    return tuple(c * s for c in q)
+__all__ = ["MavlinkPoseSource", "Pose", "attitude_euler_to_flu_enu", "frd_ned_to_flu_enu", "ned_to_enu", "pose_arrays"]
 
 
 @dataclass(frozen=True)
@@ -86,28 +70,43 @@ class Pose:
 
 
 class MavlinkPoseSource:
-    """Latest pose from LOCAL_POSITION_NED + ATTITUDE_QUATERNION on a pymavlink link.
+    """Latest pose from LOCAL_POSITION_NED + ATTITUDE_QUATERNION (or ATTITUDE) on a
+    pymavlink link (see the module docstring).
 
     ``start()`` opens the connection and a daemon reader thread; ``latest()`` is the
-    newest :class:`Pose` (None until both messages arrived); ``close()`` stops it.
+    newest :class:`Pose` (None until a position and an attitude arrived); ``close()``
+    stops it. ``counts`` counts the pose messages taken (``ATTITUDE`` appears once one
+    arrives); ``heartbeats`` the autopilot's heartbeats, ``requests`` the
+    SET_MESSAGE_INTERVAL commands sent.
     """
 
     MESSAGES = ("LOCAL_POSITION_NED", "ATTITUDE_QUATERNION")
+    #: Every message type the reader thread takes from the link.
+    RECEIVED = ("LOCAL_POSITION_NED", "ATTITUDE_QUATERNION", "ATTITUDE", "HEARTBEAT")
 
-    def __init__(self, url: str, origin=(0.0, 0.0, 0.0), baud: int = 57600, source_system: int = 255) -> None:
+    def __init__(
+        self, url: str, origin=(0.0, 0.0, 0.0), baud: int = 57600, source_system: int = 255, rate_hz: float = 20.0
+    ) -> None:
         self.url = url
         self.origin = tuple(float(v) for v in origin)
         self.baud = baud
         self.source_system = source_system
+        self.rate_hz = rate_hz
         self.counts = {name: 0 for name in self.MESSAGES}
         self.errors = 0
+        self.heartbeats = 0
+        self.requests = 0
+        self.warned: str | None = None
         self._lock = threading.Lock()
         self._have = threading.Event()
         self._stop = threading.Event()
         self._pos = None
         self._quat = None
+        self._quaternion_seen = False
+        self._first: dict[str, float] = {}  # "position" / "attitude" -> monotonic time first seen
         self._conn = None
         self._thread: threading.Thread | None = None
+        self._next_heartbeat = 0.0
 
     @property
     def started(self) -> bool:
@@ -144,15 +143,42 @@ class MavlinkPoseSource:
         conn = self._conn
         while not self._stop.is_set():
             try:
-                msg = conn.recv_match(type=list(self.MESSAGES), blocking=True, timeout=0.2)
+                self._send_heartbeat(conn, time.monotonic())
+                msg = conn.recv_match(type=list(self.RECEIVED), blocking=True, timeout=0.2)
             except Exception:  # noqa: BLE001 - a bad packet or a closed link must not kill us
                 if self._stop.is_set():
                     return
                 self.errors += 1
                 time.sleep(0.05)
                 continue
-            if msg is not None:
+            if msg is None:
+                continue
+            if msg.get_type() == "HEARTBEAT":
+                self._on_heartbeat(conn, msg)
+            else:
                 self.handle(msg, time.monotonic())
+
+    def _send_heartbeat(self, conn, now: float) -> None:
+        """Our HEARTBEAT (a GCS), once a second: autopilots stream to peers they hear."""
+        if now >= self._next_heartbeat:
+            self._next_heartbeat = now + HEARTBEAT_PERIOD_S
+            conn.mav.heartbeat_send(MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+    def _on_heartbeat(self, conn, msg) -> None:
+        """An autopilot's HEARTBEAT: ask it for the pose streams until they arrive."""
+        if getattr(msg, "autopilot", MAV_AUTOPILOT_INVALID) == MAV_AUTOPILOT_INVALID:
+            return  # another GCS, or ourselves echoed by a router
+        self.heartbeats += 1
+        with self._lock:
+            missing = [mid for mid, have in ((MSG_LOCAL_POSITION_NED, self._pos), (MSG_ATTITUDE_QUATERNION, self._quat))
+                       if have is None]  # fmt: skip
+        interval_us = 1e6 / self.rate_hz
+        for mid in missing:
+            conn.mav.command_long_send(
+                msg.get_srcSystem(), msg.get_srcComponent(), MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                float(mid), interval_us, 0.0, 0.0, 0.0, 0.0, 0.0,
+            )  # fmt: skip
+            self.requests += 1
 
     def handle(self, msg, now: float) -> None:
         """Take one decoded message (also usable without the thread, e.g. from a log)."""
@@ -166,19 +192,48 @@ class MavlinkPoseSource:
                 return
             with self._lock:
                 self._pos = (pos, vel, now, int(msg.time_boot_ms))
-        elif kind == "ATTITUDE_QUATERNION":
+            self._first.setdefault("position", now)
+        elif kind in ("ATTITUDE_QUATERNION", "ATTITUDE"):
+            if kind == "ATTITUDE" and self._quaternion_seen:
+                return  # the same instant as the quaternion, in Euler angles
             try:
-                q = frd_ned_to_flu_enu((msg.q1, msg.q2, msg.q3, msg.q4))
+                if kind == "ATTITUDE":
+                    q = attitude_euler_to_flu_enu(msg.roll, msg.pitch, msg.yaw)
+                else:
+                    q = frd_ned_to_flu_enu((msg.q1, msg.q2, msg.q3, msg.q4))
+                    self._quaternion_seen = True
             except ValueError:
                 self.errors += 1
                 return
             with self._lock:
                 self._quat = q
+            self._first.setdefault("attitude", now)
         else:
             return
-        self.counts[kind] += 1
+        self.counts[kind] = self.counts.get(kind, 0) + 1
         if self._pos is not None and self._quat is not None:
             self._have.set()
+        else:
+            self._warn_if_half(now)
+
+    def _warn_if_half(self, now: float) -> None:
+        """One warning when only positions (or only attitudes) have come for a while."""
+        if self.warned is not None or len(self._first) != 1:
+            return
+        (have, since), = self._first.items()
+        if now - since < WARN_AFTER_S:
+            return
+        if have == "position":
+            self.warned = (
+                f"{self.url}: LOCAL_POSITION_NED arrives but no ATTITUDE_QUATERNION or ATTITUDE: "
+                "epochs stay at the start pose (enable an attitude stream on the autopilot)"
+            )
+        else:
+            self.warned = (
+                f"{self.url}: attitude arrives but no LOCAL_POSITION_NED: epochs stay at the start pose "
+                "(does the autopilot have a position estimate?)"
+            )
+        log.warning("%s", self.warned)
 
     def latest(self) -> Pose | None:
         with self._lock:
@@ -190,7 +245,9 @@ class MavlinkPoseSource:
     def wait(self, timeout: float) -> Pose:
         """Block until a full pose is known; ``TimeoutError`` after ``timeout`` seconds."""
         if not self._have.wait(timeout):
-            raise TimeoutError(f"{self.url}: no LOCAL_POSITION_NED + ATTITUDE_QUATERNION within {timeout:g} s")
+            raise TimeoutError(
+                f"{self.url}: no LOCAL_POSITION_NED + ATTITUDE_QUATERNION (or ATTITUDE) within {timeout:g} s"
+            )
         return self.latest()
 
 

@@ -70,6 +70,7 @@ class SweepConfig:
     control_rate_hz: float = 10.0
     t_max: float = 1800.0
     chunk: int = 8  # burials per task
+    antennas: int = 3  # receiver class (emulator.receiver.model.ModelParams.antennas)
 
     def tasks(self) -> list[tuple[str, float, float, int]]:
         return [
@@ -125,6 +126,7 @@ def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: 
         "transmitters": [{k: tx[k] for k in ("id", "position", "orientation")} for tx in txs],
         "receiver": {
             "channels": config.max_transmitters,
+            "antennas": config.antennas,
             "vehicle": {
                 "controller": STRATEGIES[strategy],
                 "start": [xmin, ymin],
@@ -322,6 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-transmitters", type=int, default=4)
     p.add_argument("--t-max", type=float, default=1800.0, help="scene-time budget per run, s")
     p.add_argument("--no-noise", action="store_true", help="ideal receiver (EMI noise off)")
+    p.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     p.add_argument("--workers", type=int, help="local processes (default: CPU count)")
     p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://host:8786")
     p.add_argument("--out", type=Path, help="write the rows here (.csv, or .parquet with the parquet extra)")
@@ -335,7 +338,7 @@ def main(argv: list[str] | None = None) -> int:
     config = SweepConfig(
         n=args.n, seed=args.seed, strategies=strategies, v_max=args.v_max, k_c=args.k_c,
         area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
-        noise=not args.no_noise,
+        noise=not args.no_noise, antennas=args.antennas,
     )
     try:
         if args.out is not None:

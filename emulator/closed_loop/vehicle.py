@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from emulator.output.ports import BAUD_LIMITS
+from emulator.scene.tables import TableReader
 
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")
 
@@ -246,8 +247,8 @@ _VEHICLE_KEYS = {
 _MAVLINK_ONLY = {"mavlink", "mavlink_origin", "mavlink_baud"}
 
 
-def parse_vehicle(rd: Any, data: Any, path: str, scene_dir: Path | None) -> VehicleSpec:
-    """Validate a ``vehicle`` table with the scene's ``_Reader`` ``rd``."""
+def parse_vehicle(rd: TableReader, data: Any, path: str, scene_dir: Path | None) -> VehicleSpec:
+    """Validate a ``vehicle`` table with the scene's reader ``rd`` (its file, its rules)."""
     if not isinstance(data, dict):
         raise rd.fail(path, "expected a table")
     rd.known_keys(data, path, _VEHICLE_KEYS)
@@ -310,13 +311,13 @@ def parse_vehicle(rd: Any, data: Any, path: str, scene_dir: Path | None) -> Vehi
     return spec
 
 
-def _non_negative(rd: Any, value: float, path: str) -> float:
+def _non_negative(rd: TableReader, value: float, path: str) -> float:
     if value < 0:
         raise rd.fail(path, f"must be >= 0, got {value:g}")
     return value
 
 
-def _terrain(rd: Any, data: dict, path: str, scene_dir: Path | None) -> tuple[Terrain, str]:
+def _terrain(rd: TableReader, data: dict, path: str, scene_dir: Path | None) -> tuple[Terrain, str]:
     p = lambda key: f"{path}.{key}"  # noqa: E731
     name = data.get("terrain", "flat")
     if not isinstance(name, str) or not name:

@@ -47,6 +47,21 @@ class Trajectory:
         quat = self._slerp(clipped).as_quat(scalar_first=True)
         return pos, quat
 
+    def velocity(self, t: ArrayLike) -> NDArray[np.float64]:
+        """Velocities (N, 3) in m/s at times ``t`` (N,): the segment being travelled from
+        ``t`` on (at a waypoint, the one that starts there), zero before the first and
+        from the last waypoint on (the pose is held)."""
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        out = np.zeros((t.size, 3))
+        if self.is_static:
+            return out
+        i = np.searchsorted(self.times, t, side="right") - 1
+        moving = (i >= 0) & (i < len(self.times) - 1)
+        j = i[moving]
+        dt = self.times[j + 1] - self.times[j]
+        out[moving] = (self.positions[j + 1] - self.positions[j]) / dt[:, None]
+        return out
+
     @property
     def _slerp(self) -> Slerp:
         # Built lazily and cached: Slerp precomputes the relative rotations once.

@@ -17,6 +17,14 @@ in this order:
    (uniform; cut points uniform among the distinct positions), written back to back
    with ``sleep(SPLIT_GAP_S)`` between pieces so a reader sees separate reads.
 
+Faults on demand (a control channel, :meth:`FaultyPort.inject`): an outage of S scene
+seconds from the current scene time, one stall of M ms before the next write (slept, or
+with ``stall_hold`` the bytes held until the scene clock has advanced M ms, then written
+in order with the first write at or after that), or
+corruption of the next N bytes written (each XOR-ed with a uniform non-zero byte from
+its own generator). A port can be wrapped with an all-zero :class:`LinkFaultConfig`
+only to take these; it then draws nothing until asked.
+
 Time comes from two injected callables: ``clock()`` (scene time, seconds) and
 ``sleep(seconds)`` (time.sleep in real time, a no-op at ``--speed 0``), so the port itself
 never sleeps when running as fast as possible.
@@ -42,11 +50,15 @@ from firmware_proto.errors import InputError, LinkError
 
 from emulator.output.ports import Port
 
+#: Most bytes a held stall keeps (a UART FIFO plus a driver buffer, generously).
+MAX_HELD = 65536
 #: Pause between the pieces of a split write, seconds.
 SPLIT_GAP_S = 0.001
 #: Spawn-key tag of this effect's random streams ("LINK"), distinct from every other effect.
 _TAG = 0x4C494E4B
-_STALL, _BYTES, _SPLIT, _XOR = 0, 1, 2, 3
+_STALL, _BYTES, _SPLIT, _XOR, _FORCED = 0, 1, 2, 3, 4
+#: Kinds of fault :meth:`FaultyPort.inject` applies, with the unit of their amount.
+INJECTABLE = {"disconnect": "seconds", "stall": "ms", "corrupt": "bytes"}
 
 
 def _finite(v) -> bool:
@@ -134,9 +146,21 @@ class FaultyPort(Port):
         self._rng_bytes = rng(_BYTES) if config.loss > 0 or config.corrupt > 0 else None
         self._rng_split = rng(_SPLIT) if config.split > 0 else None
         self._rng_xor = rng(_XOR) if config.corrupt > 0 else None
+        self._forced_rng = lambda: rng(_FORCED)  # created on the first corrupt request
+        self._rng_forced: np.random.Generator | None = None
         self._window = 0  # last outage index started
-        self._down = False
+        self._down = False  # inside a scheduled outage
+        self._manual_until: float | None = None  # end (scene time) of an outage asked for
+        self._inner_down = False
         self._down_simulated = False
+        self._stall_once_ms: float | None = None
+        #: How a stall asked for is served: False sleeps (real time), True holds the
+        #: bytes until the scene clock has advanced by the stall (the step clock, where
+        #: nothing is written between steps and a stall is scene time).
+        self.stall_hold = False
+        self._held_until: float | None = None
+        self._held = bytearray()
+        self._corrupt_next = 0
         self.bytes_offered = 0
         self.bytes_lost = 0
         self.bytes_corrupted = 0
@@ -152,8 +176,40 @@ class FaultyPort(Port):
 
     @property
     def disconnected(self) -> bool:
-        """True during a scheduled outage."""
-        return self._down
+        """True during an outage (scheduled or asked for)."""
+        return self._down or self._manual_until is not None
+
+    @property
+    def time_dependent(self) -> bool:
+        """True when what a write suffers depends on the scene time it is written at (an
+        outage schedule, or an outage asked for): write such a port one epoch at a time."""
+        return (
+            self.config.disconnect_every_s > 0
+            or self._manual_until is not None
+            or self._held_until is not None
+            or (self.stall_hold and self._stall_once_ms is not None)
+        )
+
+    def inject(self, kind: str, amount: float) -> None:
+        """A fault on demand: ``disconnect`` for ``amount`` scene seconds from now,
+        ``stall`` of ``amount`` ms before the next write, ``corrupt`` the next
+        ``amount`` bytes written. Raises :class:`InputError` for anything else."""
+        if kind not in INJECTABLE:
+            raise InputError(f"fault kind {kind!r}: expected one of {', '.join(INJECTABLE)}")
+        unit = INJECTABLE[kind]
+        if not _finite(amount) or amount <= 0 or (kind == "corrupt" and int(amount) != amount):
+            what = "a whole number > 0" if kind == "corrupt" else "a finite number > 0"
+            raise InputError(f"fault {kind}: {unit} must be {what}, got {amount!r}")
+        if kind == "disconnect":
+            t = self._clock()
+            end = t + float(amount)
+            self._manual_until = end if self._manual_until is None else max(end, self._manual_until)
+            self.disconnects += 1
+            self._inner_state()
+        elif kind == "stall":
+            self._stall_once_ms = float(amount)
+        else:
+            self._corrupt_next += int(amount)
 
     @property
     def faults_injected(self) -> int:
@@ -181,14 +237,33 @@ class FaultyPort(Port):
         self.bytes_offered += n
         self.writes += 1
         self.poll()
-        if self._down:
+        if self.disconnected:
             self.bytes_disconnected += n
             return self._account(n, 0)
         cfg = self.config
         if self._rng_stall is not None and self._rng_stall.random() < cfg.stall:
             self.stalls += 1
             self._sleep(cfg.stall_ms / 1000.0)
+        if self._stall_once_ms is not None:
+            self.stalls += 1
+            if self.stall_hold:
+                self._held_until = self._clock() + self._stall_once_ms / 1000.0
+            else:
+                self._sleep(self._stall_once_ms / 1000.0)
+            self._stall_once_ms = None
+        if self._held_until is not None:
+            if self._clock() < self._held_until:
+                room = max(0, MAX_HELD - len(self._held))
+                self._held += data[:room]
+                self.bytes_dropped += max(0, n - room)  # a full FIFO loses the rest
+                return 0  # accounted for when released
+            data, held = bytes(self._held) + data, len(self._held)
+            self._held.clear()
+            self._held_until = None
+            n += held
         payload = self._fault_bytes(data)
+        if self._corrupt_next and payload:
+            payload = self._corrupt_forced(payload)
         accepted = 0
         for i, piece in enumerate(self._split(payload)):
             if i:
@@ -199,6 +274,9 @@ class FaultyPort(Port):
     def poll(self) -> None:
         """Apply the disconnect schedule at the current scene time without writing (a
         scheduler may call it between writes so an outage ends on time)."""
+        if self._manual_until is not None and self._clock() >= self._manual_until:
+            self._manual_until = None
+            self._inner_state()
         every = self.config.disconnect_every_s
         if every <= 0:
             return
@@ -235,16 +313,36 @@ class FaultyPort(Port):
     def _go_down(self) -> None:
         self.disconnects += 1
         self._down = True
-        try:
-            self.inner.disconnect()
-            self._down_simulated = False
-        except LinkError:
-            self._down_simulated = True  # e.g. stdout: drop bytes, close nothing
+        self._inner_state()
 
     def _up(self) -> None:
         self._down = False
-        if not self._down_simulated:
-            self.inner.reconnect()
+        self._inner_state()
+
+    def _inner_state(self) -> None:
+        """Unplug the wrapped port while any outage lasts, plug it back after the last."""
+        want_down = self.disconnected
+        if want_down and not self._inner_down:
+            self._inner_down = True
+            try:
+                self.inner.disconnect()
+                self._down_simulated = False
+            except LinkError:
+                self._down_simulated = True  # e.g. stdout: drop bytes, close nothing
+        elif not want_down and self._inner_down:
+            self._inner_down = False
+            if not self._down_simulated:
+                self.inner.reconnect()
+
+    def _corrupt_forced(self, payload: bytes) -> bytes:
+        if self._rng_forced is None:
+            self._rng_forced = self._forced_rng()
+        n = min(self._corrupt_next, len(payload))
+        arr = np.frombuffer(payload, dtype=np.uint8).copy()
+        arr[:n] ^= 1 + np.floor(self._rng_forced.random(n) * 255.0).astype(np.uint8)
+        self._corrupt_next -= n
+        self.bytes_corrupted += n
+        return arr.tobytes()
 
     def _fault_bytes(self, data: bytes) -> bytes:
         rng = self._rng_bytes

@@ -1,4 +1,5 @@
-"""Where emulated streams go: stdout, a pseudo-terminal, or a serial device / pyserial URL.
+"""Where emulated streams go: stdout, a pseudo-terminal, a serial device / pyserial URL,
+a regular file, or memory.
 
 Every port behaves like a UART transmitter: :meth:`Port.write` never blocks and never
 queues in memory; bytes the other side does not take are dropped and counted
@@ -84,6 +85,59 @@ class StdoutPort(Port):
     def write(self, data: bytes) -> int:
         self._out.write(data)
         self._out.flush()
+        return self._account(len(data), len(data))
+
+
+class FilePort(Port):
+    """A regular file, created or truncated: a stream recorded for later (``--stream
+    gps=gps.nmea``). Writes block like stdout's: a disk does not drop bytes."""
+
+    def __init__(self, label: str, path: str | Path) -> None:
+        super().__init__(label)
+        self.path = str(path)
+        try:
+            self._file = open(path, "wb")  # noqa: SIM115 (closed by close())
+        except OSError as exc:
+            raise LinkError(f"port {path}: cannot write: {exc.strerror or exc}") from None
+
+    def write(self, data: bytes) -> int:
+        try:
+            self._file.write(data)
+            self._file.flush()
+        except OSError as exc:
+            raise LinkError(f"port {self.path}: write failed: {exc.strerror or exc}") from None
+        return self._account(len(data), len(data))
+
+    def close(self) -> None:
+        self._file.close()
+
+
+def is_file_spec(spec: str) -> bool:
+    """Whether a port spec names a regular file rather than a serial device: not a URL,
+    not under /dev, and not an existing character device (``gps.nmea``, ``out/att.txt``)."""
+    import stat
+
+    if "://" in spec or spec.startswith("/dev/"):
+        return False
+    try:
+        return not stat.S_ISCHR(os.stat(spec).st_mode)
+    except OSError:
+        return True  # does not exist yet: a file to create
+
+
+class BufferPort(Port):
+    """Bytes kept in memory (``data``): the line of the in-process ``arvaemu://`` port.
+
+    It cannot be unplugged, like stdout: link-fault outages on it are simulated (the
+    bytes are dropped and counted, nothing is closed).
+    """
+
+    def __init__(self, label: str, data: bytearray | None = None) -> None:
+        super().__init__(label)
+        self.data = data if data is not None else bytearray()
+
+    def write(self, data: bytes) -> int:
+        self.data += data
         return self._account(len(data), len(data))
 
 

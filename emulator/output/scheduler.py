@@ -5,6 +5,14 @@ on the monotonic clock. Deadlines are absolute, so sleep overshoot never accumul
 (hours of 1 Hz epochs stay on the second), and each epoch is rendered ahead of its
 deadline so only the write happens at the deadline. As fast as possible (``speed == 0``):
 epochs are rendered in batches covering a window of scene time, stream by stream.
+
+A live control channel (:mod:`emulator.control`) changes the scene between epochs: every
+render and write here happens under :attr:`EpochScheduler.lock`, which the channel holds
+while it applies a change (or steps the step clock, :meth:`emulator.pipeline.Pipeline.step`),
+so a change takes effect from the next epoch rendered (:attr:`EpochScheduler.next_epoch`).
+:meth:`EpochScheduler.pause` stops the real clock emitting: epochs keep their deadlines
+and are rendered, then discarded, so a resume continues with the epoch due then and
+replays nothing (as fast as possible, where nothing is ever due, pause just waits).
 """
 
 from __future__ import annotations
@@ -59,6 +67,27 @@ class Route:
     def done(self) -> bool:
         return self.end_k is not None and self.next_k >= self.end_k
 
+    @property
+    def t_next(self) -> float:
+        """Scene time (s) of the next epoch to write."""
+        return self.next_k / self.stream.rate_hz
+
+    def send(self, count: int, clock: SceneClock) -> None:
+        """Render the next ``count`` epochs and write them, with ``clock`` at the scene
+        time of what is written. One write for them all, or one per epoch when the port's
+        faults depend on the scene time (outages): bytes are the same either way."""
+        if count <= 0:
+            return
+        if getattr(self.port, "time_dependent", False):
+            for _ in range(count):
+                clock.t = self.t_next
+                self.port.write(self.stream.render(self.next_k, 1))
+                self.next_k += 1
+            return
+        clock.t = self.t_next
+        self.port.write(self.stream.render(self.next_k, count))
+        self.next_k += count
+
 
 class EpochScheduler:
     """Runs routes until ``frames`` epochs of the first stream were sent, or :meth:`stop`.
@@ -91,6 +120,11 @@ class EpochScheduler:
         # An Event rather than a flag so a signal handler installed before the scheduler
         # exists (while ports are being opened) can already request the stop.
         self._stop_event = stop_event if stop_event is not None else threading.Event()
+        #: Held while rendering and writing; a control channel holds it to change the scene.
+        self.lock = threading.RLock()
+        self.paused = False
+        #: Epochs of the first stream rendered but not written because the clock was paused.
+        self.epochs_paused = 0
         if frames is not None:
             rate0 = routes[0].stream.rate_hz
             for r in routes:
@@ -104,6 +138,25 @@ class EpochScheduler:
     @property
     def _stop(self) -> bool:
         return self._stop_event.is_set()
+
+    @property
+    def next_epoch(self) -> int:
+        """Index of the first stream's next epoch to be rendered: the first a change made
+        now affects (in real time the next epoch due is already rendered)."""
+        r = self.routes[0]
+        return r.next_k + (1 if r.pending is not None else 0)
+
+    def pause(self) -> None:
+        """Real clock: stop emitting (epochs keep their deadlines and are discarded)."""
+        self.paused = True
+
+    def resume(self) -> None:
+        self.paused = False
+
+    def remaining(self) -> int | None:
+        """Epochs of the first stream still to send under ``frames`` (None: no limit)."""
+        r = self.routes[0]
+        return None if r.end_k is None else max(0, r.end_k - r.next_k)
 
     def wait(self, seconds: float) -> None:
         """Sleep ``seconds`` before the first epoch, interruptible by :meth:`stop`."""
@@ -119,6 +172,9 @@ class EpochScheduler:
 
     def _write(self, route: Route, data: bytes) -> None:
         self.scene_clock.t = route.next_k / route.stream.rate_hz
+        if self.paused:
+            self.epochs_paused += route is self.routes[0]
+            return
         route.port.write(data)
 
     def _run_fast(self) -> None:
@@ -130,13 +186,14 @@ class EpochScheduler:
         next_status = self.clock() + 0.5
         while not self._stop and not all(r.done for r in self.routes):
             t_end += window
-            for r in self.routes:
-                k_hi = math.ceil(t_end * r.stream.rate_hz)
-                if r.end_k is not None:
-                    k_hi = min(k_hi, r.end_k)
-                if k_hi > r.next_k:
-                    self._write(r, r.stream.render(r.next_k, k_hi - r.next_k))
-                    r.next_k = k_hi
+            while self.paused and not self._stop:  # nothing is due as fast as possible: wait
+                self.sleep(0.01)
+            with self.lock:
+                for r in self.routes:
+                    k_hi = math.ceil(t_end * r.stream.rate_hz)
+                    if r.end_k is not None:
+                        k_hi = min(k_hi, r.end_k)
+                    r.send(k_hi - r.next_k, self.scene_clock)
             if self.status is not None and self.clock() >= next_status:
                 self.status(self.routes)
                 next_status += 0.5
@@ -145,10 +202,11 @@ class EpochScheduler:
         start = self.clock()
         due = lambda r: start + r.next_k / (r.stream.rate_hz * self.speed)  # noqa: E731
         heap = []
-        for i, r in enumerate(self.routes):
-            if not r.done:
-                r.pending = r.stream.render(r.next_k, 1)
-                heapq.heappush(heap, (due(r), i))
+        with self.lock:
+            for i, r in enumerate(self.routes):
+                if not r.done:
+                    r.pending = r.stream.render(r.next_k, 1)
+                    heapq.heappush(heap, (due(r), i))
         next_status = start + 0.5
         while heap and not self._stop:
             deadline, i = heap[0]
@@ -162,11 +220,13 @@ class EpochScheduler:
                 continue  # spin
             heapq.heappop(heap)
             r = self.routes[i]
-            self._write(r, r.pending)
-            r.next_k += 1
-            if not r.done:
-                r.pending = r.stream.render(r.next_k, 1)  # ahead of its deadline
-                heapq.heappush(heap, (due(r), i))
+            with self.lock:
+                self._write(r, r.pending)
+                r.next_k += 1
+                r.pending = None
+                if not r.done:
+                    r.pending = r.stream.render(r.next_k, 1)  # ahead of its deadline
+                    heapq.heappush(heap, (due(r), i))
             if self.status is not None and self.clock() >= next_status:
                 self.status(self.routes)
                 next_status = self.clock() + 0.5

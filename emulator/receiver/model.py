@@ -17,7 +17,16 @@ so without noise every output follows from u and r alone:
     dxy = r * cbrt(kappa_eq / s) / cbrt(|(u_x, u_y)|)
     delta = atan(u_y / u_x)
 
-and no intermediate over- or underflows for any finite r > 0. With noise, h = a u + b v
+and no intermediate over- or underflows for any finite r > 0.
+
+Receiver classes (``ModelParams.antennas``). A 3-antenna receiver (the default, BRIEF 3)
+takes d3 in the inner zone and dxy outside it. A 2-antenna receiver has only the two
+horizontal antennas: every zone uses dxy (inner when dxy <= r_inner, delta 0; mid when
+dxy <= r_outer; outer otherwise, and (h_x, h_y) = (0, 0) is outer: directly above a
+vertical transmitter it reads no signal, the 2-antenna "spike"). r = 0 exactly is inner
+with (0, 0) for both classes. The same scale-free g, so the same stability.
+
+With noise, h = a u + b v
 (a = s/(4 pi r^3), b = w_en, v = Q R_r^T w/w_en, |w/w_en| <= 1). We factor out the larger
 of a and b: g = u + (b/a) v with distance scale r * cbrt(kappa_eq/s) when b <= a, else
 g = (a/b) u + v with scale cbrt(kappa_eq / (4 pi w_en)). The ratio b/a = (2/max q)(r/r_en)^3
@@ -38,6 +47,8 @@ from emulator.frames.rotation import rotation_components, unit_quaternion_compon
 
 ZONE_INNER, ZONE_MID, ZONE_OUTER = 0, 1, 2
 ZONE_NAMES = ("inner", "mid", "outer")
+#: Receiver classes the model knows: antennas used for the distance (2: horizontal pair).
+ANTENNAS = (2, 3)
 MAX_DELTA_DEG = 89
 #: Largest magnitude a $PARVH component can carry; fields beyond it (r below ~1e-103 m)
 #: saturate here rather than print ``inf``.
@@ -61,8 +72,13 @@ class ModelParams:
     r_outer: float = 50.0
     r_en: float = 80.0
     q: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    #: Receiver class: 3 (d3 in the inner zone, BRIEF 3) or 2 (horizontal antennas only:
+    #: dxy in every zone). See the module docstring.
+    antennas: int = 3
 
     def __post_init__(self) -> None:
+        if isinstance(self.antennas, bool) or self.antennas not in ANTENNAS:
+            raise InputError(f"receiver.antennas: must be 2 or 3, got {self.antennas!r}")
         for name in ("kappa_eq", "moment", "r_inner", "r_outer", "r_en"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -95,7 +111,8 @@ class Measurement:
 
     ``d`` in centimetres and ``delta`` in degrees (int64; -1, -1 in the outer zone);
     ``zone`` is ZONE_INNER / ZONE_MID / ZONE_OUTER; ``field`` (N, M, 3), only when asked
-    for, is the receiver-frame field in scene units (saturated at +-FIELD_SATURATION).
+    for, is the receiver-frame field in scene units (saturated at +-FIELD_SATURATION;
+    its z component is 0 for a 2-antenna receiver, which has no z antenna).
     """
 
     d: NDArray[np.int64]
@@ -168,7 +185,8 @@ def measure(
     Quaternions need not be normalised. ``noise``, when given, is (N, M, 3) points of
     the unit ball in the world frame (see :mod:`emulator.receiver.noise`); they are scaled by
     ``params.w_en`` and mapped by Q R_r^T (BRIEF 3.2). ``noise=None`` is the ideal
-    receiver and costs nothing extra.
+    receiver and costs nothing extra. ``params.antennas`` selects the receiver class
+    (3: BRIEF 3; 2: the horizontal field in every zone, see the module docstring).
     """
     rx_p = as_positions(rx_position, "receiver.position")
     tx_p = as_positions(tx_position, "transmitter.position")
@@ -253,11 +271,15 @@ def _measure_chunk(rx_p, rx_r, tx_p, tx_m, params, noise, d_out, delta_out, zone
                 g0, g1, g2, r_safe, rx_r, noise, params, field_out is not None
             )
         gxy = norm2(g0, g1)
-        d3 = dist_scale / np.cbrt(norm3(g0, g1, g2))  # |g| == 0 (noise cancelling): inf
-        dxy = dist_scale / np.cbrt(gxy)
-        inner = at_tx | (d3 <= params.r_inner)
+        dxy = dist_scale / np.cbrt(gxy)  # gxy == 0: inf
+        if params.antennas == 3:
+            d3 = dist_scale / np.cbrt(norm3(g0, g1, g2))  # |g| == 0 (noise cancelling): inf
+            inner = at_tx | (d3 <= params.r_inner)
+            dist = np.where(inner, d3, dxy)
+        else:  # 2 antennas: the horizontal field in every zone
+            inner = at_tx | (dxy <= params.r_inner)
+            dist = dxy.copy()
         outer = ~inner & ~((gxy > 0.0) & (dxy <= params.r_outer))
-        dist = np.where(inner, d3, dxy)
         dist[at_tx] = 0.0
         dist *= 100.0
         d_out[...] = round_half_away(dist)
@@ -277,6 +299,8 @@ def _measure_chunk(rx_p, rx_r, tx_p, tx_m, params, noise, d_out, delta_out, zone
                 h = np.where(g == 0.0, 0.0, g * field_scale)
             h[at_tx] = 0.0
             field_out[..., i] = np.clip(h, -FIELD_SATURATION, FIELD_SATURATION)
+        if params.antennas == 2:
+            field_out[..., 2] = 0.0  # no z antenna: a 2-antenna unit cannot report h_z
 
 
 def _add_noise(g0, g1, g2, r, rx_r, noise, params, want_scale):

@@ -3,7 +3,7 @@ pipeline and channel selection, producing epochs in order."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,7 +12,8 @@ from emulator.receiver.noise import NoiseEffect
 from emulator.receiver.pulses import PulseEffect
 from emulator.receiver.quantize import QuantizeEffect
 from emulator.receiver.model import ZONE_OUTER, Epochs, Measurement, measure, select_channels
-from emulator.scene.reader import Scene
+from emulator.frames.trajectory import Trajectory
+from emulator.scene.types import Scene, Transmitter
 
 
 @dataclass
@@ -39,27 +40,48 @@ class Receiver:
         self.scene = scene
         self.spec = scene.receivers[index]
         self.channels = self.spec.channels
-        self.ids = scene.transmitter_ids
         # The field rides along for $PARVH, or when a closed-loop controller needs it.
         self.want_field = scene.effects.research_sentences if want_field is None else want_field
         fx = scene.effects
         # Each receiver draws noise from its own stream of the scene seed; pulse trains
         # belong to the transmitters, so every receiver hears the same ones.
         self.noise = NoiseEffect(scene.seed, index) if fx.noise else None
-        self.pulses = PulseEffect(fx.pulses, self.ids, scene.seed) if fx.pulses and len(self.ids) else None
-        self.quantize = QuantizeEffect(fx.quantize) if fx.quantize else None
-        self._before_selection: list[Callable[[np.ndarray, Measurement], None]] = []
+        # The receiver's class and constants (its profile and the scene's [model]).
+        self.model = scene.receiver_model(index)
+        display = self.spec.display or fx.quantize  # the profile's display unless the scene sets one
+        self.quantize = QuantizeEffect(display) if display else None
         self._after_selection: list[Callable[[Epochs], None]] = []
-        if self.pulses is not None:
-            self._before_selection.append(self._apply_pulses)
         if self.quantize is not None:
             self._after_selection.append(self._apply_quantize)
         self.next_k = 0
-        txs = scene.transmitters
+        #: Where the receiver is: the scene trajectory, or a pose pinned by :meth:`pin`.
+        self.trajectory: Trajectory = self.spec.trajectory
+        self.set_transmitters(scene.transmitters)
+
+    def set_transmitters(self, transmitters: Sequence[Transmitter]) -> None:
+        """Hear these transmitters from the next epoch on (ids distinct; any order).
+
+        The scene's transmitters at construction; a control channel may add, move,
+        silence (leave out) or remove them between epochs. Pulse trains depend only on
+        the ids and the seed, so a transmitter keeps its timing across changes.
+        """
+        txs = tuple(sorted(transmitters, key=lambda tx: tx.id))
+        self.transmitters = txs
+        self.ids = np.array([tx.id for tx in txs], dtype=np.int64)
+        fx = self.scene.effects
+        self.pulses = PulseEffect(fx.pulses, self.ids, self.scene.seed) if fx.pulses and len(self.ids) else None
+        self._before_selection: list[Callable[[np.ndarray, Measurement], None]] = []
+        if self.pulses is not None:
+            self._before_selection.append(self._apply_pulses)
         self._static_tx = all(tx.trajectory.is_static for tx in txs)
         if self._static_tx and txs:
             self._tx_pos = np.stack([tx.trajectory.positions[0] for tx in txs])
             self._tx_quat = np.stack([tx.trajectory.orientations[0] for tx in txs])
+
+    def pin(self, trajectory: Trajectory | None) -> None:
+        """Take poses from ``trajectory`` from the next epoch on (e.g. a static pose a
+        control channel pinned); None hands the receiver back to its scene path."""
+        self.trajectory = self.spec.trajectory if trajectory is None else trajectory
 
     def next_batch(self, count: int) -> EpochBatch:
         k0 = self.next_k
@@ -71,7 +93,7 @@ class Receiver:
         """Channel-selected epochs at scene times ``t`` (draws noise if enabled)."""
         if len(self.ids) == 0:
             return self.evaluate_poses(t, None, None)
-        rx_pos, rx_quat = self.spec.trajectory.at(t)
+        rx_pos, rx_quat = self.trajectory.at(t)
         return self.evaluate_poses(t, rx_pos, rx_quat)
 
     def evaluate_poses(self, t: np.ndarray, rx_pos, rx_quat) -> Epochs:
@@ -85,11 +107,11 @@ class Receiver:
         if self._static_tx:
             tx_pos, tx_quat = self._tx_pos, self._tx_quat
         else:
-            poses = [tx.trajectory.at(t) for tx in self.scene.transmitters]
+            poses = [tx.trajectory.at(t) for tx in self.transmitters]
             tx_pos = np.stack([p for p, _ in poses], axis=1)
             tx_quat = np.stack([q for _, q in poses], axis=1)
         noise = self.noise.draw(n, m) if self.noise is not None else None
-        meas = measure(rx_pos, rx_quat, tx_pos, tx_quat, self.scene.model, noise, self.want_field)
+        meas = measure(rx_pos, rx_quat, tx_pos, tx_quat, self.model, noise, self.want_field)
         for stage in self._before_selection:
             stage(t, meas)
         epochs = select_channels(meas, self.ids, self.channels)

@@ -1,8 +1,10 @@
 """Scene files (BRIEF 5): versioned TOML describing transmitters, a receiver and effects.
 
 Validation is strict, in the pyvisa-sim manner: every key is known, every value has its
-type, length and range checked, and the first problem raises :class:`SceneError` whose
-text is ``FILE: key.path: reason`` (one line, naming the exact key).
+type, length and range checked (:class:`~emulator.scene.tables.TableReader`), and the
+first problem raises :class:`SceneError` whose text is ``FILE: key.path: reason`` (one
+line, naming the exact key). The result is a :class:`~emulator.scene.types.Scene`; the
+scene types are also importable from here.
 """
 
 from __future__ import annotations
@@ -10,246 +12,40 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from firmware_proto.errors import InputError, PoseError, SceneError
+from firmware_proto.errors import InputError, SceneError
 from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
 
-from emulator.truth.error import GroundTruthErrorConfig
+from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
 from emulator.frames.geodesy import Origin
+from emulator.frames.trajectory import Trajectory
 from emulator.output.link_faults import LinkFaultConfig
+from emulator.receiver.model import ANTENNAS, ModelParams
+from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig
-from emulator.receiver.model import ModelParams
-from emulator.frames.rotation import normalize_quaternions
-from emulator.frames.trajectory import IDENTITY, Trajectory
-from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
+from emulator.scene.tables import TableReader, type_name
+from emulator.scene.types import (
+    SPEC_VERSION,
+    Effects,
+    GroundTruthSpec,
+    ReceiverSpec,
+    Scene,
+    Transmitter,
+)
+from emulator.truth.error import GroundTruthErrorConfig
 
-#: The newest scene format this program reads.
-SPEC_VERSION = 1
 DEFAULT_SCENE = "default.toml"
-
-
-@dataclass(frozen=True)
-class Effects:
-    """Which effects the scene enables; all off by default (BRIEF 3.1).
-
-    An effect with parameters is ``None`` when off, else its validated config.
-    """
-
-    noise: bool = False
-    research_sentences: bool = False
-    pulses: PulseConfig | None = None
-    quantize: QuantizeConfig | None = None
-    ground_truth_error: GroundTruthErrorConfig | None = None
-    link_faults: LinkFaultConfig | None = None
-    #: Stream labels the link faults apply to (empty: every stream).
-    link_fault_streams: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class Transmitter:
-    id: int
-    trajectory: Trajectory
-    gps: bool = False  # emit an emulated GPS stream for this device
-    attitude: bool = False  # emit an emulated $PASHR attitude stream
-
-
-@dataclass(frozen=True)
-class GroundTruthSpec:
-    """Emulated ground-truth streams: rates, the UTC of scene time 0, NMEA talker."""
-
-    start_utc: _dt.datetime = _dt.datetime(2026, 1, 1, tzinfo=_dt.timezone.utc)
-    gps_rate_hz: float = 1.0
-    attitude_rate_hz: float = 10.0
-    talker: str = "GP"
-    #: Decimals of arc-minutes in GGA/RMC: 5 (1.9 cm) keeps sentences within NMEA's 82
-    #: bytes; 7 (0.2 mm) is u-blox "high precision" NMEA, longer than 82.
-    lat_lon_decimals: int = 5
-
-
-@dataclass(frozen=True)
-class ReceiverSpec:
-    """One receiver: ``id`` names its streams (``arva:<id>`` when there are several)."""
-
-    id: int
-    channels: int
-    trajectory: Trajectory
-    gps: bool = False
-    attitude: bool = False
-    #: Closed loop: the vehicle that carries this receiver (its pose then comes from the
-    #: vehicle, ``trajectory`` is only the start pose). None: the scene's trajectory.
-    vehicle: VehicleSpec | None = None
-
-
-@dataclass(frozen=True)
-class Scene:
-    """A validated scene. Transmitters are sorted by ascending id."""
-
-    source: str
-    spec: int
-    seed: int
-    rate_hz: float
-    model: ModelParams
-    effects: Effects
-    transmitters: tuple[Transmitter, ...]
-    receivers: tuple[ReceiverSpec, ...]
-    name: str = ""
-    origin: Origin | None = None
-    ground_truth: GroundTruthSpec = GroundTruthSpec()
-
-    @property
-    def receiver(self) -> ReceiverSpec:
-        """The first (usually the only) receiver."""
-        return self.receivers[0]
-
-    @property
-    def transmitter_ids(self) -> np.ndarray:
-        return np.array([tx.id for tx in self.transmitters], dtype=np.int64)
-
-
-class _Reader:
-    """Typed access to a TOML table that reports errors as ``FILE: key.path: reason``."""
-
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    def fail(self, key: str, reason: str) -> SceneError:
-        return SceneError(self.source, key, reason)
-
-    def table(self, data: dict, key: str, path: str, allowed: set[str], required: bool = False) -> dict:
-        value = data.get(key)
-        if value is None:
-            if required:
-                raise self.fail(path, "missing table")
-            return {}
-        if not isinstance(value, dict):
-            raise self.fail(path, f"expected a table, got {_type_name(value)}")
-        self.known_keys(value, path, allowed)
-        return value
-
-    def known_keys(self, data: dict, path: str, allowed: set[str]) -> None:
-        for key in data:
-            if key not in allowed:
-                raise self.fail(_join(path, key), "unknown key")
-
-    def integer(self, data: dict, key: str, path: str, default: int | None, lo: int, hi: int) -> int:
-        value = data.get(key, default)
-        if value is None:
-            raise self.fail(path, "missing")
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(path, f"expected an integer, got {_type_name(value)}")
-        if not lo <= value <= hi:
-            raise self.fail(path, f"must be in {lo}..{hi}, got {value}")
-        return value
-
-    def rate(self, data: dict, key: str, path: str, default: float) -> float:
-        """A stream rate in Hz within :data:`RATE_LIMITS_HZ` (epoch k is at k / rate: a
-        rate of 1e-320 Hz would put epoch 1 beyond any float)."""
-        value = self.number(data, key, path, default, positive=True)
-        lo, hi = RATE_LIMITS_HZ
-        if not lo <= value <= hi:
-            raise self.fail(path, f"must be within [{lo:g}, {hi:g}] Hz, got {value:g}")
-        return value
-
-    def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False) -> float:
-        value = data.get(key, default)
-        if value is None:
-            raise self.fail(path, "missing")
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(path, f"expected a number, got {_type_name(value)}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise self.fail(path, f"must be finite, got {value}")
-        if positive and not value > 0:
-            raise self.fail(path, f"must be > 0, got {value:g}")
-        return value
-
-    def boolean(self, data: dict, key: str, path: str, default: bool) -> bool:
-        value = data.get(key, default)
-        if not isinstance(value, bool):
-            raise self.fail(path, f"expected true or false, got {_type_name(value)}")
-        return value
-
-    def vector(self, value: Any, path: str, length: int) -> list[float]:
-        if not isinstance(value, list):
-            raise self.fail(path, f"expected an array of {length} numbers, got {_type_name(value)}")
-        if len(value) != length:
-            raise self.fail(path, f"expected {length} numbers, got {len(value)}")
-        out = []
-        for i, v in enumerate(value):
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise self.fail(f"{path}[{i}]", f"expected a number, got {_type_name(v)}")
-            if not math.isfinite(v):
-                raise self.fail(f"{path}[{i}]", f"must be finite, got {v}")
-            out.append(float(v))
-        return out
-
-    def quaternion(self, value: Any, path: str) -> list[float]:
-        q = self.vector(value, path, 4)
-        try:
-            return normalize_quaternions(q, path).tolist()
-        except PoseError as exc:
-            raise self.fail(path, exc.reason) from None
-
-    def trajectory(self, data: dict, path: str) -> Trajectory:
-        has_static = "position" in data or "orientation" in data
-        if "path" in data:
-            if has_static:
-                raise self.fail(_join(path, "path"), "give either position/orientation or path, not both")
-            return self._path(data["path"], _join(path, "path"))
-        if "position" not in data:
-            raise self.fail(_join(path, "position"), "missing")
-        position = self.vector(data["position"], _join(path, "position"), 3)
-        orientation = self.quaternion(data.get("orientation", list(IDENTITY)), _join(path, "orientation"))
-        return Trajectory.static(position, orientation)
-
-    def _path(self, value: Any, path: str) -> Trajectory:
-        if not isinstance(value, list) or not value:
-            raise self.fail(path, "expected a non-empty array of waypoint tables")
-        times, positions, orientations = [], [], []
-        for i, wp in enumerate(value):
-            wp_path = f"{path}[{i}]"
-            if not isinstance(wp, dict):
-                raise self.fail(wp_path, f"expected a table, got {_type_name(wp)}")
-            self.known_keys(wp, wp_path, {"t", "position", "orientation"})
-            t = self.number(wp, "t", f"{wp_path}.t", None)
-            if times and not t > times[-1]:
-                raise self.fail(f"{wp_path}.t", f"times must increase strictly, {t:g} follows {times[-1]:g}")
-            if "position" not in wp:
-                raise self.fail(f"{wp_path}.position", "missing")
-            times.append(t)
-            positions.append(self.vector(wp["position"], f"{wp_path}.position", 3))
-            orientations.append(self.quaternion(wp.get("orientation", list(IDENTITY)), f"{wp_path}.orientation"))
-        return Trajectory(np.array(times), np.array(positions), np.array(orientations))
-
-
-def _join(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else key
-
-
-def _type_name(value: Any) -> str:
-    return {
-        bool: "a boolean",
-        int: "an integer",
-        float: "a number",
-        str: "a string",
-        list: "an array",
-        dict: "a table",
-    }.get(type(value), type(value).__name__)
 
 
 _TOP_KEYS = {
     "spec", "seed", "rate_hz", "name", "description", "model", "effects", "transmitters", "receiver", "receivers",
     "pulses", "quantize", "ground_truth_error", "link_faults", "origin", "ground_truth",
 }
-#: Stream rates a scene may ask for, Hz: one epoch per 1000 s up to 10 kHz.
-RATE_LIMITS_HZ = (1e-3, 1e4)
 
 _MODEL_KEYS = {"kappa_eq", "moment", "r_inner", "r_outer", "r_en", "q"}
 _EFFECT_KEYS = {"noise", "research_sentences", "pulses", "quantize", "ground_truth_error", "link_faults"}
@@ -289,12 +85,12 @@ _EFFECT_CONFIGS = {
     "ground_truth_error": GroundTruthErrorConfig,
     "link_faults": LinkFaultConfig,
 }
-_RX_KEYS = {"id", "channels", "position", "orientation", "path", "gps", "attitude", "vehicle"}
+_RX_KEYS = {"id", "channels", "position", "orientation", "path", "gps", "attitude", "vehicle", "antennas", "profile"}
 
 
 def parse_scene(data: dict, source: str) -> Scene:
     """Validate a decoded TOML document; ``source`` names it in error messages."""
-    rd = _Reader(source)
+    rd = TableReader(source)
     if "spec" not in data:
         raise rd.fail("spec", f"missing (this program reads spec = {SPEC_VERSION})")
     spec = rd.integer(data, "spec", "spec", None, 1, 2**31)
@@ -302,12 +98,13 @@ def parse_scene(data: dict, source: str) -> Scene:
         raise rd.fail("spec", f"version {spec} is newer than this program supports ({SPEC_VERSION})")
     rd.known_keys(data, "", _TOP_KEYS)
     seed = rd.integer(data, "seed", "seed", 0, 0, 2**63 - 1)
-    rate_hz = rd.rate(data, "rate_hz", "rate_hz", 1.0)
+    profiles = _profiles(rd, data)
+    rate_hz = rd.rate(data, "rate_hz", "rate_hz", 1.0 if "rate_hz" in data else _profile_rate(rd, profiles))
     name = data.get("name", "")
     if not isinstance(name, str):
-        raise rd.fail("name", f"expected a string, got {_type_name(name)}")
+        raise rd.fail("name", f"expected a string, got {type_name(name)}")
     if not isinstance(data.get("description", ""), str):
-        raise rd.fail("description", f"expected a string, got {_type_name(data['description'])}")
+        raise rd.fail("description", f"expected a string, got {type_name(data['description'])}")
 
     m = rd.table(data, "model", "model", _MODEL_KEYS)
     defaults = ModelParams()
@@ -326,7 +123,7 @@ def parse_scene(data: dict, source: str) -> Scene:
 
     raw_txs = data.get("transmitters", [])
     if not isinstance(raw_txs, list):
-        raise rd.fail("transmitters", f"expected an array of tables ([[transmitters]]), got {_type_name(raw_txs)}")
+        raise rd.fail("transmitters", f"expected an array of tables ([[transmitters]]), got {type_name(raw_txs)}")
     transmitters = []
     pulse_periods: dict[int, float] = {}
     pulse_phases: dict[int, float] = {}
@@ -334,7 +131,7 @@ def parse_scene(data: dict, source: str) -> Scene:
     for i, tx in enumerate(raw_txs):
         path = f"transmitters[{i}]"
         if not isinstance(tx, dict):
-            raise rd.fail(path, f"expected a table, got {_type_name(tx)}")
+            raise rd.fail(path, f"expected a table, got {type_name(tx)}")
         rd.known_keys(tx, path, _TX_KEYS)
         tx_id = rd.integer(tx, "id", f"{path}.id", None, 0, MAX_ID)
         if tx_id in seen:
@@ -356,16 +153,17 @@ def parse_scene(data: dict, source: str) -> Scene:
     transmitters.sort(key=lambda tx: tx.id)
     effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
 
-    receivers = _receivers(rd, data, rate_hz)
+    receivers = _receivers(rd, data, rate_hz, profiles, m, "quantize" in e)
     origin, ground_truth = _ground_truth(rd, data, transmitters, receivers)
     if effects.ground_truth_error is not None and not any(d.gps or d.attitude for d in (*transmitters, *receivers)):
         raise rd.fail("effects.ground_truth_error", "no device has gps or attitude streams to apply it to")
     return Scene(
-        source, spec, seed, rate_hz, model, effects, tuple(transmitters), receivers, name, origin, ground_truth
+        source, spec, seed, rate_hz, receivers[0].model or model, effects, tuple(transmitters), receivers, name,
+        origin, ground_truth,
     )
 
 
-def _ground_truth(rd: _Reader, data: dict, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
+def _ground_truth(rd: TableReader, data: dict, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
     """``[origin]`` (geodetic, for GPS) and ``[ground_truth]`` (stream settings)."""
     o = rd.table(data, "origin", "origin", {"lat", "lon", "alt"})
     origin = None
@@ -386,7 +184,7 @@ def _ground_truth(rd: _Reader, data: dict, transmitters, receivers) -> tuple[Ori
         except ValueError:
             raise rd.fail("ground_truth.start_utc", f"not an ISO 8601 date-time: {start!r}") from None
     if not isinstance(start, _dt.datetime):
-        raise rd.fail("ground_truth.start_utc", f"expected a date-time, got {_type_name(start)}")
+        raise rd.fail("ground_truth.start_utc", f"expected a date-time, got {type_name(start)}")
     if start.tzinfo is None:
         raise rd.fail("ground_truth.start_utc", "needs a time zone (e.g. 2026-01-15T10:00:00Z)")
     talker = g.get("talker", defaults.talker)
@@ -409,7 +207,7 @@ def _ground_truth(rd: _Reader, data: dict, transmitters, receivers) -> tuple[Ori
     return origin, spec
 
 
-def _effects(rd: _Reader, data: dict, enabled: dict[str, bool], periods: dict, phases: dict) -> Effects:
+def _effects(rd: TableReader, data: dict, enabled: dict[str, bool], periods: dict, phases: dict) -> Effects:
     """Each enabled effect's config from its own table (``[pulses]``, ``[quantize]`` ...).
 
     A parameter table for an effect that is not enabled is an error: a scene that sets
@@ -440,7 +238,7 @@ def _effects(rd: _Reader, data: dict, enabled: dict[str, bool], periods: dict, p
     )
 
 
-def _param(rd: _Reader, table: dict, key: str, path: str, kind: object):
+def _param(rd: TableReader, table: dict, key: str, path: str, kind: object):
     if kind == "number":
         return rd.number(table, key, path, None)
     if kind == "integer":
@@ -448,7 +246,7 @@ def _param(rd: _Reader, table: dict, key: str, path: str, kind: object):
     if kind == "string":
         value = table[key]
         if not isinstance(value, str):
-            raise rd.fail(path, f"expected a string, got {_type_name(value)}")
+            raise rd.fail(path, f"expected a string, got {type_name(value)}")
         return value
     if kind == "strings":
         value = table[key]
@@ -458,8 +256,66 @@ def _param(rd: _Reader, table: dict, key: str, path: str, kind: object):
     return tuple(rd.vector(table[key], path, kind[1]))
 
 
-def _receivers(rd: _Reader, data: dict, rate_hz: float = 1.0) -> tuple[ReceiverSpec, ...]:
-    """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port)."""
+def _receiver_tables(data: dict) -> list[tuple[Any, str]]:
+    """The raw receiver tables with their key paths (unchecked; :func:`_receivers` checks)."""
+    if "receivers" in data and isinstance(data["receivers"], list):
+        return [(r, f"receivers[{i}]") for i, r in enumerate(data["receivers"])]
+    return [(data.get("receiver"), "receiver")]
+
+
+def _profiles(rd: TableReader, data: dict) -> list[ReceiverProfile | None]:
+    """Each receiver's profile (``profile = "NAME"``), None where it names none."""
+    out: list[ReceiverProfile | None] = []
+    for table, path in _receiver_tables(data):
+        name = table.get("profile") if isinstance(table, dict) else None
+        if name is None:
+            out.append(None)
+            continue
+        if not isinstance(name, str):
+            raise rd.fail(f"{path}.profile", f"expected a string, got {type_name(name)}")
+        try:
+            out.append(load_profile(name))
+        except InputError as exc:
+            raise rd.fail(f"{path}.profile", str(exc)) from None
+    return out
+
+
+def _profile_rate(rd: TableReader, profiles: list[ReceiverProfile | None]) -> float:
+    """The epoch rate the profiles ask for when the scene gives no ``rate_hz`` (one rate
+    per scene: profiles that disagree need the scene to choose)."""
+    rates = {p.rate_hz: p.name for p in profiles if p is not None}
+    if len(rates) > 1:
+        names = ", ".join(f"{n} {r:g} Hz" for r, n in rates.items())
+        raise rd.fail("rate_hz", f"missing: the receivers' profiles differ in epoch rate ({names}); set rate_hz")
+    return next(iter(rates), 1.0)
+
+
+def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, m: dict, r: dict, path: str) -> ModelParams:
+    """Defaults, then the profile, then the scene's ``[model]`` keys, then ``antennas``."""
+    base = profile.model if profile is not None else ModelParams()
+    values = {k: rd.number(m, k, f"model.{k}", None, positive=True) for k in sorted(_MODEL_KEYS - {"q"}) if k in m}
+    if "q" in m:
+        values["q"] = tuple(rd.vector(m["q"], "model.q", 3))
+    values["antennas"] = rd.integer(r, "antennas", f"{path}.antennas", base.antennas, min(ANTENNAS), max(ANTENNAS))
+    try:
+        return replace(base, **values)
+    except InputError as exc:
+        raise rd.fail("model", str(exc)) from None
+
+
+def _receivers(
+    rd: TableReader,
+    data: dict,
+    rate_hz: float = 1.0,
+    profiles: list[ReceiverProfile | None] | None = None,
+    model_keys: dict | None = None,
+    scene_sets_quantize: bool = False,
+) -> tuple[ReceiverSpec, ...]:
+    """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port).
+
+    A receiver's ``profile`` gives its class, channels, model constants and display;
+    the scene's own keys (``channels``, ``antennas``, ``[model]``, ``effects.quantize``)
+    override it."""
     if "receiver" in data and "receivers" in data:
         raise rd.fail("receivers", "give either [receiver] or [[receivers]], not both")
     if "receivers" not in data:
@@ -471,7 +327,7 @@ def _receivers(rd: _Reader, data: dict, rate_hz: float = 1.0) -> tuple[ReceiverS
         tables = []
         for i, r in enumerate(raw):
             if not isinstance(r, dict):
-                raise rd.fail(f"receivers[{i}]", f"expected a table, got {_type_name(r)}")
+                raise rd.fail(f"receivers[{i}]", f"expected a table, got {type_name(r)}")
             rd.known_keys(r, f"receivers[{i}]", _RX_KEYS)
             tables.append((r, f"receivers[{i}]"))
     out: list[ReceiverSpec] = []
@@ -481,7 +337,10 @@ def _receivers(rd: _Reader, data: dict, rate_hz: float = 1.0) -> tuple[ReceiverS
         if rx_id in seen:
             raise rd.fail(f"{path}.id", f"duplicate id {rx_id} (also {seen[rx_id]}.id)")
         seen[rx_id] = path
-        channels = rd.integer(r, "channels", f"{path}.channels", 1, 1, MAX_CHANNELS)
+        profile = profiles[i] if profiles else None
+        channels = rd.integer(r, "channels", f"{path}.channels", profile.channels if profile else 1, 1, MAX_CHANNELS)
+        model = _receiver_model(rd, profile, model_keys or {}, r, path)
+        display = profile.display if profile is not None and not scene_sets_quantize else None
         vehicle = _vehicle(rd, r, path, rate_hz) if "vehicle" in r else None
         out.append(
             ReceiverSpec(
@@ -491,12 +350,15 @@ def _receivers(rd: _Reader, data: dict, rate_hz: float = 1.0) -> tuple[ReceiverS
                 rd.boolean(r, "gps", f"{path}.gps", False),
                 rd.boolean(r, "attitude", f"{path}.attitude", False),
                 vehicle,
+                model,
+                display,
+                profile.name if profile is not None else "",
             )
         )
     return tuple(out)
 
 
-def _vehicle(rd: _Reader, r: dict, path: str, rate_hz: float) -> VehicleSpec:
+def _vehicle(rd: TableReader, r: dict, path: str, rate_hz: float) -> VehicleSpec:
     """``[receiver.vehicle]``: the receiver rides on a vehicle (emulator.closed_loop.vehicle)."""
     for key in ("position", "orientation", "path", "gps", "attitude"):
         if key in r:

@@ -28,7 +28,9 @@ Precision (what the bench reader gets back, exactly to these digits):
   datetime is rounded *before* it is split into time and date, so 23:59:59.996 becomes
   00:00:00.00 of the next day in both the time and the RMC date.
 * latitude / longitude: ``lat_lon_decimals`` decimals of arc-minutes, default 7 (0.19 mm,
-  as u-blox "high precision NMEA"); 4-5 give the classic <= 82-character sentences.
+  as u-blox "high precision NMEA"). With 7, a GGA fits NMEA's 82 characters only with
+  ``short=True`` (HDOP and geoid separation without trailing zeros), as the emulator's
+  streams send it; 4-5 fit either way.
 * altitude: GGA carries height above mean sea level and the geoid separation N, with
   HAE = MSL + N. We take the height above the ellipsoid (HAE, as in
   :mod:`emulator.frames.geodesy`) and a separation (default 0.0: then MSL = HAE), and print both
@@ -150,6 +152,16 @@ def _position(lat: float | None, lon: float | None, decimals: int) -> list[str]:
     return [la, ns, lo, ew]
 
 
+def _fixed(value: float, decimals: int, short: bool) -> str:
+    """``value`` with ``decimals`` decimals, or (``short``) without trailing zeros beyond
+    the first decimal."""
+    text = f"{value:.{decimals}f}"
+    if short and "." in text:
+        text = text.rstrip("0")
+        text += "0" if text.endswith(".") else ""
+    return text
+
+
 def _serialize(talker: str, msg_id: str, fields: list[str]) -> bytes:
     return NMEAMessage(talker, msg_id, GET, payload=fields).serialize()
 
@@ -181,8 +193,14 @@ def gga_sentence(
     hdop: float = 0.8,
     talker: str = "GP",
     lat_lon_decimals: int = 7,
+    short: bool = False,
 ) -> bytes:
     """One ``$xxGGA`` sentence (bytes, CR LF terminated).
+
+    ``short``: HDOP and the geoid separation with the fewest decimals that keep their
+    value (up to 2 and 3: ``0.8``, ``0.0``, ``48.25``), the three characters that keep a
+    GGA with 7 decimals of arc-minutes within NMEA's 82 (for altitudes above -10 km and
+    below 1000 km); the emulator's ground-truth streams use it.
 
     ``lat``/``lon`` in degrees, ``alt`` in metres above the WGS-84 ellipsoid; the sentence
     carries MSL = alt - geoid_sep and the separation. ``quality``: 0 no fix, 1 GPS,
@@ -196,11 +214,11 @@ def gga_sentence(
     if h < 0.0:
         raise InputError(f"hdop: must be >= 0, got {h}")
     sep = _number(geoid_sep, "geoid_sep")
-    fields = [_hhmmss(t, 2), *_position(lat, lon, lat_lon_decimals), str(q), f"{n_sats:02d}", f"{h:.2f}"]
+    fields = [_hhmmss(t, 2), *_position(lat, lon, lat_lon_decimals), str(q), f"{n_sats:02d}", _fixed(h, 2, short)]
     if alt is None:
         fields += ["", "", "", ""]
     else:
-        fields += [f"{_number(alt, 'alt') - sep:.3f}", "M", f"{sep:.3f}", "M"]
+        fields += [f"{_number(alt, 'alt') - sep:.3f}", "M", _fixed(sep, 3, short), "M"]
     fields += ["", ""]  # age of differential corrections, reference station id
     return _serialize(_talker(talker), "GGA", fields)
 
@@ -272,6 +290,7 @@ def gps_sentences(
     hdop: float = 0.8,
     talker: str = "GP",
     lat_lon_decimals: int = 7,
+    short: bool = False,
 ) -> bytes:
     """RMC then GGA for one epoch, the order u-blox receivers use: a reader starting on
     this stream dates the GGA with the RMC's date at once. The RMC's FAA mode follows
@@ -283,7 +302,7 @@ def gps_sentences(
     )
     gga = gga_sentence(
         utc, lat, lon, alt, geoid_sep=geoid_sep, quality=quality, sats=sats, hdop=hdop,
-        talker=talker, lat_lon_decimals=lat_lon_decimals,
+        talker=talker, lat_lon_decimals=lat_lon_decimals, short=short,
     )
     return rmc + gga
 

@@ -3,27 +3,29 @@ a receiver or a transmitter, each on its own port, from the device's scene traje
 
 Epoch k of a ground-truth stream is at scene time k / rate and carries the UTC time
 ``ground_truth.start_utc + k / rate``. ENU positions are mapped to WGS-84 through the
-scene's ``[origin]``; velocity (for RMC speed and course) is the central difference of
-the trajectory over 0.1 s. With the ``ground_truth_error`` effect, positions get bias,
-noise and dropouts (a dropped fix is sent as a no-fix RMC + GGA, as a receiver does) and
-attitudes get body-side angular noise.
+scene's ``[origin]``; velocity (for RMC speed and course) is that of the path segment
+being travelled (:meth:`~emulator.frames.trajectory.Trajectory.velocity`: at a waypoint,
+the segment that starts there; zero once the path has ended). GGA carries HDOP and the
+geoid separation in their short form (``0.8``, ``0.0``), so every sentence stays within
+NMEA's 82 characters for every ``lat_lon_decimals`` a scene accepts (4-7; altitudes
+above -10 km and below 1000 km). With the ``ground_truth_error`` effect, positions get
+bias, noise and dropouts (a dropped fix is sent as a no-fix RMC + GGA, as a receiver
+does) and attitudes get body-side angular noise.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+from dataclasses import dataclass
 
 import numpy as np
 
 from emulator.truth.error import GroundTruthError
 from emulator.frames.geodesy import enu_to_geodetic
 from emulator.truth.nmea import gga_sentence, gps_sentences, pashr_from_quaternions, rmc_sentence
-from emulator.scene.reader import Scene
+from emulator.scene.types import ReceiverSpec, Scene, Transmitter
 from emulator.output.streams import Stream
 from emulator.frames.trajectory import Trajectory
-
-#: Half the interval of the central difference that gives the GPS velocity (s).
-VELOCITY_HALF_STEP = 0.05
 
 
 class GpsStream(Stream):
@@ -39,9 +41,7 @@ class GpsStream(Stream):
     def render(self, k0: int, count: int) -> bytes:
         t = (k0 + np.arange(count, dtype=np.float64)) / self.rate_hz
         pos, _ = self.trajectory.at(t)
-        ahead, _ = self.trajectory.at(t + VELOCITY_HALF_STEP)
-        behind, _ = self.trajectory.at(t - VELOCITY_HALF_STEP)
-        velocity = (ahead - behind) / (2 * VELOCITY_HALF_STEP)
+        velocity = self.trajectory.velocity(t)
         valid = np.ones(count, dtype=bool)
         if self.error is not None:
             pos, valid = self.error.gps(pos)
@@ -54,7 +54,7 @@ class GpsStream(Stream):
                 out.append(
                     gps_sentences(
                         utc, float(lat[i]), float(lon[i]), float(alt[i]), velocity_enu=velocity[i],
-                        talker=talker, lat_lon_decimals=self.spec.lat_lon_decimals,
+                        talker=talker, lat_lon_decimals=self.spec.lat_lon_decimals, short=True,
                     )
                 )
             else:
@@ -83,22 +83,47 @@ class AttitudeStream(Stream):
         return pashr_from_quaternions([start + _dt.timedelta(seconds=float(x)) for x in t], quat)
 
 
-def ground_truth_streams(scene: Scene) -> list[Stream]:
-    """GPS and attitude streams of every device that asks for them, receivers first.
+@dataclass(frozen=True)
+class TruthCarrier:
+    """One ground-truth stream of the scene: its label, kind (``gps`` / ``attitude``), the
+    device that carries it and the spawn key of its ``ground_truth_error`` draws."""
+
+    label: str
+    kind: str
+    device: ReceiverSpec | Transmitter
+    error_stream: int
+
+
+def ground_truth_carriers(scene: Scene) -> list[TruthCarrier]:
+    """GPS and attitude streams of every device that asks for them, receivers first
+    (GPS streams before attitude streams).
 
     Labels: ``gps`` / ``attitude`` when one device streams that kind, else suffixed
     with the device, ``gps:rx`` (``gps:rx<id>`` with several receivers), ``gps:tx<id>``.
     """
     several_rx = len(scene.receivers) > 1
-    devices = [(f"rx{rx.id}" if several_rx else "rx", rx) for rx in scene.receivers]
+    devices: list[tuple[str, ReceiverSpec | Transmitter]] = [
+        (f"rx{rx.id}" if several_rx else "rx", rx) for rx in scene.receivers
+    ]
     devices += [(f"tx{tx.id}", tx) for tx in scene.transmitters]
-    fx = scene.effects.ground_truth_error
-    streams: list[Stream] = []
-    for kind, cls in (("gps", GpsStream), ("attitude", AttitudeStream)):
+    out: list[TruthCarrier] = []
+    for kind in ("gps", "attitude"):
         carriers = [(name, dev) for name, dev in devices if getattr(dev, kind)]
         for name, dev in carriers:
             label = kind if len(carriers) == 1 else f"{kind}:{name}"
             # One error stream per ground-truth stream, after the receivers' noise streams.
-            error = GroundTruthError(fx, scene.seed, stream=1000 + len(streams)) if fx is not None else None
-            streams.append(cls(scene, dev.trajectory, label, error))
-    return streams
+            out.append(TruthCarrier(label, kind, dev, 1000 + len(out)))
+    return out
+
+
+def ground_truth_stream(scene: Scene, carrier: TruthCarrier) -> Stream:
+    """The stream of one carrier (see :func:`ground_truth_carriers`)."""
+    fx = scene.effects.ground_truth_error
+    error = GroundTruthError(fx, scene.seed, stream=carrier.error_stream) if fx is not None else None
+    cls = GpsStream if carrier.kind == "gps" else AttitudeStream
+    return cls(scene, carrier.device.trajectory, carrier.label, error)
+
+
+def ground_truth_streams(scene: Scene) -> list[Stream]:
+    """Every ground-truth stream of the scene, in :func:`ground_truth_carriers` order."""
+    return [ground_truth_stream(scene, c) for c in ground_truth_carriers(scene)]

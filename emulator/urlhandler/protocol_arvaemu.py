@@ -8,6 +8,11 @@ times the scene says (``speed`` times real time, from the moment the port is ope
 empty / ``default`` for the embedded default scene. ``receiver`` picks a receiver by
 id when the scene has several. Writes are accepted and ignored (a receiver takes no
 commands). After ``frames`` epochs the port reads as EOF (empty reads).
+
+The bytes come from the same :class:`~emulator.pipeline.Pipeline` as ``arva-emulate``'s,
+link faults included (the port is an in-memory line, which cannot be unplugged: outages
+drop bytes, as on stdout), so ``arvaemu://S?speed=0`` reads exactly what
+``arva-emulate --scene S --port - --speed 0`` prints.
 """
 
 from __future__ import annotations
@@ -20,15 +25,18 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Tim
 
 from firmware_proto.errors import InputError
 
+from emulator.output.ports import BufferPort
+from emulator.output.scheduler import Route
+from emulator.pipeline import Pipeline
 from emulator.scene.reader import default_scene, load_scene
-from emulator.output.streams import ArvaStream
 
 
 class Serial(SerialBase):
     """pyserial ``Serial`` for ``arvaemu://`` URLs (see the module docstring)."""
 
     def __init__(self, *args, **kwargs) -> None:
-        self._stream: ArvaStream | None = None
+        self._pipeline: Pipeline | None = None
+        self._route: Route | None = None
         self._buffer = bytearray()
         super().__init__(*args, **kwargs)
 
@@ -66,40 +74,44 @@ class Serial(SerialBase):
             if not opt["receiver"].isdigit() or int(opt["receiver"]) not in ids:
                 raise SerialException(f"{url}: receiver={opt['receiver']}: no such receiver (ids: {ids})")
             index = ids.index(int(opt["receiver"]))
-        rx = scene.receivers[index]
-        self._stream = ArvaStream(scene, index, f"arva:{rx.id}" if several else "arva")
-        self._next_k = 0
+        label = f"arva:{scene.receivers[index].id}" if several else "arva"
+        if self._pipeline is not None:
+            self._pipeline.close_sources()
+        self._pipeline = Pipeline(scene, [label])
+        (self._route,) = self._pipeline.bind({label: BufferPort(label, self._buffer)}, self._speed)
         self._start = time.monotonic() + delay
 
     # -- reading ----------------------------------------------------------------
     def _due(self) -> int:
         """Epochs due by now (all of them at speed 0: rendering follows the reader)."""
+        route = self._route
         if self._speed == 0:
-            return self._next_k + 1
+            return route.next_k + 1
         elapsed = time.monotonic() - self._start
         if elapsed < 0:
             return 0
-        return math.floor(elapsed * self._stream.rate_hz * self._speed) + 1
+        return math.floor(elapsed * route.stream.rate_hz * self._speed) + 1
 
     def _render_due(self, want: int) -> None:
+        route = self._route
         due = self._due()
         if self._speed == 0:
             # Render whole epochs until the request can be met.
-            per_epoch = 64 * max(1, self._stream.receiver.channels)
-            due = self._next_k + max(1, math.ceil((want - len(self._buffer)) / per_epoch))
+            per_epoch = 64 * max(1, route.stream.receiver.channels)
+            due = route.next_k + max(1, math.ceil((want - len(self._buffer)) / per_epoch))
         if self._frames is not None:
             due = min(due, self._frames)
-        if due > self._next_k:
-            self._buffer += self._stream.render(self._next_k, due - self._next_k)
-            self._next_k = due
+        # Written through the pipeline's route: link faults apply, bytes land in _buffer.
+        route.send(due - route.next_k, self._pipeline.clock)
 
     def _next_due_in(self) -> float:
         """Seconds until the next epoch is due (inf when the stream has ended)."""
-        if self._frames is not None and self._next_k >= self._frames:
+        route = self._route
+        if self._frames is not None and route.next_k >= self._frames:
             return math.inf
         if self._speed == 0:
             return 0.0
-        t = self._start + self._next_k / (self._stream.rate_hz * self._speed)
+        t = self._start + route.next_k / (route.stream.rate_hz * self._speed)
         return max(0.0, t - time.monotonic())
 
     @property
@@ -154,6 +166,9 @@ class Serial(SerialBase):
     def close(self) -> None:
         self.is_open = False
         self._buffer.clear()
+        if self._pipeline is not None:
+            self._pipeline.close_sources()
+            self._pipeline = None
         super().close()
 
     def _reconfigure_port(self, force_update: bool = False) -> None:

@@ -23,7 +23,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
 from _report import ROOT, markdown_table, write_section  # noqa: E402
-from emulator_proc import EmulatorProcess  # noqa: E402
+from emulator.testing import EmulatorProcess  # noqa: E402
 
 DEFAULT = (ROOT / "emulator" / "scenes" / "default.toml").read_text()
 
@@ -86,11 +86,11 @@ def fast_with_reader(tmp: Path, frames: int) -> dict:
         t = threading.Thread(target=reader)
         t.start()
         t0 = time.monotonic()
-        rc = emu.proc.wait(timeout=600)
+        rc = emu.wait(timeout=600)
         wall = time.monotonic() - t0 - 1.0  # minus --delay
         t.join(timeout=30)
         ser.close()
-        err = emu.proc.stderr.read().decode()
+        err = emu.stderr()
     finally:
         emu.kill()
     lines = bytes(received).split(b"\r\n")
@@ -153,7 +153,7 @@ def effect_costs(frames: int) -> list[list[str]]:
     ground-truth error on the GPS stream it perturbs (compared with that stream ideal)."""
     from emulator.output.link_faults import FaultyPort
     from emulator.scene.reader import loads_scene
-    from emulator.output.streams import scene_streams
+    from emulator.pipeline import scene_streams
 
     base = DEFAULT.replace('name = "paper-case-study"\n', "")
     rows = []

@@ -1,0 +1,10 @@
+"""The live control channel of ``arva-emulate --control`` (BRIEF 9, docs/hil_testing.md).
+
+* :mod:`~emulator.control.requests`: the JSON-lines requests as validated dataclasses.
+* :mod:`~emulator.control.server`: the unix / TCP socket server (several clients).
+* :mod:`~emulator.control.controller`: serves requests against the scheduler and the
+  :class:`~emulator.pipeline.Pipeline` (changes between epochs, the step clock).
+* :mod:`~emulator.control.capture`: ``--capture``, copies of the streams' bytes.
+* :mod:`~emulator.control.runtime`: the command-line options and the wiring into
+  ``arva-emulate``.
+"""

@@ -1,0 +1,59 @@
+"""``arva-emulate --capture DIR``: a copy of every byte a stream hands its device port.
+
+:class:`CapturePort` sits directly on the device port (pty, serial, stdout ...), below
+the link faults, so ``DIR/<stream>.bytes`` holds exactly what was offered to the device
+after every fault (lost bytes absent, corrupted bytes corrupted, nothing during an
+unplug); only what a full pty buffer then drops is not marked. Writes are unbuffered: a
+test harness may read the file while the emulator runs, or after it was killed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from emulator.output.ports import Port
+
+
+class CapturePort(Port):
+    """Writes through to ``inner`` and appends the same bytes to ``path``."""
+
+    def __init__(self, inner: Port, path: Path) -> None:
+        super().__init__(inner.label)
+        self.inner = inner
+        self._file = open(path, "ab", buffering=0)
+
+    @property
+    def path(self) -> str | None:  # type: ignore[override]
+        return self.inner.path
+
+    def write(self, data: bytes) -> int:
+        if not self._file.closed:
+            self._file.write(data)
+        return self._account(len(data), self.inner.write(data))
+
+    @property
+    def bytes_dropped(self) -> int:  # type: ignore[override]
+        return self.inner.bytes_dropped
+
+    @bytes_dropped.setter
+    def bytes_dropped(self, value: int) -> None:
+        pass  # the device port counts its own drops
+
+    def set_drain_wait(self, seconds: float) -> None:
+        self.inner.set_drain_wait(seconds)
+
+    def disconnect(self) -> None:
+        self.inner.disconnect()
+
+    def reconnect(self) -> None:
+        self.inner.reconnect()
+
+    def close(self, *args, **kwargs) -> None:
+        self.inner.close(*args, **kwargs)
+        self._file.close()
+
+    def __getattr__(self, name: str):
+        # pending(), link, on_reconnect ... of the device port read through.
+        if name.startswith("_") or name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)

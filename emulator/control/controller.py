@@ -1,0 +1,172 @@
+"""Serves control requests (BRIEF 9) against a running emulator: the scheduler (clock,
+epoch index, pause) and the :class:`~emulator.pipeline.Pipeline` (transmitters,
+receiver pins, faults on demand, the step clock's :meth:`~emulator.pipeline.Pipeline.step`).
+
+:meth:`Controller.handle` takes a parsed request and returns the reply object. It holds
+the scheduler's lock while it works, so a change lands between two epochs and takes
+effect from the next epoch rendered, whose index the reply carries (``epoch``). Errors
+raise :class:`~emulator.control.requests.ControlError` and change nothing: requests
+are validated when parsed, and the pipeline checks before it changes anything.
+
+Semantics of the changes (BRIEF 9): ``set_transmitter`` pins a transmitter at the pose
+given (fields not given keep their value at the next epoch), ``enabled: false`` leaves
+it out of every receiver's channel selection (its slot frees); an unknown id adds one
+(it has no ground-truth streams: those are fixed at start). ``remove_transmitter``
+takes it out of every receiver (its ground-truth streams, if any, keep its last pose).
+``set_receiver`` pins a receiver (its ground-truth streams follow), ``path: resume``
+hands it back to its scene path at the scene time of the next epoch; a receiver on a
+vehicle cannot be pinned. ``fault``: see :meth:`emulator.pipeline.Pipeline.fault`; the
+fault starts at the scene time of the stream's next epoch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_proto.errors import InputError
+
+from emulator.closed_loop.loop import ClosedLoop
+from emulator.output.scheduler import FAST_DRAIN_WAIT, EpochScheduler
+from emulator.pipeline import Pipeline
+
+from emulator.control.requests import (
+    ControlError,
+    Fault,
+    Pause,
+    Quit,
+    RemoveTransmitter,
+    Request,
+    Resume,
+    SetReceiver,
+    SetTransmitter,
+    Status,
+    Step,
+    Truth,
+)
+
+CLOCKS = ("real", "step")
+
+
+class Controller:
+    """``clock`` is ``"step"`` or ``"real"``. ``quit`` only replies: the server ends
+    the run once the reply is sent."""
+
+    def __init__(self, scheduler: EpochScheduler, pipe: Pipeline, clock: str) -> None:
+        if clock not in CLOCKS:
+            raise ValueError(f"clock must be one of {CLOCKS}, got {clock!r}")
+        self.scheduler = scheduler
+        self.pipe = pipe
+        self.clock = clock
+        self.rate0 = scheduler.routes[0].stream.rate_hz
+        # A stall asked for holds the stream's bytes in scene time, under both clocks: a
+        # sleep would hold the scheduler (and this channel) for as long as asked.
+        pipe.stall_hold = True
+
+    def handle(self, req: Request) -> dict:
+        with self.scheduler.lock:
+            try:
+                return {"ok": True, **self._dispatch(req)}
+            except ControlError:
+                raise
+            except InputError as exc:  # the pipeline's own checks: one line, named by op
+                text = str(exc)
+                raise ControlError(text if text.startswith(f"{req.op}:") else f"{req.op}: {text}") from None
+
+    def _epoch(self) -> dict:
+        return {"epoch": self.scheduler.next_epoch}
+
+    def _t(self) -> float:
+        return self.scheduler.next_epoch / self.rate0
+
+    def _receiver_index(self, rx_id: int | None, op: str) -> int:
+        ids = [rx.id for rx in self.pipe.scene.receivers]
+        if rx_id is None:
+            return 0
+        if rx_id not in ids:
+            raise ControlError(f"{op}: no receiver {rx_id} (ids: {', '.join(map(str, ids))})")
+        return ids.index(rx_id)
+
+    def _dispatch(self, req: Request) -> dict:
+        sch, pipe = self.scheduler, self.pipe
+        if isinstance(req, Status):
+            return {
+                "epoch": sch.next_epoch,
+                "t": self._t(),
+                "clock": self.clock,
+                "paused": sch.paused,
+                "streams": {r.stream.label: r.port.path or "-" for r in sch.routes},
+            }
+        if isinstance(req, Step):
+            if self.clock != "step":
+                raise ControlError("step: the emulator runs on the real clock (start it with --clock step)")
+            left = sch.remaining()
+            if left is not None and req.n > left:
+                raise ControlError(f"step: n = {req.n} but only {left} epochs are left (--frames)")
+            for r in sch.routes:
+                r.port.set_drain_wait(FAST_DRAIN_WAIT)  # a reader that keeps up loses nothing
+            pipe.step(req.n)
+            return self._epoch()
+        if isinstance(req, (Pause, Resume)):
+            if self.clock != "real":
+                raise ControlError(f"{req.op}: the step clock emits only on step (pause/resume are for --clock real)")
+            sch.pause() if isinstance(req, Pause) else sch.resume()
+            return self._epoch()
+        if isinstance(req, SetTransmitter):
+            pipe.set_transmitter(req.id, req.position, req.orientation, req.enabled)
+            return self._epoch()
+        if isinstance(req, RemoveTransmitter):
+            if req.id not in pipe.transmitters:
+                known = ", ".join(map(str, sorted(pipe.transmitters))) or "none"
+                raise ControlError(f"remove_transmitter: no transmitter {req.id} (ids: {known})")
+            pipe.remove_transmitter(req.id)
+            return self._epoch()
+        if isinstance(req, SetReceiver):
+            index = self._receiver_index(req.id, "set_receiver")
+            if req.resume_path:
+                pipe.release_receiver(index)
+            else:
+                pipe.pin_receiver(index, req.position, req.orientation)
+            return self._epoch()
+        if isinstance(req, Fault):
+            if req.stream not in pipe.streams:
+                raise ControlError(f"fault: no stream {req.stream!r} (streams: {', '.join(pipe.streams)})")
+            amount = {"disconnect": req.seconds, "stall": req.ms, "corrupt": req.count}[req.kind]
+            # The fault starts with the stream's next epoch, at its scene time.
+            pipe.clock.t = pipe.route(req.stream).t_next
+            pipe.fault(req.stream, req.kind, amount)
+            return self._epoch()
+        if isinstance(req, Truth):
+            t = self._t()
+            return {**self._epoch(), "t": t, "receivers": self._receivers(t), "transmitters": self._transmitters(t)}
+        if isinstance(req, Quit):
+            return {}
+        raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
+
+    def _receivers(self, t: float) -> list[dict]:
+        out = []
+        for info in self.pipe.layout:
+            if info.kind != "arva" or info.label not in self.pipe.streams:
+                continue
+            spec = self.pipe.scene.receivers[info.receiver]
+            src = self.pipe.streams[info.label].receiver
+            if isinstance(src, ClosedLoop):
+                if src.uav is not None:  # where the vehicle is now: the next epoch's pose
+                    pos, quat = list(map(float, src.uav.position)), list(map(float, src.uav.orientation))
+                else:
+                    pos, quat = _pose(src.receiver.trajectory, t)
+            else:
+                pos, quat = _pose(src.trajectory, t)
+            out.append({"id": spec.id, "position": pos, "orientation": quat})
+        return out
+
+    def _transmitters(self, t: float) -> list[dict]:
+        return [
+            {"id": tx_id, **dict(zip(("position", "orientation"), _pose(tx.trajectory, t))),
+             "enabled": tx_id not in self.pipe.silenced}
+            for tx_id, tx in sorted(self.pipe.transmitters.items())
+        ]
+
+
+def _pose(trajectory, t: float) -> tuple[list[float], list[float]]:
+    pos, quat = trajectory.at(np.array([t]))
+    return [float(v) for v in pos[0]], [float(v) for v in quat[0]]

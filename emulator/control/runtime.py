@@ -1,0 +1,117 @@
+"""Wiring of the step clock and the control channel into ``arva-emulate`` (BRIEF 9).
+
+``arva-emulate`` adds this module's options (:func:`add_arguments`) and, when either
+``--control`` is given, builds a :class:`ControlSession` around its pipeline and
+scheduler: the socket server starts and ``control ADDRESS`` is announced, requests are
+served by :class:`~emulator.control.controller.Controller`, ``--capture`` copies every
+stream's bytes to files (:mod:`emulator.control.capture`), and
+:meth:`ControlSession.run` replaces the scheduler's own run under the step clock.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+from firmware_proto.errors import InputError
+
+from emulator.output.link_faults import FaultyPort
+from emulator.output.scheduler import EpochScheduler
+from emulator.pipeline import Pipeline
+
+from emulator.control.capture import CapturePort
+from emulator.control.controller import CLOCKS, Controller
+from emulator.control.server import ControlAddress, ControlServer, check_host, control_address
+
+
+def _address(text: str) -> ControlAddress:
+    try:
+        return control_address(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("hardware-in-the-loop testing (docs/hil_testing.md)")
+    g.add_argument(
+        "--clock",
+        choices=CLOCKS,
+        default="real",
+        help="real: epochs at their times (--speed); step: nothing is emitted until a "
+        "control 'step' request asks (needs --control). Default real",
+    )
+    g.add_argument(
+        "--control",
+        type=_address,
+        metavar="ADDRESS",
+        help="serve the JSON-lines control channel on unix:PATH (mode 0600) or tcp:HOST:PORT "
+        "(loopback only; port 0 picks one); announced as 'control ADDRESS'",
+    )
+    g.add_argument(
+        "--capture",
+        type=Path,
+        metavar="DIR",
+        help="with --control: append every byte sent on each stream to DIR/<stream>.bytes (test artefacts)",
+    )
+    g.add_argument(
+        "--control-any-host",
+        action="store_true",
+        help="allow a non-loopback HOST in --control tcp:HOST:PORT (anyone who can reach it controls the emulator)",
+    )
+
+
+def wanted(args: argparse.Namespace) -> bool:
+    """True if the command line asks for a control session; InputError if it is incomplete."""
+    if args.clock == "step" and args.control is None:
+        raise InputError("--clock step: nothing would ever be emitted without --control ADDRESS to send 'step'")
+    if args.control_any_host and args.control is None:
+        raise InputError("--control-any-host: given without --control")
+    if args.control is not None:
+        check_host(args.control, args.control_any_host)  # before any port is opened
+    if args.capture is not None:
+        if args.control is None:
+            raise InputError("--capture: given without --control")
+        if not args.capture.is_dir():
+            raise InputError(f"--capture {args.capture}: not a directory")
+    return args.control is not None
+
+
+class ControlSession:
+    """The control channel of one run (see the module docstring)."""
+
+    def __init__(self, args: argparse.Namespace, pipe: Pipeline, scheduler: EpochScheduler, stop: threading.Event) -> None:
+        self.clock = args.clock
+        self.scheduler = scheduler
+        self.stop = stop
+        if args.capture is not None:
+            for r in pipe.routes:
+                path = args.capture / (r.stream.label.replace(":", "-") + ".bytes")
+                # On the device port, below any link faults: what the device was offered.
+                if isinstance(r.port, FaultyPort):
+                    r.port.inner = CapturePort(r.port.inner, path)
+                else:
+                    r.port = CapturePort(r.port, path)
+        self.controller = Controller(scheduler, pipe, self.clock)
+        self.server = ControlServer(args.control, self.controller.handle, self._quit, any_host=args.control_any_host)
+
+    def _quit(self) -> None:
+        self.stop.set()
+
+    def start(self, announce: Callable[[str], None]) -> None:
+        """Listen, then announce ``control ADDRESS`` (the channel accepts from then on)."""
+        bound = self.server.start()
+        announce(f"control {bound}")
+
+    def run(self) -> None:
+        """The run's main loop: the scheduler's (real clock) or waiting for quit / a
+        signal while the control thread steps (step clock)."""
+        if self.clock == "step":
+            while not self.stop.wait(0.2):
+                pass
+        else:
+            self.scheduler.run()
+
+    def close(self) -> None:
+        self.server.close()

@@ -1,0 +1,406 @@
+"""The emulator pipeline: the one path from a scene to bytes on ports, for every door.
+
+::
+
+    Scene ──> poses ──> model ──> measurement effects ──> channel ──> display      ──> sentences ──> link   ──> ports
+    (TOML)   (paths,    (dipole,   (noise in the model,   selection   quantisation     ($PARVA,      faults     (stdout, pty,
+              vehicle,   BRIEF 3)   pulses)                                             $PARVH,                  serial, memory)
+              pins)                                                                     RMC/GGA, $PASHR)
+
+``arva-emulate`` (:mod:`emulator.cli`), the in-process ``arvaemu://`` port
+(:mod:`emulator.urlhandler.protocol_arvaemu`) and a control channel all build a
+:class:`Pipeline` from a :class:`~emulator.scene.reader.Scene`, :meth:`Pipeline.bind` its
+streams to ports (each wrapped in the scene's link faults exactly when the scene says so)
+and write epochs through :class:`~emulator.output.scheduler.Route`: so the same scene gives
+the same bytes through every door. Sweeps and the closed loop evaluate receivers through
+the same :class:`~emulator.receiver.receiver.Receiver` (the model and effects stages) and
+stop there: they need epochs, not sentences.
+
+Streams (:func:`stream_layout`): every receiver first (``arva``, or ``arva:<id>`` with
+several), then the ground-truth GPS streams, then the attitude streams. A stream's
+position in that list seeds its link faults, so a door that builds only some streams
+(``arvaemu://?receiver=2``) still draws what ``arva-emulate`` draws for them.
+
+Between epochs the pipeline can be changed (:meth:`Pipeline.set_transmitter`,
+:meth:`Pipeline.remove_transmitter`, :meth:`Pipeline.pin_receiver`,
+:meth:`Pipeline.fault`); changes take effect from the next epoch rendered.
+:meth:`Pipeline.step` writes epochs of every stream in scene-time order (the step clock).
+Times are scene seconds; positions world ENU metres; quaternions [w, x, y, z] body to
+world (BRIEF 2).
+"""
+
+from __future__ import annotations
+
+import heapq
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from firmware_proto.errors import InputError, PoseError
+from firmware_proto.sentences import MAX_ID
+
+from emulator.closed_loop.loop import ClosedLoop
+from emulator.frames.rotation import normalize_quaternions
+from emulator.frames.trajectory import IDENTITY, Trajectory
+from emulator.output.link_faults import FaultyPort, LinkFaultConfig
+from emulator.output.ports import Port
+from emulator.output.scheduler import Route, SceneClock
+from emulator.output.streams import ArvaStream, EpochSource, Stream
+from emulator.receiver.receiver import Receiver
+from emulator.scene.types import Scene, Transmitter
+from emulator.truth.streams import TruthCarrier, ground_truth_carriers, ground_truth_stream
+
+
+@dataclass(frozen=True)
+class StreamInfo:
+    """One stream of a scene, before anything is built.
+
+    ``index`` is its position in :func:`stream_layout` (it seeds the stream's link
+    faults); ``receiver`` the receiver index of an ``arva`` stream; ``carrier`` the
+    ground-truth device of a ``gps`` / ``attitude`` stream.
+    """
+
+    index: int
+    label: str
+    kind: str
+    rate_hz: float
+    receiver: int | None = None
+    carrier: TruthCarrier | None = None
+
+
+@dataclass(frozen=True)
+class EpochRef:
+    """Epoch ``k`` of stream ``label`` at scene time ``t`` (s)."""
+
+    t: float
+    label: str
+    k: int
+
+
+def stream_layout(scene: Scene) -> tuple[StreamInfo, ...]:
+    """Every stream the scene asks for, in order: receivers, then ground truth."""
+    several = len(scene.receivers) > 1
+    out = [
+        StreamInfo(i, f"arva:{rx.id}" if several else "arva", "arva", scene.rate_hz, receiver=i)
+        for i, rx in enumerate(scene.receivers)
+    ]
+    gt = scene.ground_truth
+    for c in ground_truth_carriers(scene):
+        rate = gt.gps_rate_hz if c.kind == "gps" else gt.attitude_rate_hz
+        out.append(StreamInfo(len(out), c.label, c.kind, rate, carrier=c))
+    return tuple(out)
+
+
+def receiver_source(scene: Scene, index: int) -> EpochSource:
+    """What produces receiver ``index``'s epochs: its vehicle's closed loop (or the
+    autopilot it rides on), else a :class:`Receiver` on its scene trajectory."""
+    if scene.receivers[index].vehicle is not None:
+        return ClosedLoop(scene, index, record=False)
+    return Receiver(scene, index)
+
+
+def build_stream(scene: Scene, info: StreamInfo) -> Stream:
+    """The stream ``info`` describes (see :func:`stream_layout`)."""
+    if info.kind == "arva":
+        return ArvaStream(info.label, info.rate_hz, receiver_source(scene, info.receiver))
+    return ground_truth_stream(scene, info.carrier)
+
+
+def arva_stream(scene: Scene, index: int = 0) -> ArvaStream:
+    """Receiver ``index``'s ``$PARVA`` stream, labelled as in :func:`stream_layout`."""
+    stream = build_stream(scene, stream_layout(scene)[index])
+    assert isinstance(stream, ArvaStream)
+    return stream
+
+
+def scene_streams(scene: Scene) -> list[Stream]:
+    """Every stream of the scene, built, in :func:`stream_layout` order."""
+    return [build_stream(scene, info) for info in stream_layout(scene)]
+
+
+def link_faulted(scene: Scene, info: StreamInfo, port: Port, speed: float, clock: SceneClock) -> Port:
+    """``port`` wrapped in the scene's link faults if they apply to stream ``info``.
+
+    Stalls and split gaps are real pauses in real time; as fast as possible
+    (``speed == 0``) they cost nothing (bytes still split, stall counters still count).
+    """
+    fx = scene.effects
+    if fx.link_faults is None or (fx.link_fault_streams and info.label not in fx.link_fault_streams):
+        return port
+    return FaultyPort(port, fx.link_faults, scene.seed, stream=info.index, sleep=_sleeper(speed), clock=clock)
+
+
+def _sleeper(speed: float):
+    return time.sleep if speed > 0 else (lambda _s: None)
+
+
+class Pipeline:
+    """A scene's streams, bound to ports, written epoch by epoch.
+
+    ``labels`` picks the streams to build (default: all of them); the others are not
+    built at all (no receiver, no RNG). Typical use::
+
+        pipe = Pipeline(scene)
+        routes = pipe.bind({label: port, ...}, speed=0)
+        EpochScheduler(routes, speed=0, scene_clock=pipe.clock).run()   # or pipe.step(n)
+    """
+
+    def __init__(self, scene: Scene, labels: Sequence[str] | None = None) -> None:
+        self.scene = scene
+        self.layout = stream_layout(scene)
+        known = {info.label: info for info in self.layout}
+        if labels is None:
+            chosen = list(self.layout)
+        else:
+            for label in labels:
+                if label not in known:
+                    raise InputError(f"no stream {label!r} in this scene (streams: {', '.join(known)})")
+            chosen = [info for info in self.layout if info.label in set(labels)]
+        self.infos: dict[str, StreamInfo] = {info.label: info for info in chosen}
+        self.streams: dict[str, Stream] = {info.label: build_stream(scene, info) for info in chosen}
+        self.clock = SceneClock()
+        self.routes: list[Route] = []
+        self.speed = 1.0
+        #: The transmitters every receiver hears (control-channel changes included),
+        #: and which of them are silenced.
+        self.transmitters: dict[int, Transmitter] = {tx.id: tx for tx in scene.transmitters}
+        self.silenced: set[int] = set()
+        #: Stalls asked for hold bytes in scene time instead of sleeping (the step clock).
+        self.stall_hold = False
+
+    @property
+    def labels(self) -> list[str]:
+        return list(self.streams)
+
+    # -- ports ------------------------------------------------------------------------
+    def bind(self, ports: Mapping[str, Port], speed: float = 1.0) -> list[Route]:
+        """Bind every built stream to its port (wrapped in the scene's link faults where
+        they apply); the routes come back in stream order."""
+        missing = [label for label in self.streams if label not in ports]
+        if missing:
+            raise InputError(f"no port for stream(s) {', '.join(missing)}")
+        self.speed = speed
+        self.routes = [
+            Route(stream, link_faulted(self.scene, self.infos[label], ports[label], speed, self.clock))
+            for label, stream in self.streams.items()
+        ]
+        return self.routes
+
+    @property
+    def fast_batch(self) -> int | None:
+        """Epochs per batch as fast as possible: one when outages are scheduled (so they
+        land on the right epochs while the other streams interleave), else the default."""
+        lf = self.scene.effects.link_faults
+        return 1 if lf is not None and lf.disconnect_every_s > 0 else None
+
+    def route(self, label: str) -> Route:
+        for r in self.routes:
+            if r.stream.label == label:
+                return r
+        raise InputError(f"no stream {label!r} (streams: {', '.join(r.stream.label for r in self.routes)})")
+
+    def close(self) -> None:
+        """Close every bound port and every pose source (MAVLink links)."""
+        for r in self.routes:
+            r.port.close()
+        self.close_sources()
+
+    def close_sources(self) -> None:
+        """Close the pose sources (MAVLink links) of closed-loop receivers."""
+        for s in self.streams.values():
+            if isinstance(s, ArvaStream):
+                s.close()
+
+    # -- epochs in scene-time order ---------------------------------------------------
+    def upcoming(self) -> Iterator[EpochRef]:
+        """The epochs still to write, all streams merged in scene-time order (ties: stream
+        order), without writing anything. Endless unless every route has an end."""
+        heap = [(r.t_next, i, r.next_k) for i, r in enumerate(self.routes) if not r.done]
+        heapq.heapify(heap)
+        while heap:
+            t, i, k = heapq.heappop(heap)
+            r = self.routes[i]
+            yield EpochRef(t, r.stream.label, k)
+            k += 1
+            if r.end_k is None or k < r.end_k:
+                heapq.heappush(heap, (k / r.stream.rate_hz, i, k))
+
+    @property
+    def epoch(self) -> int:
+        """Index of the first stream's next epoch."""
+        return self.routes[0].next_k if self.routes else 0
+
+    def step(self, n: int = 1) -> int:
+        """Write the first stream's next ``n`` epochs and every other stream's epochs due
+        before the scene time that ends them (t < (epoch + n) / rate), one epoch at a
+        time in scene-time order; return :attr:`epoch` after them."""
+        if n < 0:
+            raise InputError(f"step: n must be >= 0, got {n}")
+        if not self.routes:
+            raise InputError("step: no stream is bound to a port")
+        first = self.routes[0]
+        end = first.next_k + n
+        t_end = end / first.stream.rate_hz
+        for ref in self.upcoming():
+            r = self.route(ref.label)
+            # The scheduler's --frames rule: epochs with k / rate < end / rate_0.
+            if ref.k < end * r.stream.rate_hz / first.stream.rate_hz - 1e-9:
+                r.send(1, self.clock)
+            elif ref.t > t_end + 1e-9:
+                break
+        return self.epoch
+
+    # -- changes between epochs -------------------------------------------------------
+    def set_transmitter(
+        self,
+        tx_id: int,
+        position: Sequence[float] | None = None,
+        orientation: Sequence[float] | None = None,
+        enabled: bool | None = None,
+    ) -> None:
+        """Move, turn, silence or re-enable transmitter ``tx_id``; an unknown id adds one
+        (``position`` required). Takes effect from the next epoch rendered.
+
+        A position or orientation given holds the transmitter there (a scene path stops);
+        a field not given keeps its value at the next epoch's time. A silenced transmitter
+        is left out of every receiver's evaluation, so its slot frees. Its ground-truth
+        streams (``gps:tx<id>`` ...) follow the new pose.
+        """
+        if isinstance(tx_id, bool) or not isinstance(tx_id, int) or not 0 <= tx_id <= MAX_ID:
+            raise InputError(f"set_transmitter: id must be an integer in 0..{MAX_ID}, got {tx_id!r}")
+        if enabled is not None and not isinstance(enabled, bool):
+            raise InputError(f"set_transmitter: enabled must be true or false, got {enabled!r}")
+        old = self.transmitters.get(tx_id)
+        if old is None and position is None:
+            raise InputError(f"set_transmitter: transmitter {tx_id} is new: position required")
+        pos = None if position is None else _vector(position, "position")
+        quat = None if orientation is None else _quaternion(orientation)
+        if pos is not None or quat is not None:
+            if old is not None:
+                cur_p, cur_q = old.trajectory.at(np.array([self._t_next()]))
+                pos = cur_p[0] if pos is None else pos
+                quat = cur_q[0] if quat is None else quat
+            trajectory = Trajectory.static(pos, IDENTITY if quat is None else quat)
+            new = Transmitter(tx_id, trajectory) if old is None else replace(old, trajectory=trajectory)
+            self.transmitters[tx_id] = new
+            for label, info in self.infos.items():
+                dev = info.carrier.device if info.carrier is not None else None
+                if isinstance(dev, Transmitter) and dev.id == tx_id:
+                    self.streams[label].trajectory = trajectory
+        if enabled is not None:
+            (self.silenced.discard if enabled else self.silenced.add)(tx_id)
+        self._push_transmitters()
+
+    def remove_transmitter(self, tx_id: int) -> None:
+        if tx_id not in self.transmitters:
+            raise InputError(f"remove_transmitter: no transmitter {tx_id}")
+        del self.transmitters[tx_id]
+        self.silenced.discard(tx_id)
+        self._push_transmitters()
+
+    def pin_receiver(
+        self, index: int = 0, position: Sequence[float] | None = None, orientation: Sequence[float] | None = None
+    ) -> None:
+        """Hold receiver ``index`` at a pose (fields not given keep their current value)
+        from the next epoch on; its ground-truth streams follow. A vehicle-borne receiver
+        cannot be pinned (its pose is the closed loop's)."""
+        rx = self._receiver(index)
+        t = np.array([self._t_next()])
+        cur_p, cur_q = rx.trajectory.at(t)
+        pos = cur_p[0] if position is None else _vector(position, "position")
+        quat = cur_q[0] if orientation is None else _quaternion(orientation)
+        self._move_receiver(index, rx, Trajectory.static(pos, quat))
+
+    def release_receiver(self, index: int = 0) -> None:
+        """Hand receiver ``index`` back to its scene path."""
+        rx = self._receiver(index)
+        self._move_receiver(index, rx, None)
+
+    def fault(self, label: str, kind: str, amount: float) -> None:
+        """Inject a fault on stream ``label``'s port now (see
+        :meth:`~emulator.output.link_faults.FaultyPort.inject`): ``disconnect`` for
+        ``amount`` scene seconds, ``stall`` of ``amount`` ms, ``corrupt`` the next
+        ``amount`` bytes. A port without link faults gets a fault-free wrapper first."""
+        r = self.route(label)
+        if not isinstance(r.port, FaultyPort):
+            info = self.infos[label]
+            r.port = FaultyPort(
+                r.port, LinkFaultConfig(), self.scene.seed, stream=info.index, sleep=_sleeper(self.speed), clock=self.clock
+            )
+        r.port.stall_hold = self.stall_hold
+        r.port.inject(kind, amount)
+
+    # -- internals ----------------------------------------------------------------------
+    def _t_next(self) -> float:
+        return self.routes[0].t_next if self.routes else 0.0
+
+    def _receivers(self) -> list[Receiver]:
+        out = []
+        for s in self.streams.values():
+            if isinstance(s, ArvaStream):
+                src = s.receiver
+                out.append(src.receiver if isinstance(src, ClosedLoop) else src)
+        return out
+
+    def _push_transmitters(self) -> None:
+        heard = [tx for tx_id, tx in self.transmitters.items() if tx_id not in self.silenced]
+        for rx in self._receivers():
+            rx.set_transmitters(heard)
+
+    def _receiver(self, index: int) -> Receiver:
+        if not 0 <= index < len(self.scene.receivers):
+            raise InputError(f"no receiver index {index} (the scene has {len(self.scene.receivers)})")
+        label = self.layout[index].label
+        stream = self.streams.get(label)
+        if stream is None:
+            raise InputError(f"receiver {self.scene.receivers[index].id}: its stream {label!r} is not built here")
+        if isinstance(stream.receiver, ClosedLoop):
+            raise InputError(f"receiver {self.scene.receivers[index].id} rides a vehicle: its pose cannot be pinned")
+        return stream.receiver
+
+    def _move_receiver(self, index: int, rx: Receiver, trajectory: Trajectory | None) -> None:
+        rx.pin(trajectory)
+        spec = self.scene.receivers[index]
+        for label, info in self.infos.items():
+            if info.carrier is not None and info.carrier.device is spec:
+                self.streams[label].trajectory = rx.trajectory
+
+
+def _numbers(value, n: int, what: str) -> np.ndarray:
+    """``n`` finite numbers (not booleans), as scene values are checked."""
+    ok = (
+        isinstance(value, (list, tuple, np.ndarray))
+        and len(value) == n
+        and all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in value)
+    )
+    arr = np.asarray(value, dtype=np.float64) if ok else None
+    if arr is None or not np.all(np.isfinite(arr)):
+        raise InputError(f"{what}: expected {n} finite numbers, got {value!r}")
+    return arr
+
+
+def _vector(value: Sequence[float], what: str) -> np.ndarray:
+    return _numbers(value, 3, what)
+
+
+def _quaternion(value: Sequence[float]) -> np.ndarray:
+    q = _numbers(value, 4, "orientation")
+    try:
+        return normalize_quaternions(q, "orientation")
+    except PoseError as exc:
+        raise InputError(str(exc)) from None
+
+
+__all__ = [
+    "EpochRef",
+    "Pipeline",
+    "StreamInfo",
+    "arva_stream",
+    "build_stream",
+    "link_faulted",
+    "receiver_source",
+    "scene_streams",
+    "stream_layout",
+]

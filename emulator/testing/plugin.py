@@ -1,0 +1,97 @@
+"""The ``arva`` pytest plugin (BRIEF 9): the ``arva_emulator`` fixture and ``--arva-port``.
+
+Registered by installing the project (entry point group ``pytest11``, name ``arva``)::
+
+    def test_acquires(arva_emulator):
+        emu = arva_emulator(scene={...}, clock="step")
+        dut = MyDriver(emu.port)
+        emu.step(3)
+        ...
+
+``arva_emulator(scene=None, clock="step", speed=1.0)`` starts ``arva-emulate --port pty
+--control ...`` and returns an :class:`~emulator.testing.harness.Emulator` handle. Every
+emulator a test started is stopped at teardown, whatever happened. The streams' bytes and
+the control transcript are kept under the test's ``tmp_path`` (folder ``arva-emulator-N``)
+when the test fails, and the failure report names the folder; on success they are
+removed. The scene (path) and its seed are recorded as test properties, as ``record_property``
+does (JUnit XML ``<property>`` elements ``arva_scene`` and ``arva_seed``; ``_1``, ``_2``
+... for further emulators of the same test). ``--arva-port DEVICE`` sends the
+first receiver's stream to DEVICE (a serial adapter wired to a real device under test)
+instead of a pty. See docs/hil_testing.md.
+
+Loading the plugin costs one small import: nothing is started unless a test asks for
+the fixture.
+"""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+_REPORT_KEY = pytest.StashKey[dict]()  # the test's reports by phase
+_ARTEFACTS_KEY = pytest.StashKey[list]()  # folders of the emulators it started
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("arva", "ARVA emulator (hardware-in-the-loop)")
+    group.addoption(
+        "--arva-port",
+        metavar="DEVICE",
+        default=None,
+        help="send the first receiver's stream of every arva_emulator to DEVICE (a serial "
+        "adapter wired to the device under test) instead of a pty",
+    )
+
+
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
+def pytest_runtest_makereport(item: pytest.Item, call):
+    outcome = yield
+    report = outcome.get_result()
+    item.stash.setdefault(_REPORT_KEY, {})[report.when] = report
+    folders = item.stash.get(_ARTEFACTS_KEY, None)
+    if report.failed and folders and report.when in ("setup", "call"):
+        report.sections.append(
+            ("arva emulator artefacts", "streams' bytes and control transcript kept in:\n" + "\n".join(map(str, folders)))
+        )
+
+
+
+@pytest.fixture
+def arva_emulator(request: pytest.FixtureRequest, tmp_path):
+    """A factory: ``arva_emulator(scene=None, clock="step", speed=1.0)`` -> Emulator."""
+    from emulator.testing.harness import Emulator
+
+    started: list[Emulator] = []
+    folders: list = []
+    request.node.stash[_ARTEFACTS_KEY] = folders
+    device = request.config.getoption("--arva-port")
+
+    def start(scene=None, clock: str = "step", speed: float = 1.0) -> Emulator:
+        work = tmp_path / f"arva-emulator-{len(started)}"
+        folders.append(work)
+        emu = Emulator.start(scene, clock=clock, speed=speed, workdir=work, arva_port=device)
+        started.append(emu)
+        suffix = "" if len(started) == 1 else f"_{len(started) - 1}"
+        # What record_property does, without its warning under junit_family xunit2
+        # (pytest's default), which writes these properties all the same.
+        request.node.user_properties.append((f"arva_scene{suffix}", emu.scene_path or "<embedded default.toml>"))
+        request.node.user_properties.append((f"arva_seed{suffix}", emu.seed))
+        return emu
+
+    yield start
+
+    errors = []
+    for emu in started:
+        try:
+            emu.stop()
+        except Exception as exc:  # noqa: BLE001 - stop every one, report after
+            errors.append(exc)
+    reports = request.node.stash.get(_REPORT_KEY, {})
+    failed = any(r.failed for r in reports.values())
+    if not failed:
+        for work in folders:
+            shutil.rmtree(work, ignore_errors=True)
+        folders.clear()
+    if errors:
+        raise errors[0]

@@ -1,0 +1,44 @@
+"""Scenes for the harness: a path, a dict (written as TOML) or None (the default)."""
+
+from __future__ import annotations
+
+import itertools
+import tomllib
+from pathlib import Path
+
+from emulator.testing.scene_toml import dumps
+
+_counter = itertools.count()
+
+
+def scene_file(scene, workdir: Path) -> str | None:
+    """A path the emulator can read for ``scene``; None for the embedded default."""
+    if scene is None:
+        return None
+    if isinstance(scene, dict):
+        path = workdir / f"scene-{next(_counter)}.toml"
+        path.write_text(dumps(scene), encoding="utf-8")
+        return str(path)
+    return str(Path(scene))
+
+
+def first_receiver_label(path: str | None) -> tuple[int | None, str]:
+    """(seed, label of the first receiver's stream) read from a scene file (None: the
+    embedded default), without validating it (the emulator does, naming the key)."""
+    try:
+        if path is None:
+            from importlib import resources
+
+            text = (resources.files("emulator") / "scenes" / "default.toml").read_text(encoding="utf-8")
+        else:
+            text = Path(path).read_text(encoding="utf-8")
+        data = tomllib.loads(text)
+    except (OSError, ValueError):
+        return None, "arva"
+    seed = data.get("seed", 0)
+    seed = seed if isinstance(seed, int) and not isinstance(seed, bool) else None
+    rxs = data.get("receivers")
+    if isinstance(rxs, list) and len(rxs) > 1 and isinstance(rxs[0], dict):
+        rx_id = rxs[0].get("id", 1)
+        return seed, f"arva:{rx_id}"
+    return seed, "arva"
