@@ -5,10 +5,13 @@ One row per (epoch, slot) of every logged receiver::
     t, seq, id, d, delta, rx_x, rx_y, rx_z, rx_qw, rx_qx, rx_qy, rx_qz,
     tx_x, tx_y, tx_z, tx_qw, tx_qx, tx_qy, tx_qz
 
-``t`` is the epoch's arrival (UTC POSIX seconds) minus ``--latency``; poses are in the
-session's ENU frame (metres; quaternions ``[w, x, y, z]`` body -> ENU), interpolated at
-that time from the devices' fixes (linear in position, slerp in orientation; both on
-the logger's monotonic clock, so all devices share one time base). Epochs are decoded
+``t`` is the epoch's arrival (UTC POSIX seconds: the arrival of its last byte, by the
+stamp rule of :mod:`bench.ingest.stamp`) minus ``--latency``; poses are in the session's
+ENU frame (metres; quaternions ``[w, x, y, z]`` body -> ENU), interpolated at that time
+from the devices' fixes (linear in position, slerp in orientation; both on the logger's
+monotonic clock, so all devices share one time base). Fixes or attitudes of one device
+with the same stamp (a link faster than its baud) are real data: the last of them is
+used. Epochs are decoded
 again from the raw bytes, so the export never depends on the derived ``.jsonl`` files.
 
 Rows are dropped, and counted, when the epoch is incomplete, when a pose cannot be
