@@ -170,6 +170,11 @@ class _FirstFixOrigin:
             self.on_fatal(exc)
 
 
+#: Seconds a stop waits for the reads already taken to be written (a loaded machine can
+#: leave seconds of backlog; losing them would be losing data).
+STOP_TIMEOUT = 120.0
+
+
 def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not (0 < args.duration < float("inf")):
         raise InputError(f"log: --duration {args.duration}: must be a finite number of seconds > 0")
@@ -203,7 +208,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.stop()
-        notifier.stop()
+        notifier.stop(timeout=STOP_TIMEOUT)  # every read already taken is written first
+        if notifier.thread.is_alive():
+            print(f"arva-bench: log: the writer did not finish within {STOP_TIMEOUT:g} s; the last reads may be "
+                  "missing", file=sys.stderr)  # fmt: skip
         summary = session.summary(devices)
         for dev in devices:
             if dev.cut_at_stop:

@@ -33,6 +33,7 @@ Times: ``mono`` is this process's ``time.monotonic()`` (s), ``utc`` POSIX second
 from __future__ import annotations
 
 import heapq
+import logging
 import os
 import queue
 import selectors
@@ -49,6 +50,8 @@ from firmware_proto.errors import LinkError
 from ..records import RecordDecoder, decoder_for
 from ..transport import open_device
 from .stamp import Stamped, StampedDecoder
+
+log = logging.getLogger(__name__)
 
 #: Bytes asked for per read of a descriptor.
 READ_CHUNK = 65536
@@ -248,8 +251,9 @@ class Notifier:
         self._wake()
 
     def stop(self, timeout: float = 5.0) -> None:
-        """Stop reading, close every port and flush the decoders (their last records are
-        delivered before this returns)."""
+        """Stop reading, close every port, deliver every read already taken and flush the
+        decoders (their last records are delivered before this returns, unless a thread
+        needs more than ``timeout`` s: give a long one when nothing may be lost)."""
         self.request_stop()
         self.join(timeout)
 
@@ -372,6 +376,16 @@ class Notifier:
                 getattr(listener, method)(device, arg)
             except LinkError as exc:
                 self._dropped(listener, exc)
+            except Exception as exc:  # noqa: BLE001 - a listener's bug must not stop the others
+                log.exception("listener %r failed on %s of %s", listener, method, device.spec.name)
+                self._dropped(listener, LinkError(f"{device.spec.name}: {type(listener).__name__} failed: {exc!r}"))
+
+    def _ingest(self, p: _Port, data: bytes, mono: float, utc: float) -> Read:
+        try:
+            return p.device.ingest(data, mono, utc)
+        except Exception:  # noqa: BLE001 - a decoder bug: keep the bytes, lose only the records
+            log.exception("decoding a read of %s failed; its bytes are kept without records", p.device.spec.name)
+            return Read(mono, utc, data, [])
 
     def _dropped(self, listener: Listener, exc: Exception) -> None:
         self.remove_listener(listener)
@@ -396,7 +410,7 @@ class Notifier:
                     if kind == "read":
                         _, p, data, mono, utc = item
                         p.quiet_since = mono
-                        self._notify("on_read", p.device, p.device.ingest(data, mono, utc))
+                        self._notify("on_read", p.device, self._ingest(p, data, mono, utc))
                     elif kind == "up":
                         self._up(item[1])
                     elif kind == "lost":
