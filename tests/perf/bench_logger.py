@@ -45,6 +45,7 @@ from emulator.truth.nmea import gps_sentences, pashr_sentence  # noqa: E402
 from firmware_proto.sentences import encode_parva  # noqa: E402
 
 CHANNELS = 20
+SKEW_NOTE = ('A spread of a whole number of 0.0868 ms steps (one byte at 115200 Bd: 6.51 ms = 75 bytes, one $PASHR) comes from a read holding two instants of one device: the logger was descheduled for more than 50 ms, and the stamp rule spread the earlier instant back at line rate, which a pty, having no line rate, does not honour.')
 ORIGIN = Origin(46.5, 8.0, 2500.0)
 START_UTC = 1768471200.0
 
@@ -356,7 +357,7 @@ def main(argv=None) -> int:
         "instant to the three ptys back to back. Stamp spread = max - min of the three devices' stamps "
         "of one instant; part of it is the writer's own (it may lose the CPU between its three writes); "
         "logger-added skew = spread of (stamp - that device's write time); latency = stamp minus the "
-        "writer's clock after its write (both CLOCK_MONOTONIC).\n\n" + t2 +
+        "writer's clock after its write (both CLOCK_MONOTONIC). " + SKEW_NOTE + "\n\n" + t2 +
         "\n\nReconnect (target <= 100 ms lost beyond the outage): a receiver at 100 epochs/s unplugged "
         "for 1 s (pty closed, its symlink removed), then a new pty behind the same symlink.\n\n" + t3 +
         "\n\nDisk per hour of the typical session (raw reads base64 with timestamps plus decoded JSON "
