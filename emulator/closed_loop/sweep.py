@@ -486,7 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--engine", choices=ENGINES, default="batch",
                    help="batch: runs of one strategy stepped together (default); run: one by one (the reference)")
     p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000, help="resamples for the p99/max confidence intervals (default 1000)")
-    p.add_argument("--antennas", type=integer(2, 3), default=3, help="receiver class (default 3)")
+    p.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     p.add_argument("--workers", type=integer(1, 1024), help="local processes (default: CPU count)")
     p.add_argument("--scheduler", type=scheduler_address, help="dask.distributed scheduler address, e.g. tcp://host:8786")
     p.add_argument("--out", type=output_file((".csv", ".parquet")),
