@@ -53,9 +53,10 @@ MAX_DELTA_DEG = 89
 #: Largest magnitude a $PARVH component can carry; fields beyond it (r below ~1e-103 m)
 #: saturate here rather than print ``inf``.
 FIELD_SATURATION = float(np.finfo(np.float64).max)
-#: Pairs are evaluated in blocks of about this many, so that the ~13 scratch buffers of a
-#: block (8 bytes a pair each) stay in the L2 cache.
-CHUNK_PAIRS = 1 << 13
+#: Pairs are evaluated in blocks of about this many, reusing 12 float scratch buffers per
+#: block (3 MB: about the L2 of the 2-core Xeon here); smaller blocks pay more per-call
+#: overhead than they win in cache hits (tests/perf/bench_model.py, docs/performance.md).
+CHUNK_PAIRS = 1 << 15
 _HUGE = 2.0**1020  # ~1.1e307
 
 
