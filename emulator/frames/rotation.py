@@ -33,24 +33,37 @@ def unit_quaternion_components(q: ArrayLike, field: str = "orientation") -> NDAr
         raise PoseError(field, "quaternion has a non-finite component")
     c = np.array(np.moveaxis(q, -1, 0), order="C")  # a private copy: normalised in place
     c2 = c.reshape(4, -1)  # a view: rows stay arrays even for a single quaternion
-    a = np.abs(c2)  # then reused (in place, no further temporaries) as scratch rows
+    bad = normalize_components_inplace(c2, np.empty_like(c2))
+    if bad is not None:
+        raise PoseError(field, f"quaternion norm {bad:.3g} is below {MIN_QUATERNION_NORM:g}")
+    return c
+
+
+def normalize_components_inplace(c: NDArray[np.float64], work: NDArray[np.float64]) -> float | None:
+    """Normalise finite component-major quaternions ``c`` (4, n) in place.
+
+    ``work`` is (4, n) scratch. Returns None, or the smallest norm when one is below
+    MIN_QUATERNION_NORM (``c`` is then left partly scaled). The arithmetic of
+    :func:`unit_quaternion_components`, which calls this; the batch model calls it per
+    block of poses with reused buffers.
+    """
+    a = np.abs(c, out=work)  # then reused (in place, no further temporaries) as scratch rows
     scale = np.maximum(a[0], a[1], out=a[0])
     np.maximum(scale, np.maximum(a[2], a[3], out=a[2]), out=scale)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        c2 /= scale
+        c /= scale
         # norm_scaled = sqrt(((c0^2 + c1^2) + c2^2) + c3^2)
         norm_scaled, square = a[1], a[2]
-        np.multiply(c2[0], c2[0], out=norm_scaled)
+        np.multiply(c[0], c[0], out=norm_scaled)
         for k in (1, 2, 3):
-            np.multiply(c2[k], c2[k], out=square)
+            np.multiply(c[k], c[k], out=square)
             norm_scaled += square
         np.sqrt(norm_scaled, out=norm_scaled)
         norm = np.multiply(scale, norm_scaled, out=a[3])  # may be inf near 1e308: still valid
     if not norm.min(initial=np.inf) >= MIN_QUATERNION_NORM:  # also a nan norm
-        bad = float(np.min(np.where(np.isnan(norm), 0.0, norm)))
-        raise PoseError(field, f"quaternion norm {bad:.3g} is below {MIN_QUATERNION_NORM:g}")
-    c2 /= norm_scaled
-    return c
+        return float(np.min(np.where(np.isnan(norm), 0.0, norm)))
+    c /= norm_scaled
+    return None
 
 
 def normalize_quaternions(q: ArrayLike, field: str = "orientation") -> NDArray[np.float64]:

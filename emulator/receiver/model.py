@@ -36,6 +36,7 @@ may overflow to inf; its reciprocal is then 0 and nothing ever computes inf * 0.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +44,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from firmware_proto.errors import InputError, PoseError
 
-from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
+from emulator.frames.rotation import (
+    normalize_components_inplace,
+    rotation_components,
+    unit_quaternion_components,
+    x_axis_components,
+)
 
 ZONE_INNER, ZONE_MID, ZONE_OUTER = 0, 1, 2
 ZONE_NAMES = ("inner", "mid", "outer")
@@ -179,6 +185,7 @@ def measure(
     params: ModelParams = ModelParams(),
     noise: NDArray[np.float64] | None = None,
     want_field: bool = False,
+    threads: int = 1,
 ) -> Measurement:
     """Evaluate N receiver poses against M transmitters.
 
@@ -189,6 +196,8 @@ def measure(
     ``params.w_en`` and mapped by Q R_r^T (BRIEF 3.2). ``noise=None`` is the ideal
     receiver and costs nothing extra. ``params.antennas`` selects the receiver class
     (3: BRIEF 3; 2: the horizontal field in every zone, see the module docstring).
+    ``threads`` > 1 splits the poses into that many contiguous ranges evaluated in
+    parallel threads (same results; worth it only for large N on idle cores).
     """
     rx_p = as_positions(rx_position, "receiver.position")
     tx_p = as_positions(tx_position, "transmitter.position")
@@ -220,54 +229,72 @@ def measure(
     rows = max(1, CHUNK_PAIRS // m)
     # Coordinates beyond ~1e307 could overflow a difference: a chunk holding any is scaled
     # by an exact power of two (decided per chunk, as before, see _measure_chunk).
-    any_big = max(np.max(np.abs(rx_p), initial=0.0), np.max(np.abs(tx_p), initial=0.0)) > _HUGE
-    scratch = _Scratch(min(n, rows) * m)
-    rot = np.empty((3, 3, min(n, rows)))
-    with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
-        for lo in range(0, n, rows):
-            hi = min(n, lo + rows)
-            sl = slice(lo, hi)
-            if tx_major:  # (M, rows): per pose (1, rows), per transmitter (M, 1)
-                pose = lambda a: a[None, :]  # noqa: E731
-                pair = lambda a: a.T  # noqa: E731  (rows, M) -> (M, rows)
-                txv = lambda a: a[:, None]  # noqa: E731
-            else:  # (rows, M): per pose (rows, 1), per transmitter (1, M)
-                pose = lambda a: a[:, None]  # noqa: E731
-                pair = lambda a: a  # noqa: E731
-                txv = lambda a: a[None, :]  # noqa: E731
-            if moving_tx:
-                tx_x, tx_y, tx_z = (pair(tx_p[sl, :, k]) for k in range(3))
-                mx, my, mz = (pair(tx_m[k, sl]) for k in range(3))
-            else:
-                tx_x, tx_y, tx_z = (txv(tx_p[:, k]) for k in range(3))
-                mx, my, mz = (txv(tx_m[k]) for k in range(3))
-            f = 1.0
-            if any_big:
-                big = max(np.max(np.abs(rx_p[sl]), initial=0.0),
-                          np.max(np.abs(tx_p[sl] if moving_tx else tx_p), initial=0.0)) > _HUGE
-                f = 0.25 if big else 1.0
-            try:
-                rx_r = rotation_components(
-                    unit_quaternion_components(rx_q[sl], "receiver.orientation"), out=rot[:, :, : hi - lo]
+    any_big = max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE
+
+    def run(first: int, last: int) -> None:
+        """Poses first..last-1, block by block, with this call's own buffers."""
+        size = min(last - first, rows)
+        scratch = _Scratch(size * m)
+        rot = np.empty((3, 3, size))
+        q_rows, q_work = np.empty((4, size)), np.empty((4, size))
+        with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+            for lo in range(first, last, rows):
+                hi = min(last, lo + rows)
+                sl = slice(lo, hi)
+                if tx_major:  # (M, rows): per pose (1, rows), per transmitter (M, 1)
+                    pose = lambda a: a[None, :]  # noqa: E731
+                    pair = lambda a: a.T  # noqa: E731  (rows, M) -> (M, rows)
+                    txv = lambda a: a[:, None]  # noqa: E731
+                else:  # (rows, M): per pose (rows, 1), per transmitter (1, M)
+                    pose = lambda a: a[:, None]  # noqa: E731
+                    pair = lambda a: a  # noqa: E731
+                    txv = lambda a: a[None, :]  # noqa: E731
+                if moving_tx:
+                    tx_x, tx_y, tx_z = (pair(tx_p[sl, :, k]) for k in range(3))
+                    mx, my, mz = (pair(tx_m[k, sl]) for k in range(3))
+                else:
+                    tx_x, tx_y, tx_z = (txv(tx_p[:, k]) for k in range(3))
+                    mx, my, mz = (txv(tx_m[k]) for k in range(3))
+                f = 1.0
+                if any_big:
+                    big = max(np.max(np.abs(rx_p[sl]), initial=0.0),
+                              np.max(np.abs(tx_p[sl] if moving_tx else tx_p), initial=0.0)) > _HUGE
+                    f = 0.25 if big else 1.0
+                qc = q_rows[:, : hi - lo]
+                np.copyto(qc, rx_q[sl].T)
+                if normalize_components_inplace(qc, q_work[:, : hi - lo]) is not None:
+                    # report it as for the whole array (e.g. its smallest norm)
+                    unit_quaternion_components(rx_q, "receiver.orientation")
+                rx_r = rotation_components(qc, out=rot[:, :, : hi - lo])
+                _measure_chunk(
+                    tuple(pose(rx_c) for rx_c in np.ascontiguousarray(rx_p[sl].T)),
+                    tuple(tuple(pose(rx_r[i, j]) for j in range(3)) for i in range(3)),
+                    (tx_x, tx_y, tx_z),
+                    (mx, my, mz),
+                    f,
+                    params,
+                    None if noise is None else tuple(pair(noise[sl, :, k]) for k in range(3)),
+                    pair(d[sl]),
+                    pair(delta[sl]),
+                    pair(zone[sl]),
+                    None if fld is None else tuple(pair(fld[sl, :, k]) for k in range(3)),
+                    scratch.view((m, hi - lo) if tx_major else (hi - lo, m)),
                 )
-            except PoseError:  # report it as for the whole array (e.g. its smallest norm)
-                unit_quaternion_components(rx_q, "receiver.orientation")
-                raise
-            _measure_chunk(
-                tuple(pose(rx_c) for rx_c in np.ascontiguousarray(rx_p[sl].T)),
-                tuple(tuple(pose(rx_r[i, j]) for j in range(3)) for i in range(3)),
-                (tx_x, tx_y, tx_z),
-                (mx, my, mz),
-                f,
-                params,
-                None if noise is None else tuple(pair(noise[sl, :, k]) for k in range(3)),
-                pair(d[sl]),
-                pair(delta[sl]),
-                pair(zone[sl]),
-                None if fld is None else tuple(pair(fld[sl, :, k]) for k in range(3)),
-                scratch.view((m, hi - lo) if tx_major else (hi - lo, m)),
-            )
+
+    parts = max(1, min(int(threads), -(-n // rows)))
+    if parts == 1:
+        run(0, n)
+    else:  # numpy releases the GIL inside its loops: disjoint slices of the outputs
+        step = -(-n // (parts * rows)) * rows
+        with ThreadPoolExecutor(max_workers=parts) as pool:
+            for job in [pool.submit(run, lo, min(n, lo + step)) for lo in range(0, n, step)]:
+                job.result()  # re-raises a worker's error (e.g. a PoseError)
     return Measurement(d, delta, zone, fld)
+
+
+def _max_abs(a: NDArray[np.float64]) -> float:
+    """max |a| without an |a| temporary (0 for an empty array)."""
+    return max(float(a.max(initial=0.0)), -float(a.min(initial=0.0)))
 
 
 def _quaternions(q: ArrayLike, field: str) -> NDArray[np.float64]:
