@@ -261,6 +261,13 @@ def main(argv=None) -> int:
         [[f"--speed 0 --frames {args.frames} to a pty, reader keeping up", f"{f['epochs_per_s']:,.0f}",
           "yes" if f["complete"] else f"NO ({f['received']} received)", f["summary"]]],
     )
+    if not f["complete"]:
+        t2 += (
+            "\n\nBytes are dropped when a full pty stays full for `FAST_DRAIN_WAIT` (50 ms, "
+            "emulator/output/scheduler.py). Since issue 20 the emulator outruns the reader, so "
+            "the pty is full most of the time and any longer stall of the reader (a thread of "
+            "this script, on a host shared with other jobs) loses data."
+        )
     t3 = markdown_table(["scene (default scene + one effect)", "time per epoch (4 tx, 4 channels)", "vs ideal"], costs)
     body = (
         "Real-time precision (targets: p99 < 2 ms, issue 4; p99 < 0.5 ms with `--realtime`, issue 20), "
