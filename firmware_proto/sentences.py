@@ -152,6 +152,8 @@ def encode_epochs(
 #: Tables built on first use, indexed by value + 89 for value in -89 .. 65535: the decimal
 #: text (str(value)), the same with a leading comma, and the XOR of that text's bytes.
 _TABLES: dict[str, np.ndarray] = {}
+#: Element-wise concatenation of bytes arrays (np.strings from numpy 2.0, np.char before).
+_STRING_ADD = getattr(np, "strings", np.char).add
 _HEX_CRLF = np.array([b"%02X\r\n" % i for i in range(256)], dtype="S4")
 
 
@@ -160,7 +162,7 @@ def _tables() -> dict[str, np.ndarray]:
         text = np.arange(-MAX_ABS_DELTA, 65536).astype("S6")
         width = text.dtype.itemsize
         _TABLES["text"] = text
-        _TABLES["comma"] = np.strings.add(b",", text)
+        _TABLES["comma"] = _STRING_ADD(b",", text)
         _TABLES["xor"] = np.bitwise_xor.reduce(text.view(np.uint8).reshape(-1, width), axis=1)
     return _TABLES
 
@@ -195,7 +197,7 @@ def _encode_parva_arrays(k0: int, ids: np.ndarray, d: np.ndarray, delta: np.ndar
     head = np.array([h.encode() for h in heads], dtype="S8")
     head_x = np.array([_xor(h.encode()) for h in heads], dtype=np.uint8)
     i1, d1, e1 = ids + off, d + off, delta + off
-    add = np.strings.add
+    add = _STRING_ADD
     out = add(add(b"$PARVA,", text[seq])[:, None], head[None, :])
     out = add(add(add(out, text[i1]), comma[d1]), comma[e1])
     # body = PARVA, seq head id ,d ,delta : its XOR from the parts (',' xor ',' cancels).

@@ -9,6 +9,7 @@ come in any order; extra columns are ignored; blank lines are skipped. Integer c
 from __future__ import annotations
 
 import csv
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -134,8 +135,11 @@ def _parse_simple(text: str, source: str) -> Table | None:
     if not all(line.count(",") == commas for line in lines):
         return None
     try:
-        flat = np.fromstring(body.replace("\n", ","), dtype=np.float64, sep=",")
-    except ValueError:
+        with warnings.catch_warnings():
+            # numpy < 2.? warns (instead of raising) on a cell it cannot read
+            warnings.simplefilter("error", DeprecationWarning)
+            flat = np.fromstring(body.replace("\n", ","), dtype=np.float64, sep=",")
+    except (ValueError, DeprecationWarning):
         return None
     if flat.size != len(lines) * width:
         return None
