@@ -231,12 +231,19 @@ class PtyPort(Port):
         return buf[0]
 
     def disconnect(self) -> None:
-        """Close both sides: a reader sees the device vanish (read error / EOF)."""
+        """Close both sides: a reader sees the device vanish (read error / EOF).
+
+        The ``link`` symlink goes too, like an unplugged device's node: left in place it
+        would name the freed /dev/pts/N, which the kernel hands to the next pty anyone
+        opens (on a busy host, another program's), and a reader retrying the link would
+        read that program's data."""
         if self._master >= 0:
             os.close(self._master)
             os.close(self._slave)
             self._master = self._slave = -1
             self.disconnects += 1
+            if self.link is not None and self.link.is_symlink():
+                self.link.unlink()
 
     def reconnect(self) -> None:
         """A new pty (new path, announced again); the ``link`` symlink follows it."""
