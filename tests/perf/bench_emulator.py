@@ -264,9 +264,9 @@ def main(argv=None) -> int:
     if not f["complete"]:
         t2 += (
             "\n\nBytes are dropped when a full pty stays full for `FAST_DRAIN_WAIT` (50 ms, "
-            "emulator/output/scheduler.py). Since issue 20 the emulator outruns the reader, so "
-            "the pty is full most of the time and any longer stall of the reader (a thread of "
-            "this script, on a host shared with other jobs) loses data."
+            "emulator/output/scheduler.py): the emulator now outruns the reader, so the pty is "
+            "full most of the time, and a stall of the reader (a thread of this script, on a "
+            "host shared with other jobs) longer than that loses the batch being written."
         )
     t3 = markdown_table(["scene (default scene + one effect)", "time per epoch (4 tx, 4 channels)", "vs ideal"], costs)
     body = (
