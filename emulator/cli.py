@@ -22,6 +22,7 @@ from emulator.control import runtime as control_runtime
 from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port, stderr_notifier
 from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, is_file_spec
 from emulator.scene.reader import default_scene, load_scene
+from emulator.output.realtime import request_realtime
 from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
 from emulator.pipeline import Pipeline
 from emulator.receiver.profile import profile_table
@@ -76,6 +77,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=1.0,
         metavar="X",
         help="run X times real time; 0 = as fast as possible (default 1)",
+    )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="real-time epochs: ask for SCHED_FIFO and locked memory where permitted (one stderr line if not)",
     )
     p.add_argument(
         "--delay",
@@ -200,6 +206,10 @@ def run(args: argparse.Namespace) -> int:
         if with_control:
             control = control_runtime.ControlSession(args, pipe, scheduler, stop)
             control.start(lambda line: print(line, file=announce_to, flush=True))
+        if args.realtime and args.speed != 0 and real:
+            refused = request_realtime().message()
+            if refused:
+                print(refused, file=sys.stderr, flush=True)
         try:
             scheduler.wait(args.delay)
             control.run() if control is not None else scheduler.run()

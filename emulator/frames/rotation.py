@@ -32,17 +32,38 @@ def unit_quaternion_components(q: ArrayLike, field: str = "orientation") -> NDAr
     if not np.all(np.isfinite(q)):
         raise PoseError(field, "quaternion has a non-finite component")
     c = np.array(np.moveaxis(q, -1, 0), order="C")  # a private copy: normalised in place
-    a = np.abs(c)
-    scale = np.maximum(np.maximum(a[0], a[1]), np.maximum(a[2], a[3]))
+    c2 = c.reshape(4, -1)  # a view: rows stay arrays even for a single quaternion
+    bad = normalize_components_inplace(c2, np.empty_like(c2))
+    if bad is not None:
+        raise PoseError(field, f"quaternion norm {bad:.3g} is below {MIN_QUATERNION_NORM:g}")
+    return c
+
+
+def normalize_components_inplace(c: NDArray[np.float64], work: NDArray[np.float64]) -> float | None:
+    """Normalise finite component-major quaternions ``c`` (4, n) in place.
+
+    ``work`` is (4, n) scratch. Returns None, or the smallest norm when one is below
+    MIN_QUATERNION_NORM (``c`` is then left partly scaled). The arithmetic of
+    :func:`unit_quaternion_components`, which calls this; the batch model calls it per
+    block of poses with reused buffers.
+    """
+    a = np.abs(c, out=work)  # then reused (in place, no further temporaries) as scratch rows
+    scale = np.maximum(a[0], a[1], out=a[0])
+    np.maximum(scale, np.maximum(a[2], a[3], out=a[2]), out=scale)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         c /= scale
-        norm_scaled = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2] + c[3] * c[3])
-        norm = scale * norm_scaled  # may be inf for components near 1e308: still valid
-    if np.any(~(norm >= MIN_QUATERNION_NORM)):
-        bad = float(np.min(np.where(np.isnan(norm), 0.0, norm)))
-        raise PoseError(field, f"quaternion norm {bad:.3g} is below {MIN_QUATERNION_NORM:g}")
+        # norm_scaled = sqrt(((c0^2 + c1^2) + c2^2) + c3^2)
+        norm_scaled, square = a[1], a[2]
+        np.multiply(c[0], c[0], out=norm_scaled)
+        for k in (1, 2, 3):
+            np.multiply(c[k], c[k], out=square)
+            norm_scaled += square
+        np.sqrt(norm_scaled, out=norm_scaled)
+        norm = np.multiply(scale, norm_scaled, out=a[3])  # may be inf near 1e308: still valid
+    if not norm.min(initial=np.inf) >= MIN_QUATERNION_NORM:  # also a nan norm
+        return float(np.min(np.where(np.isnan(norm), 0.0, norm)))
     c /= norm_scaled
-    return c
+    return None
 
 
 def normalize_quaternions(q: ArrayLike, field: str = "orientation") -> NDArray[np.float64]:
@@ -50,27 +71,47 @@ def normalize_quaternions(q: ArrayLike, field: str = "orientation") -> NDArray[n
     return np.moveaxis(unit_quaternion_components(q, field), 0, -1)
 
 
-def rotation_components(qc: NDArray[np.float64]) -> NDArray[np.float64]:
+def rotation_components(qc: NDArray[np.float64], out: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """Rotation matrices (3, 3, ...) of unit quaternions given component-major (4, ...).
 
     Written out rather than through scipy because the batch model calls it on millions of
-    poses and needs this layout (R maps body vectors into the world).
+    poses and needs this layout (R maps body vectors into the world). ``out`` (3, 3, ...)
+    receives the result; every entry is computed in place there (no temporaries beyond
+    the nine products), e.g. m[0, 0] = 1 - 2 (yy + zz), m[0, 1] = 2 (xy - wz).
     """
-    w, x, y, z = qc
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    m = np.empty((3, 3) + qc.shape[1:])
-    m[0, 0] = 1.0 - 2.0 * (yy + zz)
-    m[0, 1] = 2.0 * (xy - wz)
-    m[0, 2] = 2.0 * (xz + wy)
-    m[1, 0] = 2.0 * (xy + wz)
-    m[1, 1] = 1.0 - 2.0 * (xx + zz)
-    m[1, 2] = 2.0 * (yz - wx)
-    m[2, 0] = 2.0 * (xz - wy)
-    m[2, 1] = 2.0 * (yz + wx)
-    m[2, 2] = 1.0 - 2.0 * (xx + yy)
+    shape = qc.shape[1:]
+    w, x, y, z = np.asarray(qc).reshape(4, -1)  # rows stay arrays for a single quaternion
+    products = np.empty((9,) + w.shape)
+    xx, yy, zz, xy, xz, yz, wx, wy, wz = products
+    for a, b, o in ((x, x, xx), (y, y, yy), (z, z, zz), (x, y, xy), (x, z, xz), (y, z, yz),
+                    (w, x, wx), (w, y, wy), (w, z, wz)):
+        np.multiply(a, b, out=o)
+    m = np.empty((3, 3) + shape) if out is None else out
+    flat = m.reshape(3, 3, -1)
+    if m.size and not np.shares_memory(flat, m):  # out= must take the entries in place
+        raise ValueError("rotation_components: out must be reshapeable to (3, 3, -1) without a copy")
+    for i, j, a, b, op, diagonal in _ROTATION_ENTRIES:
+        e = flat[i, j]
+        op(products[a], products[b], out=e)
+        e *= 2.0
+        if diagonal:
+            np.subtract(1.0, e, out=e)
     return m
+
+
+# (row, column, product, product, +/-, diagonal) of R from the products
+# xx yy zz xy xz yz wx wy wz (indices 0..8): diagonal entries are 1 - 2 (a + b).
+_ROTATION_ENTRIES = (
+    (0, 0, 1, 2, np.add, True),
+    (0, 1, 3, 8, np.subtract, False),
+    (0, 2, 4, 7, np.add, False),
+    (1, 0, 3, 8, np.add, False),
+    (1, 1, 0, 2, np.add, True),
+    (1, 2, 5, 6, np.subtract, False),
+    (2, 0, 4, 7, np.subtract, False),
+    (2, 1, 5, 6, np.add, False),
+    (2, 2, 0, 1, np.add, True),
+)
 
 
 def x_axis_components(qc: NDArray[np.float64]) -> NDArray[np.float64]:

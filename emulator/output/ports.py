@@ -128,7 +128,9 @@ class _FdWriter:
     With ``wait > 0`` (as fast as possible, ``--speed 0``) a full buffer is first given
     up to ``wait`` seconds to drain, so a reader that keeps up loses nothing; once a wait
     times out the reader is taken to be absent and later writes drop at once (no
-    blocking, no queue) until a write fits again.
+    blocking, no queue) until the buffer takes bytes again: any progress means someone
+    reads. (Waiting for a whole write to fit instead would keep a present but briefly
+    stalled reader "absent" for good when every write is larger than the buffer.)
     """
 
     def __init__(self, wait: float = 0.0) -> None:
@@ -137,10 +139,9 @@ class _FdWriter:
 
     def write(self, fd: int, data: bytes) -> int:
         done = _write_some(fd, data)
-        if done == len(data) or self.wait <= 0:
-            self.reader_absent = self.reader_absent and done < len(data)
-            return done
-        if self.reader_absent:
+        if done > 0:
+            self.reader_absent = False  # the buffer had room: a reader is taking bytes
+        if done == len(data) or self.wait <= 0 or self.reader_absent:
             return done
         poller = select.poll()
         poller.register(fd, select.POLLOUT)

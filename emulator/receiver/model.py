@@ -36,6 +36,7 @@ may overflow to inf; its reciprocal is then 0 and nothing ever computes inf * 0.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +44,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from firmware_proto.errors import InputError, PoseError
 
-from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
+from emulator.frames.rotation import (
+    normalize_components_inplace,
+    rotation_components,
+    unit_quaternion_components,
+    x_axis_components,
+)
 
 ZONE_INNER, ZONE_MID, ZONE_OUTER = 0, 1, 2
 ZONE_NAMES = ("inner", "mid", "outer")
@@ -53,7 +59,9 @@ MAX_DELTA_DEG = 89
 #: Largest magnitude a $PARVH component can carry; fields beyond it (r below ~1e-103 m)
 #: saturate here rather than print ``inf``.
 FIELD_SATURATION = float(np.finfo(np.float64).max)
-#: Transmitters are processed in chunks of this many pairs so temporaries stay in cache.
+#: Pairs are evaluated in blocks of about this many, reusing 12 float scratch buffers per
+#: block (3 MB: about the L2 of the 2-core Xeon here); smaller blocks pay more per-call
+#: overhead than they win in cache hits (tests/perf/bench_model.py, docs/performance.md).
 CHUNK_PAIRS = 1 << 15
 _HUGE = 2.0**1020  # ~1.1e307
 
@@ -177,6 +185,7 @@ def measure(
     params: ModelParams = ModelParams(),
     noise: NDArray[np.float64] | None = None,
     want_field: bool = False,
+    threads: int = 1,
 ) -> Measurement:
     """Evaluate N receiver poses against M transmitters.
 
@@ -187,13 +196,20 @@ def measure(
     ``params.w_en`` and mapped by Q R_r^T (BRIEF 3.2). ``noise=None`` is the ideal
     receiver and costs nothing extra. ``params.antennas`` selects the receiver class
     (3: BRIEF 3; 2: the horizontal field in every zone, see the module docstring).
+    ``threads`` > 1 splits the poses into that many contiguous ranges evaluated in
+    parallel threads (same results; worth it only for large N on idle cores).
     """
     rx_p = as_positions(rx_position, "receiver.position")
     tx_p = as_positions(tx_position, "transmitter.position")
     # Component-major (see emulator.frames.rotation): receiver matrices (3, 3, N), transmitter
     # dipole axes (3, M) or (3, N, M).
-    rx_r = rotation_components(unit_quaternion_components(rx_orientation, "receiver.orientation"))
-    tx_m = x_axis_components(unit_quaternion_components(tx_orientation, "transmitter.orientation"))
+    # Receiver matrices are built per chunk (in cache); the quaternions are checked here.
+    rx_q = _quaternions(rx_orientation, "receiver.orientation")
+    try:
+        tx_m = x_axis_components(unit_quaternion_components(tx_orientation, "transmitter.orientation"))
+    except PoseError:
+        unit_quaternion_components(rx_q, "receiver.orientation")  # a receiver error comes first
+        raise
     n = rx_p.shape[0]
     m = tx_p.shape[-2]
     moving_tx = tx_p.ndim == 3 or tx_m.ndim == 3
@@ -204,114 +220,299 @@ def measure(
     delta = np.empty((n, m), dtype=np.int64)
     zone = np.empty((n, m), dtype=np.int8)
     fld = np.empty((n, m, 3)) if want_field else None
-    rows = max(1, CHUNK_PAIRS // max(m, 1))
-    for lo in range(0, n, rows):
-        sl = slice(lo, min(n, lo + rows))
-        _measure_chunk(
-            rx_p[sl],
-            rx_r[:, :, sl],
-            tx_p[sl] if moving_tx else tx_p,
-            tx_m[:, sl] if moving_tx else tx_m,
-            params,
-            None if noise is None else noise[sl],
-            d[sl],
-            delta[sl],
-            zone[sl],
-            None if fld is None else fld[sl],
-        )
+    if n == 0 or m == 0:
+        return Measurement(d, delta, zone, fld)
+    # Layout of a chunk: a 2-D block whose inner (contiguous) axis is the longer of poses
+    # and transmitters, so every ufunc runs long contiguous loops with per-pose or
+    # per-transmitter values broadcast as scalars along it.
+    tx_major = n >= m
+    rows = max(1, CHUNK_PAIRS // m)
+    # Coordinates beyond ~1e307 could overflow a difference: a chunk holding any is scaled
+    # by an exact power of two (decided per chunk, as before, see _measure_chunk).
+    any_big = max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE
+
+    def run(first: int, last: int) -> None:
+        """Poses first..last-1, block by block, with this call's own buffers."""
+        size = min(last - first, rows)
+        scratch = _Scratch(size * m)
+        rot = np.empty((3, 3, size))
+        q_rows, q_work = np.empty((4, size)), np.empty((4, size))
+        with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+            for lo in range(first, last, rows):
+                hi = min(last, lo + rows)
+                sl = slice(lo, hi)
+                if tx_major:  # (M, rows): per pose (1, rows), per transmitter (M, 1)
+                    pose = lambda a: a[None, :]  # noqa: E731
+                    pair = lambda a: a.T  # noqa: E731  (rows, M) -> (M, rows)
+                    txv = lambda a: a[:, None]  # noqa: E731
+                else:  # (rows, M): per pose (rows, 1), per transmitter (1, M)
+                    pose = lambda a: a[:, None]  # noqa: E731
+                    pair = lambda a: a  # noqa: E731
+                    txv = lambda a: a[None, :]  # noqa: E731
+                if moving_tx:
+                    tx_x, tx_y, tx_z = (pair(tx_p[sl, :, k]) for k in range(3))
+                    mx, my, mz = (pair(tx_m[k, sl]) for k in range(3))
+                else:
+                    tx_x, tx_y, tx_z = (txv(tx_p[:, k]) for k in range(3))
+                    mx, my, mz = (txv(tx_m[k]) for k in range(3))
+                f = 1.0
+                if any_big:
+                    big = max(np.max(np.abs(rx_p[sl]), initial=0.0),
+                              np.max(np.abs(tx_p[sl] if moving_tx else tx_p), initial=0.0)) > _HUGE
+                    f = 0.25 if big else 1.0
+                qc = q_rows[:, : hi - lo]
+                np.copyto(qc, rx_q[sl].T)
+                if normalize_components_inplace(qc, q_work[:, : hi - lo]) is not None:
+                    # report it as for the whole array (e.g. its smallest norm)
+                    unit_quaternion_components(rx_q, "receiver.orientation")
+                rx_r = rotation_components(qc, out=rot[:, :, : hi - lo])
+                _measure_chunk(
+                    tuple(pose(rx_c) for rx_c in np.ascontiguousarray(rx_p[sl].T)),
+                    tuple(tuple(pose(rx_r[i, j]) for j in range(3)) for i in range(3)),
+                    (tx_x, tx_y, tx_z),
+                    (mx, my, mz),
+                    f,
+                    params,
+                    None if noise is None else tuple(pair(noise[sl, :, k]) for k in range(3)),
+                    pair(d[sl]),
+                    pair(delta[sl]),
+                    pair(zone[sl]),
+                    None if fld is None else tuple(pair(fld[sl, :, k]) for k in range(3)),
+                    scratch.view((m, hi - lo) if tx_major else (hi - lo, m)),
+                )
+
+    parts = max(1, min(int(threads), -(-n // rows)))
+    if parts == 1:
+        run(0, n)
+    else:  # numpy releases the GIL inside its loops: disjoint slices of the outputs
+        step = -(-n // (parts * rows)) * rows
+        with ThreadPoolExecutor(max_workers=parts) as pool:
+            for job in [pool.submit(run, lo, min(n, lo + step)) for lo in range(0, n, step)]:
+                job.result()  # re-raises a worker's error (e.g. a PoseError)
     return Measurement(d, delta, zone, fld)
 
 
-def _measure_chunk(rx_p, rx_r, tx_p, tx_m, params, noise, d_out, delta_out, zone_out, field_out):
-    # Only the dipole axis m = R_t e_x (first column of R_t) matters: with n the world
-    # unit vector from transmitter to receiver and x = m.n (the transmitter-frame x of
-    # p/r), A(p)/r^2 = 3 x (p/r) - e_x in the transmitter frame, i.e. u_w = 3 x n - m in
-    # the world frame. Same field as eq. 1 rotated by R_t, in 3x fewer operations.
-    if tx_m.ndim == 2:  # static transmitters: (M,) broadcast against (n, M)
-        mx, my, mz = tx_m[:, None, :]
-        tx = tx_p[None]
+def _max_abs(a: NDArray[np.float64]) -> float:
+    """max |a| without an |a| temporary (0 for an empty array)."""
+    return max(float(a.max(initial=0.0)), -float(a.min(initial=0.0)))
+
+
+def _quaternions(q: ArrayLike, field: str) -> NDArray[np.float64]:
+    """float64 quaternions (N, 4) with shape and finiteness checked (norms: per chunk)."""
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape[-1:] != (4,) or not np.all(np.isfinite(q)):
+        unit_quaternion_components(q, field)  # raises the PoseError naming the field
+    return q
+
+
+class _Scratch:
+    """Preallocated float64 and bool buffers for one chunk (reused by every chunk)."""
+
+    FLOATS, BOOLS = 12, 3
+
+    def __init__(self, size: int) -> None:
+        self.f = np.empty((self.FLOATS, size))
+        self.b = np.empty((self.BOOLS, size), dtype=bool)
+
+    def view(self, shape: tuple[int, int]) -> tuple[list, list]:
+        size = shape[0] * shape[1]
+        return ([a[:size].reshape(shape) for a in self.f], [a[:size].reshape(shape) for a in self.b])
+
+
+def _measure_chunk(rx, rr, tx, tm, f, params, noise, d_out, delta_out, zone_out, field_out, scratch):
+    """One block of pairs. Every array argument broadcasts to the block's 2-D shape.
+
+    Only the dipole axis m = R_t e_x (first column of R_t) matters: with n the world unit
+    vector from transmitter to receiver and x = m.n (the transmitter-frame x of p/r),
+    A(p)/r^2 = 3 x (p/r) - e_x in the transmitter frame, i.e. u_w = 3 x n - m in the
+    world frame. Same field as eq. 1 rotated by R_t, in 3x fewer operations.
+
+    Written with ``out=`` into preallocated buffers and in-place ufuncs (no temporaries
+    on the common path) and the same floating-point operations in the same order as the
+    plain formulas, so the results are bit for bit those of the straightforward version.
+    A chunk whose coordinates exceed ~1e307 arrives with f = 1/4 (exact for normal floats):
+    differences are scaled down and distances back up (to inf: outer).
+    """
+    (dx, dy, dz, r, t, g0, g1, g2, a, b, k_mid, o_out), (m1, m2, m3) = scratch
+    shape = dx.shape
+    flat = lambda x: x.reshape(-1)  # noqa: E731  (scratch buffers are contiguous)
+    mx, my, mz = tm
+    # p_r - p_t and its safe norm.
+    if f == 1.0:
+        for k, out in enumerate((dx, dy, dz)):
+            np.subtract(rx[k], tx[k], out=out)
     else:
-        mx, my, mz = tx_m
-        tx = tx_p
-    rr = lambda i, j: rx_r[i, j, :, None]  # noqa: E731
+        for k, out in enumerate((dx, dy, dz)):
+            np.subtract(rx[k] * f, tx[k] * f, out=out)
+    s = a
+    np.multiply(dx, dx, out=s)
+    np.multiply(dy, dy, out=t)
+    s += t
+    np.multiply(dz, dz, out=t)
+    s += t
+    np.sqrt(s, out=r)
+    at_tx = None
+    if not (s.min() > _SQ_LO and s.max() < _SQ_HI):  # rare: hypot where squares under/overflow
+        bad = ~((s > _SQ_LO) & (s < _SQ_HI))
+        r[bad] = np.hypot(np.hypot(dx[bad], dy[bad]), dz[bad])
+        if not r.min() > 0.0:
+            at_tx = r == 0.0
+            np.copyto(r, 1.0, where=at_tx)
+    # n = (p_r - p_t) / r, x3 = 3 m.n, u_w = x3 n - m (in place of n).
+    dx /= r
+    dy /= r
+    dz /= r
+    r_safe = r if f == 1.0 else r / f  # true distance; inf only for pairs ~1e308 m apart
+    np.multiply(mx, dx, out=t)
+    np.multiply(my, dy, out=a)
+    t += a
+    np.multiply(mz, dz, out=a)
+    t += a
+    t *= 3.0
+    for nk, mk in ((dx, mx), (dy, my), (dz, mz)):
+        nk *= t
+        nk -= mk
+    uw = (dx, dy, dz)
+    # Receiver frame: g = R_r^T u_w (h = s / (4 pi r^3) g). g_z is needed densely only with
+    # noise or for the field; otherwise only for the few pairs that may be inner (below).
+    three = params.antennas == 3
+    dense_gz = noise is not None or field_out is not None
+    for i, g in enumerate((g0, g1, g2) if dense_gz else (g0, g1)):
+        np.multiply(rr[0][i], dx, out=g)
+        np.multiply(rr[1][i], dy, out=t)
+        g += t
+        np.multiply(rr[2][i], dz, out=t)
+        g += t
 
-    # Coordinates beyond ~1e307 could overflow the difference; a chunk holding any is
-    # scaled by an exact power of two first, and distances are scaled back (to inf:
-    # outer). Scaling normal floats by 1/4 is exact, so results do not change.
-    big = max(np.max(np.abs(rx_p), initial=0.0), np.max(np.abs(tx), initial=0.0)) > _HUGE
-    f = 0.25 if big else 1.0
-    dx = rx_p[:, None, 0] * f - tx[..., 0] * f
-    dy = rx_p[:, None, 1] * f - tx[..., 1] * f
-    dz = rx_p[:, None, 2] * f - tx[..., 2] * f
-    r_scaled = norm3(dx, dy, dz)
-    at_tx = r_scaled == 0.0
-    r_dir = np.where(at_tx, 1.0, r_scaled)
-    dx /= r_dir
-    dy /= r_dir
-    dz /= r_dir
-    with np.errstate(over="ignore"):
-        r_safe = r_dir / f  # true distance; inf only for pairs ~1e308 m apart
-    x3 = 3.0 * (mx * dx + my * dy + mz * dz)
-    uw0 = x3 * dx - mx
-    uw1 = x3 * dy - my
-    uw2 = x3 * dz - mz
-    # Receiver frame: g = R_r^T u_w (h = s / (4 pi r^3) g).
-    g0 = rr(0, 0) * uw0 + rr(1, 0) * uw1 + rr(2, 0) * uw2
-    g1 = rr(0, 1) * uw0 + rr(1, 1) * uw1 + rr(2, 1) * uw2
-    g2 = rr(0, 2) * uw0 + rr(1, 2) * uw1 + rr(2, 2) * uw2
+    field_scale = None
+    if noise is None:
+        if field_out is not None:
+            field_scale = (params.moment / (4.0 * math.pi)) / r_safe**3
+        dist_scale = np.multiply(r_safe, params.distance_scale, out=r if f == 1.0 else None)
+    else:
+        g0, g1, g2, dist_scale, field_scale = _add_noise(
+            g0, g1, g2, r_safe, rr, noise, params, field_out is not None
+        )
 
-    with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+    # Inner pairs are rare: d3 is evaluated only where it can be <= r_inner. Without noise
+    # |g| <= 2 (to rounding), so d3 >= dist_scale / cbrt(2); with noise, everywhere.
+    at_idx = np.flatnonzero(at_tx) if at_tx is not None else _NO_INDEX
+    if three:
         if noise is None:
-            dist_scale = r_safe * params.distance_scale
-            field_scale = None
-            if field_out is not None:
-                field_scale = (params.moment / (4.0 * math.pi)) / r_safe**3
+            cand = np.flatnonzero(np.less_equal(dist_scale, params.r_inner * _CBRT2_MARGIN, out=m1))
         else:
-            g0, g1, g2, dist_scale, field_scale = _add_noise(
-                g0, g1, g2, r_safe, rx_r, noise, params, field_out is not None
-            )
-        gxy = norm2(g0, g1)
-        dxy = dist_scale / np.cbrt(gxy)  # gxy == 0: inf
-        if params.antennas == 3:
-            d3 = dist_scale / np.cbrt(norm3(g0, g1, g2))  # |g| == 0 (noise cancelling): inf
-            inner = at_tx | (d3 <= params.r_inner)
-            dist = np.where(inner, d3, dxy)
-        else:  # 2 antennas: the horizontal field in every zone
-            inner = at_tx | (dxy <= params.r_inner)
-            dist = dxy.copy()
-        outer = ~inner & ~((gxy > 0.0) & (dxy <= params.r_outer))
-        dist[at_tx] = 0.0
-        dist *= 100.0
-        d_out[...] = round_half_away(dist)
-        angle = np.degrees(np.arctan(g1 / np.where(g0 == 0.0, 1.0, g0)))
-        np.copyto(angle, np.copysign(90.0, g1), where=g0 == 0.0)  # atan(+-inf), sign of h_y
-        delta = np.clip(round_half_away(angle), -MAX_DELTA_DEG, MAX_DELTA_DEG)
-        delta[inner] = 0.0
-        delta_out[...] = delta
+            cand = np.arange(dx.size)
+        if dense_gz:
+            gz = flat(g2)[cand]
+        else:  # g_z = R_r^T u_w, z row, for the candidates only (same operations)
+            ia, ib = np.unravel_index(cand, shape)
+            # rr entries are (1, B) or (A, 1) views: index the axis that varies.
+            rz = [e[ia, 0] if e.shape[1] == 1 else e[0, ib] for e in (rr[0][2], rr[1][2], rr[2][2])]
+            gz = rz[0] * flat(uw[0])[cand] + rz[1] * flat(uw[1])[cand] + rz[2] * flat(uw[2])[cand]
+        d3 = flat(dist_scale)[cand] / np.cbrt(norm3(flat(g0)[cand], flat(g1)[cand], gz))
+        keep = d3 <= params.r_inner  # |g| == 0 (noise cancelling): d3 = inf, not inner
+        inner_idx, inner_d3 = cand[keep], d3[keep]
+    # |g_xy| (the same sums as norm2).
+    s2 = dx
+    np.multiply(g0, g0, out=s2)
+    np.multiply(g1, g1, out=t)
+    s2 += t
+    gxy = np.sqrt(s2, out=dz)
+    if not (s2.min() > _SQ_LO and s2.max() < _SQ_HI):
+        bad = ~((s2 > _SQ_LO) & (s2 < _SQ_HI))
+        gxy[bad] = np.hypot(g0[bad], g1[bad])
+    dxy = np.cbrt(gxy, out=a)
+    np.divide(dist_scale, dxy, out=dxy)  # gxy == 0: inf (or nan): never mid
+    if not three:  # 2 antennas: the horizontal field in every zone
+        inner_idx = np.flatnonzero(np.less_equal(dxy, params.r_inner, out=m1))
+    inner_all = np.concatenate((inner_idx, at_idx)) if at_idx.size else inner_idx
+    # Zones: mid where dxy <= r_outer, outer elsewhere, inner (sparse) overrides both.
+    # k_mid = 1 for inner/mid, 0 for outer; o_out = k_mid - 1: an output v becomes
+    # v * k_mid + o_out, i.e. v itself or -1 (exact: v * 1 + 0, 0 * v - 1).
+    le = np.less_equal(dxy, params.r_outer, out=m2)
+    np.subtract(2, le.view(np.int8), out=zone_out)
+    np.less_equal(dxy, params.r_outer, out=k_mid)
+    if inner_all.size:
+        flat(k_mid)[inner_all] = 1.0
+        zone_out[np.unravel_index(inner_all, shape)] = ZONE_INNER
+    np.subtract(k_mid, 1.0, out=o_out)
 
-    np.putmask(d_out, outer, -1)
-    np.putmask(delta_out, outer, -1)
-    zone_out[...] = outer  # ZONE_OUTER = 2 = outer + not inner; ZONE_MID = 1; ZONE_INNER = 0
-    zone_out += ~inner
+    dist = dxy
+    if three and inner_idx.size:
+        flat(dist)[inner_idx] = inner_d3
+    if at_idx.size:
+        flat(dist)[at_idx] = 0.0
+    dist *= 100.0
+    v = t
+    if _round_half_up_exact(dist, params):
+        np.add(dist, 0.5, out=v)
+        np.floor(v, out=v)
+    else:
+        np.copyto(v, round_half_away(dist))
+    np.fmin(v, 2.0**62, out=v)  # outer pairs may hold inf or nan: keep v * 0 == 0
+    v *= k_mid
+    v += o_out
+    np.copyto(d_out, v, casting="unsafe")
+
+    # delta = atan(g_y / g_x) in degrees; g_x == 0: +-90 with the sign of g_y.
+    angle = np.divide(g1, g0, out=a)
+    np.arctan(angle, out=angle)
+    np.degrees(angle, out=angle)
+    zero = np.equal(g0, 0.0, out=m3)
+    if zero.any():
+        np.copyto(angle, np.copysign(90.0, g1), where=zero)
+    # Round half away from zero: trunc(a + copysign(1/2, a)), exact for |a| <= 90 except
+    # |a| = 0.49999999999999994 (checked), then clip to +-89.
+    v = np.copysign(0.5, angle, out=t)
+    if np.equal(angle, _BELOW_HALF, out=m3).any() or np.equal(angle, -_BELOW_HALF, out=m3).any():
+        np.copyto(v, round_half_away(angle))
+    else:
+        v += angle
+        np.trunc(v, out=v)
+    np.clip(v, -MAX_DELTA_DEG, MAX_DELTA_DEG, out=v)
+    if inner_all.size:
+        flat(v)[inner_all] = 0.0
+    v *= k_mid
+    v += o_out
+    np.copyto(delta_out, v, casting="unsafe")
+
     if field_out is not None:
+        if at_tx is None:
+            at_tx = np.zeros(r.shape, dtype=bool)
         for i, g in enumerate((g0, g1, g2)):
-            with np.errstate(over="ignore", invalid="ignore"):
-                h = np.where(g == 0.0, 0.0, g * field_scale)
+            h = np.where(g == 0.0, 0.0, g * field_scale)
             h[at_tx] = 0.0
-            field_out[..., i] = np.clip(h, -FIELD_SATURATION, FIELD_SATURATION)
+            np.clip(h, -FIELD_SATURATION, FIELD_SATURATION, out=field_out[i])
         if params.antennas == 2:
-            field_out[..., 2] = 0.0  # no z antenna: a 2-antenna unit cannot report h_z
+            field_out[2][...] = 0.0  # no z antenna: a 2-antenna unit cannot report h_z
 
 
-def _add_noise(g0, g1, g2, r, rx_r, noise, params, want_scale):
+#: Without noise |g| <= 2 up to a few ulps: d3 <= r_inner needs dist_scale <= r_inner * this.
+_CBRT2_MARGIN = math.cbrt(2.0) * (1.0 + 1e-9)
+#: The one x in [0, 2^52) with floor(x + 0.5) != round-half-away(x) (x + 0.5 rounds up to 1).
+_BELOW_HALF = 0.49999999999999994
+_NO_INDEX = np.empty(0, dtype=np.intp)
+
+
+def _round_half_up_exact(x, params) -> bool:
+    """True when floor(x + 0.5) rounds every inner/mid value of ``x`` (cm, >= 0) exactly.
+
+    Such values are <= 100 max(r_inner, r_outer); floor(x + 0.5) is exact below 2^52
+    except at x = 0.49999999999999994. Outer values (any) are replaced by -1 later.
+    """
+    if 100.0 * max(params.r_inner, params.r_outer) >= 2.0**52:
+        return False
+    return not np.equal(x, _BELOW_HALF).any()
+
+
+def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
     """Add EMI (BRIEF 3.2) in the scaled form described in the module docstring."""
     q = params.q
     # v = Q R_r^T w_hat: receiver-frame noise, per unit of w_en.
-    wx, wy, wz = noise[..., 0], noise[..., 1], noise[..., 2]
-    rr = lambda i, j: rx_r[i, j, :, None]  # noqa: E731
-    v0 = q[0] * (rr(0, 0) * wx + rr(1, 0) * wy + rr(2, 0) * wz)
-    v1 = q[1] * (rr(0, 1) * wx + rr(1, 1) * wy + rr(2, 1) * wz)
-    v2 = q[2] * (rr(0, 2) * wx + rr(1, 2) * wy + rr(2, 2) * wz)
+    wx, wy, wz = noise
+    v0 = q[0] * (rr[0][0] * wx + rr[1][0] * wy + rr[2][0] * wz)
+    v1 = q[1] * (rr[0][1] * wx + rr[1][1] * wy + rr[2][1] * wz)
+    v2 = q[2] * (rr[0][2] * wx + rr[1][2] * wy + rr[2][2] * wz)
     # rho = b / a = w_en / (s / (4 pi r^3)) = (2 / max q) (r / r_en)^3; may be inf.
     rho = (2.0 / max(q)) * (r / params.r_en) ** 3
     noise_wins = rho > 1.0

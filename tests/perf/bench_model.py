@@ -1,11 +1,16 @@
-"""Model and emulator throughput (issue 2). Prints a table and writes docs/performance.md.
+"""Model and emulator throughput (issues 2, 20). Prints a table and writes docs/performance.md.
 
-Usage: python tests/perf/bench_model.py [--poses N]
+Usage: python tests/perf/bench_model.py [--poses N] [--rounds R]
 
 * batch: emulator.receiver.model.measure on N receiver poses x 4 transmitters (pairs/s);
 * C loop: the same formulas in tests/perf/model_loop.c, compiled now with `cc -O3`;
 * Python loop: tests/reference_model.measure per pair (a plain per-sample loop);
 * arva-emulate --speed 0 > /dev/null, whole process, paper scene on a moving path.
+
+Batch and C loop are timed side by side, alternating, ``--rounds`` times each, best of
+each kept, on this thread's CPU time (time.thread_time) as well as the wall clock: on a
+host shared with other jobs the wall clock measures the load, CPU time the code. The
+emulator's rate is likewise given per second of its CPU time (user + sys) and of wall time.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from __future__ import annotations
 import argparse
 import ctypes
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -40,21 +46,17 @@ def poses(n: int, seed: int = 0):
     return rng.uniform(-60, 60, (n, 3)), rng.normal(size=(n, 4))
 
 
-def best_of(fn, repeat: int) -> float:
+def best_of(fn, repeat: int, clock=time.perf_counter) -> float:
     times = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = clock()
         fn()
-        times.append(time.perf_counter() - t0)
+        times.append(clock() - t0)
     return min(times)
 
 
-def bench_batch(rx_p, rx_q, tx_q):
-    seconds = best_of(lambda: measure(rx_p, rx_q, PAPER_TX, tx_q), 3)
-    return rx_p.shape[0] * len(PAPER_TX) / seconds
-
-
-def bench_c(rx_p, rx_q, tx_q):
+def c_loop(rx_p, rx_q, tx_q):
+    """(call, note): the compiled C loop on these inputs, or (None, why not)."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         return None, "no C compiler found: skipped"
@@ -66,7 +68,7 @@ def bench_c(rx_p, rx_q, tx_q):
     dp, ip = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
     so.model_loop.argtypes = [ctypes.c_int64, ctypes.c_int64, dp, dp, dp, dp] + [ctypes.c_double] * 3 + [ip, ip]
     n, m = rx_p.shape[0], len(PAPER_TX)
-    # Inputs prepared outside the timed region, as for the batch call's own matrices.
+    # Inputs prepared outside the timed region (the batch call normalises its own quaternions).
     rx_r = np.ascontiguousarray(quaternion_matrices(normalize_quaternions(rx_q)))
     tx_r = np.ascontiguousarray(quaternion_matrices(normalize_quaternions(tx_q)))
     rx_c, tx_c = np.ascontiguousarray(rx_p), np.ascontiguousarray(PAPER_TX)
@@ -77,11 +79,88 @@ def bench_c(rx_p, rx_q, tx_q):
     def call():
         so.model_loop(n, m, ptr(rx_c, dp), ptr(rx_r, dp), ptr(tx_c, dp), ptr(tx_r, dp),
                       p.distance_scale, p.r_inner, p.r_outer, ptr(d, ip), ptr(delta, ip))
+        return d, delta
 
-    seconds = best_of(call, 3)
-    ours = measure(rx_p, rx_q, PAPER_TX, tx_q)
-    agree = float(np.mean((ours.d == d) & (ours.delta == delta)))
-    return n * m / seconds, f"`{' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cmd[:5]))}`; agrees with the batch API on {agree:.6%} of pairs"
+    return call, f"`{' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cmd[:5]))}`"
+
+
+def side_by_side(rx_p, rx_q, tx_q, rounds: int) -> dict:
+    """Best CPU and wall seconds of the batch (1 and 2 threads) and of the C loop, alternating."""
+    call, note = c_loop(rx_p, rx_q, tx_q)
+    runs = {"batch": lambda: measure(rx_p, rx_q, PAPER_TX, tx_q),
+            "batch, 2 threads": lambda: measure(rx_p, rx_q, PAPER_TX, tx_q, threads=2)}
+    if call is not None:
+        runs["C"] = call
+    best = {k: [float("inf"), float("inf")] for k in runs}
+    for _ in range(rounds):
+        for name, fn in runs.items():
+            cpu = time.process_time if "threads" in name else time.thread_time  # all threads' CPU
+            c0, w0 = cpu(), time.perf_counter()
+            fn()
+            c1, w1 = cpu(), time.perf_counter()
+            best[name][0] = min(best[name][0], c1 - c0)
+            best[name][1] = min(best[name][1], w1 - w0)
+    out = {"note": note, "best": best}
+    if call is not None:
+        ours = measure(rx_p, rx_q, PAPER_TX, tx_q)
+        d, delta = call()
+        out["agree"] = float(np.mean((ours.d == d) & (ours.delta == delta)))
+    return out
+
+
+#: numpy passes per pair of the batch's common path (ideal receiver, 3 antennas, static
+#: transmitters, no field), counted from emulator/receiver/model.py: the per-block work
+#: (a 2-D block, pairs along it) plus the per-pose work (quaternion normalisation and
+#: rotation matrix, about 62 passes over the poses) shared by the 4 transmitters.
+PASSES = {
+    "add / subtract / multiply (incl. per-pose work / 4)": (45 + 62 / 4, "add"),
+    "divide": (5, "divide"),
+    "sqrt": (2, "sqrt"),
+    "cbrt": (1, "cbrt"),
+    "arctan": (1, "arctan"),
+    "trunc / floor / copysign": (3, "trunc"),
+    "compare (to bool or 0/1 float)": (8, "less_equal"),
+    "reduction (min / max / any)": (8, "min"),
+    "cast to int64 / int8 into the (N, M) outputs (strided)": (3, "cast"),
+}
+
+
+def ufunc_costs(size: int) -> dict[str, float]:
+    """CPU ns per element of one numpy pass over a block of ``size`` float64 in cache."""
+    rng = np.random.default_rng(0)
+    a, b = rng.uniform(0.5, 2.0, size), rng.uniform(0.5, 2.0, size)
+    out, mask = np.empty(size), np.empty(size, dtype=bool)
+    ints = np.empty((size // 4, 4), dtype=np.int64)
+    ops = {
+        "add": lambda: np.add(a, b, out=out),
+        "divide": lambda: np.divide(a, b, out=out),
+        "sqrt": lambda: np.sqrt(a, out=out),
+        "cbrt": lambda: np.cbrt(a, out=out),
+        "arctan": lambda: np.arctan(a, out=out),
+        "trunc": lambda: np.trunc(a, out=out),
+        "less_equal": lambda: np.less_equal(a, 1.0, out=mask),
+        "min": lambda: a.min(),
+        "cast": lambda: np.copyto(ints.T, a.reshape(4, -1), casting="unsafe"),
+    }
+    reps = 100
+    costs = {}
+    for name, fn in ops.items():
+        best = best_of(lambda: [fn() for _ in range(reps)], 5, clock=time.thread_time)
+        costs[name] = best / reps / size * 1e9
+    return costs
+
+
+def floor_table(batch_ns: float) -> tuple[str, float]:
+    from emulator.receiver.model import CHUNK_PAIRS
+
+    costs = ufunc_costs(CHUNK_PAIRS)
+    rows, total = [], 0.0
+    for what, (count, op) in PASSES.items():
+        total += count * costs[op]
+        rows.append([what, f"{count:g}", f"{costs[op]:.2f} ns", f"{count * costs[op]:.1f} ns"])
+    rows.append(["**sum: numpy's floor for this formulation**", "", "", f"**{total:.1f} ns**"])
+    rows.append(["measured batch (CPU time per pair, above)", "", "", f"{batch_ns:.1f} ns = {batch_ns / total:.2f}x the floor"])
+    return markdown_table(["pass", "per pair", "cost per element (block in cache)", "ns per pair"], rows), total
 
 
 def bench_python(rx_p, rx_q, count: int):
@@ -92,8 +171,8 @@ def bench_python(rx_p, rx_q, count: int):
     return count * len(PAPER_TX) / (time.perf_counter() - t0)
 
 
-def bench_emulate(frames: int, rate_hz: float) -> float:
-    """epochs/s of the whole `arva-emulate --speed 0 > /dev/null` process."""
+def bench_emulate(frames: int, rate_hz: float) -> tuple[float, float]:
+    """(epochs per CPU second, epochs per wall second) of `arva-emulate --speed 0 > /dev/null`."""
     walk = (ROOT / "emulator" / "scenes" / "paper_walk.toml").read_text()
     with tempfile.TemporaryDirectory() as tmp:
         # Same walk, faster epochs, so every one of `frames` epochs is on the moving path.
@@ -101,13 +180,27 @@ def bench_emulate(frames: int, rate_hz: float) -> float:
         scene.write_text(walk.replace("rate_hz = 1.0", f"rate_hz = {rate_hz}"))
         exe = Path(sys.executable).with_name("arva-emulate")
         cmd = [str(exe), "--scene", str(scene), "--port", "-", "--frames", str(frames), "--speed", "0"]
-        best = float("inf")
+        best_cpu = best_wall = float("inf")
         for _ in range(3):
             with open(os.devnull, "wb") as null:
+                r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
                 t0 = time.perf_counter()
-                subprocess.run(cmd, stdout=null, check=True)
-                best = min(best, time.perf_counter() - t0)
-    return frames / best
+                subprocess.run(cmd, stdout=null, stderr=subprocess.DEVNULL, check=True)
+                best_wall = min(best_wall, time.perf_counter() - t0)
+                r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                best_cpu = min(best_cpu, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime))
+    return frames / best_cpu, frames / best_wall
+
+
+def startup_cpu() -> float:
+    """CPU seconds of starting the interpreter and importing arva-emulate's modules."""
+    best = float("inf")
+    for _ in range(3):
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        subprocess.run([sys.executable, "-c", "import emulator.cli"], check=True)
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        best = min(best, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime))
+    return best
 
 
 def main(argv=None) -> int:
@@ -115,34 +208,70 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", type=int, default=1_000_000)
     ap.add_argument("--python-poses", type=int, default=20_000)
     ap.add_argument("--frames", type=int, default=150_000)
+    ap.add_argument("--rounds", type=int, default=5, help="alternating timed runs of batch and C loop")
     ap.add_argument("--no-write", action="store_true", help="print only, leave docs/performance.md alone")
     args = ap.parse_args(argv)
 
     rx_p, rx_q = poses(args.poses)
     tx_q = np.tile([1.0, 0, 0, 0], (len(PAPER_TX), 1))
-    batch = bench_batch(rx_p, rx_q, tx_q)
-    c_rate, c_note = bench_c(rx_p, rx_q, tx_q)
+    load0 = os.getloadavg()[0]
+    sbs = side_by_side(rx_p, rx_q, tx_q, args.rounds)
     py = bench_python(rx_p, rx_q, args.python_poses)
-    emu = bench_emulate(args.frames, rate_hz=args.frames / 350.0)
-
+    emu_cpu, emu_wall = bench_emulate(args.frames, rate_hz=args.frames / 350.0)
+    start_cpu = startup_cpu()
+    load1 = os.getloadavg()[0]
+    pairs = args.poses * len(PAPER_TX)
+    best = sbs["best"]
+    rate = {k: (pairs / v[0], pairs / v[1]) for k, v in best.items()}
+    c = rate.get("C")
+    ns = lambda k: f"{best[k][0] / pairs * 1e9:.1f} ns"  # noqa: E731
     rows = [
-        ["batch API `emulator.receiver.model.measure` (numpy)", f"{batch:,.0f} pairs/s", "1.00x", f"{args.poses:,} poses x 4 tx"],
-        ["plain C loop, `cc -O3`", "skipped" if c_rate is None else f"{c_rate:,.0f} pairs/s",
-         "-" if c_rate is None else f"{batch / c_rate:.2f}x", c_note],
-        ["per-sample Python loop (tests/reference_model.py)", f"{py:,.0f} pairs/s", f"{batch / py:,.0f}x",
-         f"{args.python_poses:,} poses x 4 tx"],
-        ["`arva-emulate --speed 0 > /dev/null`, whole process", f"{emu:,.0f} epochs/s", "-",
-         f"{args.frames:,} epochs, 4 tx, 4 channels, moving path (paper_walk.toml)"],
+        ["batch API `emulator.receiver.model.measure` (numpy), 1 thread", f"{rate['batch'][0]:,.0f} pairs/s",
+         ns("batch"), f"{rate['batch'][1]:,.0f} pairs/s", "1.00x", f"{args.poses:,} poses x 4 tx"],
+        ["same, `threads=2`", f"{rate['batch, 2 threads'][0]:,.0f} pairs/s (both threads' CPU)", ns("batch, 2 threads"),
+         f"{rate['batch, 2 threads'][1]:,.0f} pairs/s", "-",
+         f"wall-clock scaling vs 1 thread: {rate['batch, 2 threads'][1] / rate['batch'][1]:.2f}x on 2 shared cores"],
+        ["plain C loop, `cc -O3`", "skipped" if c is None else f"{c[0]:,.0f} pairs/s", "-" if c is None else ns("C"),
+         "-" if c is None else f"{c[1]:,.0f} pairs/s", "-" if c is None else f"{rate['batch'][0] / c[0]:.2f}x",
+         sbs["note"] + ("" if c is None else f"; agrees with the batch API on {sbs['agree']:.6%} of pairs")],
+        ["per-sample Python loop (tests/reference_model.py)", "-", "-", f"{py:,.0f} pairs/s",
+         f"{rate['batch'][1] / py:,.0f}x (wall)", f"{args.python_poses:,} poses x 4 tx"],
+        ["`arva-emulate --speed 0 > /dev/null`, whole process", f"{emu_cpu:,.0f} epochs/s", "-", f"{emu_wall:,.0f} epochs/s", "-",
+         f"{args.frames:,} epochs, 4 tx, 4 channels, moving path (paper_walk.toml); CPU = user + sys of the process"],
     ]
-    table = markdown_table(["what", "throughput", "batch / this", "notes"], rows)
+    table = markdown_table(["what", "per CPU second", "CPU per pair", "per wall second", "batch / this (CPU)", "notes"], rows)
     print(table)
+    ratio = "n/a" if c is None else f"{rate['batch'][0] / c[0]:.2f}"
     targets = (
-        "Targets (issue 2): batch >= 0.5x the C loop, >= 100x the Python loop; "
-        "arva-emulate >= 20,000 epochs/s. "
-        f"Measured: batch/C = {'n/a' if c_rate is None else f'{batch / c_rate:.2f}'}, "
-        f"batch/Python = {batch / py:,.0f}, emulate = {emu:,.0f} epochs/s."
+        f"Measured while other jobs shared the 2 cores (load average {load0:.1f} before, {load1:.1f} after): "
+        "batch and C loop alternate, best of "
+        f"{args.rounds} each, so both see the same machine. "
+        "Targets: batch >= 0.5x the C loop (issue 2), >= 2x (issue 20); >= 100x the Python loop; "
+        "arva-emulate >= 20,000 epochs/s (issue 2), >= 200,000 (issue 20). "
+        f"Measured: batch/C = {ratio} (CPU time), batch/Python = {rate['batch'][1] / py:,.0f}, "
+        f"emulate = {emu_cpu:,.0f} epochs per CPU second ({emu_wall:,.0f} per wall second under this load). "
+        f"Of the emulator's {args.frames / emu_cpu:.2f} s of CPU, {start_cpu:.2f} s is starting Python "
+        "and importing its modules (numpy, scipy): the process's floor, whatever the epochs cost; "
+        f"the epochs themselves run at {args.frames / max(args.frames / emu_cpu - start_cpu, 1e-9):,.0f} per CPU second."
     )
     print(targets)
+    floor, floor_ns = floor_table(best["batch"][0] / pairs * 1e9)
+    print(floor)
+    limits = (
+        "**The machine's limit.** The batch is a sequence of numpy passes over blocks of "
+        "pairs; the table counts them on the common path and prices each at its measured cost "
+        "on a block that stays in cache (same run, same load). Their sum is what this "
+        "formulation can reach in numpy on this machine; the batch's own time above it is "
+        "Python's per-call overhead (about 140 numpy calls per block: the passes above) and "
+        "cache traffic. The C loop, by contrast, calls scalar libm cbrt (twice) and atan per "
+        "pair where numpy runs SIMD versions, which is why a vectorised formulation can beat "
+        "it at all; 2x would need the "
+        f"floor itself under {best['C'][0] / pairs * 1e9 / 2:.1f} ns (half the C loop's "
+        f"{best['C'][0] / pairs * 1e9:.1f} ns), i.e. fewer passes, not faster ones."
+        if "C" in best else ""
+    )
+    print(limits)
+    targets += "\n\n" + floor + "\n\n" + limits
     if not args.no_write:
         write_section("model", "Receiver model and emulator throughput", table + "\n\n" + targets,
                       "python tests/perf/bench_model.py")

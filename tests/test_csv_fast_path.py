@@ -1,0 +1,99 @@
+"""The fit CSV reader's one-pass numeric parse (issue 20) gives exactly the Table, or the
+error, of the general csv-module reader: it is only a faster route, never a different one."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bench.fit import csvio
+from bench.fit.table import COLUMNS, FitInputError
+
+HEADER = ",".join(COLUMNS)
+ROW = "0.0,0,1,1905,21,20.0,5.0,1.0,1.0,0.0,0.0,0.0,0.0,0.0,-1.0,1.0,0.0,0.0,0.0"
+
+
+def general(text: str):
+    """The general reader alone (the fast route switched off for this call)."""
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(csvio, "_parse_simple", lambda _text, _source: None)
+        return outcome(text)
+
+
+def outcome(text: str):
+    try:
+        return csvio.parse_csv(text, "f.csv")
+    except FitInputError as exc:
+        return str(exc)
+
+
+def same(a, b) -> bool:
+    if isinstance(a, str) or isinstance(b, str):
+        return a == b
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            if not (np.array_equal(x, y) and x.dtype == y.dtype):
+                return False
+        elif x != y:
+            return False
+    return True
+
+
+def test_fast_path_is_taken_on_a_plain_file():
+    assert csvio._parse_simple(HEADER + "\n" + ROW + "\n", "f.csv") is not None
+
+
+floats = st.floats(allow_nan=False, allow_infinity=False, min_value=-1e6, max_value=1e6)
+cells = st.one_of(
+    floats.map(repr),
+    st.integers(-5, 70000).map(str),
+    st.sampled_from(["nan", "inf", "-inf", "1_0", "", " 7 ", "x", "1e400", "12.5", "-0", '"3"', "0x10", "1.5e"]),
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    rows=st.lists(st.lists(cells, min_size=19, max_size=19), min_size=1, max_size=4),
+    keep=st.booleans(),
+    crlf=st.booleans(),
+    blank=st.booleans(),
+)
+def test_same_table_or_same_error_as_the_general_reader(rows, keep, crlf, blank):
+    base = ROW.split(",")
+    lines = [HEADER] + [",".join(base if keep and i == 0 else r) for i, r in enumerate(rows)]
+    if blank:
+        lines.insert(2, "")
+    text = ("\r\n" if crlf else "\n").join(lines) + "\n"
+    assert same(outcome(text), general(text))
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        HEADER + "\n" + ROW,  # no final newline
+        HEADER + ",note\n" + ROW + ",5\n",  # extra column
+        HEADER + "\n" + ROW + ",5\n",  # one field too many
+        HEADER + "\n" + ROW[: ROW.rindex(",")] + "\n",  # one too few
+        HEADER + "\n" + ROW.replace("1905", "1905.5") + "\n",  # integer column not integral
+        HEADER + "\n" + ROW.replace("20.0", "2e9") + "\n",  # coordinate beyond the limit
+        HEADER.replace("rx_x", "rx_x,rx_x") + "\n" + ROW + ",1\n",  # duplicate column
+    ],
+)
+def test_edge_files(text):
+    assert same(outcome(text), general(text))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(floats, floats, floats, st.integers(-1, 9_999_999), st.integers(-89, 89)), min_size=1, max_size=6))
+def test_numeric_files_take_the_fast_path_and_read_the_same(values):
+    lines = [HEADER]
+    for t, x, y, d, delta in values:
+        cells = ROW.split(",")
+        cells[0], cells[3], cells[4], cells[5], cells[6] = repr(t), str(d), str(delta), repr(x), repr(y)
+        lines.append(",".join(cells))
+    text = "\n".join(lines) + "\n"
+    assert csvio._parse_simple(text, "f.csv") is not None
+    assert same(outcome(text), general(text))
