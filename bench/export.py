@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from emulator.cli_types import origin as origin_type, output_file, positive_seconds, session_dir, signed_seconds
 from emulator.frames.attitude import hpr_to_quaternion
 from emulator.frames.geodesy import Origin, geodetic_to_enu
+from emulator.progress import Tracker, progress
 from firmware_proto.errors import InputError
 
 from .records import ArvaRecords, decoder_for
@@ -41,6 +42,8 @@ COLUMNS = (
     "tx_x", "tx_y", "tx_z", "tx_qw", "tx_qx", "tx_qy", "tx_qz",
 )  # fmt: skip
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+#: Rows written between progress updates (a terminal's bar only; nothing in a pipe).
+_PROGRESS_ROWS = 65536
 
 
 @dataclass
@@ -234,8 +237,9 @@ def export_rows(
     return ExportResult(columns, Counter({k: v for k, v in dropped.items() if v}), org)
 
 
-def write_csv(columns: dict[str, np.ndarray], path: str | Path) -> None:
-    """The normative CSV: header, then one row per slot (µm, 1e-9 quaternion digits)."""
+def write_csv(columns: dict[str, np.ndarray], path: str | Path, tracker: Tracker | None = None) -> None:
+    """The normative CSV: header, then one row per slot (µm, 1e-9 quaternion digits).
+    ``tracker`` (a progress bar) is advanced by the rows written, a block at a time."""
     n = columns["t"].size
     fmt = {"t": "%.6f", "seq": "%d", "id": "%d", "d": "%d", "delta": "%d"}
     cols = [np.asarray(columns[c]) for c in COLUMNS]
@@ -245,6 +249,8 @@ def write_csv(columns: dict[str, np.ndarray], path: str | Path) -> None:
         line = ",".join(formats) + "\n"
         for i in range(n):
             f.write(line % tuple(col[i] for col in cols))
+            if tracker is not None and (i + 1) % _PROGRESS_ROWS == 0:
+                tracker.advance(_PROGRESS_ROWS)
 
 
 def register(sub) -> None:
@@ -261,11 +267,13 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    result = export_rows(args.session, args.origin, args.latency, args.max_gap)
-    try:
-        write_csv(result.columns, args.csv)
-    except OSError as exc:
-        raise InputError(f"export: {args.csv}: cannot write: {exc.strerror}") from None
+    with progress("export: decoding", unit="rows") as bar:
+        result = export_rows(args.session, args.origin, args.latency, args.max_gap)
+        bar.update(description="export: writing", total=result.rows, completed=0)
+        try:
+            write_csv(result.columns, args.csv, tracker=bar)
+        except OSError as exc:
+            raise InputError(f"export: {args.csv}: cannot write: {exc.strerror}") from None
     dropped = ", ".join(f"{v} {k}" for k, v in sorted(result.dropped.items()) if v) or "none"
     print(f"arva-bench: export: {result.rows} rows to {args.csv}; dropped: {dropped}", file=sys.stderr)
     return 0

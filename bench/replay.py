@@ -4,13 +4,16 @@ with its recorded timing (``--speed X`` times real time; ``0`` as fast as possib
 Ports are created like the emulator's: ``--port pty`` (default) makes one
 pseudo-terminal per device, announced on stdout as ``<device> <path>`` before any data;
 ``--device NAME=PORT`` sends one device elsewhere (a path, a URL or ``-``); ``--link
-DIR`` adds stable symlinks. Reads are replayed in the order and at the times the logger
+DIR`` adds stable symlinks. ``rfc2217-server:HOST:PORT`` and ``tcp-server:HOST:PORT``
+serve a device to network clients (loopback only unless ``--serve-any-host``; the URL to
+open is announced like a pty; line 115200 8N1 until an RFC 2217 client sets its own). Reads are replayed in the order and at the times the logger
 saw them (its monotonic clock), so interleaving across devices is preserved.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import heapq
 import signal
 import sys
@@ -19,7 +22,9 @@ import time
 from pathlib import Path
 
 from emulator.cli_types import existing_dir, seconds, session_dir, speed
+from emulator.output.net_ports import ServerPort, open_server_port, stderr_notifier
 from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
+from emulator.progress import progress
 from firmware_proto.errors import InputError
 
 from .session import read_manifest, read_raw
@@ -34,10 +39,15 @@ def register(sub) -> None:
     p.add_argument("--device", action="append", default=[], metavar="NAME=PORT", help="one device to its own port")
     p.add_argument("--link", type=existing_dir, metavar="DIR", help="stable symlinks DIR/<device> to the ptys")
     p.add_argument("--delay", type=seconds, default=0.0, metavar="S", help="wait S seconds after announcing the ptys")
+    p.add_argument("--serve-any-host", action="store_true",
+                   help="let rfc2217-server/tcp-server ports listen on non-loopback addresses")
     p.set_defaults(func=run)
 
 
-def _open(name: str, spec: str, link_dir: Path | None) -> Port:
+def _open(name: str, spec: str, link_dir: Path | None, serve_any_host: bool = False) -> Port:
+    server = open_server_port(name, spec, serve_any_host=serve_any_host, notify=stderr_notifier("arva-bench: replay"))
+    if server is not None:
+        return server
     if spec == "-":
         return StdoutPort(name)
     if spec == "pty":
@@ -70,12 +80,13 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    stack = contextlib.ExitStack()  # the progress bar, closed before the summary line
     try:
         # Announcements go to stdout, unless a device's data does.
         announce_to = sys.stderr if "-" in ports_for.values() else sys.stdout
         for name in names:
-            ports[name] = _open(name, ports_for[name], args.link)
-            if isinstance(ports[name], PtyPort):
+            ports[name] = _open(name, ports_for[name], args.link, args.serve_any_host)
+            if isinstance(ports[name], (PtyPort, ServerPort)):
                 print(f"{name} {ports[name].path}", file=announce_to, flush=True)
         if args.speed == 0:
             for port in ports.values():
@@ -87,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
         t0 = queue[0][0]  # the heap's smallest
         start = time.monotonic()
         sent = 0
+        t_last = max(r[-1].mono for r in reads.values() if r)
+        bar = stack.enter_context(progress("replay", total=t_last - t0, unit="s of session"))
         while queue and not stop.is_set():
             mono, i, name, j = heapq.heappop(queue)
             if args.speed > 0:
@@ -94,10 +107,12 @@ def run(args: argparse.Namespace) -> int:
                 if delay > 0 and stop.wait(delay):
                     break
             ports[name].write(reads[name][j].data)
+            bar.update(completed=mono - t0)
             sent += 1
             if j + 1 < len(reads[name]):
                 heapq.heappush(queue, (reads[name][j + 1].mono, i, name, j + 1))
     finally:
+        stack.close()
         for port in ports.values():
             port.close()
     dropped = sum(p.bytes_dropped for p in ports.values())

@@ -19,6 +19,7 @@ from firmware_proto.errors import InputError
 from emulator import __version__
 from emulator.cli_types import OneLineParser, baud_rate, non_negative_int, output_dir, run_main, scene_file, seconds, speed
 from emulator.control import runtime as control_runtime
+from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port, stderr_notifier
 from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, is_file_spec
 from emulator.scene.reader import default_scene, load_scene
 from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
@@ -49,6 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PORT",
         help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
         "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
+        "'rfc2217-server:HOST:PORT' or 'tcp-server:HOST:PORT' (served to network clients; "
+        "port 0: any free port; the URL to open is announced like a pty), "
         "or any other path: a file to write",
     )
     p.add_argument(
@@ -59,6 +62,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="LABEL=PORT",
         help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
         "(as --port: -, pty, a device, a URL or a file)",
+    )
+    p.add_argument(
+        "--serve-any-host",
+        action="store_true",
+        help="let rfc2217-server/tcp-server ports listen on non-loopback addresses (a lab network)",
     )
     p.add_argument("--link", type=output_dir, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
     p.add_argument("--frames", type=non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
@@ -118,7 +126,7 @@ def assign_ports(labels: list[str], default: str, overrides: list[tuple[str, str
         ports[label] = port
     users: dict[str, list[str]] = {}
     for label, port in ports.items():
-        if port != "pty":
+        if port != "pty" and not is_ephemeral(port):  # ptys and port 0 servers: one each
             users.setdefault(port, []).append(label)
     for port, names in users.items():
         if len(names) > 1:
@@ -144,6 +152,10 @@ def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
                 raise InputError(f"--link {args.link}: cannot create: {exc.strerror or exc}") from None
             link = args.link / label.replace(":", "-")
         return PtyPort(label, link)
+    line = LineSettings(args.baud, args.bytesize, args.parity, args.stopbits)
+    server = open_server_port(label, spec, line, args.serve_any_host, stderr_notifier("arva-emulate"))
+    if server is not None:
+        return server
     if is_file_spec(spec):
         return FilePort(label, spec)
     return SerialPort(label, spec, _serial_options(args, spec))
@@ -166,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         for label in pipe.labels:
             port = ports[label] = open_port(label, specs[label], args)
-            if isinstance(port, PtyPort):
+            if isinstance(port, (PtyPort, ServerPort)):
                 # Announced before any data, flushed at once: a test harness or a human
                 # reads the path from here and opens it (again after a simulated unplug).
                 port.on_reconnect = announce

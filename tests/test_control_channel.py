@@ -359,4 +359,4 @@ def test_real_clock_stall_holds_bytes_in_scene_time_and_loses_none(arva_emulator
     assert seqs == list(range(seqs[0], seqs[0] + 15))  # in order, none lost
     # ~0.6 s of silence while the bytes were held, then the held epochs at once.
     assert arrivals[0][0] - t_fault >= 0.4
-    assert arrivals[4][0] - arrivals[0][0] < 0.05
+    assert arrivals[4][0] - arrivals[0][0] < 0.2  # 5 epochs unheld would take 0.4 s

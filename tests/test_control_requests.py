@@ -177,3 +177,48 @@ def test_bad_control_addresses(text):
 def test_loopback_check():
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("127.3.4.5")
     assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.10") and not is_loopback("::")
+
+
+@pytest.fixture(scope="module")
+def echo_server(tmp_path_factory):
+    """A ControlServer whose handler echoes the op (no emulator behind it)."""
+    from emulator.control.server import ControlServer
+
+    path = tmp_path_factory.mktemp("ctl") / "s.sock"
+    server = ControlServer(ControlAddress("unix", path=str(path)), lambda req: {"ok": True, "op": req.op}, lambda: None)
+    server.start()
+    yield str(path)
+    server.close()
+
+
+@settings(max_examples=60, deadline=None)
+@given(chunks=st.lists(st.binary(max_size=40) | st.sampled_from([b'{"op": "status"}\n', b"\n", b'{"op": "tr', b'uth"}\n']),
+                       max_size=12))
+def test_exactly_one_reply_per_non_blank_line_however_the_bytes_are_cut(echo_server, chunks):
+    import socket as _socket
+
+    data = b"".join(chunks) + b'\n{"op": "quit"}\n'
+    lines = data.split(b"\n")[:-1]
+    expected = [line for line in lines if line.strip()]
+    s = _socket.socket(_socket.AF_UNIX)
+    s.settimeout(10)
+    s.connect(echo_server)
+    try:
+        for chunk in [*chunks, b'\n{"op": "quit"}\n']:
+            s.sendall(chunk)
+        got = b""
+        while got.count(b"\n") < len(expected):
+            part = s.recv(65536)
+            assert part, "server closed the connection"
+            got += part
+        replies = [json.loads(line) for line in got.split(b"\n")[:-1]]
+    finally:
+        s.close()
+    assert len(replies) == len(expected)
+    for line, reply in zip(expected, replies):
+        try:
+            req = parse_request(line)
+        except ControlError as exc:
+            assert reply == {"ok": False, "error": " ".join(str(exc).split())}
+        else:
+            assert reply == {"ok": True, "op": req.op}

@@ -50,7 +50,7 @@ def test_step_session_outside_the_repository(tmp_path):
     assert props["arva_seed"] == "11"
     assert props["arva_scene"].endswith(".toml") and Path(props["arva_scene"]).name.startswith("scene-")
     # A passing test leaves no artefacts behind.
-    assert not list((tmp_path / "bt").rglob("control.jsonl"))
+    assert not list((tmp_path / "bt").rglob("control-transcript.txt"))
 
 
 @pytest.mark.timeout(120)
@@ -63,7 +63,7 @@ def test_a_failing_test_keeps_the_streams_and_the_transcript(tmp_path):
     folder = Path(re.search(r"kept in:\n(\S+)", out).group(1))
     assert folder.is_dir() and folder.parent.parent == tmp_path / "bt"
     assert (folder / "streams" / "arva.bytes").read_bytes() == b"$PARVA,0,1,1,1,1905,21*5B\r\n$PARVA,1,1,1,1,1905,21*5A\r\n"
-    transcript = (folder / "control.jsonl").read_text().splitlines()
+    transcript = (folder / "control-transcript.txt").read_text().splitlines()
     ops = [line.split(" ", 2)[1:] for line in transcript]
     assert ops[:4] == [[">", '{"op": "status"}'], ["<", ops[1][1]], [">", '{"op": "step", "n": 2}'], ["<", '{"ok": true, "epoch": 2}']]
     assert ops[-2] == [">", '{"op": "quit"}']  # teardown stopped it

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
+from textual import events
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, VerticalScroll
@@ -82,6 +83,10 @@ class HelpScreen(ModalScreen):
         self.dismiss()
 
 
+#: The ground-truth and link panels' minimum height (``#bottom`` in dash.tcss).
+BOTTOM_MIN_ROWS = 12
+
+
 class DashApp(App):
     CSS_PATH = "dash.tcss"
     TITLE = "arva-bench dash"
@@ -133,6 +138,11 @@ class DashApp(App):
             links.border_title = "links"
             yield links
         yield Footer()
+
+    def on_resize(self, event: events.Resize) -> None:
+        # Receivers take the rows they need, at most what leaves the status bar, the
+        # footer and the bottom panels' minimum (dash.tcss); the bottom takes the rest.
+        self.query_one("#receivers").styles.max_height = max(10, event.size.height - 2 - BOTTOM_MIN_ROWS)
 
     def on_mount(self) -> None:
         self._refresh_truth()

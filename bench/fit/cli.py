@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from emulator.cli_types import output_dir, output_file, real, seed
+from emulator.progress import progress
 
 OPTIONAL_FREE = ("q", "r_outer", "time_offset")
 
@@ -171,8 +172,12 @@ def run(args: argparse.Namespace) -> int:
     from .scene import write_scene
 
     options = options_from_args(args)
-    table = load_input(args.input)
-    result = fit_table(table, options)
+    # Stages, not iterations: the optimiser's count is not known ahead. Transient, on a
+    # terminal's stderr only; gone before the summary reaches stdout.
+    with progress(f"fit: reading {args.input}") as bar:
+        table = load_input(args.input)
+        bar.update(description=f"fit: fitting {len(table):,} rows")
+        result = fit_table(table, options)
     if args.json:
         print(json.dumps(result.to_json(), allow_nan=False))
     else:

@@ -44,6 +44,9 @@ from emulator.cli_types import (
 )
 from firmware_proto.errors import InputError, LinkError, MissingExtra
 
+from emulator.progress import Tracker
+from emulator.progress import progress as progress_bar
+
 #: One row per (strategy, v_max, k_c, burial, transmitter).
 COLUMNS = (
     "strategy", "v_max", "k_c", "burial", "n_tx", "tx_id", "tx_x", "tx_y", "depth_m",
@@ -182,18 +185,32 @@ def run_chunk(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -
 
 
 # --------------------------------------------------------------------------- executors
-def sweep(config: SweepConfig, workers: int | None = None, scheduler: str | None = None) -> SweepResult:
+def sweep(
+    config: SweepConfig, workers: int | None = None, scheduler: str | None = None, progress: Tracker | None = None
+) -> SweepResult:
     """Run every task of ``config``: in this process (``workers=1``), on a local process
     pool (default: one worker per CPU) or, given ``scheduler`` ("tcp://host:8786"), on a
-    dask.distributed cluster. Rows come back in task order whatever the executor."""
+    dask.distributed cluster. Rows come back in task order whatever the executor.
+    ``progress`` is told the runs done and the scene-time rate as chunks finish."""
     tasks = config.tasks()
     chunks = [tasks[i : i + config.chunk] for i in range(0, len(tasks), config.chunk)]
     wall = time.perf_counter()
+    progress = progress or Tracker()
+    scene_done = 0.0
+
+    def done(part: tuple[list[dict], float], runs: int) -> tuple[list[dict], float]:
+        nonlocal scene_done
+        scene_done += part[1]
+        rate = scene_done / max(time.perf_counter() - wall, 1e-9)
+        progress.advance(runs, note=f"{rate:,.0f}x real time")
+        return part
     if scheduler is not None:
         try:
             from distributed import Client
         except ImportError:
             raise MissingExtra("--scheduler (a dask cluster)", "dask.distributed", "cluster") from None
+
+        from distributed import as_completed
 
         try:
             client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
@@ -203,17 +220,21 @@ def sweep(config: SweepConfig, workers: int | None = None, scheduler: str | None
             raise LinkError(f"--scheduler {scheduler}: not a dask scheduler ({type(exc).__name__})") from None
         with client:
             futures = client.map(run_chunk, [config] * len(chunks), chunks, pure=False)
-            parts = client.gather(futures)
+            index = {f.key: i for i, f in enumerate(futures)}
+            parts = [None] * len(chunks)
+            for f in as_completed(futures):
+                i = index[f.key]
+                parts[i] = done(f.result(), len(chunks[i]))
         executor = f"dask {scheduler}"
     else:
         workers = workers or os.cpu_count() or 1
         if workers == 1 or len(chunks) == 1:
-            parts = [run_chunk(config, c) for c in chunks]
+            parts = [done(run_chunk(config, c), len(c)) for c in chunks]
             executor = "in process"
         else:
             workers = min(workers, len(chunks))
             with ProcessPoolExecutor(max_workers=workers) as pool:
-                parts = list(pool.map(run_chunk, [config] * len(chunks), chunks))
+                parts = [done(p, len(c)) for p, c in zip(pool.map(run_chunk, [config] * len(chunks), chunks), chunks)]
             executor = f"process pool x{workers}"
     wall = time.perf_counter() - wall
     rows = [row for part, _ in parts for row in part]
@@ -357,7 +378,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.out is not None:
         check_output(args.out)
-    result = sweep(config, workers=args.workers, scheduler=args.scheduler)
+    with progress_bar("arva-sweep", total=len(config.tasks()), unit="runs") as bar:
+        result = sweep(config, workers=args.workers, scheduler=args.scheduler, progress=bar)
     if args.out is not None:
         write_table(result.rows, args.out)
     print(summary_table(result.summary))

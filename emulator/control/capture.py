@@ -50,6 +50,10 @@ class CapturePort(Port):
 
     def close(self, *args, **kwargs) -> None:
         self.inner.close(*args, **kwargs)
+        self.close_file()
+
+    def close_file(self) -> None:
+        """Stop capturing (the device port stays open)."""
         self._file.close()
 
     def __getattr__(self, name: str):

@@ -1,6 +1,6 @@
 """Wiring of the step clock and the control channel into ``arva-emulate`` (BRIEF 9).
 
-``arva-emulate`` adds this module's options (:func:`add_arguments`) and, when either
+``arva-emulate`` adds this module's options (:func:`add_arguments`) and, when
 ``--control`` is given, builds a :class:`ControlSession` around its pipeline and
 scheduler: the socket server starts and ``control ADDRESS`` is announced, requests are
 served by :class:`~emulator.control.controller.Controller`, ``--capture`` copies every
@@ -85,14 +85,17 @@ class ControlSession:
         self.clock = args.clock
         self.scheduler = scheduler
         self.stop = stop
+        self.captures: list[CapturePort] = []
         if args.capture is not None:
             for r in pipe.routes:
-                path = args.capture / (r.stream.label.replace(":", "-") + ".bytes")
+                capture = CapturePort(r.port.inner if isinstance(r.port, FaultyPort) else r.port,
+                                      args.capture / (r.stream.label.replace(":", "-") + ".bytes"))
                 # On the device port, below any link faults: what the device was offered.
                 if isinstance(r.port, FaultyPort):
-                    r.port.inner = CapturePort(r.port.inner, path)
+                    r.port.inner = capture
                 else:
-                    r.port = CapturePort(r.port, path)
+                    r.port = capture
+                self.captures.append(capture)
         self.controller = Controller(scheduler, pipe, self.clock)
         self.server = ControlServer(args.control, self.controller.handle, self._quit, any_host=args.control_any_host)
 
@@ -115,3 +118,5 @@ class ControlSession:
 
     def close(self) -> None:
         self.server.close()
+        for capture in self.captures:
+            capture.close_file()

@@ -212,12 +212,17 @@ class PtyPort(Port):
         return buf[0]
 
     def disconnect(self) -> None:
-        """Close both sides: a reader sees the device vanish (read error / EOF)."""
+        """Close both sides: a reader sees the device vanish (read error / EOF). The
+        ``link`` symlink goes too, as udev's /dev/serial/by-id links do on unplug: the
+        kernel soon hands the freed /dev/pts number to another program's pty, and a
+        client reopening a dangling link must not end up reading that."""
         if self._master >= 0:
             os.close(self._master)
             os.close(self._slave)
             self._master = self._slave = -1
             self.disconnects += 1
+            if self.link is not None and self.link.is_symlink():
+                self.link.unlink()
 
     def reconnect(self) -> None:
         """A new pty (new path, announced again); the ``link`` symlink follows it."""
@@ -238,8 +243,6 @@ class PtyPort(Port):
                 quiet = quiet + 1 if self.pending() == 0 else 0
                 time.sleep(0.02)
         self.disconnect()
-        if self.link is not None and self.link.is_symlink():
-            self.link.unlink()
 
 
 class SerialPort(Port):

@@ -286,7 +286,7 @@ class Emulator:
         ``scene``: a scene file, a dict with the TOML structure (written to ``workdir``)
         or None for the embedded default. ``workdir`` (default: a temporary folder,
         removed by :meth:`stop`) receives the stream captures (``<stream>.bytes``), the control transcript
-        (``control.jsonl``) and stable pty symlinks (``pty/<stream>``). ``arva_port``
+        (``control-transcript.txt``) and stable pty symlinks (``pty/<stream>``). ``arva_port``
         sends the first receiver's stream to that device instead of a pty.
         """
         import tempfile
@@ -317,7 +317,7 @@ class Emulator:
             _remove_dir(sock_dir)
             raise
         try:
-            client = ControlClient(proc.control, timeout=max(timeout, 30.0), transcript=work / "control.jsonl")
+            client = ControlClient(proc.control, timeout=max(timeout, 30.0), transcript=work / "control-transcript.txt")
             status = client.request("status")
         except Exception:
             proc.kill()

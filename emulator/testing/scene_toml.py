@@ -7,7 +7,6 @@ validates the result as it validates any scene file.
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any
 
@@ -39,24 +38,43 @@ def _table(data: dict, prefix: str, lines: list[str]) -> None:
         name = f"{prefix}.{_key(k)}" if prefix else _key(k)
         for item in v:
             lines.append(f"\n[[{name}]]")
-            sub_plain = {ik: iv for ik, iv in item.items() if not isinstance(iv, dict) and not _is_table_array(iv)}
-            for ik, iv in sub_plain.items():
-                lines.append(f"{_key(ik)} = {_value(iv)}")
+            # Keys first (an array of tables inside an item, like a path's waypoints, is
+            # written inline), then the item's sub-tables: a key after a table header
+            # would belong to that table.
+            for ik, iv in item.items():
+                if not isinstance(iv, dict):
+                    lines.append(f"{_key(ik)} = {_value(iv)}")
             for ik, iv in item.items():
                 if isinstance(iv, dict):
                     _table(iv, f"{name}.{_key(ik)}", lines)
-                elif _is_table_array(iv) and ik != "path":
-                    raise ValueError(f"{name}.{ik}: nested arrays of tables are not supported")
-                elif _is_table_array(iv):
-                    lines.append(f"{_key(ik)} = {_value(iv)}")
+
+
+_BARE = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-")
 
 
 def _key(k: Any) -> str:
     if not isinstance(k, str):
         k = str(k)
-    if k and all(c.isalnum() or c in "_-" for c in k):
+    if k and all(c in _BARE for c in k):  # TOML bare keys: ASCII letters, digits, _ and -
         return k
-    return json.dumps(k)
+    return _string(k)
+
+
+def _string(text: str) -> str:
+    """A TOML basic string: quote, backslash and control characters (but tab) escaped."""
+    out = ['"']
+    for ch in text:
+        code = ord(ch)
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif (code < 0x20 and ch != "\t") or code == 0x7F:
+            out.append(f"\\u{code:04X}")
+        elif 0xD800 <= code <= 0xDFFF:
+            raise ValueError(f"a TOML string cannot hold the lone surrogate U+{code:04X}")
+        else:
+            out.append(ch)
+    out.append('"')
+    return "".join(out)
 
 
 def _value(v: Any) -> str:
@@ -69,7 +87,7 @@ def _value(v: Any) -> str:
             raise ValueError(f"TOML scene values must be finite, got {v}")
         return repr(v)
     if isinstance(v, str):
-        return json.dumps(v)  # a JSON string is a valid TOML basic string
+        return _string(v)
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_value(x) for x in v) + "]"
     if isinstance(v, dict):

@@ -42,6 +42,7 @@ from emulator.receiver.receiver import Receiver  # noqa: E402
 from emulator.scene.reader import loads_scene  # noqa: E402
 from emulator.closed_loop.sweep import SweepConfig, summary_table, sweep, write_table  # noqa: E402
 from emulator.frames.trajectory import Trajectory  # noqa: E402
+from emulator.progress import progress  # noqa: E402
 
 ACCURACY_MD = ROOT / "docs" / "accuracy.md"
 IMG = ROOT / "docs" / "img"
@@ -409,7 +410,8 @@ def plot_search(summary, path: Path):
 
 def section_search(n: int, v_max, k_c, seed: int) -> str:
     config = SweepConfig(n=n, seed=seed, v_max=tuple(v_max), k_c=tuple(k_c))
-    result = sweep(config)
+    with progress("accuracy: search sweep", total=len(config.tasks()), unit="runs") as bar:
+        result = sweep(config, progress=bar)
     IMG.mkdir(parents=True, exist_ok=True)
     plot_search(result.summary, IMG / "accuracy_search.png")
     (ROOT / "docs" / "data").mkdir(parents=True, exist_ok=True)
@@ -508,7 +510,9 @@ def main(argv=None) -> int:
     v_max, k_c = ((1.0, 2.0), (0.2,)) if args.quick else ((0.5, 1.0, 2.0, 4.0), (0.1, 0.2, 0.4))
     t0 = time.perf_counter()
     if args.only in (None, "fidelity"):
-        write_section("fidelity", section_fidelity(n_epochs, n_float))
+        with progress("accuracy: fidelity"):
+            body = section_fidelity(n_epochs, n_float)
+        write_section("fidelity", body)
         print(f"fidelity: done ({time.perf_counter() - t0:.0f} s)", flush=True)
     if args.only in (None, "calibration"):
         print(f"calibration: {calibration()}", flush=True)

@@ -1,0 +1,538 @@
+"""Network ports: a stream served to TCP clients, as a lab's serial server would.
+
+Two port kinds, each a :class:`~emulator.output.ports.Port`:
+
+* ``rfc2217-server:HOST:PORT``: an RFC 2217 (Telnet COM-PORT-OPTION) server, the
+  protocol of ser2net and labgrid; any pyserial client opens ``rfc2217://HOST:PORT``.
+  The Telnet and RFC 2217 negotiation is pyserial's own (:class:`serial.rfc2217.PortManager`).
+* ``tcp-server:HOST:PORT``: a raw socket (ser2net's raw mode; pyserial ``socket://``).
+
+``PORT`` 0 asks the system for a free port; the URL a client opens is announced like a
+pty path (``arva rfc2217://127.0.0.1:40123``). HOST must be a loopback address unless the
+caller allows other hosts (``--serve-any-host``).
+
+Every client gets its own emulated UART: a transmitter at that client's line settings
+(RFC 2217 clients set baud rate, data bits, parity and stop bits as on a real port; a
+raw-socket client has the command line's). The line carries ``baud / bits_per_char``
+bytes per second of wall-clock time (bits per char = start bit + data bits + parity bit +
+stop bits) out of a transmit FIFO of :data:`UART_FIFO_BYTES` bytes (the Linux serial
+driver's buffer); what does not fit is dropped and counted, exactly as a device whose
+UART is too slow for its epoch rate loses bytes. As fast as possible (``--speed 0``) a
+write may first wait up to the drain wait for the line, like a serial device (see
+:class:`~emulator.output.ports.SerialPort`). Bytes the UART accepted go to the socket at
+once: the baud rate limits how many arrive, not when. A client that stops reading has
+at most :data:`SOCKET_BACKLOG_BYTES` queued for it; beyond that its bytes are dropped.
+
+Several clients may connect at once: each receives every byte the stream writes from
+the moment it connected, through its own UART (so a slow client drops without costing a
+fast one anything). A client that closes or vanishes is forgotten; it never blocks the
+emulator, whose :meth:`write` only appends to per-client queues. Bytes a client sends to
+the device are read and discarded (an emulated receiver has no input).
+
+Counters: :attr:`Port.bytes_written` is the sum over clients of the bytes their UART
+carried; :attr:`Port.bytes_dropped` the sum of the bytes their UART dropped, plus every
+byte written while no client was connected (nobody received it). Client events
+(connect, line settings, leave with its counts) are reported through ``notify`` (the
+command lines print them on stderr).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import serial
+import serial.rfc2217
+from serial.serialutil import SerialBase
+
+from firmware_proto.errors import InputError, LinkError
+
+from emulator.cli_types import BAUD_LIMITS
+from emulator.output.ports import Port
+
+#: Transmit FIFO of every emulated UART, bytes (the Linux serial core's xmit buffer).
+UART_FIFO_BYTES = 4096
+#: Bytes a client's socket may have queued (accepted by its UART, not yet sent).
+SOCKET_BACKLOG_BYTES = 256 * 1024
+#: How long :meth:`ServerPort.close` waits for clients to take their last bytes and hang
+#: up, seconds (all clients together). pyserial's rfc2217 client cannot read what it
+#: buffered once the server has closed, so the server does not hang up first at once.
+CLOSE_LINGER_S = 2.0
+#: Port-spec prefixes handled here.
+KINDS = ("rfc2217-server", "tcp-server")
+
+
+@dataclass(frozen=True)
+class ServerSpec:
+    """A parsed ``KIND:HOST:PORT`` (``port`` 0: any free port)."""
+
+    kind: str
+    host: str
+    port: int
+
+    @property
+    def ephemeral(self) -> bool:
+        return self.port == 0
+
+
+def parse_server_spec(text: str) -> ServerSpec | None:
+    """``rfc2217-server:HOST:PORT`` or ``tcp-server:HOST:PORT`` (IPv6 as ``[::1]``);
+    None if ``text`` is not a server spec; :class:`InputError` if it is one, malformed."""
+    kind, sep, rest = text.partition(":")
+    if not sep or kind not in KINDS:
+        return None
+    host, sep, port_text = rest.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not sep or not host:
+        raise InputError(f"port {text}: expected {kind}:HOST:PORT (e.g. {kind}:127.0.0.1:4000)")
+    try:
+        port = int(port_text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise InputError(f"port {text}: expected a TCP port number 0..65535, got {port_text!r}")
+    return ServerSpec(kind, host, port)
+
+
+def is_ephemeral(text: str) -> bool:
+    """True for a well-formed server spec on port 0 (each stream may have its own)."""
+    try:
+        spec = parse_server_spec(text)
+    except InputError:
+        return False
+    return spec is not None and spec.ephemeral
+
+
+@dataclass(frozen=True)
+class LineSettings:
+    """UART framing: ``baudrate`` (bit/s), ``bytesize`` (5..8), ``parity`` (N E O M S),
+    ``stopbits`` (1, 1.5, 2)."""
+
+    baudrate: int = 115200
+    bytesize: int = 8
+    parity: str = "N"
+    stopbits: float = 1
+
+    @property
+    def bits_per_char(self) -> float:
+        return 1 + self.bytesize + (0 if self.parity == "N" else 1) + self.stopbits
+
+    @property
+    def bytes_per_s(self) -> float:
+        return self.baudrate / self.bits_per_char
+
+    def describe(self) -> str:
+        """``115200 8N1`` (``1.5`` stop bits as ``1.5``)."""
+        stop = f"{self.stopbits:g}"
+        return f"{self.baudrate} {self.bytesize}{self.parity}{stop}"
+
+
+class UartLine:
+    """The transmit side of one UART: a FIFO of ``fifo`` bytes drained at the line rate.
+
+    ``offer(n)`` returns how many of ``n`` bytes fit now; ``room()`` / ``time_for(n)``
+    let a caller wait for the line. Settings may change at any time (a client setting
+    its baud rate): the FIFO level is brought up to date at the old rate first.
+    ``clock`` is injectable for tests.
+    """
+
+    def __init__(self, settings: LineSettings, fifo: int = UART_FIFO_BYTES, clock=time.monotonic) -> None:
+        self.fifo = fifo
+        self.clock = clock
+        self._lock = threading.Lock()
+        self._settings = settings
+        self._level = 0.0
+        self._t = clock()
+
+    @property
+    def settings(self) -> LineSettings:
+        return self._settings
+
+    def _update(self) -> None:
+        now = self.clock()
+        self._level = max(0.0, self._level - (now - self._t) * self._settings.bytes_per_s)
+        self._t = now
+
+    def set_settings(self, settings: LineSettings) -> None:
+        with self._lock:
+            self._update()
+            self._settings = settings
+
+    def room(self) -> int:
+        with self._lock:
+            self._update()
+            return int(self.fifo - self._level + 1e-9)
+
+    def time_for(self, n: int) -> float:
+        """Seconds until ``n`` bytes fit (0 if they fit now; never more than the FIFO)."""
+        with self._lock:
+            self._update()
+            excess = self._level + min(n, self.fifo) - self.fifo
+            return max(0.0, excess / self._settings.bytes_per_s)
+
+    def offer(self, n: int) -> int:
+        with self._lock:
+            self._update()
+            accepted = max(0, min(n, int(self.fifo - self._level + 1e-9)))
+            self._level += accepted
+            return accepted
+
+    def purge(self) -> None:
+        """Empty the FIFO (a client purging the server's receive buffer)."""
+        with self._lock:
+            self._update()
+            self._level = 0.0
+
+
+class _ClientUart(SerialBase):
+    """The serial-port object pyserial's PortManager configures for one client.
+
+    Setting baud rate, data bits, parity or stop bits (an RFC 2217 SET_* request) goes
+    through pyserial's own validation, then :data:`BAUD_LIMITS`; a refused value makes
+    the PortManager restore and report the previous one, as a real port's server does.
+    Modem lines read as a present device: CTS, DSR and CD on, RI off.
+    """
+
+    def __init__(self, settings: LineSettings, on_change: Callable[[LineSettings], None], on_purge) -> None:
+        self._on_change = None
+        super().__init__(
+            port=None,
+            baudrate=settings.baudrate,
+            bytesize=settings.bytesize,
+            parity=settings.parity,
+            stopbits=settings.stopbits,
+        )
+        self._on_change = on_change
+        self._on_purge = on_purge
+        self.is_open = True  # from now on every setting change calls _reconfigure_port
+
+    def _reconfigure_port(self) -> None:
+        lo, hi = BAUD_LIMITS
+        if not lo <= self._baudrate <= hi:
+            raise ValueError(f"baud rate {self._baudrate} outside {lo}..{hi}")
+        if self._on_change is not None:
+            self._on_change(self.line_settings())
+
+    def line_settings(self) -> LineSettings:
+        return LineSettings(self._baudrate, self._bytesize, self._parity, self._stopbits)
+
+    def _update_dtr_state(self) -> None:
+        pass
+
+    def _update_rts_state(self) -> None:
+        pass
+
+    def _update_break_state(self) -> None:
+        pass
+
+    cts = dsr = cd = property(lambda self: True)
+    ri = property(lambda self: False)
+
+    def reset_input_buffer(self) -> None:  # data from the device not yet sent to the client
+        self._on_purge()
+
+    def reset_output_buffer(self) -> None:  # data from the client to the device: none kept
+        pass
+
+
+class _Client:
+    """One connected client: its UART, its outgoing queue and a sender and reader thread."""
+
+    def __init__(self, port: ServerPort, sock: socket.socket, addr) -> None:
+        self.port = port
+        self.sock = sock
+        self.name = _format_addr(addr)
+        self.line = UartLine(port.settings)
+        self.bytes_sent = 0
+        self.bytes_dropped = 0
+        self.gone = threading.Event()
+        self._control = bytearray()  # Telnet / RFC 2217 replies, sent first
+        self._data = bytearray()  # stream bytes the UART carried, not yet sent
+        self._cond = threading.Condition()
+        self._closing = False
+        self.manager = None
+        if port.spec.kind == "rfc2217-server":
+            self.uart = _ClientUart(port.settings, self._settings_changed, self._purge)
+            self.manager = serial.rfc2217.PortManager(self.uart, self)  # sends its option requests
+        self._sender = threading.Thread(target=self._send_loop, name=f"{port.label} send {self.name}", daemon=True)
+        self._reader = threading.Thread(target=self._read_loop, name=f"{port.label} read {self.name}", daemon=True)
+
+    def start(self) -> None:
+        self._sender.start()
+        self._reader.start()
+
+    # --- the PortManager's connection interface (Telnet replies), from the reader thread
+    def write(self, data: bytes) -> None:
+        with self._cond:
+            self._control += data
+            self._cond.notify()
+
+    def _settings_changed(self, settings: LineSettings) -> None:
+        if settings != self.line.settings:
+            self.line.set_settings(settings)
+            self.port.notify(f"{self.port.label}: client {self.name} set line {settings.describe()}")
+
+    def _purge(self) -> None:
+        self.line.purge()
+        with self._cond:
+            # Purged bytes never reach the client: count them dropped, not sent (each
+            # data 0xFF is queued doubled by the Telnet escaping).
+            n = len(self._data) - (self._data.count(0xFF) // 2 if self.manager is not None else 0)
+            self.bytes_sent -= n
+            self.bytes_dropped += n
+            del self._data[:]
+
+    # --- stream data, from the emulator's thread
+    def offer(self, data: bytes) -> None:
+        if self.gone.is_set():
+            return
+        n = self.line.offer(len(data))
+        with self._cond:
+            n = max(0, min(n, SOCKET_BACKLOG_BYTES - len(self._data)))
+            chunk = data[:n]
+            if self.manager is not None:
+                chunk = chunk.replace(b"\xff", b"\xff\xff")  # Telnet IAC escaping
+            self._data += chunk
+            self.bytes_sent += n
+            self.bytes_dropped += len(data) - n
+            self._cond.notify()
+
+    def _send_loop(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    while not (self._control or self._data) and not self._closing:
+                        self._cond.wait()
+                    if not (self._control or self._data):
+                        break
+                    data = bytes(self._control + self._data)
+                    del self._control[:]
+                    del self._data[:]
+                self.sock.sendall(data)
+        except OSError:
+            self._vanish()  # the client is gone (reset, broken pipe)
+
+    def _read_loop(self) -> None:
+        try:
+            while not self.gone.is_set():
+                data = self.sock.recv(4096)
+                if not data:
+                    break
+                if self.manager is not None:
+                    for _ in self.manager.filter(data):
+                        pass  # bytes for the device: an emulated receiver takes no input
+        except OSError:
+            pass
+        except Exception as exc:  # noqa: BLE001 - a malformed request must not kill the thread silently
+            self.port.notify(f"{self.port.label}: client {self.name}: bad RFC 2217 request ({exc!r}); disconnecting")
+        self._vanish()
+
+    def _vanish(self) -> None:
+        """The client closed or broke the connection: forget it, free its socket."""
+        if not self.gone.is_set():
+            self.gone.set()
+            with self._cond:
+                self._closing = True
+                self._cond.notify()
+            _shut(self.sock)
+            self.port.forget(self)
+
+    def close(self, deadline: float) -> None:
+        """Send what is queued, wait for the client to hang up until ``deadline``
+        (monotonic), then close the socket."""
+        with self._cond:
+            self._closing = True
+            self._cond.notify()
+        self._sender.join(max(0.0, deadline - time.monotonic()))
+        self.gone.wait(max(0.0, deadline - time.monotonic()))
+        self.gone.set()
+        _shut(self.sock)
+        self._sender.join(1.0)
+        self._reader.join(1.0)
+
+
+class ServerPort(Port):
+    """A stream served to TCP clients (see the module docstring). ``path`` is the URL a
+    pyserial client opens (``rfc2217://127.0.0.1:40123`` or ``socket://...``)."""
+
+    def __init__(
+        self,
+        label: str,
+        spec: ServerSpec,
+        settings: LineSettings | None = None,
+        serve_any_host: bool = False,
+        notify: Callable[[str], None] | None = None,
+        spec_text: str | None = None,
+    ) -> None:
+        super().__init__(label)
+        self.spec = spec
+        self.settings = settings or LineSettings()
+        self.notify = notify or (lambda _line: None)
+        text = spec_text or f"{spec.kind}:{spec.host}:{spec.port}"
+        addresses = _resolve(spec.host, spec.port, text)
+        if not serve_any_host and not all(ipaddress.ip_address(a[4][0]).is_loopback for a in addresses):
+            raise InputError(
+                f"port {text}: {spec.host} is not a loopback address; add --serve-any-host to serve other hosts"
+            )
+        family, _, _, _, sockaddr = addresses[0]
+        self._listener = socket.socket(family, socket.SOCK_STREAM)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self._listener.bind(sockaddr)
+            self._listener.listen(8)
+        except OSError as exc:
+            self._listener.close()
+            raise LinkError(f"port {text}: cannot listen: {exc.strerror}") from None
+        self._listener.settimeout(0.2)  # so close() stops the accept loop promptly
+        host, port = self._listener.getsockname()[:2]
+        scheme = "rfc2217" if spec.kind == "rfc2217-server" else "socket"
+        self.path = f"{scheme}://{f'[{host}]' if ':' in host else host}:{port}"
+        self.drain_wait = 0.0
+        self._clients: list[_Client] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._left_written = 0  # counts of clients that left
+        self._left_dropped = 0
+        self._unheard = 0
+        self._acceptor = threading.Thread(target=self._accept_loop, name=f"{label} accept", daemon=True)
+        self._acceptor.start()
+
+    @property
+    def clients(self) -> int:
+        with self._lock:
+            return len(self._clients)
+
+    def set_drain_wait(self, seconds: float) -> None:
+        self.drain_wait = seconds
+
+    def _accept_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                sock, addr = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            sock.settimeout(None)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            client = _Client(self, sock, addr)
+            with self._lock:
+                if self._stop.is_set():
+                    sock.close()
+                    return
+                self._clients.append(client)
+            self.notify(
+                f"{self.label}: client {client.name} connected ({self.spec.kind}, line {client.line.settings.describe()})"
+            )
+            client.start()
+
+    def forget(self, client: _Client) -> None:
+        with self._lock:
+            if client not in self._clients:
+                return
+            self._clients.remove(client)
+            self._left_written += client.bytes_sent
+            self._left_dropped += client.bytes_dropped
+        self.notify(f"{self.label}: client {client.name} left: {_counts(client)}")
+
+    def write(self, data: bytes) -> int:
+        with self._lock:
+            clients = list(self._clients)
+        if not clients:
+            self._unheard += len(data)
+        elif self.drain_wait > 0:
+            # As fast as possible: give the slowest line up to the drain wait to make room.
+            need = max(c.line.time_for(len(data)) for c in clients)
+            if need > 0:
+                time.sleep(min(need, self.drain_wait))
+        for c in clients:
+            c.offer(data)
+        self._recount()
+        return len(data) if clients else 0
+
+    def _recount(self) -> None:
+        with self._lock:
+            live = list(self._clients)
+            self.bytes_written = self._left_written + sum(c.bytes_sent for c in live)
+            self.bytes_dropped = self._left_dropped + self._unheard + sum(c.bytes_dropped for c in live)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._acceptor.join(1.0)
+        self._listener.close()
+        with self._lock:
+            clients = list(self._clients)
+        deadline = time.monotonic() + CLOSE_LINGER_S
+        for c in clients:
+            c.close(deadline)
+            self.forget(c)
+        self._recount()
+
+
+def _counts(client: _Client) -> str:
+    return f"{client.bytes_sent} bytes sent, {client.bytes_dropped} dropped (line {client.line.settings.describe()})"
+
+
+def _shut(sock: socket.socket) -> None:
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass
+    sock.close()
+
+
+def _resolve(host: str, port: int, text: str):
+    try:
+        return socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise InputError(f"port {text}: cannot resolve {host!r}: {exc.strerror}") from None
+
+
+def _format_addr(addr) -> str:
+    host, port = addr[:2]
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
+def stderr_notifier(prefix: str) -> Callable[[str], None]:
+    """Client events as ``PREFIX: TEXT`` lines on stderr (from the server's threads). On a
+    terminal the line first clears a live status line (``\\r`` + erase to end of line)."""
+
+    def notify(text: str) -> None:
+        clear = "\r\x1b[K" if sys.stderr.isatty() else ""
+        print(f"{clear}{prefix}: {text}", file=sys.stderr, flush=True)
+
+    return notify
+
+
+def open_server_port(
+    label: str,
+    text: str,
+    settings: LineSettings | None = None,
+    serve_any_host: bool = False,
+    notify: Callable[[str], None] | None = None,
+) -> ServerPort | None:
+    """The server port for a ``rfc2217-server:`` / ``tcp-server:`` spec, or None if
+    ``text`` is another kind of port (the caller's own spec parsing continues)."""
+    spec = parse_server_spec(text)
+    if spec is None:
+        return None
+    return ServerPort(label, spec, settings, serve_any_host, notify, spec_text=text)
+
+
+__all__ = [
+    "KINDS",
+    "LineSettings",
+    "ServerPort",
+    "ServerSpec",
+    "UartLine",
+    "is_ephemeral",
+    "open_server_port",
+    "parse_server_spec",
+    "stderr_notifier",
+]
