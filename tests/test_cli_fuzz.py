@@ -92,7 +92,7 @@ COMMANDS = (
     Command("arva-sweep", SWEEP, ("--n", "1", "--t-max", "5", "--strategies", "flux", "--workers", "1", "--area", "20,20"), (
         Opt("--n", "1"), Opt("--seed"), Opt("--strategies", "flux"), Opt("--v-max"), Opt("--k-c"),
         Opt("--area", "20,20"), Opt("--max-transmitters"), Opt("--t-max", "5"), Opt("--workers", "1"),
-        Opt("--scheduler"), Opt("--out"), Opt("--antennas"),
+        Opt("--scheduler"), Opt("--out"), Opt("--antennas"), Opt("--engine"), Opt("--bootstrap", "10"),
     )),
 )
 

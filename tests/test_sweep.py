@@ -145,3 +145,44 @@ def test_bad_output_is_refused_before_the_sweep_runs(tmp_path):
     assert p.stderr == (
         "arva-sweep: --scheduler (a dask cluster) needs dask.distributed (install the extra: pip install 'arva-bench[cluster]')\n"
     )
+
+
+def test_tail_statistics_and_their_bootstrap_intervals():
+    from emulator.closed_loop.sweep import bootstrap_tail
+
+    burial_of = np.repeat(np.arange(500), 2)  # 500 burials, 2 located transmitters each
+    values = np.arange(1000, dtype=np.float64)  # 0 .. 999
+    a = bootstrap_tail(burial_of, values, 500, 400, seed=4)
+    assert a == bootstrap_tail(burial_of, values, 500, 400, seed=4)  # seeded
+    assert a != bootstrap_tail(burial_of, values, 500, 400, seed=5)
+    lo, hi = a["p99"]
+    assert lo < np.quantile(values, 0.99) < hi and 950 < lo and hi <= 999
+    assert a["max"][1] == 999.0 and a["max"][0] >= 990  # never above the sample maximum
+    # Burials without a located transmitter still count in the resampling.
+    b = bootstrap_tail(np.array([0]), np.array([7.0]), 20, 200, seed=1)
+    assert b["p99"] == b["max"] == (7.0, 7.0)
+    assert bootstrap_tail(np.array([], dtype=np.int64), np.array([]), 5, 100, 0)["p99"][0] != 0.0  # NaN
+
+
+def test_summary_has_tails(local):
+    s = {row["strategy"]: row for row in local.summary}["receiver_only"]
+    found = [r for r in local.rows if r["strategy"] == "receiver_only" and r["found"]]
+    assert s["t_locate_max_s"] == max(r["t_found_s"] for r in found)
+    assert s["t_locate_p99_s"] == pytest.approx(np.quantile([r["t_found_s"] for r in found], 0.99), abs=0)
+    assert s["error_max_m"] == max(r["error_m"] for r in found)
+    lo, hi = s["error_p99_ci_m"]
+    assert lo <= hi <= s["error_max_m"]
+    assert "| t locate p99 [95 % CI] / max [s] | error p99 [95 % CI] [m] |" in summary_table(local.summary)
+
+
+def test_command_line_engines_give_the_same_table():
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "emulator.closed_loop.sweep", "--n", "2", "--seed", "4",
+                               "--strategies", "flux_reverse", "--workers", "1", "--bootstrap", "50", *args],
+                              capture_output=True, text=True, timeout=120)  # fmt: skip
+
+    a, b = run(), run("--engine", "run")
+    assert a.returncode == b.returncode == 0, a.stderr + b.stderr
+    assert a.stdout == b.stdout and "| flux_reverse | 1 | 0.2 | 2 |" in a.stdout
+    bad = run("--engine", "fast")
+    assert bad.returncode == 2 and "invalid choice: 'fast'" in bad.stderr

@@ -1,11 +1,17 @@
-"""The paper's case study (section IV, Figs. 8-11), reproduced in closed loop.
+"""The paper's case study (section IV, Figs. 8-11), flown in closed loop with our choices
+where the paper gives none.
 
 Four test cases, one transmitter each, at (20, 5, 0), (10, 0, 1), (20, -20, -1) and
 (-6, 5, 0); the UAV starts at the origin (take-off height 4 m, the paper's "up to 4
 meters"), holds r_s = 1 m above the snow, flies at most v_max = 1 m/s and follows the
 flux lines with eq. 10. Scenes: ``emulator/scenes/case_study_{1,2,3,4}.toml``.
 
-What the paper leaves open, and what we chose:
+The paper gives the positions, v_max, r_s and a qualitative claim (the distance first
+grows, most in test 4); it gives no transmitter orientations, gains, times or final
+errors. What it leaves open, and what we chose (docs/closed_loop.md has the full list —
+also k_c, k_z, the 10 Hz control, the located rule, the fixed 4 m take-off, EMI off —
+and ``tests/perf/case_study_sensitivity.py`` shows how the results depend on the yaw and
+k_c). Times and errors from these scenes are ours, not the paper's:
 
 * **Terrain.** The paper flies over "a mountain covered in snow" without giving it; the
   transmitters' heights (0, 1, -1, 0 m) are those of the terrain where they lie. The

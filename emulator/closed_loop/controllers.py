@@ -62,6 +62,30 @@ class Observation:
     new_epoch: bool
 
 
+#: :class:`TickPlan` modes.
+PLAN_CONST, PLAN_SEARCH, PLAN_BACK = 0, 1, 2
+
+
+@dataclass(slots=True)
+class TickPlan:
+    """What :meth:`Controller.command` does on the ticks after an epoch (``new_epoch``
+    false) until the next one, so a batch loop can replay those ticks in numpy:
+
+    * ``PLAN_CONST``: return (``vx``, ``vy``) every tick;
+    * ``PLAN_SEARCH``: the strip search velocity (:meth:`StripSearch.velocity` at
+      ``spec.v_max``; a controller with ``search_sets_heading`` also sets ``heading``);
+    * ``PLAN_BACK``: fly to (``x``, ``y``) at min(``speed``, dist / dt); once within
+      2 cm the controller itself decides what comes next (call :meth:`command`).
+    """
+
+    mode: int
+    vx: float = 0.0
+    vy: float = 0.0
+    x: float = 0.0
+    y: float = 0.0
+    speed: float = 0.0
+
+
 @dataclass(frozen=True)
 class Located:
     """The controller's claim: transmitter ``id`` is under (x, y), found at time t."""
@@ -107,6 +131,10 @@ class Controller:
     """Common parts: height hold, target selection with marking, signal search."""
 
     name = "controller"
+    #: The search phase sets ``heading`` from each non-zero strip velocity.
+    search_sets_heading = False
+    #: Reads ``Observation.field`` (a batch loop skips building it for those that do not).
+    uses_field = True
 
     def __init__(self, spec: VehicleSpec, model: ModelParams = ModelParams(), dt: float | None = None) -> None:
         self.spec = spec
@@ -159,6 +187,12 @@ class Controller:
 
     def command(self, obs: Observation) -> tuple[float, float, float]:
         raise NotImplementedError
+
+    def tick_plan(self) -> TickPlan:
+        """What :meth:`command` does until the next epoch (see :class:`TickPlan`)."""
+        if self.phase == "search":
+            return TickPlan(PLAN_CONST) if self.strips is None else TickPlan(PLAN_SEARCH)
+        return TickPlan(PLAN_CONST, *self._v)
 
 
 def speed_law(v_max: float, g: float) -> float:
@@ -278,6 +312,8 @@ class ReceiverOnlySearch(Controller):
     """
 
     name = "receiver_only"
+    search_sets_heading = True
+    uses_field = False  # (id, d, delta) only
     REVERSE_FRACTION = 0.1
     REVERSE_CM = 100
     REVERSE_EVERY = 5
@@ -318,6 +354,16 @@ class ReceiverOnlySearch(Controller):
             vx, vy = self._fine_velocity(obs)
             return vx, vy, vz
         return self._v[0], self._v[1], vz
+
+    def tick_plan(self) -> TickPlan:
+        if self.phase != "fine":
+            return super().tick_plan()
+        ln = self._line
+        if ln is None:
+            return TickPlan(PLAN_CONST)
+        if ln.going_back:
+            return TickPlan(PLAN_BACK, x=ln.x_min, y=ln.y_min, speed=ln.speed)
+        return TickPlan(PLAN_CONST, ln.sign * ln.ux * ln.speed, ln.sign * ln.uy * ln.speed)
 
     # -- per epoch: coarse search -------------------------------------------------
     def _on_epoch(self, obs: Observation) -> None:

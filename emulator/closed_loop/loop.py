@@ -87,6 +87,23 @@ class RunResult:
         return out
 
 
+def control_ticks(scene: Scene, index: int = 0) -> tuple[int, float]:
+    """(control ticks per epoch, tick length dt in s) of receiver ``index``'s vehicle."""
+    ticks = max(1, round(scene.receivers[index].vehicle.control_rate_hz / scene.rate_hz))
+    return ticks, 1.0 / (scene.rate_hz * ticks)
+
+
+def make_vehicle(scene: Scene, index: int, dt: float) -> tuple[UAV, Controller]:
+    """The simulated vehicle of receiver ``index`` at its start, with its seeded range
+    sensor, and its onboard controller ticking every ``dt`` seconds."""
+    spec = scene.receivers[index].vehicle
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(scene.seed, spawn_key=(index, RANGE_STREAM))))
+    uav = UAV(spec.terrain, spec.start, spec.height_start, spec.yaw_deg, spec.v_max, spec.v_z_max, spec.range_sigma_m, rng)
+    controller = make_controller(spec, scene.receiver_model(index))
+    controller.dt = dt
+    return uav, controller
+
+
 class ClosedLoop:
     """Receiver ``index`` of ``scene`` on its vehicle (see the module docstring)."""
 
@@ -101,8 +118,7 @@ class ClosedLoop:
         self.channels = self.receiver.channels
         self.research = scene.effects.research_sentences
         self.rate_hz = scene.rate_hz
-        self.ticks = max(1, round(spec.control_rate_hz / scene.rate_hz))
-        self.dt = 1.0 / (self.rate_hz * self.ticks)
+        self.ticks, self.dt = control_ticks(scene, index)
         self.next_k = 0
         self.record = record
         self._ticks_t: list[float] = []
@@ -119,12 +135,7 @@ class ClosedLoop:
             self._last_render: float | None = None
             self._waiting_logged = False
         else:
-            rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(scene.seed, spawn_key=(index, RANGE_STREAM))))
-            self.uav = UAV(
-                spec.terrain, spec.start, spec.height_start, spec.yaw_deg, spec.v_max, spec.v_z_max, spec.range_sigma_m, rng
-            )
-            self.controller = make_controller(spec, self.receiver.model)
-            self.controller.dt = self.dt
+            self.uav, self.controller = make_vehicle(scene, index, self.dt)
             self.pose_source = None
 
     # -- one epoch ----------------------------------------------------------------

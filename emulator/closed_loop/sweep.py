@@ -12,7 +12,13 @@ function of its config: the same rows on one process, a pool or a Dask cluster.
 Results: one row per (strategy, v_max, k_c, burial, transmitter) — :data:`COLUMNS` —
 written as CSV (or Parquet when pyarrow is installed and the name ends in .parquet),
 and a summary per (strategy, v_max, k_c): fraction located, time-to-locate and final
-horizontal error distributions (median, p90, max).
+horizontal error distributions (median, p90, p99, max; the p99 and max with seeded
+burial-bootstrap 95 % intervals, :func:`bootstrap_tail`).
+
+Engines: ``batch`` (default) flies the runs of a task (a chunk of the task list, any
+strategies and gains) together with :class:`~emulator.closed_loop.batch.BatchLoop`; ``run`` flies them one by
+one with :class:`~emulator.closed_loop.loop.ClosedLoop`, the reference. Both give the
+same rows, bit for bit (``tests/test_batch_loop.py``).
 
 Command line (``python -m emulator.closed_loop.sweep``; console script ``arva-sweep``)::
 
@@ -21,6 +27,7 @@ Command line (``python -m emulator.closed_loop.sweep``; console script ``arva-sw
     python -m emulator.closed_loop.sweep --n 5000 --scheduler tcp://10.0.0.5:8786 --out big.csv
 
 The default executor is a local process pool (``--workers``, default the CPU count);
+tasks are chunks of runs, about two per worker (:func:`chunk_size`);
 ``--scheduler ADDRESS`` runs the same chunks on a dask.distributed cluster (extra
 ``cluster``), whose workers need this package importable.
 """
@@ -57,6 +64,9 @@ COLUMNS = (
 #: How long to wait for a dask scheduler before giving up (s).
 SCHEDULER_TIMEOUT_S = 10.0
 
+#: Sweep engines: runs stepped together (the default) or one by one (the reference).
+ENGINES = ("batch", "run")
+
 #: Strategy name -> the vehicle's controller (flux_reverse: eq. 10 with sign reversal).
 STRATEGIES = {"flux": "flux", "flux_reverse": "flux", "receiver_only": "receiver_only"}
 
@@ -78,7 +88,9 @@ class SweepConfig:
     rate_hz: float = 1.0
     control_rate_hz: float = 10.0
     t_max: float = 1800.0
-    chunk: int = 8  # burials per task
+    chunk: int = 0  # runs per task; 0: about two tasks per worker, at most MAX_CHUNK
+    engine: str = "batch"  # "batch": BatchLoop, runs stepped together; "run": ClosedLoop one by one
+    bootstrap: int = 1000  # resamples for the tail statistics' confidence intervals
     antennas: int = 3  # receiver class (emulator.receiver.model.ModelParams.antennas)
 
     def tasks(self) -> list[tuple[str, float, float, int]]:
@@ -154,11 +166,30 @@ def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: 
 
 
 def run_one(config: SweepConfig, strategy: str, v_max: float, k_c: float, i: int) -> tuple[list[dict], float]:
-    """Fly one burial; its rows and the scene time flown."""
+    """Fly one burial with the per-run :class:`ClosedLoop`; its rows and the scene time flown."""
     from emulator.closed_loop.loop import ClosedLoop
 
     scene, txs = burial_scene(config, i, strategy, v_max, k_c)
     result = ClosedLoop(scene, record=False).run(config.t_max)
+    return run_rows(strategy, v_max, k_c, i, txs, result), result.t_end
+
+
+def run_batch_rows(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
+    """Fly several runs together (:class:`BatchLoop`; strategies and gains may differ
+    within a batch): the rows :func:`run_one` gives for each task, in order, and the
+    scene time flown."""
+    from emulator.closed_loop.batch import run_batch
+
+    made = [burial_scene(config, i, strategy, v_max, k_c) for strategy, v_max, k_c, i in tasks]
+    results = run_batch([scene for scene, _ in made], config.t_max)
+    rows: list[dict] = []
+    for task, (_, txs), result in zip(tasks, made, results):
+        rows += run_rows(*task[:3], task[3], txs, result)
+    return rows, sum(r.t_end for r in results)
+
+
+def run_rows(strategy: str, v_max: float, k_c: float, i: int, txs: list[dict], result) -> list[dict]:
+    """The :data:`COLUMNS` rows of burial ``i``'s :class:`RunResult`."""
     found = result.found()
     all_found = all(f["found"] for f in found)
     t_all = max(f["t"] for f in found) if all_found else math.nan
@@ -170,18 +201,37 @@ def run_one(config: SweepConfig, strategy: str, v_max: float, k_c: float, i: int
             "found": f["found"], "t_found_s": f["t"], "error_m": f["error_m"],
             "all_found": all_found, "t_all_s": t_all, "t_end_s": result.t_end, "path_m": result.path_length,
         })
-    return rows, result.t_end
+    return rows
 
 
 def run_chunk(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
-    """Several runs in one worker call (amortises process / network overhead)."""
+    """Several runs in one worker call: one batch with the batch engine, else one after
+    the other. Rows in task order either way."""
     rows: list[dict] = []
     scene_s = 0.0
-    for task in tasks:
-        r, t = run_one(config, *task)
-        rows += r
-        scene_s += t
-    return rows, scene_s
+    if config.engine == "run":
+        for task in tasks:
+            r, t = run_one(config, *task)
+            rows += r
+            scene_s += t
+        return rows, scene_s
+    return run_batch_rows(config, tasks)
+
+
+#: Largest number of runs per task with the batch engine (memory stays ~100 MB).
+MAX_CHUNK = 2048
+
+
+def chunk_size(config: SweepConfig, n_tasks: int, workers: int) -> int:
+    """Runs per task: ``config.chunk``, or about two tasks per worker (a batch is faster
+    the larger it is, a pool wants a few tasks per worker to balance; a single process
+    takes one batch), at most MAX_CHUNK."""
+    if config.chunk > 0:
+        return config.chunk
+    if config.engine == "run":
+        return 8
+    per_worker = 1 if workers <= 1 else 2  # one process: one batch is fastest
+    return max(1, min(MAX_CHUNK, math.ceil(n_tasks / (per_worker * max(1, workers)))))
 
 
 # --------------------------------------------------------------------------- executors
@@ -192,8 +242,9 @@ def sweep(
     pool (default: one worker per CPU) or, given ``scheduler`` ("tcp://host:8786"), on a
     dask.distributed cluster. Rows come back in task order whatever the executor.
     ``progress`` is told the runs done and the scene-time rate as chunks finish."""
+    if config.engine not in ENGINES:
+        raise InputError(f"engine: unknown {config.engine!r} (known: {', '.join(ENGINES)})")
     tasks = config.tasks()
-    chunks = [tasks[i : i + config.chunk] for i in range(0, len(tasks), config.chunk)]
     wall = time.perf_counter()
     progress = progress or Tracker()
     scene_done = 0.0
@@ -219,6 +270,8 @@ def sweep(
         except Exception as exc:  # noqa: BLE001  something answered, but not a dask scheduler
             raise LinkError(f"--scheduler {scheduler}: not a dask scheduler ({type(exc).__name__})") from None
         with client:
+            size = chunk_size(config, len(tasks), max(1, sum(client.nthreads().values())))
+            chunks = [tasks[i : i + size] for i in range(0, len(tasks), size)]
             futures = client.map(run_chunk, [config] * len(chunks), chunks, pure=False)
             index = {f.key: i for i, f in enumerate(futures)}
             parts = [None] * len(chunks)
@@ -228,6 +281,8 @@ def sweep(
         executor = f"dask {scheduler}"
     else:
         workers = workers or os.cpu_count() or 1
+        size = chunk_size(config, len(tasks), workers)
+        chunks = [tasks[i : i + size] for i in range(0, len(tasks), size)]
         if workers == 1 or len(chunks) == 1:
             parts = [done(run_chunk(config, c), len(c)) for c in chunks]
             executor = "in process"
@@ -239,7 +294,7 @@ def sweep(
     wall = time.perf_counter() - wall
     rows = [row for part, _ in parts for row in part]
     scene_s = sum(t for _, t in parts)
-    return SweepResult(config, rows, summarize(rows), wall, scene_s, executor)
+    return SweepResult(config, rows, summarize(rows, config.bootstrap, config.seed), wall, scene_s, executor)
 
 
 # --------------------------------------------------------------------------- summary
@@ -247,8 +302,54 @@ def _q(values: list[float], q: float) -> float:
     return float(np.quantile(values, q)) if values else math.nan
 
 
-def summarize(rows: list[dict]) -> list[dict]:
-    """Per (strategy, v_max, k_c): runs, located fraction, time-to-locate and error."""
+#: Two-sided level of the bootstrap intervals.
+CI_LEVEL = 0.95
+
+
+def bootstrap_tail(
+    burial: np.ndarray, values: np.ndarray, n_burials: int, resamples: int, seed: int
+) -> dict[str, tuple[float, float]]:
+    """Percentile-bootstrap intervals (level :data:`CI_LEVEL`) of the p99 and the maximum
+    of ``values`` (one per located transmitter, ``burial`` its burial index 0..n-1).
+
+    Burials are resampled with replacement (the transmitters of one burial share its
+    search, so they are not independent): resample b weights each value by how often its
+    burial was drawn, and its p99 is the weighted inverted-CDF quantile. Seeded: the
+    same rows give the same intervals. The maximum's interval is degenerate at the top
+    (a resample never exceeds the sample maximum): read it as "at least".
+    """
+    out = {"p99": (math.nan, math.nan), "max": (math.nan, math.nan)}
+    if values.size == 0 or resamples < 1:
+        return out
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(0xB007,))))
+    order = np.argsort(values, kind="stable")
+    v, b = values[order], burial[order]
+    p99 = np.empty(resamples)
+    top = np.empty(resamples)
+    step = max(1, 4_000_000 // max(n_burials + v.size, 1))
+    for lo in range(0, resamples, step):
+        k = min(step, resamples - lo)
+        counts = rng.multinomial(n_burials, np.full(n_burials, 1.0 / n_burials), size=k)  # (k, n_burials)
+        w = counts[:, b].astype(np.float64)  # (k, values) in sorted order
+        cw = np.cumsum(w, axis=1)
+        total = cw[:, -1]
+        has = total > 0
+        idx = np.argmax(cw >= 0.99 * total[:, None], axis=1)
+        p99[lo : lo + k] = np.where(has, v[idx], np.nan)
+        last = v.size - 1 - np.argmax(w[:, ::-1] > 0, axis=1)
+        top[lo : lo + k] = np.where(has, v[last], np.nan)
+    a = (1.0 - CI_LEVEL) / 2.0
+    for name, stat in (("p99", p99), ("max", top)):
+        stat = stat[np.isfinite(stat)]
+        if stat.size:
+            out[name] = (float(np.quantile(stat, a)), float(np.quantile(stat, 1.0 - a)))
+    return out
+
+
+def summarize(rows: list[dict], bootstrap: int = 1000, seed: int = 0) -> list[dict]:
+    """Per (strategy, v_max, k_c): runs, located fraction, time-to-locate and error —
+    median, p90, p99 and maximum over the located transmitters, the p99 and maximum with
+    ``bootstrap``-resample confidence intervals (:func:`bootstrap_tail`, seeded by ``seed``)."""
     groups: dict[tuple, list[dict]] = {}
     for row in rows:
         groups.setdefault((row["strategy"], row["v_max"], row["k_c"]), []).append(row)
@@ -261,6 +362,10 @@ def summarize(rows: list[dict]) -> list[dict]:
         t_found = [r["t_found_s"] for r in found]
         errors = [r["error_m"] for r in found]
         t_all = [r["t_all_s"] for r in runs.values() if r["all_found"]]
+        index = {b: k for k, b in enumerate(runs)}
+        which = np.array([index[r["burial"]] for r in found], dtype=np.int64)
+        ci_t = bootstrap_tail(which, np.array(t_found, dtype=np.float64), len(runs), bootstrap, seed)
+        ci_e = bootstrap_tail(which, np.array(errors, dtype=np.float64), len(runs), bootstrap, seed + 1)
         out.append({
             "strategy": strategy,
             "v_max": v_max,
@@ -271,11 +376,18 @@ def summarize(rows: list[dict]) -> list[dict]:
             "all_located": sum(r["all_found"] for r in runs.values()) / len(runs),
             "t_locate_median_s": _q(t_found, 0.5),
             "t_locate_p90_s": _q(t_found, 0.9),
+            "t_locate_p99_s": _q(t_found, 0.99),
+            "t_locate_p99_ci_s": ci_t["p99"],
+            "t_locate_max_s": max(t_found) if t_found else math.nan,
+            "t_locate_max_ci_s": ci_t["max"],
             "t_all_median_s": _q(t_all, 0.5),
             "t_all_p90_s": _q(t_all, 0.9),
             "error_median_m": _q(errors, 0.5),
             "error_p90_m": _q(errors, 0.9),
+            "error_p99_m": _q(errors, 0.99),
+            "error_p99_ci_m": ci_e["p99"],
             "error_max_m": max(errors) if errors else math.nan,
+            "error_max_ci_m": ci_e["max"],
             "within_1m": sum(e <= 1.0 for e in errors) / len(rs),
         })
     return out
@@ -323,16 +435,25 @@ def _fmt(v):
     return v
 
 
+def _ci(pair: tuple[float, float], fmt: str) -> str:
+    lo, hi = pair
+    return "-" if math.isnan(lo) else f"[{lo:{fmt}}, {hi:{fmt}}]"
+
+
 def summary_table(summary: list[dict]) -> str:
+    """Markdown: one line per (strategy, v_max, k_c); tails with their 95 % intervals."""
     head = ("| strategy | v_max | k_c | runs | tx | located | all located | t locate median / p90 [s] "
-            "| t all median / p90 [s] | error median / p90 / max [m] |")
-    lines = [head, "|" + "---|" * 10]
+            "| t all median / p90 [s] | error median / p90 / max [m] | t locate p99 [95 % CI] / max [s] "
+            "| error p99 [95 % CI] [m] |")
+    lines = [head, "|" + "---|" * 12]
     for s in summary:
         lines.append(
             f"| {s['strategy']} | {s['v_max']:g} | {s['k_c']:g} | {s['runs']} | {s['transmitters']} | "
             f"{100 * s['located']:.1f} % | {100 * s['all_located']:.1f} % | "
             f"{s['t_locate_median_s']:.0f} / {s['t_locate_p90_s']:.0f} | {s['t_all_median_s']:.0f} / {s['t_all_p90_s']:.0f} | "
-            f"{s['error_median_m']:.2f} / {s['error_p90_m']:.2f} / {s['error_max_m']:.2f} |"
+            f"{s['error_median_m']:.2f} / {s['error_p90_m']:.2f} / {s['error_max_m']:.2f} | "
+            f"{s['t_locate_p99_s']:.0f} {_ci(s['t_locate_p99_ci_s'], '.0f')} / {s['t_locate_max_s']:.0f} | "
+            f"{s['error_p99_m']:.2f} {_ci(s['error_p99_ci_m'], '.2f')} |"
         )
     return "\n".join(lines)
 
@@ -362,6 +483,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-max", type=real(0.0, MAX_T_MAX_S, lo_open=True), default=1800.0,
                    help=f"scene-time budget per run, s, in (0, {MAX_T_MAX_S:g}]")
     p.add_argument("--no-noise", action="store_true", help="ideal receiver (EMI noise off)")
+    p.add_argument("--engine", choices=ENGINES, default="batch",
+                   help="batch: runs of one strategy stepped together (default); run: one by one (the reference)")
+    p.add_argument("--bootstrap", type=integer(0, 1_000_000), default=1000, help="resamples for the p99/max confidence intervals (default 1000)")
     p.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     p.add_argument("--workers", type=integer(1, 1024), help="local processes (default: CPU count)")
     p.add_argument("--scheduler", type=scheduler_address, help="dask.distributed scheduler address, e.g. tcp://host:8786")
@@ -374,7 +498,7 @@ def run(args: argparse.Namespace) -> int:
     config = SweepConfig(
         n=args.n, seed=args.seed, strategies=args.strategies, v_max=args.v_max, k_c=args.k_c,
         area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
-        noise=not args.no_noise, antennas=args.antennas,
+        noise=not args.no_noise, engine=args.engine, bootstrap=args.bootstrap, antennas=args.antennas,
     )
     if args.out is not None:
         check_output(args.out)

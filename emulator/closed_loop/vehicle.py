@@ -126,6 +126,8 @@ Terrain = FlatTerrain | GridTerrain
 class RangeSensor:
     """y_s = z - S(x, y) + v, v ~ N(0, sigma^2) white (paper eq. 9), seeded."""
 
+    BLOCK = 1024
+
     def __init__(self, terrain: Terrain, sigma_m: float, rng: np.random.Generator | None) -> None:
         self.terrain = terrain
         self.sigma = float(sigma_m)
@@ -136,10 +138,14 @@ class RangeSensor:
         value = z - self.terrain.height(x, y)
         if self._rng is not None:
             if not self._buf:
-                # Draw in blocks: one numpy call per 1024 readings, the same sequence.
-                self._buf = (self._rng.standard_normal(1024) * self.sigma).tolist()[::-1]
+                self._buf = self.draw_block().tolist()[::-1]
             value += self._buf.pop()
         return value
+
+    def draw_block(self) -> NDArray[np.float64]:
+        """The next BLOCK noise values v (m), in reading order: readings draw in blocks,
+        one numpy call per BLOCK readings (a batch loop draws the same blocks)."""
+        return self._rng.standard_normal(self.BLOCK) * self.sigma
 
 
 class UAV:

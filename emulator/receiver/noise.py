@@ -24,7 +24,19 @@ class NoiseEffect:
 
     def draw(self, n_epochs: int, n_transmitters: int) -> NDArray[np.float64]:
         """(n_epochs, n_transmitters, 3) points uniform in the unit ball, epoch-major."""
-        z = self._rng.standard_normal((n_epochs, n_transmitters, 5))
-        norm = np.sqrt(np.einsum("...i,...i->...", z, z))[..., None]
-        # A zero 5-vector has probability 0; guard anyway so no NaN can ever appear.
-        return np.divide(z[..., :3], norm, out=np.zeros(z.shape[:-1] + (3,)), where=norm > 0)
+        return ball_points(self.normals(n_epochs, n_transmitters))
+
+    def normals(self, n_epochs: int, n_transmitters: int) -> NDArray[np.float64]:
+        """The stream's next (n_epochs, n_transmitters, 5) standard normals, which
+        :func:`ball_points` maps to what :meth:`draw` returns (a batch of closed-loop runs
+        draws each run's normals, then maps them all at once)."""
+        return self._rng.standard_normal((n_epochs, n_transmitters, 5))
+
+
+def ball_points(z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(..., 5) normals -> (..., 3) points uniform in the unit ball (a zero 5-vector, the
+    padding of a batch, maps to the origin). Element-wise: a point does not depend on the
+    array it is part of."""
+    norm = np.sqrt(np.einsum("...i,...i->...", z, z))[..., None]
+    # A zero 5-vector has probability 0; guard anyway so no NaN can ever appear.
+    return np.divide(z[..., :3], norm, out=np.zeros(z.shape[:-1] + (3,)), where=norm > 0)

@@ -1,0 +1,391 @@
+"""Many closed-loop runs stepped together: the per-run :class:`ClosedLoop`, batched.
+
+Same frames and units as :mod:`emulator.closed_loop.loop` (world ENU metres, scene
+seconds). Each run keeps everything that makes it *its* run — its scene seed, its
+receiver noise stream (:class:`~emulator.receiver.noise.NoiseEffect`), its range-sensor
+stream, its own :class:`~emulator.closed_loop.controllers.Controller` object — and the
+batch steps all of them one epoch at a time:
+
+1. **receiver model, batched**: one :func:`~emulator.receiver.model.measure` call for
+   all runs (per-run transmitters as a (B, M, 3) array; runs with fewer transmitters
+   are padded with silent ones far away, which never reach a channel), then
+   :func:`~emulator.receiver.model.select_channels`. Each run's noise is drawn from its
+   own stream (the normals of ``draw(1, m)``), and all are mapped into the unit ball together;
+2. **controllers at the epoch tick**: each run's controller decides on the new epoch
+   (``command`` with ``new_epoch``), exactly the per-run code (the observation's
+   ``field`` is None for a controller whose ``uses_field`` is false); it then states its
+   :class:`~emulator.closed_loop.controllers.TickPlan` for the ticks until the next
+   epoch;
+3. **the other ticks, batched**: the plans (hold a velocity, strip search, fly back to a
+   minimum) and the vehicle (paper eq. 9: speed limits, integration, terrain contact)
+   and the range sensor are evaluated in numpy for all runs; the rare tick where a plan
+   ends (a fine-search line arrives on its minimum) is handed to that run's controller.
+
+Finished runs (all located, search exhausted, ``t_max``) drop out of the batch.
+
+**Bit equality with ClosedLoop.** Every float operation is the per-run one on the same
+operands: numpy's element-wise +, -, *, /, sqrt, min/max and comparisons are IEEE
+correctly rounded, so they equal Python's float arithmetic; the functions that are not
+(``math.hypot``, ``math.atan2``; CPython's ``hypot`` is not libm's) are applied element
+by element with the very ``math`` function (``np.frompyfunc``). The receiver model is
+the same numpy code on a larger array, and so is the noise's mapping into the ball; the
+one assumption IEEE does not guarantee is that numpy's vectorised ``cbrt``, ``arctan``
+and ``einsum`` give an element the same result whatever the length of the array around
+it (numpy's SIMD loops treat an array's tail with the same kernel). That holds for the
+numpy on which ``tests/test_batch_loop.py`` runs: it checks that rows, times, errors and
+path lengths are identical for seeded burials with noise on, so a numpy where it does
+not hold fails that test rather than drifting silently.
+
+Not batched (``ValueError``: use :class:`ClosedLoop`): ``external_mavlink``, moving
+transmitters, scenes without transmitters, the pulses and quantize effects (or a
+profile's display), and runs that differ in rate, control rate, channels, receiver model
+(class and constants: ``Scene.receiver_model``), noise switch or
+transmitter ids (beyond a common prefix). Runs may differ in everything else: burial,
+seed, strategy, gains, speeds, terrain, start.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from emulator.closed_loop.controllers import PLAN_BACK, PLAN_CONST, PLAN_SEARCH, Observation
+from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
+from emulator.closed_loop.vehicle import FlatTerrain
+from emulator.receiver.model import measure, select_channels
+from emulator.receiver.noise import NoiseEffect, ball_points
+from emulator.scene.types import Scene
+
+# The exact Python functions, element by element (see the module docstring).
+_hypot = np.frompyfunc(math.hypot, 2, 1)
+_hypot3 = np.frompyfunc(math.hypot, 3, 1)
+_atan2 = np.frompyfunc(math.atan2, 2, 1)
+
+#: A padding transmitter sits this far below the origin: its field never leaves the outer zone.
+_FAR = -1.0e7
+#: A fine-search line's return ends within this distance (m) of its minimum (ReceiverOnlySearch).
+_ARRIVE_M = 0.02
+
+
+def _f64(obj: np.ndarray) -> np.ndarray:
+    return obj.astype(np.float64)
+
+
+class BatchLoop:
+    """Receiver ``index`` of each scene on its vehicle, all stepped together (see the
+    module docstring); :meth:`run` returns one :class:`RunResult` per scene, as
+    ``ClosedLoop(scene, index, record=False).run(t_max)`` would."""
+
+    def __init__(self, scenes: list[Scene], index: int = 0) -> None:
+        if not scenes:
+            raise ValueError("a batch needs at least one scene")
+        self.scenes = list(scenes)
+        self.index = index
+        first = scenes[0]
+        self.rate_hz = first.rate_hz
+        self.ticks, self.dt = control_ticks(first, index)
+        self.channels = first.receivers[index].channels
+        self.model = first.receiver_model(index)  # the receiver's class and constants
+        self.noise_on = first.effects.noise
+        ids = max((s.transmitter_ids for s in scenes), key=len)
+        self.ids = np.asarray(ids, dtype=np.int64)
+        for s in scenes:
+            self._check(s, index)
+        n, m = len(scenes), len(self.ids)
+        self.m = np.array([len(s.transmitter_ids) for s in scenes])
+        tx_pos = np.zeros((n, m, 3))
+        tx_pos[:, :, 2] = _FAR
+        tx_quat = np.zeros((n, m, 4))
+        tx_quat[:, :, 0] = 1.0
+        for j, s in enumerate(scenes):
+            for c, tx in enumerate(s.transmitters):
+                tx_pos[j, c] = tx.trajectory.positions[0]
+                tx_quat[j, c] = tx.trajectory.orientations[0]
+        self.tx_pos, self.tx_quat = tx_pos, tx_quat
+        self.noise = [NoiseEffect(s.seed, index) for s in scenes] if self.noise_on else None
+        # Vehicles and controllers: the per-run objects, then their state as arrays.
+        pairs = [make_vehicle(s, index, self.dt) for s in scenes]
+        uavs = [u for u, _ in pairs]
+        self.ctrl = [c for _, c in pairs]
+        self.sensors = [u.range for u in uavs]
+        self.x = np.array([u.x for u in uavs])
+        self.y = np.array([u.y for u in uavs])
+        self.z = np.array([u.z for u in uavs])
+        self.yaw = [u.yaw for u in uavs]
+        self.quat = np.array([u.orientation for u in uavs])
+        self.v_max = np.array([u.v_max for u in uavs])
+        self.v_z_max = np.array([u.v_z_max for u in uavs])
+        specs = [s.receivers[index].vehicle for s in scenes]
+        self.k_z = np.array([sp.k_z for sp in specs])
+        self.r_s = np.array([sp.r_s for sp in specs])
+        self.sigma = np.array([u.range.sigma for u in uavs])
+        self.noisy_range = self.sigma > 0
+        self.range_buf = np.zeros((n, uavs[0].range.BLOCK))
+        self.range_used = self.range_buf.shape[1]  # readings taken from the current blocks
+        self.contacts = np.zeros(n, dtype=np.int64)
+        # Terrains: flat ones as an elevation per run, DEMs grouped by object.
+        self.terrain = [sp.terrain for sp in specs]
+        self.flat = all(isinstance(t, FlatTerrain) for t in self.terrain)
+        self.elevation = np.array([t.elevation if isinstance(t, FlatTerrain) else 0.0 for t in self.terrain])
+        index: dict[int, int] = {}
+        self.terrains = []
+        for t in self.terrain:
+            if id(t) not in index:
+                index[id(t)] = len(self.terrains)
+                self.terrains.append(t)
+        self.terrain_group = np.array([index[id(t)] for t in self.terrain])
+        # Strip search waypoints, padded.
+        strips = [c.strips for c in self.ctrl]
+        w = max((len(st.waypoints) for st in strips if st is not None), default=0)
+        self.wp = np.zeros((n, max(w, 1), 2))
+        self.wp_count = np.zeros(n, dtype=np.int64)
+        self.wp_next = np.zeros(n, dtype=np.int64)
+        for j, st in enumerate(strips):
+            if st is not None:
+                self.wp[j, : len(st.waypoints)] = st.waypoints
+                self.wp_count[j] = len(st.waypoints)
+                self.wp_next[j] = st.next
+        self.sets_heading = np.array([c.search_sets_heading for c in self.ctrl])
+        self.uses_field = np.array([c.uses_field for c in self.ctrl])
+        # Tick plans (filled at each epoch).
+        self.mode = np.full(n, PLAN_CONST, dtype=np.int8)
+        self.pvx = np.zeros(n)
+        self.pvy = np.zeros(n)
+        self.bx = np.zeros(n)
+        self.by = np.zeros(n)
+        self.bspeed = np.zeros(n)
+        self.path = np.zeros(n)
+        self.held: list[tuple] = [()] * n  # each run's latest epoch, as Observation lists
+        self.next_k = 0
+
+    def _check(self, s: Scene, index: int) -> None:
+        rx = s.receivers[index]
+        spec = rx.vehicle
+        why = None
+        if spec is None or spec.controller == "external_mavlink":
+            why = "a simulated vehicle with an onboard controller"
+        elif s.rate_hz != self.rate_hz or control_ticks(s, index) != (self.ticks, self.dt):
+            why = "the same rate_hz and control_rate_hz"
+        elif rx.channels != self.channels or s.receiver_model(index) != self.model or s.effects.noise != self.noise_on:
+            why = "the same channels, receiver model (class, constants) and noise switch"
+        elif s.effects.pulses or s.effects.quantize or rx.display:
+            why = "no pulses, quantize effect or profile display"
+        elif not s.transmitters:
+            why = "at least one transmitter"
+        elif not all(tx.trajectory.is_static for tx in s.transmitters):
+            why = "static transmitters"
+        elif list(s.transmitter_ids) != self.ids[: len(s.transmitter_ids)].tolist():
+            why = "transmitter ids that are a prefix of the longest run's"
+        if why is not None:
+            raise ValueError(f"{s.name or 'scene'}: the batch loop needs {why}; use ClosedLoop")
+
+    # -- pieces of one tick, all runs -------------------------------------------------
+    def _heights(self, x: np.ndarray, y: np.ndarray, live: np.ndarray) -> np.ndarray:
+        if self.flat:
+            return self.elevation[live]
+        out = np.empty(live.size)
+        group = self.terrain_group[live]
+        for g, terrain in enumerate(self.terrains):
+            r = np.flatnonzero(group == g)
+            if r.size:
+                out[r] = terrain.heights(x[r], y[r])
+        return out
+
+    def _height_reading(self, live: np.ndarray) -> np.ndarray:
+        x, y, z = self.x[live], self.y[live], self.z[live]
+        value = z - self._heights(x, y, live)
+        if self.noisy_range.any():
+            if self.range_used == self.range_buf.shape[1]:
+                for j in np.flatnonzero(self.noisy_range).tolist():
+                    self.range_buf[j] = self.sensors[j].draw_block()
+                self.range_used = 0
+            noisy = self.noisy_range[live]
+            value = np.where(noisy, value + self.range_buf[live, self.range_used], value)
+            self.range_used += 1
+        return value
+
+    def _search(self, rows: np.ndarray, live: np.ndarray, vx: np.ndarray, vy: np.ndarray) -> None:
+        """StripSearch.velocity for live[rows], into vx[rows], vy[rows]."""
+        pending = rows
+        while pending.size:
+            j = live[pending]
+            going = self.wp_next[j] < self.wp_count[j]
+            pending, j = pending[going], j[going]  # finished strips: (0, 0)
+            if not pending.size:
+                break
+            w = self.wp[j, self.wp_next[j]]
+            dx = w[:, 0] - self.x[j]
+            dy = w[:, 1] - self.y[j]
+            dist = _f64(_hypot(dx, dy))
+            arrived = dist < 0.25
+            self.wp_next[j[arrived]] += 1
+            go = ~arrived
+            v = np.minimum(self.v_max[j[go]], dist[go])
+            vx[pending[go]] = dx[go] / dist[go] * v
+            vy[pending[go]] = dy[go] / dist[go] * v
+            pending = pending[arrived]
+        head = rows[self.sets_heading[live[rows]] & ((vx[rows] != 0.0) | (vy[rows] != 0.0))]
+        if head.size:
+            h = _f64(_atan2(vy[head], vx[head]))
+            for j, value in zip(live[head].tolist(), h.tolist()):
+                self.ctrl[j].heading = value
+
+    def _decide(self, live: np.ndarray, t: float, height: np.ndarray):
+        """The epoch tick: every live run's controller, on its own new epoch."""
+        cmds, plans = [], []
+        xs, ys, zs = self.x[live].tolist(), self.y[live].tolist(), self.z[live].tolist()
+        for j, x, y, z, h in zip(live.tolist(), xs, ys, zs, height.tolist()):
+            ctrl = self.ctrl[j]
+            ids, d, delta, fld = self.held[j]
+            cmds.append(ctrl.command(Observation(t, x, y, z, self.yaw[j], h, ids, d, delta, fld, True)))
+            plans.append(ctrl.tick_plan())
+        vx, vy, vz = (np.array(c, dtype=np.float64) for c in zip(*cmds))
+        self.mode[live] = [p.mode for p in plans]
+        self.pvx[live] = [p.vx for p in plans]
+        self.pvy[live] = [p.vy for p in plans]
+        self.bx[live] = [p.x for p in plans]
+        self.by[live] = [p.y for p in plans]
+        self.bspeed[live] = [p.speed for p in plans]
+        for j, p in zip(live.tolist(), plans):
+            if p.mode == PLAN_SEARCH:
+                self.wp_next[j] = self.ctrl[j].strips.next
+        return vx, vy, vz
+
+    def _plan(self, j: int) -> None:
+        p = self.ctrl[j].tick_plan()
+        self.mode[j], self.pvx[j], self.pvy[j] = p.mode, p.vx, p.vy
+        self.bx[j], self.by[j], self.bspeed[j] = p.x, p.y, p.speed
+        if p.mode == PLAN_SEARCH:
+            self.wp_next[j] = self.ctrl[j].strips.next
+
+    def _observation(self, j: int, t: float, height: float, new_epoch: bool) -> Observation:
+        ids, d, delta, fld = self.held[j]
+        return Observation(t, float(self.x[j]), float(self.y[j]), float(self.z[j]), self.yaw[j], height,
+                           ids, d, delta, fld, new_epoch)
+
+    def _step_vehicles(self, live, vx, vy, vz) -> None:
+        """UAV.step for every live run (paper eq. 9)."""
+        v_max = self.v_max[live]
+        speed = _f64(_hypot(vx, vy))
+        over = speed > v_max
+        if over.any():
+            k = v_max[over] / speed[over]
+            vx[over] *= k
+            vy[over] *= k
+        vz = np.minimum(np.maximum(vz, -self.v_z_max[live]), self.v_z_max[live])
+        x = self.x[live] + vx * self.dt
+        y = self.y[live] + vy * self.dt
+        z = self.z[live] + vz * self.dt
+        ground = self._heights(x, y, live)
+        below = z < ground
+        self.x[live], self.y[live] = x, y
+        self.z[live] = np.where(below, ground, z)
+        self.contacts[live] += below
+
+    # -- one epoch ----------------------------------------------------------------------
+    def _measure(self, live: np.ndarray):
+        n = live.size
+        noise = None
+        if self.noise is not None:
+            z = np.zeros((n, len(self.ids), 5))
+            for i, j in enumerate(live.tolist()):
+                z[i, : self.m[j]] = self.noise[j].normals(1, int(self.m[j]))[0]
+            noise = ball_points(z)
+        pos = np.stack([self.x[live], self.y[live], self.z[live]], axis=1)
+        meas = measure(pos, self.quat[live], self.tx_pos[live], self.tx_quat[live], self.model, noise=noise, want_field=True)
+        return select_channels(meas, self.ids, self.channels)
+
+    def _epoch(self, live: np.ndarray) -> None:
+        t_k = self.next_k / self.rate_hz
+        ep = self._measure(live)
+        self.next_k += 1
+        # The field as nested lists only for controllers that read it (the costliest part).
+        fields = ep.field.tolist() if self.uses_field[live].any() else [None] * live.size
+        rows = zip(ep.ids.tolist(), ep.d.tolist(), ep.delta.tolist(), fields)
+        for j, (ids, d, delta, fld) in zip(live.tolist(), rows):
+            self.held[j] = (ids, d, delta, fld if self.uses_field[j] else None)
+        dt = self.dt
+        n = live.size
+        for i in range(self.ticks):
+            t = t_k + i * dt
+            height = self._height_reading(live)
+            vz = self.k_z[live] * (self.r_s[live] - height)
+            if i == 0:
+                vx, vy, vz = self._decide(live, t, height)
+            else:
+                vx, vy = self.pvx[live], self.pvy[live]
+                mode = self.mode[live]
+                search = np.flatnonzero(mode == PLAN_SEARCH)
+                if search.size:
+                    self._search(search, live, vx, vy)
+                back = np.flatnonzero(mode == PLAN_BACK)
+                if back.size:
+                    self._fly_back(back, live, vx, vy, vz, t, height)
+            self._step_vehicles(live, vx, vy, vz)
+
+    def _fly_back(self, rows, live, vx, vy, vz, t, height) -> None:
+        j = live[rows]
+        dx = self.bx[j] - self.x[j]
+        dy = self.by[j] - self.y[j]
+        dist = _f64(_hypot(dx, dy))
+        go = dist >= _ARRIVE_M
+        v = np.minimum(self.bspeed[j[go]], dist[go] / self.dt)
+        vx[rows[go]] = dx[go] / dist[go] * v
+        vy[rows[go]] = dy[go] / dist[go] * v
+        for r in rows[~go].tolist():  # on the minimum: the controller decides
+            k = int(live[r])
+            vx[r], vy[r], vz[r] = self.ctrl[k].command(self._observation(k, t, float(height[r]), False))
+            self._plan(k)
+
+    # -- whole searches -----------------------------------------------------------------
+    def run(self, t_max: float, stop_when_found: bool = True) -> list[RunResult]:
+        wall = time.perf_counter()
+        n = len(self.scenes)
+        want = [set(s.transmitter_ids.tolist()) for s in self.scenes]
+        k_max = math.ceil(t_max * self.rate_hz)
+        t_end = np.zeros(n)
+        live = np.arange(n)
+        while live.size and self.next_k < k_max:
+            last = (self.x[live], self.y[live], self.z[live])
+            self._epoch(live)
+            step = _f64(_hypot3(self.x[live] - last[0], self.y[live] - last[1], self.z[live] - last[2]))
+            self.path[live] += step
+            done = np.zeros(live.size, dtype=bool)
+            for r, j in enumerate(live.tolist()):
+                ctrl = self.ctrl[j]
+                if self.mode[j] == PLAN_SEARCH and ctrl.strips is not None:
+                    ctrl.strips.next = int(self.wp_next[j])
+                if (stop_when_found and want[j] <= ctrl.marked) or ctrl.exhausted:
+                    done[r] = True
+            t_end[live] = self.next_k / self.rate_hz
+            live = live[~done]
+        wall = time.perf_counter() - wall
+        return [self._result(j, float(t_end[j]), wall / n) for j in range(n)]
+
+    def _result(self, j: int, t_end: float, wall_s: float) -> RunResult:
+        s = self.scenes[j]
+        ch = self.channels
+        ctrl = self.ctrl[j]
+        return RunResult(
+            t=np.array([]),
+            position=np.zeros((0, 3)),
+            epoch_t=np.array([]),
+            ids=np.zeros((0, ch), dtype=np.int64),
+            d=np.zeros((0, ch), dtype=np.int64),
+            delta=np.zeros((0, ch), dtype=np.int64),
+            located=list(ctrl.located),
+            tx_ids=s.transmitter_ids,
+            tx_position=np.array([tx.trajectory.positions[0] for tx in s.transmitters]).reshape(-1, 3),
+            t_end=t_end,
+            exhausted=ctrl.exhausted,
+            wall_s=wall_s,
+            ground_contacts=int(self.contacts[j]),
+            path_length=float(self.path[j]),
+        )
+
+
+def run_batch(scenes: list[Scene], t_max: float, index: int = 0, stop_when_found: bool = True) -> list[RunResult]:
+    """``[ClosedLoop(s, index, record=False).run(t_max) for s in scenes]``, batched."""
+    return BatchLoop(scenes, index).run(t_max, stop_when_found)
