@@ -5,10 +5,13 @@ One row per (epoch, slot) of every logged receiver::
     t, seq, id, d, delta, rx_x, rx_y, rx_z, rx_qw, rx_qx, rx_qy, rx_qz,
     tx_x, tx_y, tx_z, tx_qw, tx_qx, tx_qy, tx_qz
 
-``t`` is the epoch's arrival (UTC POSIX seconds) minus ``--latency``; poses are in the
-session's ENU frame (metres; quaternions ``[w, x, y, z]`` body -> ENU), interpolated at
-that time from the devices' fixes (linear in position, slerp in orientation; both on
-the logger's monotonic clock, so all devices share one time base). Epochs are decoded
+``t`` is the epoch's arrival (UTC POSIX seconds: the arrival of its last byte, by the
+stamp rule of :mod:`bench.ingest.stamp`) minus ``--latency``; poses are in the session's
+ENU frame (metres; quaternions ``[w, x, y, z]`` body -> ENU), interpolated at that time
+from the devices' fixes (linear in position, slerp in orientation; both on the logger's
+monotonic clock, so all devices share one time base). Fixes or attitudes of one device
+with the same stamp (a link faster than its baud) are real data: the last of them is
+used. Epochs are decoded
 again from the raw bytes, so the export never depends on the derived ``.jsonl`` files.
 
 Rows are dropped, and counted, when the epoch is incomplete, when a pose cannot be
@@ -33,8 +36,9 @@ from emulator.frames.geodesy import Origin, geodetic_to_enu
 from emulator.progress import Tracker, progress
 from firmware_proto.errors import InputError
 
+from .ingest.stamp import Stamped, StampedDecoder
 from .records import ArvaRecords, decoder_for
-from .session import read_manifest, read_raw
+from .session import Manifest, load_manifest, read_raw
 
 COLUMNS = (
     "t", "seq", "id", "d", "delta",
@@ -112,25 +116,36 @@ class ExportResult:
         return int(self.columns["t"].size)
 
 
-def _decode(path: Path, decoder) -> list[tuple[float, float, dict]]:
-    """(mono, utc, record) for every record the raw reads yield, in order."""
-    out = []
-    raw = read_raw(path)
-    for read in raw.reads:
-        for rec in decoder.feed(read.data):
-            out.append((read.mono, read.utc, rec))
-    last = raw.reads[-1] if raw.reads else None
-    for rec in decoder.flush():
-        out.append((last.mono if last else 0.0, last.utc if last else 0.0, rec))
+def _decode(path: Path, decoder, baudrate: int) -> list[Stamped]:
+    """Every record the raw reads yield, in order, stamped by the stamp rule."""
+    return _decode_reads(read_raw(path).reads, decoder, baudrate)
+
+
+def _decode_reads(reads, decoder, baudrate: int) -> list[Stamped]:
+    stamped = StampedDecoder(decoder, baudrate)
+    out: list[Stamped] = []
+    for read in reads:
+        out += stamped.feed(read.data, read.mono, read.utc)
+    last = reads[-1] if reads else None
+    out += stamped.flush(last.mono if last else 0.0, last.utc if last else 0.0)
     return out
 
 
-def _origin_from(manifest: dict, origin: list[float] | None, first_fix) -> Origin:
+def _last_of_ties(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Samples sorted by time (stably), keeping the last of samples with the same time
+    (records of one device may tie: see :mod:`bench.ingest.stamp`)."""
+    order = np.argsort(t, kind="stable")
+    t, values = t[order], values[order]
+    keep = np.append(t[1:] != t[:-1], True)
+    return t[keep], values[keep]
+
+
+def _origin_from(manifest: Manifest, origin: list[float] | None, first_fix) -> Origin:
     if origin is not None:
         return Origin(origin[0], origin[1], origin[2] if len(origin) > 2 else 0.0)
-    if "origin" in manifest:
-        o = manifest["origin"]
-        return Origin(o["lat"], o["lon"], o.get("alt", 0.0))
+    if manifest.origin is not None:
+        o = manifest.origin
+        return Origin(o.lat, o.lon, o.alt)
     if first_fix is not None:
         return Origin(*first_fix)
     raise InputError("export: no origin: the session has none and no receiver GPS fix; give --origin LAT,LON,ALT")
@@ -141,8 +156,8 @@ def export_rows(
 ) -> ExportResult:
     """The normative table of a session as numpy columns, with the drop counts."""
     directory = Path(directory)
-    manifest = read_manifest(directory)
-    devices = manifest.get("devices", {})
+    manifest = load_manifest(directory)
+    devices = manifest.devices
     fixes: dict[str, list] = {}
     attitudes: dict[str, list] = {}
     epochs: dict[str, list] = {}
@@ -150,14 +165,20 @@ def export_rows(
         path = directory / f"{name}.raw"
         if not path.exists():
             continue  # a device that never delivered a byte
-        if dev["kind"] == "arva":
-            epochs[name] = [(m, u, r) for m, u, r in _decode(path, ArvaRecords()) if "seq" in r]
+        if dev.kind == "arva":
+            reads = read_raw(path).reads
+            records = _decode_reads(reads, ArvaRecords(), dev.baudrate)
+            epochs[name] = [(s.mono, s.utc, s.record) for s in records if "seq" in s.record]
+            size = sum(len(r.data) for r in reads)
+            if size and not epochs[name]:
+                raise InputError(f"{path}: {size} bytes decode to no $PARVA epoch (is {name} an ARVA receiver?)")
         else:
-            for m, _u, r in _decode(path, decoder_for(dev["kind"], dev.get("format"))):
+            for s in _decode(path, decoder_for(dev.kind, dev.format), dev.baudrate):
+                r = s.record
                 if r.get("sentence") == "GGA" and r.get("valid") and r.get("alt_hae") is not None:
-                    fixes.setdefault(dev["role"], []).append((m, r["lat"], r["lon"], r["alt_hae"]))
+                    fixes.setdefault(dev.role, []).append((s.mono, r["lat"], r["lon"], r["alt_hae"]))
                 elif "q" in r:
-                    attitudes.setdefault(dev["role"], []).append((m, r["q"]))
+                    attitudes.setdefault(dev.role, []).append((s.mono, r["q"]))
     # The earliest receiver fix, as the logger stores it when there is no --origin.
     first_rx = min((fs[0] for role, fs in fixes.items() if role.startswith("rx") and fs), default=None)
     org = _origin_from(manifest, origin, None if first_rx is None else first_rx[1:])
@@ -165,23 +186,23 @@ def export_rows(
     for role, fs in fixes.items():
         a = np.array(fs)
         e, n, u = geodetic_to_enu(a[:, 1], a[:, 2], a[:, 3], org)
-        tracks.setdefault(role, Track()).pos_t = a[:, 0]
-        tracks[role].pos = np.c_[e, n, u]
+        tr = tracks.setdefault(role, Track())
+        tr.pos_t, tr.pos = _last_of_ties(a[:, 0], np.c_[e, n, u])
     for role, ats in attitudes.items():
-        tracks.setdefault(role, Track()).att_t = np.array([m for m, _ in ats])
-        tracks[role].att = np.array([q for _, q in ats])
-    for tx, pose in manifest.get("tx_poses", {}).items():
+        tr = tracks.setdefault(role, Track())
+        tr.att_t, tr.att = _last_of_ties(np.array([m for m, _ in ats]), np.array([q for _, q in ats]))
+    for tx, pose in manifest.tx_poses.items():
         tr = tracks.setdefault(f"tx{tx}", Track())
-        e, n, u = geodetic_to_enu(pose["lat"], pose["lon"], pose["alt"], org)
+        e, n, u = geodetic_to_enu(pose.lat, pose.lon, pose.alt, org)
         tr.fixed_pos = np.array([float(e), float(n), float(u)])
-        if "heading" in pose:
-            tr.fixed_att = hpr_to_quaternion(pose["heading"], pose.get("roll", 0.0), pose.get("pitch", 0.0))
+        if pose.heading is not None:
+            tr.fixed_att = hpr_to_quaternion(pose.heading, pose.roll, pose.pitch)
     known_tx = sorted(int(role[2:]) for role in tracks if role.startswith("tx"))
 
     dropped: Counter = Counter()
     parts: list[dict[str, np.ndarray]] = []
     for name, eps in epochs.items():
-        role = devices[name]["role"]
+        role = devices[name].role
         rows = []
         for mono, utc, rec in eps:
             if not rec["complete"]:

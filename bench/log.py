@@ -26,7 +26,8 @@ from firmware_proto.errors import InputError, LinkError
 
 from . import __version__
 from .log_status import LiveStatus
-from .logger import DeviceLogger, DeviceSpec
+from .ingest.reader import SWITCH_INTERVAL, Device, Notifier
+from .logger import DeviceSpec, SessionListener
 from .records import FORMATS, decoder_for
 from .preflight import check_sources
 from .session import SessionWriter
@@ -125,12 +126,20 @@ class _FirstFixOrigin:
             self.on_fatal(exc)
 
 
+#: Seconds a stop waits for the reads already taken to be written (a loaded machine can
+#: leave seconds of backlog; losing them would be losing data).
+STOP_TIMEOUT = 120.0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.duration is not None and not (0 < args.duration < float("inf")):
+        raise InputError(f"log: --duration {args.duration}: must be a finite number of seconds > 0")
     specs = device_specs(args)
     check_sources(specs, "log")  # a source that can never work is an error, not hours of nothing
     writer = SessionWriter(args.out, manifest(args, specs, sys.argv))
     stop = threading.Event()
     fatal: list[Exception] = []
+    stopped_by = ["user"]
 
     def on_fatal(exc: Exception) -> None:
         fatal.append(exc)
@@ -139,35 +148,47 @@ def run(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     origin = None if args.origin else _FirstFixOrigin(writer, on_fatal)  # one for all receivers
-    loggers = [DeviceLogger(spec, writer, on_fatal, origin) for spec in specs]
-    for lg in loggers:
-        lg.start()
+    devices = [Device(spec) for spec in specs]
+    session = SessionListener(writer, on_fix=origin)
+    notifier = Notifier(devices, [session], on_error=on_fatal, name="log", switch_interval=SWITCH_INTERVAL)
+    notifier.start()
     t0 = time.monotonic()
-    status = LiveStatus(loggers) if sys.stderr.isatty() else None
+    status = LiveStatus(devices) if sys.stderr.isatty() else None
     live = status.start() if status is not None else None
     try:
-        while not stop.wait(0.25):
+        while not stop.wait(0.25 if args.duration is None else min(0.25, max(0.0, t0 + args.duration - time.monotonic()))):
             if args.duration is not None and time.monotonic() - t0 >= args.duration:
+                stopped_by[0] = "duration"
                 break
             if status is not None:
                 status.update(live, time.monotonic() - t0)
     finally:
         if live is not None:
             live.stop()
-        for lg in loggers:
-            lg.stop()
-        summary = {lg.spec.name: {**vars(lg.stats), "decoder": lg.decoder.stats()} for lg in loggers}
-        for s in summary.values():
-            s.pop("last_data_mono", None)
-            s.pop("connected", None)
-        writer.close(devices=summary, stopped_by="disk error" if fatal else "user")
-    for lg in loggers:
-        st = lg.stats
+        notifier.stop(timeout=STOP_TIMEOUT)  # every read already taken is written first
+        if notifier.thread.is_alive():
+            print(f"arva-bench: log: the writer did not finish within {STOP_TIMEOUT:g} s; the last reads may be "
+                  "missing", file=sys.stderr)  # fmt: skip
+        summary = session.summary(devices)
+        for dev in devices:
+            if dev.cut_at_stop:
+                summary[dev.spec.name]["cut_at_stop"] = dev.cut_at_stop
+            if not dev.opens:
+                summary[dev.spec.name]["never_opened"] = dev.reason or "not opened"
+        writer.close(devices=summary, stopped_by="disk error" if fatal else stopped_by[0])
+    for dev in devices:
+        c = summary[dev.spec.name]
         print(
-            f"arva-bench: log: {lg.spec.name}: {st.reads} reads, {st.bytes} bytes, {st.records} records, "
-            f"{st.gaps} gaps",
+            f"arva-bench: log: {dev.spec.name}: {c['reads']} reads, {c['bytes']} bytes, {c['records']} records, "
+            f"{c['gaps']} gaps",
             file=sys.stderr,
         )
+    for dev in devices:
+        if not dev.opens:
+            print(f"arva-bench: log: {dev.spec.name}: never opened: {dev.reason or 'no attempt finished'}",
+                  file=sys.stderr)  # fmt: skip
     if fatal:
         raise LinkError(f"log: {fatal[0]}; the session was closed, everything before is kept")
+    if not any(c["bytes"] for c in summary.values()):
+        raise InputError(f"log: no device delivered a byte; {writer.dir} holds only the manifest and events")
     return 0

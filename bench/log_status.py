@@ -4,7 +4,8 @@ One row per device: link up/down, record and byte rates over the last
 :data:`WINDOW` seconds (so a device that stalls shows 0/s within seconds, not a
 slowly decaying session average), totals, decoder errors, gaps, and time since its
 last data. The main thread calls :meth:`LiveStatus.update` four times a second; it only
-reads the loggers' counters (ints written by their threads: a torn read is impossible).
+reads the counters of the ingest's :class:`~bench.ingest.reader.Device` objects (ints
+written by the ingest's work thread as it decodes each read: a torn read is impossible).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ def si(value: float, unit: str) -> str:
 
 
 class LiveStatus:
-    """Rates and the table for a list of :class:`~bench.logger.DeviceLogger`."""
+    """Rates and the table for a list of :class:`~bench.ingest.reader.Device`."""
 
     def __init__(self, loggers, window: float = WINDOW) -> None:
         self.loggers = loggers

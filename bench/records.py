@@ -37,6 +37,12 @@ class RecordDecoder:
     def flush(self) -> list[dict]:
         return []
 
+    def stop(self) -> tuple[list[dict], int]:
+        """End of input because the reading stopped (not because the stream broke): the
+        records still pending, and the length of an unterminated sentence at the end,
+        dropped without an error (its bytes are in the raw log)."""
+        return self.flush(), 0
+
     def stats(self) -> dict[str, int]:
         return {}
 
@@ -55,6 +61,10 @@ class ArvaRecords(RecordDecoder):
 
     def flush(self) -> list[dict]:
         return self._records(self.decoder.flush())
+
+    def stop(self) -> tuple[list[dict], int]:
+        cut = self.decoder.discard_partial()
+        return self._records(self.decoder.flush()), cut
 
     @staticmethod
     def _records(events) -> list[dict]:
@@ -111,6 +121,9 @@ class GroundTruthRecords(RecordDecoder):
 
     def flush(self) -> list[dict]:
         return self._flagged(self.reader.flush)
+
+    def stop(self) -> tuple[list[dict], int]:
+        return [], self.reader.pending  # records complete with their line: none is pending
 
     def _flagged(self, step) -> list[dict]:
         stats = self.reader.stats

@@ -14,11 +14,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import heapq
 import signal
 import sys
 import threading
-import time
 from pathlib import Path
 
 from emulator.cli_types import existing_dir, seconds, session_dir, speed
@@ -27,7 +25,8 @@ from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
 from emulator.progress import progress
 from firmware_proto.errors import InputError
 
-from .session import read_manifest, read_raw
+from .ingest.pacer import ReplayPacer, check_speed, load_reads
+from .session import load_manifest
 
 
 def register(sub) -> None:
@@ -56,13 +55,12 @@ def _open(name: str, spec: str, link_dir: Path | None, serve_any_host: bool = Fa
 
 
 def run(args: argparse.Namespace) -> int:
-    if not (args.speed >= 0 and args.speed < float("inf")):
-        raise InputError(f"replay: --speed {args.speed}: must be a finite number >= 0")
+    check_speed(args.speed, "replay")
     if args.link is not None and not args.link.is_dir():
         raise InputError(f"replay: --link {args.link}: not a directory")
     directory = Path(args.session)
-    manifest = read_manifest(directory)
-    names = [n for n in manifest.get("devices", {}) if (directory / f"{n}.raw").exists()]
+    manifest = load_manifest(directory)
+    names = [n for n in manifest.devices if (directory / f"{n}.raw").exists()]
     if not names:
         raise InputError(f"replay: {directory}: no device has logged anything")
     ports_for = {n: args.port for n in names}
@@ -73,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         ports_for[name] = port
     if sum(1 for p in ports_for.values() if p == "-") > 1:
         raise InputError("replay: only one device can go to stdout (-)")
-    reads = {n: read_raw(directory / f"{n}.raw").reads for n in names}
+    reads = load_reads(directory, names)
     if not any(reads.values()):  # e.g. killed during its very first write: only a torn line
         raise InputError(f"replay: {directory}: no complete read in any device's raw log")
     ports: dict[str, Port] = {}
@@ -92,25 +90,18 @@ def run(args: argparse.Namespace) -> int:
             for port in ports.values():
                 port.set_drain_wait(0.05)
         stop.wait(args.delay)
-        # Merge every device's reads by the logger's clock.
-        queue = [(r[0].mono, i, n, 0) for i, (n, r) in enumerate(reads.items()) if r]
-        heapq.heapify(queue)
-        t0 = queue[0][0]  # the heap's smallest
-        start = time.monotonic()
-        sent = 0
+        # Every device's reads merged by the logger's clock, at their recorded pace.
+        t0 = min(r[0].mono for r in reads.values() if r)
         t_last = max(r[-1].mono for r in reads.values() if r)
         bar = stack.enter_context(progress("replay", total=t_last - t0, unit="s of session"))
-        while queue and not stop.is_set():
-            mono, i, name, j = heapq.heappop(queue)
-            if args.speed > 0:
-                delay = start + (mono - t0) / args.speed - time.monotonic()
-                if delay > 0 and stop.wait(delay):
-                    break
-            ports[name].write(reads[name][j].data)
-            bar.update(completed=mono - t0)
-            sent += 1
-            if j + 1 < len(reads[name]):
-                heapq.heappush(queue, (reads[name][j + 1].mono, i, name, j + 1))
+
+        def deliver(name: str, read) -> None:
+            ports[name].write(read.data)
+            bar.update(completed=read.mono - t0)
+
+        pacer = ReplayPacer(reads, args.speed, stop)
+        pacer.run(deliver)
+        sent = pacer.sent
     finally:
         stack.close()
         for port in ports.values():

@@ -21,6 +21,7 @@ import binascii
 import errno
 import datetime as _dt
 import json
+import math
 import os
 import threading
 import time
@@ -33,7 +34,9 @@ from firmware_proto.errors import InputError, LinkError
 MANIFEST = "manifest.json"
 EVENTS = "events.jsonl"
 FORMAT = "arva-session"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Bytes of padding kept after the manifest's text (see SessionWriter._write_manifest).
+MANIFEST_RESERVE = 8192
 
 
 def utc_iso(t: float | None = None) -> str:
@@ -143,18 +146,45 @@ class SessionWriter:
                 raise LinkError(f"{self.dir / MANIFEST}: write failed: {exc.strerror or exc}") from None
 
     def _write_manifest(self) -> None:
-        tmp = self.dir / (MANIFEST + ".tmp")
+        """Atomic rewrite (a crash leaves the old manifest or the new one). The file is padded
+        with spaces (JSON allows trailing white space) to at least :data:`MANIFEST_RESERVE`
+        bytes beyond its text, so that when a full disk refuses the new file the final
+        manifest can still be written over the blocks the old one already holds."""
         data = json.dumps(self.manifest, indent=2, sort_keys=True).encode() + b"\n"
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, self.dir / MANIFEST)
+        data += b" " * MANIFEST_RESERVE + b"\n"
+        tmp = self.dir / (MANIFEST + ".tmp")
+        try:
+            with open(tmp, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.dir / MANIFEST)
+        except OSError:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+            raise
         dir_fd = os.open(self.dir, os.O_RDONLY)
         try:
             os.fsync(dir_fd)  # the rename itself survives a power cut
         finally:
             os.close(dir_fd)
+
+    def _overwrite_manifest(self) -> None:
+        """The last resort of a full disk: the manifest written in place, over the old one's
+        blocks (no allocation), its text padded with spaces to the old length."""
+        path = self.dir / MANIFEST
+        text = json.dumps(self.manifest, indent=2, sort_keys=True).encode() + b"\n"
+        size = path.stat().st_size
+        if len(text) + 1 > size:
+            raise OSError(errno.ENOSPC, "no room for the final manifest")
+        fd = os.open(path, os.O_WRONLY)
+        try:
+            os.pwrite(fd, text + b" " * (size - len(text) - 1) + b"\n", 0)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
     # -- what callers write -------------------------------------------------------
     def raw(self, device: str, data: bytes, mono: float | None = None, utc: float | None = None) -> None:
@@ -215,7 +245,152 @@ class SessionWriter:
             try:
                 self._write_manifest()
             except OSError:
-                pass  # the start manifest is still there
+                try:
+                    self._overwrite_manifest()
+                except OSError:
+                    pass  # the previous manifest is still there, whole
+
+
+# -- the manifest, typed ---------------------------------------------------------------
+def _kind_of(value) -> str:
+    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null",
+            int: "an integer", float: "a number"}.get(type(value), type(value).__name__)
+
+
+def _number(obj: dict, key: str, where: str, lo: float = -math.inf, hi: float = math.inf, default=None) -> float:
+    if key not in obj:
+        if default is not None:
+            return default
+        raise ValueError(f"{where}: missing {key!r}")
+    v = obj[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+        raise ValueError(f"{where}.{key}: expected a finite number in [{lo:g}, {hi:g}], got {json.dumps(v)}")
+    return float(v)
+
+
+def _object(value, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise ValueError(f"{where}: expected an object, got {_kind_of(value)}")
+    return value
+
+
+@dataclass(frozen=True)
+class DeviceEntry:
+    """One logged device: its ``<name>.raw`` holds the reads. ``baudrate`` (bit/s, 8N1) is
+    the link's, used by the stamp rule (:mod:`bench.ingest.stamp`)."""
+
+    kind: str
+    url: str = ""
+    role: str = "rx"
+    baudrate: int = 115200
+    format: str | None = None
+
+    @classmethod
+    def from_json(cls, name: str, obj, where: str) -> DeviceEntry:
+        from .records import FORMATS, KINDS
+
+        if not name or "/" in name or "\\" in name or name.startswith("."):
+            raise ValueError(f"{where}: {name!r} is not a device name (it names a file in the session)")
+        obj = _object(obj, where)
+        kind = obj.get("kind")
+        if kind not in KINDS:
+            raise ValueError(f"{where}.kind: unknown device kind {json.dumps(kind)} (one of {', '.join(KINDS)})")
+        url = obj.get("url", "")
+        if not isinstance(url, str):
+            raise ValueError(f"{where}.url: expected a string, got {_kind_of(url)}")
+        role = obj.get("role", "rx")
+        if not (isinstance(role, str) and (role == "rx" or (role[:2] in ("rx", "tx") and role[2:].isdigit()))):
+            raise ValueError(f"{where}.role: expected rx, rx<ID> or tx<ID>, got {json.dumps(role)}")
+        baud = obj.get("baudrate", 115200)
+        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
+            raise ValueError(f"{where}.baudrate: expected a positive integer, got {json.dumps(baud)}")
+        fmt = obj.get("format")
+        if fmt is not None and fmt not in FORMATS.get(kind, ()):
+            raise ValueError(f"{where}.format: a {kind} device cannot speak {json.dumps(fmt)}")
+        return cls(kind, url, role, baud, fmt)
+
+
+@dataclass(frozen=True)
+class GeoPose:
+    """A surveyed point (degrees, metres HAE) with an optional attitude (degrees)."""
+
+    lat: float
+    lon: float
+    alt: float
+    heading: float | None = None
+    roll: float = 0.0
+    pitch: float = 0.0
+
+    @classmethod
+    def from_json(cls, obj, where: str, alt_default: float | None = None, attitude: bool = False) -> GeoPose:
+        obj = _object(obj, where)
+        lat = _number(obj, "lat", where, -90.0, 90.0)
+        lon = _number(obj, "lon", where, -180.0, 180.0)
+        alt = _number(obj, "alt", where, -1e5, 1e5, default=alt_default)
+        if not attitude or "heading" not in obj:
+            return cls(lat, lon, alt)
+        return cls(lat, lon, alt, _number(obj, "heading", where, -360.0, 360.0),
+                   _number(obj, "roll", where, -180.0, 180.0, default=0.0),
+                   _number(obj, "pitch", where, -90.0, 90.0, default=0.0))  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """``manifest.json`` of a session, validated. Format versions: 1 (records stamped with
+    their read's time), 2 (records stamped by the stamp rule of :mod:`bench.ingest.stamp`);
+    the raw reads, from which every reader re-derives the records, are the same in both."""
+
+    version: int
+    devices: dict[str, DeviceEntry]
+    start_utc: str | None
+    stop_utc: str | None
+    origin: GeoPose | None
+    tx_poses: dict[int, GeoPose]
+    summary: dict | None
+    raw: dict  # the JSON object as read
+
+    @classmethod
+    def from_json(cls, obj, path: Path) -> Manifest:
+        try:
+            return cls._parse(obj)
+        except ValueError as exc:
+            raise InputError(f"{path}: {exc}") from None
+
+    @classmethod
+    def _parse(cls, obj) -> Manifest:
+        if not isinstance(obj, dict):
+            raise ValueError(f"not a session manifest (a JSON object), got {_kind_of(obj)}")
+        if obj.get("format") != FORMAT:
+            raise ValueError(f"not an {FORMAT} manifest")
+        version = obj.get("version", 0)
+        if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+            raise ValueError(f"version: expected a positive integer, got {json.dumps(version)}")
+        if version > FORMAT_VERSION:
+            raise ValueError(f"session format {version} is newer than this program reads ({FORMAT_VERSION})")
+        devices = {
+            name: DeviceEntry.from_json(name, dev, f"devices.{name}")
+            for name, dev in _object(obj.get("devices", {}), "devices").items()
+        }
+        origin = obj.get("origin")
+        origin = None if origin is None else GeoPose.from_json(origin, "origin", alt_default=0.0)
+        poses = {}
+        for tx, pose in _object(obj.get("tx_poses", {}), "tx_poses").items():
+            if not tx.isdigit():
+                raise ValueError(f"tx_poses: {tx!r} is not a transmitter ID")
+            poses[int(tx)] = GeoPose.from_json(pose, f"tx_poses.{tx}", attitude=True)
+        times = []
+        for key in ("start_utc", "stop_utc"):
+            value = obj.get(key)
+            if value is not None:
+                try:
+                    parse_utc(value)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{key}: expected a UTC time like 2026-01-15T10:00:00.000000Z, got {json.dumps(value)}") from None
+            times.append(value)
+        summary = obj.get("summary")
+        if summary is not None:
+            _object(summary, "summary")
+        return cls(version, devices, times[0], times[1], origin, poses, summary, obj)
 
 
 # -- reading ------------------------------------------------------------------------
@@ -248,7 +423,7 @@ def read_raw(path: str | Path) -> RawFile:
     as a SIGKILL or a power cut may leave) is skipped and reported in ``torn_tail``; an
     unparseable line followed by good ones is an :class:`InputError` naming the line.
     """
-    lines = Path(path).read_bytes().split(b"\n")
+    lines = _read_bytes(path).split(b"\n")
     complete, tail = lines[:-1], lines[-1]  # tail is b"" when the file ends in a newline
     reads: list[RawRead] = []
     for i, line in enumerate(complete):
@@ -263,6 +438,15 @@ def read_raw(path: str | Path) -> RawFile:
     return RawFile(reads, torn_tail=bool(tail))
 
 
+def _read_bytes(path: str | Path) -> bytes:
+    try:
+        return Path(path).read_bytes()
+    except IsADirectoryError:
+        raise InputError(f"{path}: a directory, not a log file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: unreadable: {exc.strerror or exc}") from None
+
+
 def _parses(line: bytes) -> bool:
     try:
         _parse_raw_line(line)
@@ -273,28 +457,41 @@ def _parses(line: bytes) -> bool:
 
 def read_jsonl(path: str | Path) -> Iterator[dict]:
     """Objects of a ``.jsonl`` file; a torn last line is skipped."""
-    lines = Path(path).read_bytes().split(b"\n")
+    lines = _read_bytes(path).split(b"\n")
     for i, line in enumerate(lines):
         if not line:
             continue
         try:
             yield json.loads(line)
-        except json.JSONDecodeError:
+        except ValueError:  # not JSON, or not UTF-8
             if i == len(lines) - 1:
                 return  # torn tail
             raise InputError(f"{path}: line {i + 1}: not JSON") from None
 
 
 def read_manifest(directory: str | Path) -> dict:
+    """The manifest of a session as a JSON object, validated (:func:`load_manifest`)."""
+    return load_manifest(directory).raw
+
+
+def load_manifest(directory: str | Path) -> Manifest:
+    """The typed manifest of a session directory; :class:`InputError` with one line naming
+    the file and the problem for anything that is not a session this program reads."""
     path = Path(directory) / MANIFEST
     try:
-        manifest = json.loads(path.read_text())
+        data = path.read_bytes()
     except FileNotFoundError:
         raise InputError(f"{directory}: not a session directory (no {MANIFEST})") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: unreadable: {exc}") from None
-    if manifest.get("format") != FORMAT:
-        raise InputError(f"{path}: not an {FORMAT} manifest")
-    if manifest.get("version", 0) > FORMAT_VERSION:
-        raise InputError(f"{path}: session format {manifest['version']} is newer than this program reads ({FORMAT_VERSION})")
-    return manifest
+    except IsADirectoryError:
+        raise InputError(f"{path}: a directory, not a manifest file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: unreadable: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not JSON (line {exc.lineno} column {exc.colno}: {exc.msg})") from None
+    return Manifest.from_json(obj, path)

@@ -38,9 +38,29 @@ def check_url(url: str) -> None:
         raise MissingExtra(f"a {scheme.lower()}:// device", package, extra) from None
 
 
-def open_device(url: str, baudrate: int = 115200, timeout: float | None = 0.1, **options) -> serial.SerialBase:
+def open_device(url: str, baudrate: int = 115200, timeout: float | None = 0.1, keep_input: bool = False,
+                **options) -> serial.SerialBase:  # fmt: skip
     """``serial.serial_for_url`` with our handlers registered; :class:`MissingExtra` for a
     scheme whose extra is missing; other errors propagate as pyserial raises them
-    (``serial.SerialException``, ``ValueError``)."""
+    (``serial.SerialException``, ``ValueError``).
+
+    ``keep_input``: pyserial discards what the OS has already buffered when it opens a port
+    (posix ``tcflush``, ``socket://`` reads and drops); a reconnecting logger wants those
+    bytes (they arrived during the outage), so the flush is skipped for this open."""
     check_url(url)
-    return serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, **options)
+    if not keep_input:
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, **options)
+    port = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, do_not_open=True, **options)
+    shadowed = [name for name in ("reset_input_buffer", "_reset_input_buffer") if hasattr(port, name)]
+    for name in shadowed:  # instance attributes shadow the methods during open() only
+        setattr(port, name, _keep)
+    try:
+        port.open()
+    finally:
+        for name in shadowed:
+            delattr(port, name)
+    return port
+
+
+def _keep() -> None:
+    """Stands in for pyserial's input flush while a port opens (see ``keep_input``)."""

@@ -229,6 +229,13 @@ class Decoder:
         self.assembler.idle(out)
         return out
 
+    def discard_partial(self) -> int:
+        """Forget an unterminated sentence at the end of the input so far, without an error
+        (the reader stopped in the middle of it: the stream itself is fine); its length."""
+        n = len(self._partial)
+        self._partial = b""
+        return n
+
     def flush(self) -> list[Event]:
         """End of stream: an open sentence is TRUNCATED, the pending epoch is emitted.
         The decoder stays usable (offsets and seq tracking continue)."""

@@ -27,6 +27,7 @@ from bench.dash.messages import (
 from bench.dash.recorder import SessionRecorder
 from bench.dash.sources import DeviceFeed, LiveSource, ReplaySource, SceneTruth
 from bench.dash.widgets import ChannelTable, DirectionIndicator, GroundTruthPanel, LinkPanel, ReceiverPanel, StatusBar
+from bench.ingest.reader import Device, LinkEvent
 from bench.logger import DeviceSpec
 from bench.session import SessionWriter, read_jsonl, read_manifest, read_raw
 from emulator.frames.geodesy import Origin, enu_to_geodetic
@@ -345,8 +346,8 @@ def test_record_key_starts_and_stops_a_session(tmp_path):
             assert directory.parent == tmp_path / "sessions"
             assert f"● REC {directory}" in str(app.query_one(StatusBar).content)
             assert app.query_one(StatusBar).has_class("-recording")
-            feed.received(data[:20], 5.0, 1.7e9)  # as a source thread does
-            feed.received(data[20:], 5.1, 1.7e9 + 0.1)
+            deliver(feed, data[:20], 5.0, 1.7e9)  # as the reader thread does
+            deliver(feed, data[20:], 5.1, 1.7e9 + 0.1)
             await pilot.press("r")
             assert feed.recorder is None and app.recorder is None
             assert str(app.query_one(StatusBar).content).endswith(f"saved {directory}")
@@ -360,7 +361,9 @@ def test_record_key_starts_and_stops_a_session(tmp_path):
     assert b"".join(r.data for r in read_raw(directory / "arva.raw").reads) == data
     records = list(read_jsonl(directory / "arva.jsonl"))
     assert [(r["seq"], r["slots"]) for r in records] == [(0, [[1, 1905, 21]]), (1, [[1, 1904, 21]])]
-    assert records[0]["mono"] == 5.1  # completed by the second read
+    # Completed by the second read, len(parva(1)) bytes before its end (the stamp rule at 115200 Bd).
+    assert records[0]["mono"] == round(5.1 - len(parva(1, 1, 1, 1, 1904, 21)) * 10 / 115200, 6)
+    assert records[1]["mono"] == 5.1
 
 
 def test_a_second_recording_gets_a_new_directory(tmp_path):
@@ -394,6 +397,11 @@ def test_recording_to_an_unwritable_place_is_reported(tmp_path):
 # -- reader threads -------------------------------------------------------------------------------
 
 
+def deliver(feed, data, mono, utc):
+    """One read, decoded by the feed's device, handed to the feed (as the reader thread does)."""
+    feed.on_read(feed.device, feed.device.ingest(data, mono, utc))
+
+
 class Collect:
     def __init__(self) -> None:
         self.messages: list = []
@@ -416,8 +424,8 @@ def test_feed_thins_a_flood_of_records_but_keeps_exact_counts():
     post = Collect()
     feed = DeviceFeed(DeviceSpec("arva", "arva", "x", "rx"), post)
     for k in range(1000):  # 1000 epochs in 1 s: far more than a UI draws
-        feed.received(parva(k, 1, 1, 1, 1905, 21), 10.0 + k / 1000, 0.0)
-    feed.flush()
+        deliver(feed, parva(k, 1, 1, 1, 1905, 21), 10.0 + k / 1000, 0.0)
+    feed.stop()
     epochs = post.of(EpochReceived)
     assert 30 <= len(epochs) <= 60
     assert epochs[-1].seq == 999 and epochs[-1].count == 1000  # the latest always arrives, with the true count
@@ -429,7 +437,7 @@ def test_feed_counts_checksum_errors_gaps_and_dropped_bytes():
     feed = DeviceFeed(DeviceSpec("arva", "arva", "x", "rx"), post)
     bad = parva(1, 1, 1, 1, 1900, 21)
     bad = bad[:-4] + (b"00" if bad[-4:-2] != b"00" else b"11") + b"\r\n"
-    feed.received(b"junk" + parva(0, 1, 1, 1, 1905, 21) + bad + parva(3, 1, 1, 1, 1890, 21), 1.0, 0.0)
+    deliver(feed, b"junk" + parva(0, 1, 1, 1, 1905, 21) + bad + parva(3, 1, 1, 1, 1890, 21), 1.0, 0.0)
     feed.status(force=True)
     c = post.of(LinkStatus)[-1].counters
     assert (c.records, c.checksum_errors, c.errors, c.seq_gaps, c.dropped_bytes) == (2, 1, 1, 1, 4 + len(bad))
@@ -439,7 +447,7 @@ def test_feed_counts_checksum_errors_gaps_and_dropped_bytes():
 
 def test_live_source_marks_an_unavailable_device_down_and_keeps_trying(tmp_path):
     post = Collect()
-    src = LiveSource(DeviceFeed(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty"), "rx"), post))
+    src = LiveSource([DeviceFeed(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty"), "rx"), post)])
     src.start()
     try:
         post.wait(lambda: any(m.state == "down" for m in post.of(LinkStatus)))
@@ -452,7 +460,7 @@ def test_live_source_marks_an_unavailable_device_down_and_keeps_trying(tmp_path)
 
 def test_live_source_reopens_a_silent_device_by_itself():
     post = Collect()
-    src = LiveSource(DeviceFeed(DeviceSpec("arva", "arva", "loop://", "rx"), post), stale_after=0.3)
+    src = LiveSource([DeviceFeed(DeviceSpec("arva", "arva", "loop://", "rx"), post)], stale_after=0.3)
     src.start()
     try:
         post.wait(lambda: any(m.counters.reconnects >= 2 for m in post.of(LinkStatus)))
@@ -467,7 +475,7 @@ def test_live_source_reopens_a_silent_device_by_itself():
 def test_live_source_reads_the_in_process_emulator_with_scene_truth():
     post = Collect()
     spec = DeviceSpec("arva", "arva", "arvaemu://?speed=0&frames=3", "rx")
-    src = LiveSource(DeviceFeed(spec, post, SceneTruth.for_url(spec.url, "rx")), stale_after=5)
+    src = LiveSource([DeviceFeed(spec, post, SceneTruth.for_url(spec.url, "rx"))], stale_after=5)
     src.start()
     try:
         post.wait(lambda: len(post.of(EpochReceived)) >= 3)
@@ -532,8 +540,9 @@ def test_replay_source_feeds_a_session_with_its_timing(tmp_path):
 def test_recorder_writes_what_a_logger_would(tmp_path):
     spec = DeviceSpec("gps-rx", "gps", "loop://", "rx")
     rec = SessionRecorder(tmp_path / "s", [spec], {"devices": {"gps-rx": spec.manifest()}})
-    rec.raw("gps-rx", b"$GPGGA,080000.00,4630.00000,N,00800.00000,E,1,09,0.9,2450.0,M,50.0,M,,*", 1.0, 1.7e9)
-    rec.event("gap", "gps-rx", reason="unplugged")
+    dev = Device(spec)
+    rec.on_read(dev, dev.ingest(b"$GPGGA,080000.00,4630.00000,N,00800.00000,E,1,09,0.9,2450.0,M,50.0,M,,*", 1.0, 1.7e9))
+    rec.on_link(dev, LinkEvent("gap", 2.0, "unplugged"))
     rec.close()
     assert read_raw(tmp_path / "s" / "gps-rx.raw").reads[0].mono == 1.0
     events = [json.loads(line)["event"] for line in (tmp_path / "s" / "events.jsonl").read_text().splitlines()]

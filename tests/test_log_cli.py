@@ -49,3 +49,30 @@ def test_unavailable_device_is_recorded_and_the_rest_logs(tmp_path):
     seqs = [r["seq"] for r in read_jsonl(tmp_path / "s" / "arva.jsonl") if "seq" in r]
     assert seqs[:5] == [0, 1, 2, 3, 4] and len(seqs) >= 20
     assert read_manifest(tmp_path / "s")["devices"]["gps-rx"]["url"] == "/dev/ttyNOPE7"
+
+
+def test_a_duration_stop_says_so_and_flags_no_cut_sentence(tmp_path):
+    proc = bench("log", "--arva", "arvaemu://?speed=50", "--out", str(tmp_path / "s"), "--duration", "1.0")
+    assert proc.returncode == 0, proc.stderr
+    manifest = read_manifest(tmp_path / "s")
+    assert manifest["summary"]["stopped_by"] == "duration" and "stop_utc" in manifest
+    records = list(read_jsonl(tmp_path / "s" / "arva.jsonl"))
+    assert len(records) >= 20 and [r for r in records if "error" in r] == []
+    assert manifest["summary"]["devices"]["arva"]["decoder"]["errors"] == 0
+
+
+def test_no_device_delivering_a_byte_is_exit_2_and_names_the_devices_never_opened(tmp_path):
+    import serial
+
+    try:
+        serial.Serial("/dev/ttyNOPE8")
+    except serial.SerialException as exc:
+        reason = str(exc)
+    proc = bench("log", "--arva", "/dev/ttyNOPE8", "--out", str(tmp_path / "s"), "--duration", "0.3")
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines() == [
+        "arva-bench: log: arva: 0 reads, 0 bytes, 0 records, 0 gaps",
+        f"arva-bench: log: arva: never opened: {reason}",
+        f"arva-bench: log: no device delivered a byte; {tmp_path / 's'} holds only the manifest and events",
+    ]
+    assert read_manifest(tmp_path / "s")["summary"]["devices"]["arva"]["never_opened"] == reason

@@ -196,4 +196,4 @@ def test_corrupt_bytes_are_kept_and_flagged(tmp_path):
     assert sum(1 for ev in Decoder().feed(raw) + Decoder().flush() if not isinstance(ev, Epoch) and hasattr(ev, "kind")) >= len(errors) - 1
     stop = [e for e in read_jsonl(out / "events.jsonl") if e["event"] == "stop"][0]
     assert stop["devices"]["arva"]["decoder"]["errors"] == len(errors)
-    assert json.loads((out / "manifest.json").read_text())["summary"]["stopped_by"] == "user"
+    assert json.loads((out / "manifest.json").read_text())["summary"]["stopped_by"] == "duration"  # issue 12

@@ -16,7 +16,7 @@ from firmware_proto.errors import InputError, LinkError
 
 
 def test_layout_and_exact_lines(tmp_path):
-    w = SessionWriter(tmp_path / "s", {"devices": {"arva": {"url": "loop://"}}})
+    w = SessionWriter(tmp_path / "s", {"devices": {"arva": {"kind": "arva", "url": "loop://"}}})
     w.raw("arva", b"$PARVA,0,1,1,-1,-1,-1*78\r\n", mono=12.5, utc=1_800_000_000.25)
     w.record("arva", {"seq": 0, "complete": True, "slots": [[-1, -1, -1]]})
     w.close(epochs=1)
@@ -27,8 +27,8 @@ def test_layout_and_exact_lines(tmp_path):
     events = list(read_jsonl(tmp_path / "s" / "events.jsonl"))
     assert [e["event"] for e in events] == ["start", "stop"] and events[1]["epochs"] == 1
     m = read_manifest(tmp_path / "s")
-    assert m["format"] == "arva-session" and m["version"] == 1
-    assert m["devices"] == {"arva": {"url": "loop://"}} and m["summary"] == {"epochs": 1}
+    assert m["format"] == "arva-session" and m["version"] == 2  # 2: records stamped by the stamp rule
+    assert m["devices"] == {"arva": {"kind": "arva", "url": "loop://"}} and m["summary"] == {"epochs": 1}
     assert m["start_utc"] <= m["stop_utc"]
     assert read_raw(tmp_path / "s" / "arva.raw").reads[0].data == b"$PARVA,0,1,1,-1,-1,-1*78\r\n"
 
@@ -193,7 +193,8 @@ def test_not_a_session(tmp_path):
 
 
 def test_a_full_disk_while_a_logger_stops_is_reported_not_raised(tmp_path):
-    from bench.logger import DeviceLogger, DeviceSpec
+    from bench.ingest.reader import Device, Notifier
+    from bench.logger import DeviceSpec, SessionListener
     from firmware_proto.sentences import encode_parva
 
     class FullWriter:
@@ -207,9 +208,35 @@ def test_a_full_disk_while_a_logger_stops_is_reported_not_raised(tmp_path):
             raise LinkError(f"{tmp_path}/arva.jsonl: write failed: No space left on device")
 
     fatal = []
-    lg = DeviceLogger(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty")), FullWriter(), fatal.append)
-    lg.start()
+    dev = Device(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty")))
+    notifier = Notifier([dev], [SessionListener(FullWriter())], on_error=fatal.append)
+    notifier.start()
     # One slot of a two-slot epoch: flushed at stop as an incomplete epoch record.
-    assert lg.decoder.feed(encode_parva(7, 2, 1, 1, 100, 0)) == []
-    lg.stop()  # must not raise: the session still gets closed by its owner
+    assert dev.decoder.feed(encode_parva(7, 2, 1, 1, 100, 0)) == []
+    notifier.stop()  # must not raise: the session still gets closed by its owner
     assert [str(e) for e in fatal] == [f"{tmp_path}/arva.jsonl: write failed: No space left on device"]
+
+
+def test_a_full_disk_still_leaves_a_finished_manifest(tmp_path, monkeypatch):
+    """The new manifest cannot be created: it is written over the old one's padding, and
+    no manifest.json.tmp stays behind."""
+    import builtins
+
+    w = SessionWriter(tmp_path / "s", {"devices": {"arva": {"kind": "arva", "url": "x"}}})
+    w.raw("arva", b"$PARVA,0,1,1,-1,-1,-1*78\r\n", mono=1.0, utc=1.8e9)
+    real_open = builtins.open
+
+    def full(path, mode="r", *a, **k):
+        if str(path).endswith(".tmp") and "w" in mode:
+            f = real_open(path, mode, *a, **k)
+            f.close()
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_open(path, mode, *a, **k)
+
+    monkeypatch.setattr(builtins, "open", full)
+    w.close(devices={"arva": {"reads": 1}}, stopped_by="disk error")
+    monkeypatch.undo()
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["arva.raw", "events.jsonl", "manifest.json"]
+    m = read_manifest(tmp_path / "s")
+    assert m["stop_utc"] >= m["start_utc"]
+    assert m["summary"] == {"devices": {"arva": {"reads": 1}}, "stopped_by": "disk error"}

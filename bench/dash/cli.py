@@ -27,10 +27,11 @@ from pathlib import Path
 from emulator.cli_types import baud_rate, output_dir, positive_seconds, speed
 from firmware_proto.errors import InputError
 
+from ..ingest.pacer import check_speed, load_reads
 from ..log import add_truth_arguments, device_arg, device_specs
 from ..logger import DeviceSpec
-from ..session import MANIFEST, read_manifest
 from ..preflight import check_sources
+from ..session import MANIFEST, load_manifest
 
 DEFAULT_SOURCE = "arvaemu://"
 
@@ -63,8 +64,7 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
 
     if not (args.stale > 0):
         raise InputError(f"dash: --stale {args.stale}: must be > 0")
-    if not (0 <= args.speed < float("inf")):
-        raise InputError(f"dash: --speed {args.speed}: must be a finite number >= 0")
+    check_speed(args.speed, "dash")
     sources = list(args.source) or [(DEFAULT_SOURCE, "rx")]
     sessions = [url for url, _ in sources if _is_session(url)]
     common = {"stale_after": args.stale, "record_dir": args.record_dir, "argv": list(sys.argv if argv is None else argv)}
@@ -74,27 +74,27 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
         directory = Path(sessions[0])
         if not (directory / MANIFEST).exists():
             raise InputError(f"dash: {directory}: not a session directory (no {MANIFEST})")
-        manifest = read_manifest(directory)
+        manifest = load_manifest(directory)
         specs = [
-            DeviceSpec(name, dev["kind"], dev.get("url", ""), dev.get("role", "rx"), dev.get("baudrate", args.baud),
-                       dev.get("format"))
-            for name, dev in manifest.get("devices", {}).items()
+            DeviceSpec(name, dev.kind, dev.url, dev.role, dev.baudrate, dev.format)
+            for name, dev in manifest.devices.items()
             if (directory / f"{name}.raw").exists()
         ]
         if not specs:
             raise InputError(f"dash: {directory}: no device has logged anything")
+        load_reads(directory, [s.name for s in specs])  # a corrupt log: one line now, not a dead panel later
         origin = args.origin
-        if origin is None and "origin" in manifest:
-            o = manifest["origin"]
-            origin = [o["lat"], o["lon"], o.get("alt", 0.0)]
+        if origin is None and manifest.origin is not None:
+            o = manifest.origin
+            origin = [o.lat, o.lon, o.alt]
         tx_poses = list(args.tx_pose)
         known = {tx for tx, _ in tx_poses}
-        for tx, pose in manifest.get("tx_poses", {}).items():
-            if int(tx) not in known:
-                values = [pose["lat"], pose["lon"], pose["alt"]]
-                if "heading" in pose:
-                    values += [pose["heading"], pose.get("roll", 0.0), pose.get("pitch", 0.0)]
-                tx_poses.append((int(tx), values))
+        for tx, pose in manifest.tx_poses.items():
+            if tx not in known:
+                values = [pose.lat, pose.lon, pose.alt]
+                if pose.heading is not None:
+                    values += [pose.heading, pose.roll, pose.pitch]
+                tx_poses.append((tx, values))
         return DashConfig(specs=specs, replay=directory, replay_speed=args.speed, origin=origin,
                           tx_poses=tx_poses, scene_truth=False, **common)  # fmt: skip
     ns = argparse.Namespace(arva=sources, gps=args.gps, attitude=args.attitude, baud=args.baud)

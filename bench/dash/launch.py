@@ -1,8 +1,9 @@
 """Starting a dashboard's sources: the reader threads of a :class:`~bench.dash.app.DashConfig`.
 
-Live devices get a :class:`~bench.dash.sources.LiveSource` each (with the scene's true
-poses for an ``arvaemu://`` receiver when asked); a session directory is replayed by one
-:class:`~bench.dash.sources.ReplaySource`. Threads talk to the app only through ``post``.
+Live devices are all read by one :class:`~bench.dash.sources.LiveSource` (the bench's one
+ingest loop), each with a feed (and the scene's true poses for an ``arvaemu://`` receiver
+when asked); a session directory is replayed by one
+:class:`~bench.dash.sources.ReplaySource`. Readers talk to the app only through ``post``.
 """
 
 from __future__ import annotations
@@ -20,10 +21,11 @@ def start_sources(config, post: Callable) -> list:
         feeds = [DeviceFeed(replace(s, url=str(config.replay / f"{s.name}.raw")), post) for s in config.specs]
         sources = [ReplaySource(config.replay, feeds, config.replay_speed)]
     else:
-        sources = []
+        feeds = []
         for spec in config.specs:
             truth = SceneTruth.for_url(spec.url, spec.role) if config.scene_truth and spec.kind == "arva" else None
-            sources.append(LiveSource(DeviceFeed(spec, post, truth), config.stale_after))
+            feeds.append(DeviceFeed(spec, post, truth))
+        sources = [LiveSource(feeds, config.stale_after)]  # one ingest loop reads them all
     for source in sources:
         source.start()
     return sources

@@ -1,43 +1,43 @@
-"""Background readers for the dashboard: one thread per device (or per replayed session).
+"""Readers for the dashboard: the bench's one ingest (:mod:`bench.ingest`), with a
+:class:`DeviceFeed` listener per device that turns reads into messages.
 
-A :class:`DeviceFeed` owns one device's decoder (:mod:`bench.records`, the same decoders
-``arva-bench log`` uses) and link counters, and turns reads into messages
-(:mod:`bench.dash.messages`) posted with ``post`` -- the app's ``post_message``, which is
-thread-safe; threads touch nothing else of the UI. It also hands every read to an
-optional recorder (:class:`bench.dash.recorder.SessionRecorder`) set by the app.
+A :class:`DeviceFeed` gets each device's reads already stamped and decoded (the same
+:class:`~bench.ingest.reader.Device` decoders ``arva-bench log`` uses), keeps link
+counters, and posts messages (:mod:`bench.dash.messages`) with ``post`` -- the app's
+``post_message``, which is thread-safe; the reader thread touches nothing else of the
+UI. It also hands every read and link event to an optional recorder
+(:class:`bench.dash.recorder.SessionRecorder`, a session listener) set by the app.
 
-* :class:`LiveSource` opens a path or pyserial URL with :func:`bench.transport.open_device`
-  and reads it; when the device fails, vanishes or stays silent longer than
-  ``stale_after`` seconds, it closes and reopens it, with backoff (0.1 s doubling to 2 s)
-  while opening fails -- a stale source reconnects by itself.
-* :class:`ReplaySource` replays a session directory's raw reads in-process, with their
-  recorded timing (``speed`` times real time; 0 as fast as possible), merged across
-  devices by the logger's monotonic clock as ``arva-bench replay`` does.
+* :class:`LiveSource`: one :class:`~bench.ingest.reader.Notifier` (one selector loop) for
+  every live device: chunked reads, reopening a device that fails, vanishes or stays
+  silent longer than ``stale_after`` seconds (retried every 50 ms while absent).
+* :class:`ReplaySource` replays a session directory's raw reads in-process with the
+  shared :class:`~bench.ingest.pacer.ReplayPacer` (``speed`` times real time; 0 as fast
+  as possible), merged across devices by the logger's monotonic clock as ``arva-bench
+  replay`` does.
 * :class:`SceneTruth`: for an ``arvaemu://`` source, the true poses of the receiver and
   transmitters at each epoch, from the scene itself (epoch k is at t = k / rate_hz).
 """
 
 from __future__ import annotations
 
-import heapq
 import threading
 import time
 import urllib.parse
 from collections.abc import Callable
 from pathlib import Path
 
-import serial
-
 from emulator.scene.reader import default_scene, load_scene
 from firmware_proto.errors import InputError
 
-from ..logger import BACKOFF_MAX, BACKOFF_START, DeviceSpec
-from ..records import ArvaRecords, GroundTruthRecords, decoder_for
-from ..session import read_raw
-from ..transport import open_device
+from ..ingest.pacer import ReplayPacer
+from ..ingest.reader import Device, DeviceSpec, LinkEvent, Listener, Notifier, Read
+from ..ingest.stamp import Stamped
+from ..records import ArvaRecords, GroundTruthRecords
+from ..session import RawRead, read_raw
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkCounters, LinkStatus, TruthPose
 
-#: Read timeout (s): how often a silent device is checked for staleness and stop requests.
+#: Seconds between idle ticks of a replay (a quiet link's epochs are released, statuses posted).
 READ_TIMEOUT = 0.1
 #: At most this many LinkStatus messages per second per device while data flows.
 STATUS_INTERVAL = 0.25
@@ -104,13 +104,15 @@ class SceneTruth:
         return out
 
 
-class DeviceFeed:
-    """Decoder, counters and messages of one device; used by one thread at a time."""
+class DeviceFeed(Listener):
+    """Messages and link counters of one device: a listener of the notifier (or replay
+    pacer) that reads and decodes it. Calls come from that one thread."""
 
-    def __init__(self, spec: DeviceSpec, post: Post, truth: SceneTruth | None = None) -> None:
-        self.spec = spec
+    def __init__(self, device: Device | DeviceSpec, post: Post, truth: SceneTruth | None = None) -> None:
+        self.device = device if isinstance(device, Device) else Device(device)
+        self.spec = self.device.spec
         self.post = post
-        self.decoder = decoder_for(spec.kind, spec.format)
+        self.decoder = self.device.decoder
         self.truth = truth
         self.recorder = None  # set and cleared by the app (an attribute write is atomic)
         self.reads = 0
@@ -119,7 +121,6 @@ class DeviceFeed:
         self.checksum_errors = 0
         self.errors = 0
         self.rejected_bytes = 0
-        self.reconnects = 0
         self.last_data_mono: float | None = None
         self.state = "connecting"
         self.reason = ""
@@ -130,32 +131,46 @@ class DeviceFeed:
         self._token_mono: float | None = None
         self._held: list | None = None  # the latest record's messages not posted yet
 
-    # -- data ----------------------------------------------------------------------------
-    def received(self, data: bytes, mono: float, utc: float) -> None:
+    @property
+    def reconnects(self) -> int:
+        return self.device.reconnects
+
+    # -- from the reader -------------------------------------------------------------------
+    def on_read(self, device: Device, read: Read) -> None:
         recorder = self.recorder
         if recorder is not None:
-            recorder.raw(self.spec.name, data, mono, utc)
-        self.reads += 1
-        self.bytes += len(data)
-        self.last_data_mono = mono
-        self._handle(self.decoder.feed(data), mono)
-        self._dirty = True
-        self.status(mono)
+            recorder.on_read(device, read)
+        self._handle(read.records)
+        if read.data:
+            self.reads += 1
+            self.bytes += len(read.data)
+            self.last_data_mono = read.mono
+            self._dirty = True
+            self.status(read.mono)
 
-    def idle(self) -> None:
-        mono = time.monotonic()
-        if isinstance(self.decoder, ArvaRecords):
-            self._handle(self.decoder.idle(), mono)
+    def on_link(self, device: Device, event: LinkEvent) -> None:
+        recorder = self.recorder
+        if recorder is not None:
+            recorder.on_link(device, event)
+        if event.kind in ("up", "reconnect"):
+            if self.truth is not None:
+                self.truth.reset()  # a new connection: the emulated receiver starts again
+            self.set_state("up")
+        elif event.kind == "gap" or (event.kind == "unavailable" and (self.state, self.reason) != ("down", event.reason)):
+            self.set_state("down", event.reason)
+
+    def on_tick(self, mono: float) -> None:
         if self._dirty or self._held is not None:
             self.status(mono)
 
-    def flush(self) -> None:
-        self._handle(self.decoder.flush(), time.monotonic())
+    def stop(self) -> None:
+        """The reading ended: post what is held back."""
         self._release()
 
-    def _handle(self, records: list[dict], mono: float) -> None:
+    def _handle(self, records: list[Stamped]) -> None:
         name, role = self.spec.name, self.spec.role
-        for rec in records:
+        for stamped in records:
+            rec, mono = stamped.record, stamped.mono
             err = rec.get("error")
             if err is not None:
                 if isinstance(err, dict):  # ground truth: counter increments
@@ -240,21 +255,46 @@ class DeviceFeed:
         self.state, self.reason = state, reason
         self.status(force=True)
 
-    def event(self, kind: str, **fields) -> None:
-        recorder = self.recorder
-        if recorder is not None:
-            recorder.event(kind, self.spec.name, **fields)
 
 
-class _SourceThread:
-    """One background thread feeding the app; started, stopped and joined by it."""
+class LiveSource:
+    """Every live device of the dashboard read by one :class:`~bench.ingest.reader.Notifier`
+    (one selector loop), each with its :class:`DeviceFeed` as listener; a device silent for
+    ``stale_after`` seconds is closed and reopened."""
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, feeds: list[DeviceFeed], stale_after: float = 3.0) -> None:
+        self._feeds = list(feeds)
+        self.notifier = Notifier([f.device for f in self._feeds], self._feeds, stale_after=stale_after, name="dash")
+        self.thread = self.notifier.thread
+
+    @property
+    def feeds(self) -> list[DeviceFeed]:
+        return list(self._feeds)
+
+    def start(self) -> None:
+        self.notifier.start()
+
+    def request_stop(self) -> None:
+        self.notifier.request_stop()
+
+    def join(self, timeout: float) -> None:
+        self.notifier.join(timeout)
+
+
+class ReplaySource:
+    """A thread replaying a session directory's devices with their recorded timing (the
+    shared :class:`~bench.ingest.pacer.ReplayPacer`); reads are stamped when delivered."""
+
+    def __init__(self, directory: str | Path, feeds: list[DeviceFeed], speed: float = 1.0) -> None:
+        self.directory = Path(directory)
+        self._feeds = {f.spec.name: f for f in feeds}
+        self.speed = speed
         self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self.thread = threading.Thread(target=self._run, name="dash-replay", daemon=True)
 
-    def _run(self) -> None:
-        raise NotImplementedError
+    @property
+    def feeds(self) -> list[DeviceFeed]:
+        return list(self._feeds.values())
 
     def start(self) -> None:
         self.thread.start()
@@ -266,112 +306,32 @@ class _SourceThread:
         if self.thread.is_alive():
             self.thread.join(timeout)
 
+    def _tick(self) -> None:
+        mono, utc = time.monotonic(), time.time()
+        for feed in self._feeds.values():
+            read = feed.device.idle(mono, utc)
+            if read.records:
+                feed.on_read(feed.device, read)
+            feed.on_tick(mono)
 
-class LiveSource(_SourceThread):
-    """A thread reading one device, reopening it when it fails or goes stale."""
-
-    def __init__(self, feed: DeviceFeed, stale_after: float = 3.0) -> None:
-        self.feed = feed
-        self.stale_after = stale_after
-        super().__init__(f"dash-{feed.spec.name}")
-
-    @property
-    def feeds(self) -> list[DeviceFeed]:
-        return [self.feed]
-
-    def _run(self) -> None:
-        feed, spec = self.feed, self.feed.spec
-        backoff = BACKOFF_START
-        opened_before = False
-        while not self._stop.is_set():
-            try:
-                port = open_device(spec.url, baudrate=spec.baudrate, timeout=READ_TIMEOUT)
-            except (serial.SerialException, OSError, ValueError) as exc:
-                if feed.state != "down" or feed.reason != str(exc):
-                    feed.event("unavailable", reason=str(exc))
-                    feed.set_state("down", str(exc))
-                self._stop.wait(backoff)
-                backoff = min(backoff * 2, BACKOFF_MAX)
-                continue
-            if opened_before:
-                feed.reconnects += 1
-                feed.event("reconnect")
-            opened_before = True
-            backoff = BACKOFF_START
-            if feed.truth is not None:
-                feed.truth.reset()
-            feed.set_state("up")
-            reason = ""
-            quiet_since = time.monotonic()
-            try:
-                while not self._stop.is_set():
-                    data = port.read(port.in_waiting or 1)
-                    now = time.monotonic()
-                    if data:
-                        feed.received(data, now, time.time())
-                        quiet_since = now
-                        continue
-                    feed.idle()
-                    if now - quiet_since > self.stale_after:
-                        reason = f"no data for {self.stale_after:g} s: reopening"
-                        break
-            except (serial.SerialException, OSError) as exc:
-                reason = str(exc) or type(exc).__name__
-            finally:
-                try:
-                    port.close()
-                except (serial.SerialException, OSError):
-                    pass
-            if self._stop.is_set():
-                break
-            feed.event("gap", reason=reason)
-            feed.set_state("down", reason)
-            self._stop.wait(backoff)
-        feed.flush()
-
-
-class ReplaySource(_SourceThread):
-    """A thread replaying a session directory's devices with their recorded timing."""
-
-    def __init__(self, directory: str | Path, feeds: list[DeviceFeed], speed: float = 1.0) -> None:
-        self.directory = Path(directory)
-        self._feeds = {f.spec.name: f for f in feeds}
-        self.speed = speed
-        super().__init__("dash-replay")
-
-    @property
-    def feeds(self) -> list[DeviceFeed]:
-        return list(self._feeds.values())
+    def _deliver(self, name: str, raw: RawRead) -> None:
+        feed = self._feeds[name]
+        feed.on_read(feed.device, feed.device.ingest(raw.data, time.monotonic(), time.time()))
 
     def _run(self) -> None:
         reads = {}
         for name, feed in self._feeds.items():
             try:
                 reads[name] = read_raw(self.directory / f"{name}.raw").reads
-            except (InputError, OSError) as exc:
+            except InputError as exc:
                 feed.set_state("down", str(exc))
                 reads[name] = []
             else:
                 feed.set_state("up")
-        queue = [(r[0].mono, i, n, 0) for i, (n, r) in enumerate(reads.items()) if r]
-        heapq.heapify(queue)
-        t0 = min((q[0] for q in queue), default=0.0)
-        start = time.monotonic()
-        while queue and not self._stop.is_set():
-            mono, i, name, j = heapq.heappop(queue)
-            if self.speed > 0:
-                delay = start + (mono - t0) / self.speed - time.monotonic()
-                while delay > 0 and not self._stop.is_set():
-                    self._stop.wait(min(delay, READ_TIMEOUT))
-                    for feed in self._feeds.values():
-                        feed.idle()
-                    delay = start + (mono - t0) / self.speed - time.monotonic()
-                if self._stop.is_set():
-                    break
-            self._feeds[name].received(reads[name][j].data, time.monotonic(), time.time())
-            if j + 1 < len(reads[name]):
-                heapq.heappush(queue, (reads[name][j + 1].mono, i, name, j + 1))
+        ReplayPacer(reads, self.speed, self._stop, tick=self._tick, tick_interval=READ_TIMEOUT).run(self._deliver)
+        mono, utc = time.monotonic(), time.time()
         for feed in self._feeds.values():
-            feed.flush()
+            feed.on_read(feed.device, feed.device.stop(mono, utc))
+            feed.stop()
             if not self._stop.is_set():
                 feed.set_state("ended", "end of the session")

@@ -61,11 +61,11 @@ COLUMNS = (
 )
 
 
-#: How long to wait for a dask scheduler before giving up (s).
-SCHEDULER_TIMEOUT_S = 10.0
-
 #: Sweep engines: runs stepped together (the default) or one by one (the reference).
 ENGINES = ("batch", "run")
+
+#: How long to wait for a dask scheduler before giving up (s).
+SCHEDULER_TIMEOUT_S = 10.0
 
 #: Strategy name -> the vehicle's controller (flux_reverse: eq. 10 with sign reversal).
 STRATEGIES = {"flux": "flux", "flux_reverse": "flux", "receiver_only": "receiver_only"}
@@ -485,8 +485,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-noise", action="store_true", help="ideal receiver (EMI noise off)")
     p.add_argument("--engine", choices=ENGINES, default="batch",
                    help="batch: runs of one strategy stepped together (default); run: one by one (the reference)")
-    p.add_argument("--bootstrap", type=integer(0, 1_000_000), default=1000, help="resamples for the p99/max confidence intervals (default 1000)")
-    p.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
+    p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000, help="resamples for the p99/max confidence intervals (default 1000)")
+    p.add_argument("--antennas", type=integer(2, 3), default=3, help="receiver class (default 3)")
     p.add_argument("--workers", type=integer(1, 1024), help="local processes (default: CPU count)")
     p.add_argument("--scheduler", type=scheduler_address, help="dask.distributed scheduler address, e.g. tcp://host:8786")
     p.add_argument("--out", type=output_file((".csv", ".parquet")),

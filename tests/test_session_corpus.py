@@ -1,0 +1,123 @@
+"""Corrupt and foreign sessions: every reader (export, fit, replay, dash) exits 2 with one
+exact line naming the file and the problem; never a traceback. The corpus is generated
+here, one small session per case."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from bench.cli import main
+from bench.session import SessionWriter
+from firmware_proto.sentences import encode_parva
+
+PASHR = b"$PASHR,080000.000,123.40,T,+01.50,-02.00,+00.00,0.050,0.050,0.100,1,1*06\r\n"
+
+
+def good_session(path):
+    w = SessionWriter(path, {"devices": {"arva": {"kind": "arva", "url": "x", "role": "rx"},
+                                         "attitude-rx": {"kind": "attitude", "url": "y", "role": "rx"}},
+                             "origin": {"lat": 46.5, "lon": 8.0, "alt": 2500.0},
+                             "tx_poses": {"1": {"lat": 46.5, "lon": 8.0, "alt": 2500.0}}})  # fmt: skip
+    w.raw("arva", encode_parva(0, 1, 1, 1, 1905, 21), mono=50.0, utc=1.7e9)
+    w.raw("attitude-rx", PASHR, mono=50.05, utc=1.7e9)
+    w.close()
+
+
+def set_manifest(path, text: bytes):
+    (path / "manifest.json").write_bytes(text)
+
+
+def edit_manifest(path, edit):
+    m = json.loads((path / "manifest.json").read_text())
+    edit(m)
+    set_manifest(path, json.dumps(m).encode())
+
+
+def _kind(m):
+    m["devices"]["attitude-rx"]["kind"] = "radar"
+
+
+def _no_lon(m):
+    del m["tx_poses"]["1"]["lon"]
+
+
+def _origin_text(m):
+    m["origin"] = "46.5,8.0"
+
+
+def _future(m):
+    m["version"] = 99
+
+
+def _escape(m):
+    m["devices"]["../etc"] = m["devices"].pop("attitude-rx")
+
+
+def _raw_dir(path):
+    (path / "attitude-rx.raw").unlink()
+    (path / "attitude-rx.raw").mkdir()
+
+
+def _raw_middle(path):
+    with open(path / "arva.raw", "ab") as f:
+        f.write(b"not a read\n12.0\t2027-01-15T08:00:00.250000Z\tJA==\n")
+
+
+M = "{d}/manifest.json"
+CASES = {
+    "non-utf8": (lambda p: set_manifest(p, b'{"format": "arva-session", "note": "\xff"}'),
+                 M + ": not UTF-8 text (byte 36)"),
+    "json-list": (lambda p: set_manifest(p, b"[1, 2]"), M + ": not a session manifest (a JSON object), got a list"),
+    "not-json": (lambda p: set_manifest(p, b'{"format": '), M + ": not JSON (line 1 column 12: Expecting value)"),
+    "foreign": (lambda p: set_manifest(p, b'{"format": "other"}'), M + ": not an arva-session manifest"),
+    "future": (lambda p: edit_manifest(p, _future), M + ": session format 99 is newer than this program reads (2)"),
+    "origin-string": (lambda p: edit_manifest(p, _origin_text), M + ": origin: expected an object, got a string"),
+    "tx-pose-no-lon": (lambda p: edit_manifest(p, _no_lon), M + ": tx_poses.1: missing 'lon'"),
+    "unknown-kind": (lambda p: edit_manifest(p, _kind),
+                     M + ': devices.attitude-rx.kind: unknown device kind "radar" (one of arva, gps, attitude)'),
+    "device-name-escapes": (lambda p: edit_manifest(p, _escape),
+                            M + ": devices.../etc: '../etc' is not a device name (it names a file in the session)"),
+    "raw-is-a-directory": (_raw_dir, "{d}/attitude-rx.raw: a directory, not a log file"),
+    "raw-bad-line": (_raw_middle, "{d}/arva.raw: line 2: not a raw record (not enough values to unpack (expected 3, got 1))"),
+}  # fmt: skip
+
+READERS = {
+    "export": lambda d, tmp: ["export", str(d), "--csv", str(tmp / "out.csv")],
+    "replay": lambda d, tmp: ["replay", str(d), "--speed", "0"],
+    "dash": lambda d, tmp: ["dash", str(d)],
+    "fit": lambda d, tmp: ["fit", str(d)],
+}
+
+
+@pytest.mark.parametrize("reader", sorted(READERS))
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_a_corrupt_session_is_one_line_and_exit_2(tmp_path, capsys, case, reader):
+    d = tmp_path / "s"
+    good_session(d)
+    corrupt, expected = CASES[case]
+    corrupt(d)
+    code = main(READERS[reader](d, tmp_path))
+    err = capsys.readouterr().err
+    line = expected.format(d=d)
+    if reader == "fit":  # the fit names its input argument first
+        line = f"fit: {d}: {line}"
+    assert (code, err) == (2, f"arva-bench: {line}\n")
+
+
+def test_a_receiver_log_that_decodes_to_nothing_is_an_error(tmp_path, capsys):
+    d = tmp_path / "s"
+    w = SessionWriter(d, {"devices": {"arva": {"kind": "arva", "url": "x", "role": "rx"}},
+                          "tx_poses": {"1": {"lat": 46.5, "lon": 8.0, "alt": 2500.0}}})  # fmt: skip
+    w.raw("arva", PASHR, mono=50.0, utc=1.7e9)  # an attitude unit plugged in as the receiver
+    w.close()
+    assert main(["export", str(d), "--csv", str(tmp_path / "out.csv")]) == 2
+    assert capsys.readouterr().err == (
+        f"arva-bench: {d}/arva.raw: {len(PASHR)} bytes decode to no $PARVA epoch (is arva an ARVA receiver?)\n"
+    )
+
+
+def test_the_good_session_exports(tmp_path, capsys):
+    good_session(tmp_path / "s")
+    assert main(["export", str(tmp_path / "s"), "--csv", str(tmp_path / "out.csv")]) == 0
