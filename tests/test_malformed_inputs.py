@@ -63,6 +63,8 @@ SCENES = [
     ("spec = 1\n" + TX + RX + "gps = true\n[origin]\nlat = 46.0\nlon = 8.0\n[effects]\nground_truth_error = true\n"
      "[ground_truth_error]\ngps_sigma_m = [1.7976931348623157e308, 0, 0]\n",
      "s.toml: ground_truth_error.gps_sigma_m[0]: must be within [0, 10000], got 1.79769e+308"),
+    ("spec = 1\n" + TX + "[receiver]\npath = [{ t = 0.0, position = [0, 0, 0] }, { t = 5e-324, position = [1, 0, 0] }]\n",
+     "s.toml: receiver.path[1].t: must be at least 1e-06 s after 0, got 4.94066e-324"),
     (b"spec = 1\nname = \"\xff\"\n", "s.toml: not UTF-8 text (byte offset 17)"),
 ]
 

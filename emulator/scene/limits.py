@@ -53,6 +53,10 @@ EFFECT_PARAM_LIMITS: dict[str, tuple[float, float]] = {
     "ground_truth_error.gps_bias_m": (-1e4, 1e4),
 }
 
+#: Shortest step between two waypoint times (s): interpolation divides by it (0, 5e-324
+#: overflowed).
+MIN_WAYPOINT_DT_S = 1e-6
+
 #: Control steps per epoch a closed loop may take (control_rate_hz / rate_hz).
 MAX_CONTROL_STEPS_PER_EPOCH = 1000
 

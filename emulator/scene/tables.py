@@ -18,6 +18,7 @@ from firmware_proto.errors import PoseError, SceneError
 
 from emulator.frames.rotation import normalize_quaternions
 from emulator.frames.trajectory import IDENTITY, Trajectory
+from emulator.scene.limits import MIN_WAYPOINT_DT_S
 
 #: Stream rates a scene may ask for, Hz: one epoch per 1000 s up to 10 kHz.
 RATE_LIMITS_HZ = (1e-3, 1e4)
@@ -138,6 +139,8 @@ class TableReader:
             t = self.number(wp, "t", f"{wp_path}.t", None)
             if times and not t > times[-1]:
                 raise self.fail(f"{wp_path}.t", f"times must increase strictly, {t:g} follows {times[-1]:g}")
+            if times and t - times[-1] < MIN_WAYPOINT_DT_S:
+                raise self.fail(f"{wp_path}.t", f"must be at least {MIN_WAYPOINT_DT_S:g} s after {times[-1]:g}, got {t:g}")
             if "position" not in wp:
                 raise self.fail(f"{wp_path}.position", "missing")
             times.append(t)
