@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from bench.fit.campaign import emulate_campaign
+from fit_campaign import emulate_campaign
 from bench.fit.table import COLUMNS, Table
 from emulator.receiver.model import ModelParams, measure
 from emulator.scene.reader import load_scene

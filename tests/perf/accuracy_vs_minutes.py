@@ -2,7 +2,7 @@
 
 Usage: python tests/perf/accuracy_vs_minutes.py [--seeds N] [--no-write]
 
-Emulates campaigns of 2 to 60 minutes at 1 Hz (``bench.fit.campaign``: radial walks
+Emulates campaigns of 2 to 60 minutes at 1 Hz (``tests/fit_campaign.py``: radial walks
 around a buried transmitter, EMI on, kappa_eq = 1.542, r_en = 80 m), fits each one and
 reports, per length, the 95 % confidence-interval width of each parameter (median over
 seeds), the actual error, how often the interval covers the truth, and the fit time.
@@ -24,11 +24,12 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE.parents[1]))
 
 from _report import ROOT, git_revision, machine, markdown_table  # noqa: E402
 
-from bench.fit.campaign import Walk, emulate_campaign  # noqa: E402
+from fit_campaign import Walk, emulate_campaign  # noqa: E402
 from bench.fit.fit import fit_table  # noqa: E402
 from emulator.receiver.model import ModelParams  # noqa: E402
 
@@ -177,7 +178,7 @@ def main(argv=None) -> int:
     first_1 = next((r["minutes"] for r in results if 50 * r["ci"][1] <= 1.0), None)
     body = f"""## (b) Calibration accuracy versus minutes of logging
 
-`arva-bench fit` on emulated campaigns (`bench.fit.campaign`: radial walks from 1 to 80 m
+`arva-bench fit` on emulated campaigns (`tests/fit_campaign.py`: radial walks from 1 to 80 m
 at 1.1 m/s around a transmitter buried 1 m deep, hand-held orientations, one epoch per
 second, EMI on; truth kappa_eq = 1.542, r_en = 80 m, exact poses), {args.seeds} seeds per
 length. Interval: ± 1.96 standard errors (median over seeds, in % of the estimate); rms

@@ -23,12 +23,13 @@ from scipy.special import ndtr
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE.parents[1]))
 
 from _report import markdown_table, write_section  # noqa: E402
 
 import bench.fit.special as special  # noqa: E402
-from bench.fit.campaign import emulate_campaign  # noqa: E402
+from fit_campaign import emulate_campaign  # noqa: E402
 from bench.fit.csvio import read_csv  # noqa: E402
 from bench.fit.fit import FitOptions, fit_table, usable  # noqa: E402
 from bench.fit.likelihood import Likelihood, Params, _log_eps, rows_from_table  # noqa: E402
@@ -170,7 +171,7 @@ def main(argv=None) -> int:
     timing = time_and_accuracy(args.seeds, max(1, args.seeds - 1))
     approx, n_camp, minutes = approximation_table(5, 30.0)
     body = f"""
-Emulated campaigns (`bench.fit.campaign`: radial walks from 1 to 80 m at 1.1 m/s around a
+Emulated campaigns (`tests/fit_campaign.py`: radial walks from 1 to 80 m at 1.1 m/s around a
 transmitter buried 1 m deep, mixed hand-held orientations, EMI noise on; kappa_eq = 1.542,
 r_en = 80 m, exact poses). `fit` is `bench.fit.fit_table` (pilot, Newton on a 10,000-row
 subsample, gradient steps and the Hessian on all rows), CSV parsing excluded. Target:
