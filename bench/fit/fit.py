@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from .likelihood import (
     FREE_PARAMS,
+    LINEAR,
     Geometry,
     Likelihood,
     Params,
@@ -52,6 +53,7 @@ BOUNDS = {
     "r_outer": (0.05, 1e4),
     "pose_sigma": (1e-4, 0.5),
     "time_offset": (-30.0, 30.0),
+    "height_offset": (-5.0, 5.0),  # m
     "gps_sigma": (1e-3, 30.0),  # m
     "attitude_sigma": (1e-4, 0.5),  # rad
 }
@@ -112,7 +114,7 @@ class FitResult:
 
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
-        for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset", "gps_sigma", "attitude_sigma"):
+        for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset", "gps_sigma", "attitude_sigma", "height_offset"):
             out[name] = getattr(self.params, name)
             if name in self.free:
                 out[f"{name}_se"] = self.se.get(name)
@@ -244,8 +246,8 @@ def naive_fit(rows: Rows, r_inner: float = 3.0) -> dict[str, float]:
 
 
 def _box(free) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    lo = np.array([BOUNDS[n][0] if n == "time_offset" else math.log(BOUNDS[n][0]) for n in free])
-    hi = np.array([BOUNDS[n][1] if n == "time_offset" else math.log(BOUNDS[n][1]) for n in free])
+    lo = np.array([BOUNDS[n][0] if n in LINEAR else math.log(BOUNDS[n][0]) for n in free])
+    hi = np.array([BOUNDS[n][1] if n in LINEAR else math.log(BOUNDS[n][1]) for n in free])
     return lo, hi
 
 
@@ -257,6 +259,7 @@ INITIAL_STEPS = {
     "r_outer": 1e-4,
     "pose_sigma": 1e-2,
     "time_offset": 0.05,
+    "height_offset": 0.01,
     "gps_sigma": 1e-2,
     "attitude_sigma": 1e-2,
 }
@@ -456,7 +459,7 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if not modified:
             w, v = np.linalg.eigh(0.5 * (hf + hf.T))
             se = np.sqrt(np.maximum((v * v) @ (1.0 / np.maximum(w, 1e-300)), 0.0))
-            top = np.where(np.array(free)[keep] == "time_offset", 0.5, 0.05)
+            top = np.where(np.isin(np.array(free)[keep], LINEAR), 0.5, 0.05)
             new_h[keep] = np.clip(0.3 * se, 1e-7, top)
         if not modified and decrement < tol:
             if tol > DECREMENT_TOL or np.all(np.abs(np.log(new_h / h)) < math.log(2.0)):
@@ -791,7 +794,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
     free = tuple(n for n in FREE_PARAMS if n in options.free)  # canonical order
     newton_free = tuple(n for n in free if n != "r_outer")
     base = options.base
-    eiv = any(m in free for m in ("gps_sigma", "attitude_sigma")) or base.gps_sigma > 0 or base.attitude_sigma > 0
+    eiv = any(m in free for m in ("gps_sigma", "attitude_sigma", "height_offset")) or base.gps_sigma > 0 or base.attitude_sigma > 0
     all_rows = check_table(table, options)
     if eiv:
         if "gps_sigma" in free:
@@ -859,7 +862,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             params = replace(params, **{name: BOUNDS[name][0]})
     theta = from_params(params, free)
 
-    estimate = {m: (float(theta[i]) if m == "time_offset" else math.exp(theta[i])) for i, m in enumerate(free)}
+    estimate = {m: (float(theta[i]) if m in LINEAR else math.exp(theta[i])) for i, m in enumerate(free)}
     for name in MAY_VANISH:
         if name in free:
             estimate[name] = getattr(params, name)
@@ -883,7 +886,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             for a_, i in enumerate(keep):
                 name = newton_free[i]
                 sd = math.sqrt(max(model_cov[a_, a_], 0.0))
-                se_model[name] = sd if name == "time_offset" else estimate[name] * sd
+                se_model[name] = sd if name in LINEAR else estimate[name] * sd
                 for b_, j in enumerate(keep):
                     cov[ix[i], ix[j]] = sub_cov[a_, b_]
         except np.linalg.LinAlgError:
@@ -892,7 +895,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         for i in keep:
             name = newton_free[i]
             sd = math.sqrt(max(cov[ix[i], ix[i]], 0.0))
-            se[name] = sd if name == "time_offset" else estimate[name] * sd  # delta method
+            se[name] = sd if name in LINEAR else estimate[name] * sd  # delta method
         for i in np.flatnonzero(active):
             name = newton_free[i]
             at_lower = theta_n[i] <= lo[i] + 1e-6

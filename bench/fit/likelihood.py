@@ -66,6 +66,7 @@ class Params:
     gps_sigma: float = 0.0  # horizontal GPS error of the receiver pose (m, per axis)
     gps_ratio: float = 1.5  # vertical / horizontal GPS error
     attitude_sigma: float = 0.0  # attitude error of the receiver (rad, per body axis)
+    height_offset: float = 0.0  # receiver-above-transmitter height the logs miss (m; common GPS error)
 
     @property
     def pose_error(self) -> tuple[float, float, float]:
@@ -74,14 +75,18 @@ class Params:
 
 
 #: Parameters the fit can estimate, with their transform to the optimiser's scale.
-FREE_PARAMS = ("kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma", "gps_sigma", "attitude_sigma")
+FREE_PARAMS = (
+    "kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma", "gps_sigma", "attitude_sigma", "height_offset",
+)  # fmt: skip
+#: Parameters on a linear scale (seconds, metres); the others are fitted in logs.
+LINEAR = ("time_offset", "height_offset")
 
 
 def to_params(base: Params, names: tuple[str, ...], theta: NDArray[np.float64]) -> Params:
     """Map the optimiser's vector (log scale except time_offset; q as log(q_y/q_x))."""
     kw = {}
     for name, v in zip(names, theta):
-        if name == "time_offset":
+        if name in LINEAR:
             kw[name] = float(v)
         elif name == "q":
             ratio = math.exp(v)
@@ -94,8 +99,8 @@ def to_params(base: Params, names: tuple[str, ...], theta: NDArray[np.float64]) 
 def from_params(p: Params, names: tuple[str, ...]) -> NDArray[np.float64]:
     out = []
     for name in names:
-        if name == "time_offset":
-            out.append(p.time_offset)
+        if name in LINEAR:
+            out.append(getattr(p, name))
         elif name == "q":
             out.append(math.log(p.q[1] / p.q[0]))
         else:
@@ -261,6 +266,10 @@ class Likelihood:
         noise-free log distances shifted by the pose error's mean effect. Without the
         errors-in-variables model (or with it at zero) sigma is the scalar pose_sigma."""
         mom = self.rows.moments
+        if mom is not None and p.height_offset != 0.0:
+            dz = mom.dz_3 if sel is None else mom.dz_3[sel]
+            dzxy = mom.dz_xy if sel is None else mom.dz_xy[sel]
+            l3, lxy = l3 + p.height_offset * dz, lxy + p.height_offset * dzxy
         if mom is None or (p.gps_sigma == 0.0 and p.attitude_sigma == 0.0):
             return p.pose_sigma, p.pose_sigma, l3, lxy
         h, v, a = p.pose_error

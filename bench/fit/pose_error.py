@@ -58,9 +58,14 @@ class PoseMoments:
     m_3: NDArray[np.float64]
     v_3: NDArray[np.float64]
     sigma0: tuple[float, float, float]  # the sigmas the rule was evaluated at (m, m, rad)
+    dz_xy: NDArray[np.float64]  # d a_xy / d (receiver height), 1/m (for the height offset)
+    dz_3: NDArray[np.float64]
 
     def take(self, idx) -> "PoseMoments":
-        return PoseMoments(self.m_xy[:, idx], self.v_xy[:, idx], self.m_3[:, idx], self.v_3[:, idx], self.sigma0)
+        return PoseMoments(
+            self.m_xy[:, idx], self.v_xy[:, idx], self.m_3[:, idx], self.v_3[:, idx], self.sigma0,
+            self.dz_xy[idx], self.dz_3[idx],
+        )  # fmt: skip
 
     def spread(self, s: NDArray[np.float64] | tuple) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         """(shift_xy, var_xy, shift_3, var_3) for sigmas s = (h, v, a) (squared inside)."""
@@ -161,8 +166,12 @@ def pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0: tuple[float, float, f
     uw_n = diff / np.where(r > 0, r, 1.0)
     g0 = np.einsum("ijn,in->jn", rr, 3.0 * np.einsum("in,in->n", m, uw_n) * uw_n - m)
     out = [np.zeros((3, n)) for _ in range(4)]  # m_xy, v_xy, m_3, v_3
+    dz = [np.zeros(n), np.zeros(n)]
 
     def accumulate(group, plus, minus, s0):
+        if group == 1:  # the vertical axis: also the slope, for the height offset
+            for k in range(2):
+                dz[k] = (plus[k] - minus[k]) / (2.0 * SQRT3 * s0)
         for k in range(2):
             dp, dm = plus[k] - a0[k], minus[k] - a0[k]
             mean = (dp + dm) / 6.0
@@ -184,4 +193,5 @@ def pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0: tuple[float, float, f
     if bad.any():
         for arr, fill in ((m_xy, 0.0), (v_xy, 1e12), (m_3, 0.0), (v_3, 1e12)):
             arr[:, bad] = fill
-    return PoseMoments(m_xy, v_xy, m_3, v_3, (float(sh), float(sv), float(sa)))
+    dz_xy, dz_3 = (np.where(np.isfinite(v) & ~bad, v, 0.0) for v in dz)
+    return PoseMoments(m_xy, v_xy, m_3, v_3, (float(sh), float(sv), float(sa)), dz_xy, dz_3)

@@ -47,15 +47,19 @@ TAU = 30.0
 
 
 def jobs(seeds: int):
-    """(minutes, grade, seed) in priority order: a quarter of the target cell's seeds,
-    then the grid (30, 60, 240 minutes x RTK, SBAS, consumer), then the rest of the target."""
-    first = max(1, seeds // 4)
-    out = [(240, "target", s) for s in range(first)]
-    for minutes, n in ((30, max(2, seeds // 8)), (60, max(2, seeds // 16)), (240, max(2, seeds // 25))):
-        for s in range(n):
-            for grade in ("RTK", "SBAS", "consumer"):
-                out.append((minutes, grade, s))
-    return out + [(240, "target", s) for s in range(first, seeds)]
+    """(minutes, grade, seed) in priority order, interleaved so that a run cut short by
+    its budget still has every cell: the 4-hour target cell gets ``seeds // 6`` seeds,
+    the 60-minute target cell ``seeds // 2``, the grid (30, 60 minutes x RTK, SBAS,
+    consumer) ``seeds // 6`` each."""
+    grid = [(m, g) for m in (30, 60) for g in ("RTK", "SBAS", "consumer")]
+    out = []
+    for s in range(seeds):
+        if s < seeds // 6:
+            out.append((240, "target", s))
+            out += [(m, g, s) for m, g in grid]
+        if s < seeds // 2:
+            out.append((60, "target", s))
+    return out
 
 
 def run_one(minutes: int, grade: str, seed: int) -> dict:
@@ -149,7 +153,7 @@ def write_docs(rows, note: str) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--seeds", type=int, default=50, help="seeds of the target cell (others: fewer, see jobs())")
+    p.add_argument("--seeds", type=int, default=50, help="the largest number of seeds per cell (see jobs())")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--budget", type=float, default=math.inf, help="stop submitting new fits after this many seconds")
     p.add_argument("--table-only", action="store_true")
