@@ -762,9 +762,19 @@ def _sigma0(p: Params, free) -> tuple[float, float, float]:
     return (h, p.gps_ratio * h, max(p.attitude_sigma, EIV_FLOOR[1]))
 
 
-def _eiv_rows(rows: Rows, sigma0, pose_sigma: float) -> tuple[Rows, int]:
-    """The usable rows for the errors-in-variables model: not at the transmitter, and
-    with a pose-error spread of log d at ``sigma0`` within pose_error.MAX_SD."""
+def eiv_rows(rows: Rows, table: Table, sigma0) -> tuple[Rows, int]:
+    """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
+    sigmas ``sigma0``: geometry at the expected true receiver positions, the pose-error
+    moments, and only rows not at the transmitter whose pose-error spread of log d is
+    within pose_error.MAX_SD. Returns (rows, number left out for their pose error)."""
+    post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
+    # the geometry at the expected true positions (the time-offset track keeps the logged ones)
+    rows.geo = geometry(post.pos, table.rx_quat, table.tx_pos, table.tx_quat)
+    rule0 = (sigma0[0], max(sigma0[1] * post.v_factor, 1e-6), sigma0[2])
+    rows.moments = mom = pose_moments(post.pos, table.rx_quat, table.tx_pos, table.tx_quat, rule0)
+    # the likelihood scales the vertical group by gps_ratio * gps_sigma: fold the factor in
+    for arr in (mom.m_xy, mom.v_xy, mom.m_3, mom.v_3):
+        arr[1] *= post.v_factor**2
     s = np.asarray(sigma0)
     mom = rows.moments
     if rows.gps_scale is None:
@@ -775,6 +785,15 @@ def _eiv_rows(rows: Rows, sigma0, pose_sigma: float) -> tuple[Rows, int]:
     finite = np.isfinite(rows.geo.log_r)
     keep = finite & (np.maximum(vxy, v3) <= MAX_SD * MAX_SD)
     return rows.take(keep), int(np.sum(finite & ~keep))
+
+
+def model_rows(table: Table, params: Params) -> Rows:
+    """The rows and per-row model the fit used for ``params`` (for the report)."""
+    rows = rows_from_table(table)
+    if params.gps_sigma > 0 or params.attitude_sigma > 0:
+        rows.gps_scale = gps_scale_of(table)
+        return eiv_rows(rows, table, _sigma0(params, ()))[0]
+    return usable(rows)
 
 
 def gps_scale_of(table: Table) -> NDArray[np.float64] | None:
@@ -809,17 +828,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
     for eiv_pass in range(3 if eiv else 1):
         if eiv:
             sigma0 = _sigma0(base if start is None else start, free)
-            post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
-            # the geometry at the expected true positions (the time-offset track keeps the logged ones)
-            all_rows.geo = geometry(post.pos, table.rx_quat, table.tx_pos, table.tx_quat)
-            rule0 = (sigma0[0], max(sigma0[1] * post.v_factor, 1e-6), sigma0[2])
-            all_rows.moments = pose_moments(post.pos, table.rx_quat, table.tx_pos, table.tx_quat, rule0)
-            # the likelihood scales the vertical group by gps_ratio * gps_sigma: fold the factor in
-            all_rows.moments.m_xy[1] *= post.v_factor**2
-            all_rows.moments.v_xy[1] *= post.v_factor**2
-            all_rows.moments.m_3[1] *= post.v_factor**2
-            all_rows.moments.v_3[1] *= post.v_factor**2
-            rows, n_dropped = _eiv_rows(all_rows, sigma0, base.pose_sigma)
+            rows, n_dropped = eiv_rows(all_rows, table, sigma0)
             if rows.k.shape[0] < MIN_ROWS or not np.any(rows.k != -1):
                 raise FitInputError(
                     f"{table.source}: only {rows.k.shape[0]} rows are farther from the transmitter than the "

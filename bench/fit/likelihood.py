@@ -475,11 +475,12 @@ def rows_from_table(table: Table, with_track: bool = False) -> Rows:
     return Rows(table.d.astype(np.int64), geo, track, t=np.asarray(table.t, dtype=np.float64))
 
 
-def simulate(geo: Geometry, p: Params, rng: np.random.Generator) -> NDArray[np.int64]:
+def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) -> NDArray[np.int64]:
     """Draw outcomes d (cm, -1 outer) from the model for each row's geometry.
 
     The receiver of BRIEF 3 with ball noise (drawn in the receiver frame: R_r^T w is
-    uniform in the ball whenever w is), and the pose error exp(sigma Z) on both distances.
+    uniform in the ball whenever w is), and the pose error exp(sigma Z) on both distances
+    (``spread``: per-row shift and s.d. of log d instead, the errors-in-variables model's).
     With pose_sigma = 0 it returns exactly what :func:`emulator.receiver.model.measure` returns for
     noise points u = R_r^T w (tested).
     """
@@ -492,7 +493,10 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator) -> NDArray[np.i
     hx = geo.g[0] + rho * qn[0] * u[:, 0]
     hy = geo.g[1] + rho * qn[1] * u[:, 1]
     hz = geo.g[2] + rho * qn[2] * u[:, 2]
-    jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if p.pose_sigma > 0 else 1.0
+    if spread is not None:  # errors-in-variables: per-row (shift, s.d.) of log d, from Likelihood.pose_spread
+        jitter = np.exp(spread[0] + spread[1] * rng.standard_normal(n))
+    else:
+        jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if p.pose_sigma > 0 else 1.0
     scale = r * np.cbrt(p.kappa_eq) * jitter
     hxy = np.hypot(hx, hy)
     with np.errstate(divide="ignore"):
