@@ -18,7 +18,7 @@ import math
 import sys
 from pathlib import Path
 
-OPTIONAL_FREE = ("q", "r_outer", "time_offset")
+OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset")
 
 
 def register(subparsers) -> None:
