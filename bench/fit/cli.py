@@ -192,7 +192,9 @@ def options_from_args(args):
         raise FitInputError(f"--r-outer {args.r_outer:g} must exceed --r-inner {args.r_inner:g}")
     from .fit import FREE_PARAMS
 
-    return FitOptions(free=tuple(n for n in FREE_PARAMS if n in free), base=base, seed=args.seed)
+    return FitOptions(
+        free=tuple(n for n in FREE_PARAMS if n in free), base=base, seed=args.seed, eiv_floor=args.pose_sigma is None
+    )
 
 
 def summary(result) -> str:

@@ -59,6 +59,9 @@ BOUNDS = {
 }
 #: Parameters that may sit at their lower bound on exact poses (held there, with a note).
 MAY_VANISH = ("pose_sigma", "gps_sigma", "attitude_sigma")
+#: pose_sigma under the errors-in-variables model when not given (its lower bound: a
+#: larger floor biased r_en by +0.6 % on exact poses in development).
+EIV_POSE_SIGMA = 1e-4
 #: What ``arva-bench fit`` estimates by default: GPS and attitude error from the data
 #: (pose_sigma then stays at its 0.1 % floor, which keeps the ball's edge smooth).
 EIV_FREE = ("kappa_eq", "r_en", "gps_sigma", "attitude_sigma")
@@ -84,6 +87,7 @@ class FitOptions:
     expected_se: bool = False  # also compute the expected (Fisher) information, for comparison
     likelihood: type = Likelihood  # another approximation, for the accuracy/time table
     covariance: str = "hac"  # "hac": sandwich with a time-block (Newey-West) meat; "model": inverse Hessian
+    eiv_floor: bool = True  # errors-in-variables: pose_sigma at EIV_POSE_SIGMA unless fitted (False: base's)
 
 
 @dataclass
@@ -816,6 +820,8 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
     eiv = any(m in free for m in ("gps_sigma", "attitude_sigma", "height_offset")) or base.gps_sigma > 0 or base.attitude_sigma > 0
     all_rows = check_table(table, options)
     if eiv:
+        if "pose_sigma" not in free and options.eiv_floor:
+            base = replace(base, pose_sigma=EIV_POSE_SIGMA)
         if "gps_sigma" in free:
             base = replace(base, gps_sigma=EIV_START[0])
         if "attitude_sigma" in free:
@@ -998,8 +1004,11 @@ def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tupl
 
     Scores (N, p) are summed per second of receiver time (several rows per second add up;
     gaps are zeros), then the long-run covariance of that series is the Newey-West
-    estimate with Bartlett weights 1 - l/(L + 1), l = 1..L, and L from Andrews' (1991)
-    AR(1) plug-in, L = 1.1447 (alpha T)^(1/3), capped at T/4. Returns (meat, L seconds).
+    estimate with Bartlett weights 1 - l/(L + 1), l = 1..L. L is Andrews' (1991) AR(1)
+    plug-in, L = 1.1447 (alpha T)^(1/3), but at least 4 sqrt(T) and at most T/4: the
+    scores are mostly white EMI noise with a small pose-error part correlated over tens
+    of seconds, and the AR(1) fit to their sum sees only the white part (it chose ~25 s
+    on 30 s Gauss-Markov GPS error, and the intervals were too short). Returns (meat, L).
     """
     t = np.asarray(t, dtype=np.float64)
     sec = np.floor(t - t.min()).astype(np.int64)
@@ -1020,7 +1029,7 @@ def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tupl
         num += 4.0 * rho * rho * s2 * s2 / ((1.0 - rho) ** 6 * (1.0 + rho) ** 2)
         den += s2 * s2 / (1.0 - rho) ** 4
     alpha = num / den if den > 0 else 0.0
-    lag = min(1.1447 * (alpha * T) ** (1.0 / 3.0), T / 4.0)
+    lag = min(max(1.1447 * (alpha * T) ** (1.0 / 3.0), 4.0 * math.sqrt(T)), T / 4.0)
     big_l = int(math.floor(lag))
     meat = x.T @ x
     for l in range(1, big_l + 1):
