@@ -54,8 +54,10 @@ BOUNDS = {
     "pose_sigma": (1e-4, 0.5),
     "time_offset": (-30.0, 30.0),
     "height_offset": (-5.0, 5.0),  # m
-    "gps_sigma": (1e-3, 30.0),  # m
-    "attitude_sigma": (1e-4, 0.5),  # rad
+    # Below 5 mm and 0.05 deg the pose error is lost in the 1 cm rounding: the likelihood
+    # is flat there, and Newton crept along it for 60 iterations on exact poses.
+    "gps_sigma": (0.005, 30.0),  # m
+    "attitude_sigma": (math.radians(0.05), 0.5),  # rad
 }
 #: Parameters that may sit at their lower bound on exact poses (held there, with a note).
 MAY_VANISH = ("pose_sigma", "gps_sigma", "attitude_sigma")
@@ -68,7 +70,7 @@ EIV_FREE = ("kappa_eq", "r_en", "gps_sigma", "attitude_sigma")
 #: Where the errors-in-variables rule is first evaluated when the sigmas are fitted
 #: (horizontal m, attitude rad); floors for the re-evaluation at the estimate.
 EIV_START = (0.5, math.radians(1.0))
-EIV_FLOOR = (0.01, math.radians(0.05))
+EIV_FLOOR = (0.01, math.radians(0.1))
 MAX_ITER = 60
 #: Stop when the predicted gain to the optimum, g' H^-1 g / 2, is below this (nats):
 #: the estimate is then within 0.005 standard errors of the optimum.
@@ -483,10 +485,16 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
             trial = theta.copy()
             trial[i] = lo[i] if toward_lo[i] else hi[i]
             f1 = f(trial)
-            if f1 < f0:
+            # a sigma that no longer matters (exact poses) leaves f flat to rounding: take the bound
+            if f1 < f0 or (toward_lo[i] and f1 < f0 + 1e-6):
                 theta, f0, probed = trial, f1, True
         if probed:
             continue
+        # A pose-error sigma in a flat direction (exact poses: the likelihood barely moves)
+        # gets a huge Newton step; clip it alone rather than shrinking every step with it.
+        flat = probe_lo & (np.abs(step) > cap)
+        if flat.any() and not flat.all():
+            step[flat] = np.sign(step[flat]) * cap[flat]
         step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
         trial, f1 = _line_search(f, theta, step, f0, lo, hi, cap)
         if trial is None:
