@@ -878,7 +878,13 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         )
     theta_n, fval, hess, active, ok, why = res.theta, res.f, res.hess, res.active, res.ok, res.why
     lo_n, hi_n = _box(newton_free)
-    theta_n = np.where(active & (theta_n <= lo_n + 1e-9), lo_n, theta_n)  # exactly at the bound
+    if active is not None:
+        # A pose-error sigma within 2 % of its lower bound sits in a flat valley (its effect
+        # is lost in the rounding): hold it there, or its near-zero curvature would make
+        # every other standard error huge.
+        vanish = np.array([m in MAY_VANISH for m in newton_free]) & (theta_n <= lo_n + math.log(1.02))
+        active = active | vanish
+    theta_n = np.where(active & (theta_n <= lo_n + math.log(1.02)), lo_n, theta_n)  # exactly at the bound
     params = to_params(base, newton_free, theta_n)
     for name in MAY_VANISH:
         if name in newton_free and active[newton_free.index(name)] and theta_n[newton_free.index(name)] <= lo_n[newton_free.index(name)] + 1e-6:
