@@ -88,7 +88,9 @@ class FitOptions:
     seed: int = 0  # for the simulated outcomes of the Fisher information
     expected_se: bool = False  # also compute the expected (Fisher) information, for comparison
     likelihood: type = Likelihood  # another approximation, for the accuracy/time table
-    covariance: str = "hac"  # "hac": sandwich with a time-block (Newey-West) meat; "model": inverse Hessian
+    # "hac": with the errors-in-variables model, the sandwich with a time-block (Newey-West)
+    # meat; "model" (and always without it: rows independent given exact poses): inverse Hessian
+    covariance: str = "hac"
     eiv_floor: bool = True  # errors-in-variables: pose_sigma at EIV_POSE_SIGMA unless fitted (False: base's)
 
 
@@ -883,7 +885,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         # is lost in the rounding): hold it there, or its near-zero curvature would make
         # every other standard error huge.
         vanish = np.array([m in MAY_VANISH for m in newton_free]) & (theta_n <= lo_n + math.log(1.02))
-        active = active | vanish
+        active = active | vanish | (theta_n >= hi_n - 1e-6)  # r_en a hair below its ceiling
     theta_n = np.where(active & (theta_n <= lo_n + math.log(1.02)), lo_n, theta_n)  # exactly at the bound
     params = to_params(base, newton_free, theta_n)
     for name in MAY_VANISH:
@@ -908,7 +910,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             np.linalg.cholesky(hk)
             model_cov = np.linalg.inv(hk)
             sub_cov = model_cov
-            if options.covariance == "hac" and like.rows.t is not None:
+            if options.covariance == "hac" and eiv and like.rows.t is not None:
                 scores = _scores(like, base, newton_free, theta_n, res.steps, live=keep)
                 meat, hac_lag = time_block_meat(scores, like.rows.t)
                 sub_cov = model_cov @ meat @ model_cov
@@ -952,7 +954,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         j = free.index("r_outer")
         cov[j, j] = (r_outer_se / estimate["r_outer"]) ** 2
         notes.append("r_outer is an end point: its standard error is a likelihood-ratio interval width / 3.92")
-    separable = _separable(ok, free, cov, estimate, se, rows)
+    separable = _separable(ok, why, free, cov, estimate, se)
     if not separable:
         ok_line = (
             "pose error and EMI noise cannot be told apart with these rows "
@@ -994,16 +996,18 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
 SEPARATION_CORR = 0.9
 
 
-def _separable(ok, free, cov, estimate, se, rows) -> bool:
+def _separable(ok, why, free, cov, estimate, se) -> bool:
     """Whether the fit told pose error from EMI noise: r_en determined to within half
-    its value and not almost a function of a fitted pose-error sigma."""
+    its value and not almost a function of a fitted pose-error sigma. A fit that failed
+    for another stated reason (r_en at its ceiling: no noise floor at all) is not blamed
+    on the pose error."""
     if "r_en" not in free:
         return True
     pose = [m for m in ("gps_sigma", "attitude_sigma") if m in free]
     if not pose:
         return True
     if not ok:
-        return False
+        return "upper bound" in why
     i = free.index("r_en")
     for m in pose:
         j = free.index(m)
