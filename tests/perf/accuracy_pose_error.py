@@ -84,6 +84,40 @@ def run_one(minutes: int, grade: str, seed: int) -> dict:
     return row
 
 
+BANDS = (0, 4, 6, 10, 15, 25, 40, 60, 90)
+
+
+def info_by_distance(grade: str, minutes: int = 30, seed: int = 0) -> dict:
+    """Where the information is: per distance band, the Fisher information (sum of squared
+    per-row scores of log kappa_eq and log r_en at the fitted values, sigmas given) per
+    minute spent in the band, as a share of the best band's."""
+    from fit_campaign import PoseError, emulate_campaign
+
+    from bench.fit.fit import FitOptions, _scores, fit_table, model_rows
+    from bench.fit.likelihood import Likelihood, Params, from_params
+    from emulator.receiver.model import ModelParams
+
+    h = GRADES[grade]
+    pe = PoseError(gps_h=h, gps_v=1.5 * h, gps_tau=TAU, attitude_deg=ATTITUDE_DEG, attitude_tau=TAU)
+    table = emulate_campaign(minutes, ModelParams(**TRUTH), seed=9500 + seed, pose_error=pe)
+    base = Params(gps_sigma=h, attitude_sigma=math.radians(ATTITUDE_DEG), pose_sigma=1e-4)
+    res = fit_table(table, FitOptions(free=("kappa_eq", "r_en"), base=base))
+    rows = model_rows(table, res.params)
+    like = Likelihood(rows)
+    like.choose_regimes(res.params)
+    free = ("kappa_eq", "r_en")
+    s = _scores(like, res.params, free, from_params(res.params, free), np.array([1e-4, 1e-3]))
+    r_all = np.linalg.norm(table.rx_pos - table.tx_pos, axis=1)  # every second walked, used or not
+    r_used = np.exp(rows.geo.log_r)
+    out = {}
+    for lo, hi in zip(BANDS[:-1], BANDS[1:]):
+        minutes_in = float(np.sum((r_all >= lo) & (r_all < hi))) / 60.0
+        sel = (r_used >= lo) & (r_used < hi)
+        info = (s[sel] ** 2).sum(axis=0) if sel.any() else np.zeros(2)
+        out[f"{lo}-{hi}"] = (minutes_in, (info / minutes_in).tolist() if minutes_in > 0 else [0.0, 0.0])
+    return out
+
+
 def load() -> list[dict]:
     if not RUNS.exists():
         return []
@@ -139,6 +173,25 @@ def table_md(rows) -> str:
     return markdown_table(head, body)
 
 
+def bands_md(bands: dict) -> str:
+    """Information per minute of walking in each distance band, % of the best band."""
+    grades = list(bands)
+    head = ["distance to the transmitter (m)"] + [f"{g}: {k}" for g in grades for k in ("kappa_eq", "r_en")]
+    best = {g: np.max(np.array([v[1] for v in bands[g].values()]), axis=0) for g in grades}
+    body = []
+    for band in bands[grades[0]]:
+        line = [band]
+        for g in grades:
+            per = np.array(bands[g][band][1])
+            line += [f"{100 * per[k] / best[g][k]:.0f} %" if best[g][k] > 0 else "-" for k in range(2)]
+        body.append(line)
+    return (
+        "**Which distances pay.** Fisher information about kappa_eq and r_en per minute spent in each "
+        "distance band (sum of squared per-row scores at the fit, sigmas given, one seeded 30-minute "
+        "campaign per grade), as a share of the best band:\n\n" + markdown_table(head, body)
+    )
+
+
 def write_docs(rows, note: str) -> None:
     text = ACCURACY_MD.read_text()
     begin, end = "<!-- BEGIN pose-error -->", "<!-- END pose-error -->"
@@ -158,6 +211,7 @@ def main(argv=None) -> int:
     p.add_argument("--budget", type=float, default=math.inf, help="stop submitting new fits after this many seconds")
     p.add_argument("--table-only", action="store_true")
     p.add_argument("--fresh", action="store_true", help="forget the saved runs first")
+    p.add_argument("--no-bands", action="store_true", help="skip the information-per-distance table")
     args = p.parse_args(argv)
     t_start = time.time()
     if not args.table_only:
@@ -186,6 +240,7 @@ def main(argv=None) -> int:
                         pending.add(pool.submit(run_one, *j))
     rows = cells(load())
     print(table_md(rows))
+    bands = {g: info_by_distance(g) for g in ("RTK", "consumer")} if not args.no_bands else {}
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     note = (
         f"Measured by `{SCRIPT}` on {stamp}, {machine()}, revision {git_revision()}; fit times measured "
@@ -194,6 +249,8 @@ def main(argv=None) -> int:
         "interval contains the truth, with the sandwich (time-block) standard errors the fit reports / with "
         "the inverse Hessian (rows taken as independent)."
     )
+    if bands:
+        note += "\n\n" + bands_md(bands)
     write_docs(rows, note)
     return 0
 
