@@ -257,7 +257,8 @@ def main(argv=None) -> int:
         "while other jobs shared the 2 cores. GPS error Gauss-Markov (tau 30 s, vertical 1.5 x horizontal), "
         f"attitude error {ATTITUDE_DEG:g} deg Gauss-Markov (tau 30 s); 'covers': share of fits whose ±1.96 se "
         "interval contains the truth, with the sandwich (time-block) standard errors the fit reports / with "
-        "the inverse Hessian (rows taken as independent)."
+        "the inverse Hessian (rows taken as independent). 'fits': converged / run; the number of seeds per "
+        "cell is what the time budget allowed."
     )
     if bands:
         note += "\n\n" + bands_md(bands)
