@@ -29,7 +29,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench.fit.campaign import emulate_campaign
+from fit_campaign import emulate_campaign
 from emulator.receiver.model import ModelParams
 
 #: hypothesis examples, each BATCH command lines in parallel (more: ARVA_FUZZ_EXAMPLES=200)
@@ -84,6 +84,7 @@ COMMANDS = (
     Command("fit", (*BENCH, "fit"), ("{csv}",), (
         Opt(None), Opt("--report"), Opt("--write-scene"), Opt("--fit"), Opt("--r-inner"), Opt("--r-outer"),
         Opt("--q"), Opt("--pose-sigma"), Opt("--time-offset"), Opt("--seed"), Opt("--antennas"),
+        Opt("--gps-sigma", "0"), Opt("--attitude-sigma", "0"),
     ), codes=frozenset({0, 1, 2})),
     Command("dash", (*BENCH, "dash"), (), (
         Opt(None), Opt("--gps"), Opt("--attitude"), Opt("--tx-pose"), Opt("--origin"), Opt("--baud"),

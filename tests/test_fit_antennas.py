@@ -4,7 +4,7 @@ and the class travels into the written scene."""
 import numpy as np
 import pytest
 
-from bench.fit.campaign import emulate_campaign
+from fit_campaign import emulate_campaign
 from bench.fit.fit import FitOptions, fit_table
 from bench.fit.likelihood import Geometry, Params, simulate
 from bench.fit.scene import write_scene

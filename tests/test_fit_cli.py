@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from bench.fit.campaign import emulate_campaign
+from fit_campaign import emulate_campaign
 from bench.fit.table import COLUMNS, Table
 from emulator.receiver.model import ModelParams, measure
 from emulator.scene.reader import load_scene
@@ -42,7 +42,37 @@ def test_summary(campaign, capsys):
     assert lines[0] == f"fit: {campaign}: 1200 rows, 485 with d = -1"
     assert lines[1].startswith("kappa_eq    = 1.54") and lines[1].endswith("   (for transmitter moment s = 1)")
     assert lines[2].startswith("r_en        = ") and lines[2].endswith(" m")
-    assert "; converged; " in lines[4]
+    # exact poses: the estimated GPS and attitude errors are tiny
+    assert lines[3].startswith("gps_sigma   = ") and lines[3].endswith(" m vertical")
+    assert float(lines[3].split()[2]) < 0.05
+    assert lines[4].startswith("attitude    = ") and float(lines[4].split()[2]) < 0.5
+    assert lines[5].startswith("standard errors: sandwich with time blocks (Newey-West, ")
+    assert "; converged; " in lines[6]
+
+
+def test_summary_with_exact_poses_given(campaign, capsys):
+    """--gps-sigma 0 --attitude-sigma 0: the model without pose error, pose_sigma fitted."""
+    code, out, err = run(capsys, campaign, "--gps-sigma", "0", "--attitude-sigma", "0", "--json")
+    assert code == 0 and err == ""
+    obj = json.loads(out)
+    assert obj["free"] == ["kappa_eq", "r_en", "pose_sigma"] and obj["gps_sigma"] == 0.0
+    assert abs(obj["kappa_eq"] / 1.542 - 1) < 0.01 and abs(obj["r_en"] / 80 - 1) < 0.05
+
+
+@pytest.mark.parametrize(
+    "argv, why",
+    [
+        (["--gps-sigma", "1,2,3"], "argument --gps-sigma: expected H or H,V (metres), got '1,2,3'"),
+        (["--gps-sigma", "-1"], "argument --gps-sigma: must be a finite number >= 0, got '-1'"),
+        (["--gps-sigma", "0,1"], "argument --gps-sigma: horizontal and vertical must both be 0 or both > 0, got '0,1'"),
+        (["--attitude-sigma", "nan"], "argument --attitude-sigma: must be a finite number >= 0, got 'nan'"),
+    ],
+)
+def test_pose_error_options_reject_bad_values(campaign, capsys, argv, why):
+    with pytest.raises(SystemExit) as exc:
+        main(["fit", str(campaign), *argv])
+    out, err = capsys.readouterr()
+    assert exc.value.code == 2 and out == "" and err.splitlines()[-1].endswith(why)
 
 
 def test_json_is_one_object_with_the_required_keys(campaign, capsys):
@@ -53,7 +83,8 @@ def test_json_is_one_object_with_the_required_keys(campaign, capsys):
         assert isinstance(obj[key], (int, float)) and math.isfinite(obj[key]), key
     assert (obj["n_rows"], obj["n_censored"], obj["converged"]) == (1200, 485, True)
     assert abs(obj["kappa_eq"] / 1.542 - 1) < 0.01 and abs(obj["r_en"] / 80 - 1) < 0.05
-    assert obj["pose_sigma_se"] is None and obj["free"] == ["kappa_eq", "r_en", "pose_sigma"]
+    assert obj["free"] == ["kappa_eq", "r_en", "gps_sigma", "attitude_sigma"] and obj["separable"] is True
+    assert obj["gps_sigma"] < 0.05 and obj["gps_sigma_vertical"] == pytest.approx(1.5 * obj["gps_sigma"])
 
 
 def test_write_scene_creates_a_scene_the_emulator_loads(campaign, capsys, tmp_path):
@@ -180,7 +211,7 @@ def test_bad_inputs_exit_2_with_one_line(capsys, tmp_path):
 
 
 def test_bad_arguments(campaign, capsys):
-    assert run(capsys, campaign, "--fit", "q,foo") == (2, "", "arva-bench: fit: --fit: unknown parameter 'foo' (choose from q, r_outer, time_offset)\n")
+    assert run(capsys, campaign, "--fit", "q,foo") == (2, "", "arva-bench: fit: --fit: unknown parameter 'foo' (choose from q, r_outer, time_offset, height_offset)\n")
     assert run(capsys, campaign, "--fit", "pose_sigma", "--pose-sigma", "0.01")[2] == (
         "arva-bench: fit: --fit pose_sigma and --pose-sigma contradict each other\n"
     )

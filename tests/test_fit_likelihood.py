@@ -108,7 +108,7 @@ def test_model_matches_emulator_frequencies(r):
 
 
 def test_simulate_is_the_emulator_for_the_same_noise_points():
-    from bench.fit.campaign import emulate_campaign
+    from fit_campaign import emulate_campaign
 
     tab = emulate_campaign(10, ModelParams(r_en=50.0), seed=1)
     geo = geometry(tab.rx_pos, tab.rx_quat, tab.tx_pos, tab.tx_quat)

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from bench.fit.campaign import Walk, emulate_campaign
+from fit_campaign import Walk, emulate_campaign
 from bench.fit.fit import FitOptions, fit_table
 from bench.fit.likelihood import Params
 from emulator.receiver.model import ModelParams
@@ -103,7 +103,7 @@ def test_time_offset_is_recovered():
     from bench.fit.table import Table
     from emulator.receiver.noise import NoiseEffect
     from emulator.receiver.model import measure
-    from bench.fit.campaign import walk_poses
+    from fit_campaign import walk_poses
 
     walk = Walk(wobble_sd=0.0)  # a smooth path: the track between samples is the truth
     n, delta = 900, 0.7

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from bench.fit.campaign import Walk, walk_poses
+from fit_campaign import Walk, walk_poses
 from bench.session import SessionWriter
 from emulator.frames.attitude import quaternion_to_hpr
 from emulator.frames.geodesy import Origin, enu_to_geodetic

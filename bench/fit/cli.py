@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
 from emulator.cli_types import output_dir, output_file, real, seed
 from emulator.progress import progress
 
-OPTIONAL_FREE = ("q", "r_outer", "time_offset")
+OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset")
 
 
 def register(subparsers) -> None:
@@ -55,11 +56,27 @@ def register(subparsers) -> None:
         "--q", type=_q_triple, default=(1.0, 1.0, 1.0), metavar="QX,QY,QZ", help="antenna noise sensitivities (default 1,1,1)"
     )
     fixed.add_argument(
-        "--pose-sigma", type=_positive, metavar="S", help="fix the relative pose error instead of fitting it (e.g. 0.01)"
+        "--pose-sigma",
+        type=_positive,
+        metavar="S",
+        help="fix the relative pose error (default: fitted with exact poses, 0.001 otherwise; e.g. 0.01)",
     )
     fixed.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     fixed.add_argument(
         "--time-offset", type=TIME_OFFSET, default=0.0, metavar="SEC", help="evaluate readings at the poses of t + SEC (default 0)"
+    )
+    fixed.add_argument(
+        "--gps-sigma",
+        type=_gps_sigma,
+        metavar="H[,V]",
+        help="the receiver GPS error, horizontal [and vertical] 1-sigma in m, instead of estimating it "
+        "(V defaults to 1.5 H; 0 = exact positions)",
+    )
+    fixed.add_argument(
+        "--attitude-sigma",
+        type=_non_negative,
+        metavar="DEG",
+        help="the receiver attitude error, 1-sigma per axis in degrees, instead of estimating it (0 = exact)",
     )
     p.add_argument("--seed", type=seed, default=0, help="seed of the report's simulations and the subsample (default 0)")
     p.set_defaults(func=run)
@@ -69,6 +86,27 @@ def register(subparsers) -> None:
 _positive = real(0.0, 99_999.99, lo_open=True)
 #: A receiver's output latency is well under a minute; an hour is generous.
 TIME_OFFSET = real(-3600.0, 3600.0)
+
+
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
+
+def _gps_sigma(text: str) -> tuple[float, float]:
+    parts = text.split(",")
+    if len(parts) > 2:
+        raise argparse.ArgumentTypeError(f"expected H or H,V (metres), got {text!r}")
+    h = _non_negative(parts[0])
+    v = _non_negative(parts[1]) if len(parts) == 2 else 1.5 * h
+    if (h == 0) != (v == 0):
+        raise argparse.ArgumentTypeError(f"horizontal and vertical must both be 0 or both > 0, got {text!r}")
+    return h, v
 
 
 def _q_triple(text: str) -> tuple[float, float, float]:
@@ -110,6 +148,7 @@ def options_from_args(args):
     from .table import FitInputError
 
     extra: list[str] = []
+    fit_pose_sigma = False
     for item in args.fit:
         for name in item.split(","):
             name = name.strip()
@@ -120,12 +159,25 @@ def options_from_args(args):
             if name == "pose_sigma":
                 if args.pose_sigma is not None:
                     raise FitInputError("--fit pose_sigma and --pose-sigma contradict each other")
+                fit_pose_sigma = True
                 continue
             if name not in OPTIONAL_FREE:
                 raise FitInputError(f"--fit: unknown parameter {name!r} (choose from {', '.join(OPTIONAL_FREE)})")
             if name not in extra:
                 extra.append(name)
-    free = ["kappa_eq", "r_en"] + extra + ([] if args.pose_sigma is not None else ["pose_sigma"])
+    # The pose error: GPS and attitude sigmas estimated unless given; with both given as 0
+    # (exact poses) the relative pose_sigma is fitted instead, as before the errors-in-variables model.
+    gps = args.gps_sigma
+    att = args.attitude_sigma
+    eiv = not (gps is not None and gps[0] == 0 and att is not None and att == 0)
+    pose_free = args.pose_sigma is None and (not eiv or fit_pose_sigma)
+    free = (
+        ["kappa_eq", "r_en"]
+        + extra
+        + (["pose_sigma"] if pose_free else [])
+        + (["gps_sigma"] if eiv and gps is None else [])
+        + (["attitude_sigma"] if eiv and att is None else [])
+    )
     base = Params(
         r_inner=args.r_inner,
         r_outer=args.r_outer,
@@ -133,10 +185,17 @@ def options_from_args(args):
         pose_sigma=args.pose_sigma if args.pose_sigma is not None else 1e-3,
         time_offset=args.time_offset,
         antennas=args.antennas,
+        gps_sigma=gps[0] if gps is not None else 0.0,
+        gps_ratio=(gps[1] / gps[0]) if gps is not None and gps[0] > 0 else 1.5,
+        attitude_sigma=math.radians(att) if att is not None else 0.0,
     )
     if args.r_outer <= args.r_inner:
         raise FitInputError(f"--r-outer {args.r_outer:g} must exceed --r-inner {args.r_inner:g}")
-    return FitOptions(free=tuple(free), base=base, seed=args.seed)
+    from .fit import FREE_PARAMS
+
+    return FitOptions(
+        free=tuple(n for n in FREE_PARAMS if n in free), base=base, seed=args.seed, eiv_floor=args.pose_sigma is None
+    )
 
 
 def summary(result) -> str:
@@ -150,14 +209,28 @@ def summary(result) -> str:
 
     lines.append(row("kappa_eq", p.kappa_eq, "", "   (for transmitter moment s = 1)"))
     lines.append(row("r_en", p.r_en, " m"))
+    if not result.separable:
+        lines[-1] = f"{'r_en':<11} = not determined: pose error and EMI noise cannot be told apart (see note)"
     if "pose_sigma" in result.free:
         lines.append(row("pose_sigma", p.pose_sigma))
+    if "gps_sigma" in result.free:
+        se = result.se.get("gps_sigma")
+        pm = f" +- {se:.3g}" if se is not None and se == se else ""
+        lines.append(f"{'gps_sigma':<11} = {p.gps_sigma:.4g}{pm} m horizontal, {p.gps_ratio * p.gps_sigma:.4g} m vertical")
+    if "attitude_sigma" in result.free:
+        se = result.se.get("attitude_sigma")
+        pm = f" +- {math.degrees(se):.3g}" if se is not None and se == se else ""
+        lines.append(f"{'attitude':<11} = {math.degrees(p.attitude_sigma):.4g}{pm} deg")
     if "r_outer" in result.free:
         lines.append(row("r_outer", p.r_outer, " m"))
     if "time_offset" in result.free:
         lines.append(row("time_offset", p.time_offset, " s"))
     if "q" in result.free:
         lines.append(f"{'q':<11} = {', '.join(f'{v:.4g}' for v in p.q)}   (q_y/q_x +- {result.se.get('q', float('nan')):.3g})")
+    if result.hac_lag == result.hac_lag:
+        lines.append(
+            f"standard errors: sandwich with time blocks (Newey-West, {result.hac_lag:.0f} s), robust to pose errors correlated in time"
+        )
     status = "converged" if result.converged else f"DID NOT CONVERGE ({result.message})"
     lines.append(f"log-likelihood {result.log_likelihood:.2f}; {status}; {result.iterations} iterations, {result.seconds:.2f} s")
     lines += [f"note: {n}" for n in result.notes]

@@ -17,7 +17,7 @@ import numpy as np
 from emulator.frames.rotation import MIN_QUATERNION_NORM
 from firmware_proto.sentences import MAX_ABS_DELTA, MAX_D_CM
 
-from .table import COLUMNS, INTEGER_COLUMNS, FitInputError, Table
+from .table import COLUMNS, INTEGER_COLUMNS, OPTIONAL_COLUMNS, FitInputError, Table
 
 #: Largest |coordinate| accepted (metres): beyond it differences lose all precision.
 MAX_COORDINATE = 1e9
@@ -97,6 +97,9 @@ def parse_csv(raw: bytes | str, source: str = "<csv>") -> Table:
                 raise FitInputError(f"{source}: line {line_no[k]}: column {name}: not an integer: {cells[k].strip()!r}")
             values = values.astype(np.int64)
         cols[name] = values
+    for name in OPTIONAL_COLUMNS:
+        if name in header:
+            cols[name] = _optional_column(source, name, fields[header.index(name)], line_no)
     table = Table.from_mapping(source, cols, lines=line_no)
     validate(table)
     return table
@@ -130,6 +133,8 @@ def _parse_simple(text: str, source: str) -> Table | None:
     header = [h.strip() for h in header_text.split(",")]
     if len(set(header)) != len(header) or any(c not in header for c in COLUMNS):
         return None
+    if any(c in header for c in OPTIONAL_COLUMNS):  # fix_quality / hdop: the general reader checks them
+        return None
     width = len(header)
     lines = body.split("\n")
     commas = width - 1
@@ -159,6 +164,26 @@ def _parse_simple(text: str, source: str) -> Table | None:
     table = Table.from_mapping(source, cols, lines=line_no)
     validate(table)
     return table
+
+
+def _optional_column(source: str, name: str, cells, line_no) -> np.ndarray:
+    """fix_quality: integers 0..8; hdop: finite numbers > 0 (one clear error otherwise)."""
+    values = np.empty(len(cells))
+    for k, cell in enumerate(cells):
+        try:
+            values[k] = float(cell.strip()) if "_" not in cell else float("nan")
+        except ValueError:
+            values[k] = float("nan")
+    if name == "fix_quality":
+        bad = ~np.isfinite(values) | (values != np.round(values)) | (values < 0) | (values > 8)
+        what = "a GGA fix quality 0..8"
+    else:
+        bad = ~(np.isfinite(values) & (values > 0))
+        what = "a finite HDOP > 0"
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise FitInputError(f"{source}: line {line_no[k]}: column {name}: not {what}: {cells[k].strip()!r}")
+    return values.astype(np.int64) if name == "fix_quality" else values
 
 
 def validate(table: Table) -> None:

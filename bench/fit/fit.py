@@ -28,15 +28,18 @@ from numpy.typing import NDArray
 
 from .likelihood import (
     FREE_PARAMS,
+    LINEAR,
     Geometry,
     Likelihood,
     Params,
     Rows,
     from_params,
+    geometry,
     rows_from_table,
     simulate,
     to_params,
 )
+from .pose_error import MAX_SD, pose_moments, posterior_positions
 from .table import FitInputError, Table
 
 MIN_ROWS = 50
@@ -50,7 +53,24 @@ BOUNDS = {
     "r_outer": (0.05, 1e4),
     "pose_sigma": (1e-4, 0.5),
     "time_offset": (-30.0, 30.0),
+    "height_offset": (-5.0, 5.0),  # m
+    # Below 5 mm and 0.05 deg the pose error is lost in the 1 cm rounding: the likelihood
+    # is flat there, and Newton crept along it for 60 iterations on exact poses.
+    "gps_sigma": (0.005, 30.0),  # m
+    "attitude_sigma": (math.radians(0.05), 0.5),  # rad
 }
+#: Parameters that may sit at their lower bound on exact poses (held there, with a note).
+MAY_VANISH = ("pose_sigma", "gps_sigma", "attitude_sigma")
+#: pose_sigma under the errors-in-variables model when not given (its lower bound: a
+#: larger floor biased r_en by +0.6 % on exact poses in development).
+EIV_POSE_SIGMA = 1e-4
+#: What ``arva-bench fit`` estimates by default: GPS and attitude error from the data
+#: (pose_sigma then stays at its 0.1 % floor, which keeps the ball's edge smooth).
+EIV_FREE = ("kappa_eq", "r_en", "gps_sigma", "attitude_sigma")
+#: Where the errors-in-variables rule is first evaluated when the sigmas are fitted
+#: (horizontal m, attitude rad); floors for the re-evaluation at the estimate.
+EIV_START = (0.5, math.radians(1.0))
+EIV_FLOOR = (0.01, math.radians(0.1))
 MAX_ITER = 60
 #: Stop when the predicted gain to the optimum, g' H^-1 g / 2, is below this (nats):
 #: the estimate is then within 0.005 standard errors of the optimum.
@@ -59,6 +79,8 @@ DECREMENT_TOL = 1e-5
 
 @dataclass
 class FitOptions:
+    #: The library default is the relative pose error only; the command line (and
+    #: :data:`EIV_FREE`) fits the errors-in-variables sigmas too.
     free: tuple[str, ...] = ("kappa_eq", "r_en", "pose_sigma")
     base: Params = Params()
     eps_split: float | None = None  # None: likelihood.EPS_SPLIT
@@ -66,6 +88,10 @@ class FitOptions:
     seed: int = 0  # for the simulated outcomes of the Fisher information
     expected_se: bool = False  # also compute the expected (Fisher) information, for comparison
     likelihood: type = Likelihood  # another approximation, for the accuracy/time table
+    # "hac": with the errors-in-variables model, the sandwich with a time-block (Newey-West)
+    # meat; "model" (and always without it: rows independent given exact poses): inverse Hessian
+    covariance: str = "hac"
+    eiv_floor: bool = True  # errors-in-variables: pose_sigma at EIV_POSE_SIGMA unless fitted (False: base's)
 
 
 @dataclass
@@ -89,13 +115,18 @@ class FitResult:
     exact_fraction: float
     notes: list[str] = field(default_factory=list)
     expected_information: NDArray[np.float64] | None = None  # only with FitOptions.expected_se
+    se_model: dict[str, float] = field(default_factory=dict)  # inverse-Hessian s.e. (rows independent)
+    hac_lag: float = float("nan")  # the Newey-West bandwidth used (s)
+    separable: bool = True  # False: pose error and EMI noise could not be told apart
+    n_pose_dropped: int = 0  # rows left out: the pose error hides where they were
 
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
-        for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset"):
+        for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset", "gps_sigma", "attitude_sigma", "height_offset"):
             out[name] = getattr(self.params, name)
             if name in self.free:
                 out[f"{name}_se"] = self.se.get(name)
+        out["gps_sigma_vertical"] = self.params.gps_ratio * self.params.gps_sigma
         out["q"] = list(self.params.q)
         if "q" in self.free:
             out["q_ratio"] = self.estimate["q"]
@@ -118,6 +149,10 @@ class FitResult:
             naive=self.naive,
             exact_fraction=self.exact_fraction,
             notes=self.notes,
+            se_model=self.se_model,
+            covariance_lag_seconds=self.hac_lag,
+            separable=self.separable,
+            rows_dropped_for_pose_error=self.n_pose_dropped,
         )
         return _finite_or_none(out)
 
@@ -186,7 +221,7 @@ def usable(rows: Rows) -> Rows:
     keep = np.isfinite(rows.geo.log_r)
     if keep.all():
         return rows
-    return Rows(rows.k[keep], Geometry(rows.geo.log_r[keep], rows.geo.g[:, keep]), rows.track)
+    return rows.take(keep)
 
 
 # -- naive estimates ------------------------------------------------------------------
@@ -220,13 +255,23 @@ def naive_fit(rows: Rows, r_inner: float = 3.0) -> dict[str, float]:
 
 
 def _box(free) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    lo = np.array([BOUNDS[n][0] if n == "time_offset" else math.log(BOUNDS[n][0]) for n in free])
-    hi = np.array([BOUNDS[n][1] if n == "time_offset" else math.log(BOUNDS[n][1]) for n in free])
+    lo = np.array([BOUNDS[n][0] if n in LINEAR else math.log(BOUNDS[n][0]) for n in free])
+    hi = np.array([BOUNDS[n][1] if n in LINEAR else math.log(BOUNDS[n][1]) for n in free])
     return lo, hi
 
 
 #: First difference steps, about a third of a typical standard error (log scale).
-INITIAL_STEPS = {"kappa_eq": 1e-4, "r_en": 1e-3, "q": 3e-3, "r_outer": 1e-4, "pose_sigma": 1e-2, "time_offset": 0.05}
+INITIAL_STEPS = {
+    "kappa_eq": 1e-4,
+    "r_en": 1e-3,
+    "q": 3e-3,
+    "r_outer": 1e-4,
+    "pose_sigma": 1e-2,
+    "time_offset": 0.05,
+    "height_offset": 0.01,
+    "gps_sigma": 1e-2,
+    "attitude_sigma": 1e-2,
+}
 
 
 def _initial_steps(free) -> NDArray[np.float64]:
@@ -235,7 +280,7 @@ def _initial_steps(free) -> NDArray[np.float64]:
 
 def _caps(free) -> NDArray[np.float64]:
     """Largest step per iteration: log pose_sigma may travel far (exact poses)."""
-    return np.array([2.0 if n == "time_offset" else 2.5 if n == "pose_sigma" else 0.5 for n in free])
+    return np.array([2.0 if n == "time_offset" else 2.5 if n in MAY_VANISH else 0.5 for n in free])
 
 
 #: Likelihood evaluations at the points of one finite-difference stencil are independent,
@@ -379,7 +424,7 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
     lo, hi = _box(free)
     h = _initial_steps(free) if h is None else h.copy()
     cap = _caps(free)
-    probe_lo = np.array([n == "pose_sigma" for n in free])
+    probe_lo = np.array([n in MAY_VANISH for n in free])
     probe_hi = np.array([n == "r_en" for n in free])
     theta = np.clip(theta, lo, hi)
     f0 = f(theta)
@@ -423,7 +468,7 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if not modified:
             w, v = np.linalg.eigh(0.5 * (hf + hf.T))
             se = np.sqrt(np.maximum((v * v) @ (1.0 / np.maximum(w, 1e-300)), 0.0))
-            top = np.where(np.array(free)[keep] == "time_offset", 0.5, 0.05)
+            top = np.where(np.isin(np.array(free)[keep], LINEAR), 0.5, 0.05)
             new_h[keep] = np.clip(0.3 * se, 1e-7, top)
         if not modified and decrement < tol:
             if tol > DECREMENT_TOL or np.all(np.abs(np.log(new_h / h)) < math.log(2.0)):
@@ -443,10 +488,16 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
             trial = theta.copy()
             trial[i] = lo[i] if toward_lo[i] else hi[i]
             f1 = f(trial)
-            if f1 < f0:
+            # a sigma that no longer matters (exact poses) leaves f flat to rounding: take the bound
+            if f1 < f0 or (toward_lo[i] and f1 < f0 + 1e-6):
                 theta, f0, probed = trial, f1, True
         if probed:
             continue
+        # A pose-error sigma in a flat direction (exact poses: the likelihood barely moves)
+        # gets a huge Newton step; clip it alone rather than shrinking every step with it.
+        flat = probe_lo & (np.abs(step) > cap)
+        if flat.any() and not flat.all():
+            step[flat] = np.sign(step[flat]) * cap[flat]
         step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
         trial, f1 = _line_search(f, theta, step, f0, lo, hi, cap)
         if trial is None:
@@ -537,15 +588,16 @@ def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None):
 # -- Fisher information, for comparison ------------------------------------------------------
 
 
-def _scores(like: Likelihood, base: Params, free: tuple[str, ...], theta, h):
-    """Per-row central-difference gradients of log P (N, p)."""
-    scores = np.empty((like.k.shape[0], len(free)))
-    for j in range(len(free)):
+def _scores(like: Likelihood, base: Params, free: tuple[str, ...], theta, h, live=None):
+    """Per-row central-difference gradients of log P (N, p) (columns ``live`` only)."""
+    cols = range(len(free)) if live is None else list(live)
+    scores = np.empty((like.k.shape[0], len(cols)))
+    for c, j in enumerate(cols):
         e = np.zeros(len(free))
         e[j] = h[j]
         up = like.logp(to_params(base, free, theta + e))
         down = like.logp(to_params(base, free, theta - e))
-        scores[:, j] = (up - down) / (2.0 * h[j])
+        scores[:, c] = (up - down) / (2.0 * h[j])
     return scores
 
 
@@ -610,7 +662,7 @@ SUBSAMPLE = 10000
 
 
 def _subset(rows: Rows, idx) -> Rows:
-    return Rows(rows.k[idx], Geometry(rows.geo.log_r[idx], rows.geo.g[:, idx]), None)
+    return rows.take(idx, track=False)
 
 
 # -- the fit ------------------------------------------------------------------------------------
@@ -643,12 +695,12 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
                     best = (v, float(dt))
             n_evals += scan.n_evals
             start = replace(start, time_offset=best[1])
-            sub = Rows(sub.k, sub.track.geometry(best[1]), sub.track)  # pilots below at that offset
+            sub = replace(sub, geo=sub.track.geometry(best[1]))  # pilots below at that offset
         if "kappa_eq" in free:
             k_med = _median_kappa(sub, base.r_inner)
             if math.isfinite(k_med):
                 start = replace(start, kappa_eq=k_med)
-        if "pose_sigma" in free:
+        if "pose_sigma" in free and sub.moments is None:  # else the near scatter is GPS error
             start = replace(start, pose_sigma=pilot_sigma(sub, start.kappa_eq, base.r_inner))
         if "r_en" in free:
             grid = options.likelihood(sub)
@@ -719,43 +771,135 @@ def _fit_r_outer(like: Likelihood, params: Params, rows: Rows) -> tuple[float, f
     return r, (right - left) / 3.92, f0
 
 
+def _sigma0(p: Params, free) -> tuple[float, float, float]:
+    """Where to evaluate the errors-in-variables rule: at the current sigmas, floored."""
+    h = max(p.gps_sigma, EIV_FLOOR[0])
+    return (h, p.gps_ratio * h, max(p.attitude_sigma, EIV_FLOOR[1]))
+
+
+def eiv_rows(rows: Rows, table: Table, sigma0) -> tuple[Rows, int]:
+    """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
+    sigmas ``sigma0``: geometry at the expected true receiver positions, the pose-error
+    moments, and only rows not at the transmitter whose pose-error spread of log d is
+    within pose_error.MAX_SD. Returns (rows, number left out for their pose error)."""
+    post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
+    # the geometry at the expected true positions (the time-offset track keeps the logged ones)
+    rows.geo = geometry(post.pos, table.rx_quat, table.tx_pos, table.tx_quat)
+    rule0 = (sigma0[0], max(sigma0[1] * post.v_factor, 1e-6), sigma0[2])
+    rows.moments = mom = pose_moments(post.pos, table.rx_quat, table.tx_pos, table.tx_quat, rule0)
+    # the likelihood scales the vertical group by gps_ratio * gps_sigma: fold the factor in
+    for arr in (mom.m_xy, mom.v_xy, mom.m_3, mom.v_3):
+        arr[1] *= post.v_factor**2
+    s = np.asarray(sigma0)
+    mom = rows.moments
+    if rows.gps_scale is None:
+        _m, vxy, _m3, v3 = mom.spread(s)
+    else:
+        w = np.stack([(s[0] * rows.gps_scale) ** 2, (s[1] * rows.gps_scale) ** 2, np.full(rows.k.shape, s[2] ** 2)])
+        vxy, v3 = np.einsum("gn,gn->n", w, mom.v_xy), np.einsum("gn,gn->n", w, mom.v_3)
+    finite = np.isfinite(rows.geo.log_r)
+    keep = finite & (np.maximum(vxy, v3) <= MAX_SD * MAX_SD)
+    return rows.take(keep), int(np.sum(finite & ~keep))
+
+
+def model_rows(table: Table, params: Params) -> Rows:
+    """The rows and per-row model the fit used for ``params`` (for the report)."""
+    rows = rows_from_table(table)
+    if params.gps_sigma > 0 or params.attitude_sigma > 0:
+        rows.gps_scale = gps_scale_of(table)
+        return eiv_rows(rows, table, _sigma0(params, ()))[0]
+    return usable(rows)
+
+
+def gps_scale_of(table: Table) -> NDArray[np.float64] | None:
+    """Per-row factor on gps_sigma from the logged fix quality and HDOP, or None when the
+    table has neither (see :func:`.table.gps_scale`)."""
+    from .table import gps_scale
+
+    return gps_scale(table)
+
+
 def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
     """Validate ``table`` and fit the free parameters; see the module docstring."""
     t0 = time.perf_counter()
     for name in options.free:
         if name not in FREE_PARAMS:
             raise FitInputError(f"cannot fit {name!r}; choose from {', '.join(FREE_PARAMS)}")
-    rows = usable(check_table(table, options))
     free = tuple(n for n in FREE_PARAMS if n in options.free)  # canonical order
     newton_free = tuple(n for n in free if n != "r_outer")
     base = options.base
-    if "r_outer" in free:  # start just above the largest d shown
-        base = replace(base, r_outer=max(base.r_outer, (int(np.max(rows.k)) + 0.5) / 100.0))
-    naive = naive_fit(rows, base.r_inner)
+    eiv = any(m in free for m in ("gps_sigma", "attitude_sigma", "height_offset")) or base.gps_sigma > 0 or base.attitude_sigma > 0
+    all_rows = check_table(table, options)
+    if eiv:
+        if "pose_sigma" not in free and options.eiv_floor:
+            base = replace(base, pose_sigma=EIV_POSE_SIGMA)
+        if "gps_sigma" in free:
+            base = replace(base, gps_sigma=EIV_START[0])
+        if "attitude_sigma" in free:
+            base = replace(base, attitude_sigma=EIV_START[1])
+        all_rows.gps_scale = gps_scale_of(table)
     notes: list[str] = []
-    n = rows.k.shape[0]
+    start = None
+    n_evals = 0
+    n_dropped = 0
+    for eiv_pass in range(3 if eiv else 1):
+        if eiv:
+            sigma0 = _sigma0(base if start is None else start, free)
+            rows, n_dropped = eiv_rows(all_rows, table, sigma0)
+            if rows.k.shape[0] < MIN_ROWS or not np.any(rows.k != -1):
+                raise FitInputError(
+                    f"{table.source}: only {rows.k.shape[0]} rows are farther from the transmitter than the "
+                    "pose error; give --gps-sigma / --attitude-sigma if the poses are better than that"
+                )
+        else:
+            rows = usable(all_rows)
+        if "r_outer" in free:  # start just above the largest d shown
+            base = replace(base, r_outer=max(base.r_outer, (int(np.max(rows.k)) + 0.5) / 100.0))
+        naive = naive_fit(rows, base.r_inner)
+        n = rows.k.shape[0]
 
-    like, res, n_evals = _core(rows, base, newton_free, options, notes, None)
-    r_outer_se = float("nan")
-    if "r_outer" in free and res.ok:
-        params = to_params(base, newton_free, res.theta)
-        like.choose_regimes(params)
-        r_outer, r_outer_se, _f = _fit_r_outer(like, params, rows)
-        base = replace(base, r_outer=r_outer)
-        start = to_params(base, newton_free, res.theta)
         like, res, extra = _core(rows, base, newton_free, options, notes, start)
         n_evals += extra
+        r_outer_se = float("nan")
+        if "r_outer" in free and res.ok:
+            params = to_params(base, newton_free, res.theta)
+            like.choose_regimes(params)
+            r_outer, r_outer_se, _f = _fit_r_outer(like, params, rows)
+            base = replace(base, r_outer=r_outer)
+            start = to_params(base, newton_free, res.theta)
+            like, res, extra = _core(rows, base, newton_free, options, notes, start)
+            n_evals += extra
+        if not eiv or not res.ok:
+            break
+        start = to_params(base, newton_free, res.theta)
+        new0 = _sigma0(start, free)
+        if all(abs(math.log(a / b)) < math.log(1.25) for a, b in zip(new0, sigma0)):
+            break
+    if eiv and n_dropped:
+        notes.append(
+            f"{n_dropped} rows left out: closer to the transmitter than the pose error lets the model place them"
+        )
     theta_n, fval, hess, active, ok, why = res.theta, res.f, res.hess, res.active, res.ok, res.why
     lo_n, hi_n = _box(newton_free)
-    theta_n = np.where(active & (theta_n <= lo_n + 1e-9), lo_n, theta_n)  # exactly at the bound
+    if active is not None:
+        # A pose-error sigma within 2 % of its lower bound sits in a flat valley (its effect
+        # is lost in the rounding): hold it there, or its near-zero curvature would make
+        # every other standard error huge.
+        vanish = np.array([m in MAY_VANISH for m in newton_free]) & (theta_n <= lo_n + math.log(1.02))
+        active = active | vanish | (theta_n >= hi_n - 1e-6)  # r_en a hair below its ceiling
+    theta_n = np.where(active & (theta_n <= lo_n + math.log(1.02)), lo_n, theta_n)  # exactly at the bound
     params = to_params(base, newton_free, theta_n)
-    if "pose_sigma" in newton_free and active[newton_free.index("pose_sigma")]:
-        params = replace(params, pose_sigma=BOUNDS["pose_sigma"][0])
+    for name in MAY_VANISH:
+        if name in newton_free and active[newton_free.index(name)] and theta_n[newton_free.index(name)] <= lo_n[newton_free.index(name)] + 1e-6:
+            params = replace(params, **{name: BOUNDS[name][0]})
     theta = from_params(params, free)
 
-    estimate = {m: (float(theta[i]) if m == "time_offset" else math.exp(theta[i])) for i, m in enumerate(free)}
-    if "pose_sigma" in free:
-        estimate["pose_sigma"] = params.pose_sigma
+    estimate = {m: (float(theta[i]) if m in LINEAR else math.exp(theta[i])) for i, m in enumerate(free)}
+    for name in MAY_VANISH:
+        if name in free:
+            estimate[name] = getattr(params, name)
+    se_model = {m: float("nan") for m in free}
+    hac_lag = float("nan")
     cov = np.full((len(free), len(free)), np.nan)
     se = {m: float("nan") for m in free}
     ix = [free.index(m) for m in newton_free]
@@ -765,8 +909,16 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         try:
             hk = hess[np.ix_(keep, keep)]
             np.linalg.cholesky(hk)
-            sub_cov = np.linalg.inv(hk)
+            model_cov = np.linalg.inv(hk)
+            sub_cov = model_cov
+            if options.covariance == "hac" and eiv and like.rows.t is not None:
+                scores = _scores(like, base, newton_free, theta_n, res.steps, live=keep)
+                meat, hac_lag = time_block_meat(scores, like.rows.t)
+                sub_cov = model_cov @ meat @ model_cov
             for a_, i in enumerate(keep):
+                name = newton_free[i]
+                sd = math.sqrt(max(model_cov[a_, a_], 0.0))
+                se_model[name] = sd if name in LINEAR else estimate[name] * sd
                 for b_, j in enumerate(keep):
                     cov[ix[i], ix[j]] = sub_cov[a_, b_]
         except np.linalg.LinAlgError:
@@ -775,13 +927,16 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         for i in keep:
             name = newton_free[i]
             sd = math.sqrt(max(cov[ix[i], ix[i]], 0.0))
-            se[name] = sd if name == "time_offset" else estimate[name] * sd  # delta method
+            se[name] = sd if name in LINEAR else estimate[name] * sd  # delta method
         for i in np.flatnonzero(active):
             name = newton_free[i]
             at_lower = theta_n[i] <= lo[i] + 1e-6
-            if name == "pose_sigma" and at_lower:
+            if name in MAY_VANISH and at_lower:
+                what = {"pose_sigma": "the poses look exact", "gps_sigma": "no GPS error is visible"}.get(
+                    name, "no attitude error is visible"
+                )
                 notes.append(
-                    f"pose_sigma is at its lower bound {BOUNDS[name][0]:g} (the poses look exact); "
+                    f"{name} is at its lower bound {BOUNDS[name][0]:g} ({what}); "
                     "the other standard errors hold it there"
                 )
             else:
@@ -800,6 +955,14 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         j = free.index("r_outer")
         cov[j, j] = (r_outer_se / estimate["r_outer"]) ** 2
         notes.append("r_outer is an end point: its standard error is a likelihood-ratio interval width / 3.92")
+    separable = _separable(ok, why, free, cov, estimate, se)
+    if not separable:
+        ok_line = (
+            "pose error and EMI noise cannot be told apart with these rows "
+            f"(no readings closer than {math.exp(float(np.percentile(rows.geo.log_r, 2))):.1f} m to the transmitter): "
+            "r_en is not determined; walk closer or give --gps-sigma / --attitude-sigma"
+        )
+        notes.insert(0, ok_line)
     info = None
     if ok and options.expected_se:
         info = expected_information(like, base, newton_free, theta_n, options.seed)
@@ -823,4 +986,72 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         exact_fraction=float(np.mean(like.regimes.exact)) if like.regimes is not None else float("nan"),
         notes=notes,
         expected_information=info,
+        se_model=se_model,
+        hac_lag=hac_lag,
+        separable=separable,
+        n_pose_dropped=n_dropped,
     )
+
+
+#: |correlation| of r_en with a pose-error sigma above which the two are not told apart.
+SEPARATION_CORR = 0.9
+
+
+def _separable(ok, why, free, cov, estimate, se) -> bool:
+    """Whether the fit told pose error from EMI noise: r_en determined to within half
+    its value and not almost a function of a fitted pose-error sigma. A fit that failed
+    for another stated reason (r_en at its ceiling: no noise floor at all) is not blamed
+    on the pose error."""
+    if "r_en" not in free:
+        return True
+    pose = [m for m in ("gps_sigma", "attitude_sigma") if m in free]
+    if not pose:
+        return True
+    if not ok:
+        return "upper bound" in why
+    i = free.index("r_en")
+    for m in pose:
+        j = free.index(m)
+        if cov[i, i] > 0 and cov[j, j] > 0:
+            if abs(cov[i, j]) / math.sqrt(cov[i, i] * cov[j, j]) > SEPARATION_CORR:
+                return False
+    return bool(se["r_en"] <= 0.5 * estimate["r_en"])
+
+
+def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+    """The meat of the sandwich covariance, robust to scores correlated in time.
+
+    Scores (N, p) are summed per second of receiver time (several rows per second add up;
+    gaps are zeros), then the long-run covariance of that series is the Newey-West
+    estimate with Bartlett weights 1 - l/(L + 1), l = 1..L. L is Andrews' (1991) AR(1)
+    plug-in, L = 1.1447 (alpha T)^(1/3), but at least 4 sqrt(T) and at most T/4: the
+    scores are mostly white EMI noise with a small pose-error part correlated over tens
+    of seconds, and the AR(1) fit to their sum sees only the white part (it chose ~25 s
+    on 30 s Gauss-Markov GPS error, and the intervals were too short). Returns (meat, L).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    sec = np.floor(t - t.min()).astype(np.int64)
+    T = int(sec.max()) + 1
+    p = scores.shape[1]
+    x = np.zeros((T, p))
+    for j in range(p):
+        x[:, j] = np.bincount(sec, weights=scores[:, j], minlength=T)
+    x -= x.mean(axis=0)
+    num = den = 0.0
+    for j in range(p):
+        a, b = x[1:, j], x[:-1, j]
+        bb = float(b @ b)
+        if bb <= 0:
+            continue
+        rho = float(np.clip((a @ b) / bb, -0.99, 0.99))
+        s2 = float(np.mean((a - rho * b) ** 2))
+        num += 4.0 * rho * rho * s2 * s2 / ((1.0 - rho) ** 6 * (1.0 + rho) ** 2)
+        den += s2 * s2 / (1.0 - rho) ** 4
+    alpha = num / den if den > 0 else 0.0
+    lag = min(max(1.1447 * (alpha * T) ** (1.0 / 3.0), 4.0 * math.sqrt(T)), T / 4.0)
+    big_l = int(math.floor(lag))
+    meat = x.T @ x
+    for l in range(1, big_l + 1):
+        g = x[l:].T @ x[:-l]
+        meat += (1.0 - l / (big_l + 1.0)) * (g + g.T)
+    return meat, float(lag)

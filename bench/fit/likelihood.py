@@ -44,6 +44,7 @@ from scipy.interpolate import CubicSpline
 
 from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
 
+from .pose_error import PoseMoments
 from .special import epan_gauss_cdf, epan_gauss_interval, smoothed_ball_disk_cdf
 from .table import Table
 
@@ -63,17 +64,30 @@ class Params:
     pose_sigma: float = 0.001
     time_offset: float = 0.0
     antennas: int = 3  # 2: no z antenna, g_z = 0, so "d3" is dxy (emulator/receiver/model.py)
+    gps_sigma: float = 0.0  # horizontal GPS error of the receiver pose (m, per axis)
+    gps_ratio: float = 1.5  # vertical / horizontal GPS error
+    attitude_sigma: float = 0.0  # attitude error of the receiver (rad, per body axis)
+    height_offset: float = 0.0  # receiver-above-transmitter height the logs miss (m; common GPS error)
+
+    @property
+    def pose_error(self) -> tuple[float, float, float]:
+        """(horizontal m, vertical m, attitude rad) of the errors-in-variables model."""
+        return (self.gps_sigma, self.gps_ratio * self.gps_sigma, self.attitude_sigma)
 
 
 #: Parameters the fit can estimate, with their transform to the optimiser's scale.
-FREE_PARAMS = ("kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma")
+FREE_PARAMS = (
+    "kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma", "gps_sigma", "attitude_sigma", "height_offset",
+)  # fmt: skip
+#: Parameters on a linear scale (seconds, metres); the others are fitted in logs.
+LINEAR = ("time_offset", "height_offset")
 
 
 def to_params(base: Params, names: tuple[str, ...], theta: NDArray[np.float64]) -> Params:
     """Map the optimiser's vector (log scale except time_offset; q as log(q_y/q_x))."""
     kw = {}
     for name, v in zip(names, theta):
-        if name == "time_offset":
+        if name in LINEAR:
             kw[name] = float(v)
         elif name == "q":
             ratio = math.exp(v)
@@ -86,8 +100,8 @@ def to_params(base: Params, names: tuple[str, ...], theta: NDArray[np.float64]) 
 def from_params(p: Params, names: tuple[str, ...]) -> NDArray[np.float64]:
     out = []
     for name in names:
-        if name == "time_offset":
-            out.append(p.time_offset)
+        if name in LINEAR:
+            out.append(getattr(p, name))
         elif name == "q":
             out.append(math.log(p.q[1] / p.q[0]))
         else:
@@ -146,6 +160,13 @@ class PoseTrack:
         self.rx_p, self.tx_p = spline(table.rx_pos), spline(table.tx_pos)
         self.rx_q, self.tx_q = quat_spline(table.rx_quat), quat_spline(table.tx_quat)
 
+    def take(self, idx) -> "PoseTrack":
+        """The same track, evaluated for the rows ``idx`` only."""
+        out = object.__new__(PoseTrack)
+        out.__dict__.update(self.__dict__)
+        out.row_t = self.row_t[idx]
+        return out
+
     def geometry(self, offset: float) -> Geometry:
         tt = np.clip(self.row_t + offset, self.t[0], self.t[-1])
         return geometry(self.rx_p(tt), self.rx_q(tt), self.tx_p(tt), self.tx_q(tt))
@@ -153,11 +174,27 @@ class PoseTrack:
 
 @dataclass
 class Rows:
-    """Observed outcomes (k = d in cm, -1 censored) and their geometry."""
+    """Observed outcomes (k = d in cm, -1 censored), their geometry and, for the
+    errors-in-variables model, how pose error moves each row (:mod:`.pose_error`;
+    ``gps_scale``: a per-row factor on gps_sigma, from the logged HDOP and fix quality)."""
 
     k: NDArray[np.int64]
     geo: Geometry
     track: PoseTrack | None = None
+    moments: PoseMoments | None = None
+    gps_scale: NDArray[np.float64] | None = None
+    t: NDArray[np.float64] | None = None  # receiver time of each row (s), for the time-block covariance
+
+    def take(self, idx, track: bool = True) -> "Rows":
+        """The rows ``idx`` (an index array or a mask), with everything that goes with them."""
+        return Rows(
+            self.k[idx],
+            Geometry(self.geo.log_r[idx], self.geo.g[:, idx]),
+            self.track.take(idx) if (track and self.track is not None) else None,
+            None if self.moments is None else self.moments.take(idx),
+            None if self.gps_scale is None else self.gps_scale[idx],
+            None if self.t is None else self.t[idx],
+        )
 
 
 @dataclass
@@ -224,13 +261,37 @@ class Likelihood:
         return -float(np.sum(self.logp(p)))
 
     # -- the model ------------------------------------------------------------------
+    def pose_spread(self, p: Params, l3, lxy, sel=None):
+        """(sigma_xy, sigma_3, l3, lxy): the Gaussian spread of log d per zone and the
+        noise-free log distances shifted by the pose error's mean effect. Without the
+        errors-in-variables model (or with it at zero) sigma is the scalar pose_sigma."""
+        mom = self.rows.moments
+        if mom is not None and p.height_offset != 0.0:
+            dz = mom.dz_3 if sel is None else mom.dz_3[sel]
+            dzxy = mom.dz_xy if sel is None else mom.dz_xy[sel]
+            l3, lxy = l3 + p.height_offset * dz, lxy + p.height_offset * dzxy
+        if mom is None or (p.gps_sigma == 0.0 and p.attitude_sigma == 0.0):
+            return p.pose_sigma, p.pose_sigma, l3, lxy
+        h, v, a = p.pose_error
+        scale = self.rows.gps_scale
+        if sel is not None:
+            mom = mom.take(sel)
+            scale = None if scale is None else scale[sel]
+        if scale is None:
+            mxy, vxy, m3, v3 = mom.spread((h, v, a))
+        else:  # per-row GPS sigmas: h and v scale together
+            w = np.stack([(h * scale) ** 2, (v * scale) ** 2, np.full(scale.shape, a * a)])
+            mxy, vxy = np.einsum("gn,gn->n", w, mom.m_xy), np.einsum("gn,gn->n", w, mom.v_xy)
+            m3, v3 = np.einsum("gn,gn->n", w, mom.m_3), np.einsum("gn,gn->n", w, mom.v_3)
+        s2 = p.pose_sigma * p.pose_sigma
+        return np.sqrt(s2 + vxy), np.sqrt(s2 + v3), l3 + m3, lxy + mxy
+
     def prob(self, p: Params) -> NDArray[np.float64]:
         if self.regimes is None:
             self.choose_regimes(p)
         geo = self._geo(p)
         k = self.k
         n = k.shape[0]
-        sigma = p.pose_sigma
         log_r = geo.log_r
         gx, gy, gz = geo.g
         with np.errstate(divide="ignore"):
@@ -240,6 +301,8 @@ class Likelihood:
         lk = math.log(p.kappa_eq)
         l3 = log_r + (lk - log_g3) / 3.0  # log d3 without noise
         lxy = log_r + (lk - log_gxy) / 3.0  # log dxy without noise (inf if g_xy = 0)
+        lxy0 = lxy
+        sigma, sig3, l3, lxy = self.pose_spread(p, l3, lxy)
         e3 = np.exp(_log_eps(log_r, log_g3, f3, p.r_en)) / 3.0
         log_in = math.log(p.r_inner)
         log_out = math.log(p.r_outer)
@@ -254,7 +317,7 @@ class Likelihood:
         inner = (~self.censored) & (lo <= log_in)
         if inner.any():
             i = inner
-            prob[i] += epan_gauss_interval(lo[i] - l3[i], np.minimum(hi[i], log_in) - l3[i], e3[i], sigma)
+            prob[i] += epan_gauss_interval(lo[i] - l3[i], np.minimum(hi[i], log_in) - l3[i], e3[i], _at(sig3, i))
 
         # Mid part and censoring: P(inner) first, then the distribution of log dxy.
         mid = (self.censored | (hi > log_in)) & ~(lo >= log_out)
@@ -264,13 +327,14 @@ class Likelihood:
         # P(inner) is exactly 0 to double precision unless d3 is within e3 + 9 sigma of r_inner.
         p_not_inner = np.ones(idx.shape[0])
         gap = log_in - l3[idx]
-        maybe = gap > -(e3[idx] + 9.0 * sigma)
+        s3i = _at(sig3, idx)
+        maybe = gap > -(e3[idx] + 9.0 * s3i)
         if maybe.any():
-            p_not_inner[maybe] = 1.0 - epan_gauss_cdf(gap[maybe], e3[idx][maybe], sigma)
+            p_not_inner[maybe] = 1.0 - epan_gauss_cdf(gap[maybe], e3[idx][maybe], _at(s3i, maybe))
         cens = self.censored[idx]
         a = np.where(cens, log_out, np.maximum(lo[idx], log_in))  # P(a < log dxy <= b)
         b = np.where(cens, np.inf, np.minimum(hi[idx], log_out))
-        pm = self.mid_prob(idx, a, b, _Mid(geo, log_gxy, lxy, fxy, lk, sigma, p))
+        pm = self.mid_prob(idx, a, b, _Mid(geo, log_gxy, lxy, fxy, lk, sigma, p, lxy0))
         prob[idx] += p_not_inner * pm
         return prob
 
@@ -280,22 +344,23 @@ class Likelihood:
         other approximations (tests/perf/bench_fit.py)."""
         p, sigma = m.params, m.sigma
         log_r = m.geo.log_r
+        # the exact rule works in log |h_xy| = log kappa - 3 log dxy: shift the threshold
+        log_kappa = m.log_kappa
         pm = np.zeros(idx.shape[0])
         exact = self.regimes.exact[idx]
         s_rows = ~exact
         if s_rows.any():
             j = idx[s_rows]
             exy = np.exp(_log_eps(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) / 3.0
-            pm[s_rows] = epan_gauss_interval(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, sigma)
+            pm[s_rows] = epan_gauss_interval(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, _at(sigma, j))
         if exact.any():
             j = idx[exact]
             # log dxy <= y <=> |h_xy| >= kappa / (4 pi e^{3y}); in units of the noise radius
             # b = fxy / (2 pi r_en^3) that threshold is t(y) = kappa r_en^3 / (2 fxy e^{3y}).
-            log_t0 = m.log_kappa + 3.0 * math.log(p.r_en) - np.log(2.0 * m.fxy[j])
+            log_t0 = log_kappa + 3.0 * (m.lxy[j] - m.lxy0[j]) + 3.0 * math.log(p.r_en) - np.log(2.0 * m.fxy[j])
             gamma = _gamma(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)
-            pm[exact] = np.maximum(
-                _cdf_at(log_t0, a[exact], gamma, sigma) - _cdf_at(log_t0, b[exact], gamma, sigma), 0.0
-            )
+            sj = _at(sigma, j)
+            pm[exact] = np.maximum(_cdf_at(log_t0, a[exact], gamma, sj) - _cdf_at(log_t0, b[exact], gamma, sj), 0.0)
         return pm
 
     # -- diagnostics ------------------------------------------------------------------
@@ -333,8 +398,9 @@ class _Mid:
     lxy: NDArray[np.float64]  # log dxy without noise
     fxy: NDArray[np.float64]  # noise radius along the signal / max q
     log_kappa: float
-    sigma: float
+    sigma: float | NDArray[np.float64]  # one per row with the errors-in-variables model
     params: Params
+    lxy0: NDArray[np.float64]  # lxy before the pose-error shift
 
 
 class _UnionBin:
@@ -362,22 +428,29 @@ class _UnionBin:
         lxy = log_r + (lk - log_gxy) / 3.0
         e3 = np.exp(_log_eps(log_r, log_g3, f3, p.r_en)) / 3.0
         log_in, log_out = math.log(p.r_inner), math.log(p.r_outer)
-        sigma = p.pose_sigma
-        p_in_below = epan_gauss_cdf(np.minimum(y, log_in) - l3, e3, sigma)
-        p_not_inner = 1.0 - epan_gauss_cdf(log_in - l3, e3, sigma)
+        lxy0 = lxy
+        sigma, sig3, l3, lxy = like.pose_spread(p, l3, lxy, sel)
+        p_in_below = epan_gauss_cdf(np.minimum(y, log_in) - l3, e3, sig3)
+        p_not_inner = 1.0 - epan_gauss_cdf(log_in - l3, e3, sig3)
         top = np.minimum(y, log_out)
         exact = like.regimes.exact[sel]
         pm = np.zeros(k.shape[0])
         s = ~exact & (top > log_in)
         if s.any():
             exy = np.exp(_log_eps(log_r[s], log_gxy[s], fxy[s], p.r_en)) / 3.0
-            pm[s] = epan_gauss_interval(log_in - lxy[s], top[s] - lxy[s], exy, sigma)
+            pm[s] = epan_gauss_interval(log_in - lxy[s], top[s] - lxy[s], exy, _at(sigma, s))
         x = exact & (top > log_in)
         if x.any():
-            log_t0 = lk + 3.0 * math.log(p.r_en) - np.log(2.0 * fxy[x])
+            log_t0 = lk + 3.0 * (lxy[x] - lxy0[x]) + 3.0 * math.log(p.r_en) - np.log(2.0 * fxy[x])
             gamma = _gamma(log_r[x], log_gxy[x], fxy[x], p.r_en)
-            pm[x] = _cdf_at(log_t0, np.full(gamma.shape, log_in), gamma, sigma) - _cdf_at(log_t0, top[x], gamma, sigma)
+            sx = _at(sigma, x)
+            pm[x] = _cdf_at(log_t0, np.full(gamma.shape, log_in), gamma, sx) - _cdf_at(log_t0, top[x], gamma, sx)
         return p_in_below + p_not_inner * np.maximum(pm, 0.0)
+
+
+def _at(s, idx):
+    """s[idx] for a per-row sigma, s itself for a scalar one."""
+    return s if np.ndim(s) == 0 else s[idx]
 
 
 def _gamma(log_r, log_gxy, fxy, r_en):
@@ -399,14 +472,15 @@ def _cdf_at(log_t0, y, gamma, sigma):
 def rows_from_table(table: Table, with_track: bool = False) -> Rows:
     geo = geometry(table.rx_pos, table.rx_quat, table.tx_pos, table.tx_quat)
     track = PoseTrack(table) if with_track else None
-    return Rows(table.d.astype(np.int64), geo, track)
+    return Rows(table.d.astype(np.int64), geo, track, t=np.asarray(table.t, dtype=np.float64))
 
 
-def simulate(geo: Geometry, p: Params, rng: np.random.Generator) -> NDArray[np.int64]:
+def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) -> NDArray[np.int64]:
     """Draw outcomes d (cm, -1 outer) from the model for each row's geometry.
 
     The receiver of BRIEF 3 with ball noise (drawn in the receiver frame: R_r^T w is
-    uniform in the ball whenever w is), and the pose error exp(sigma Z) on both distances.
+    uniform in the ball whenever w is), and the pose error exp(sigma Z) on both distances
+    (``spread``: per-row shift and s.d. of log d instead, the errors-in-variables model's).
     With pose_sigma = 0 it returns exactly what :func:`emulator.receiver.model.measure` returns for
     noise points u = R_r^T w (tested).
     """
@@ -419,7 +493,10 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator) -> NDArray[np.i
     hx = geo.g[0] + rho * qn[0] * u[:, 0]
     hy = geo.g[1] + rho * qn[1] * u[:, 1]
     hz = geo.g[2] + rho * qn[2] * u[:, 2] if p.antennas == 3 else np.zeros(n)  # 2 antennas: no h_z
-    jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if p.pose_sigma > 0 else 1.0
+    if spread is not None:  # errors-in-variables: per-row (shift, s.d.) of log d, from Likelihood.pose_spread
+        jitter = np.exp(spread[0] + spread[1] * rng.standard_normal(n))
+    else:
+        jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if p.pose_sigma > 0 else 1.0
     scale = r * np.cbrt(p.kappa_eq) * jitter
     hxy = np.hypot(hx, hy)
     with np.errstate(divide="ignore"):

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .fit import FitResult, usable
-from .likelihood import Likelihood, rows_from_table, simulate
+from .fit import FitResult, model_rows
+from .likelihood import Likelihood, simulate
 from .table import Table
 
 PNG_NAME = "fit.png"
@@ -51,10 +51,15 @@ class Diagnostics:
 
 
 def diagnostics(table: Table, result: FitResult, seed: int = 0) -> Diagnostics:
-    rows = usable(rows_from_table(table))
     params = result.params
+    rows = model_rows(table, params)
     like = Likelihood(rows)
     like.choose_regimes(params)
+    spread = None
+    if rows.moments is not None:
+        zero = np.zeros(rows.k.shape[0])
+        s_xy, _s3, _l3, shift = like.pose_spread(params, zero, zero)
+        spread = (shift, np.broadcast_to(s_xy, zero.shape))
     r = np.exp(rows.geo.log_r)
     d = rows.k
     top = float(np.max(r))
@@ -65,7 +70,7 @@ def diagnostics(table: Table, result: FitResult, seed: int = 0) -> Diagnostics:
 
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0xD1A6,)))
     reps = int(min(200, max(4, 400000 // max(len(d), 1))))
-    sims = np.stack([simulate(rows.geo, params, rng) for _ in range(reps)], axis=1)  # (n, reps)
+    sims = np.stack([simulate(rows.geo, params, rng, spread) for _ in range(reps)], axis=1)  # (n, reps)
     p_cens = like.prob_censored(params)
     logp = like.logp(params)
     prob = np.exp(logp)
@@ -120,14 +125,20 @@ def markdown(result: FitResult, diag: Diagnostics, png: str | None) -> str:
     out = [f"# Receiver model fit: {result.source}", ""]
     status = "converged" if result.converged else f"**did not converge**: {result.message}"
     out += [
-        f"{result.n_rows} rows ({result.n_censored} with d = -1, {result.n_rows - result.n_used} "
-        f"skipped at distance 0); fit {status} in {result.iterations} iterations, {result.seconds:.2f} s; "
+        f"{result.n_rows} rows ({result.n_censored} with d = -1, {result.n_rows - result.n_used - result.n_pose_dropped} "
+        f"skipped at distance 0, {result.n_pose_dropped} closer than the pose error allows); fit {status} in {result.iterations} iterations, {result.seconds:.2f} s; "
         f"log-likelihood {result.log_likelihood:.2f}.",
         "",
         "| parameter | estimate | standard error | 95 % interval |",
         "|---|---|---|---|",
     ]
-    for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset", "q"):
+    if not result.separable:
+        out[-2:-2] = [
+            "**r_en is not determined: pose error and EMI noise cannot be told apart with these rows** "
+            "(see the notes).",
+            "",
+        ]
+    for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset", "gps_sigma", "attitude_sigma", "q"):
         if name == "q":
             if "q" in result.free:
                 est, se = result.estimate["q"], result.se.get("q", float("nan"))
@@ -135,12 +146,27 @@ def markdown(result: FitResult, diag: Diagnostics, png: str | None) -> str:
             out.append(f"| q (fixed max 1) | {', '.join(f'{v:.4g}' for v in p.q)} | | |")
             continue
         val = getattr(p, name)
+        if name == "attitude_sigma":  # shown in degrees
+            val = math.degrees(val)
+            name = "attitude_sigma (deg)"
+            if "attitude_sigma" in result.free:
+                se = math.degrees(result.se.get("attitude_sigma", float("nan")))
+                out.append(f"| {name} | {val:.4g} | {_fmt(se)} | {_ci(val, se, True)} |")
+                continue
         if name in result.free:
             se = result.se.get(name, float("nan"))
             out.append(f"| {name} | {val:.6g} | {_fmt(se)} | {_ci(val, se, name != 'time_offset')} |")
         else:
             out.append(f"| {name} (fixed) | {val:.6g} | | |")
-    out += ["", "kappa_eq is for a transmitter moment s = 1: only kappa_eq / s can be estimated from d.", ""]
+    out += ["", "kappa_eq is for a transmitter moment s = 1: only kappa_eq / s can be estimated from d."]
+    if result.hac_lag == result.hac_lag:
+        out += [
+            "Standard errors: sandwich covariance with a time-block (Newey-West) meat, bandwidth "
+            f"{result.hac_lag:.0f} s, robust to pose errors correlated in time.",
+        ]
+    if "gps_sigma" in result.free or p.gps_sigma > 0:
+        out += [f"GPS error {p.gps_sigma:.3g} m horizontal, {p.gps_ratio * p.gps_sigma:.3g} m vertical (1 sigma)."]
+    out += [""]
     if result.notes:
         out += ["Notes:", ""] + [f"* {note}" for note in result.notes] + [""]
     naive = result.naive

@@ -36,7 +36,8 @@ def epan_cdf(x: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def epan_gauss_cdf(u, e, s) -> NDArray[np.float64]:
-    """P(e E + s Z <= u) for arrays u, e >= 0 and a scalar s > 0 (or s = 0: no Z).
+    """P(e E + s Z <= u) for arrays u, e >= 0 and s > 0 (a scalar, or one per element;
+    a scalar s = 0: no Z).
 
     With z1,2 = (u -+ e)/s and x = (u - s Z)/e, P = Phi(z1) + E[F_E(x); z1 < Z < z2] where
     F_E(x) = (2 + 3x - x^3)/4 is a cubic in Z, so the second term is a combination of the
@@ -46,23 +47,28 @@ def epan_gauss_cdf(u, e, s) -> NDArray[np.float64]:
     """
     u = np.asarray(u, dtype=np.float64)
     e = np.broadcast_to(np.asarray(e, dtype=np.float64), u.shape)
-    s = float(s)
-    if s <= 0.0:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x = u / e
-        return epan_cdf(np.where(e > 0, x, np.sign(u)))
+    if np.ndim(s) == 0:
+        s = float(s)
+        if s <= 0.0:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x = u / e
+            return epan_cdf(np.where(e > 0, x, np.sign(u)))
+        ss = s
+    else:  # one s > 0 per element (the errors-in-variables model)
+        ss = np.broadcast_to(np.asarray(s, dtype=np.float64), u.shape)
     out = np.where(u > 0, 1.0, 0.0)  # the values at u = -inf, +inf
     finite = np.isfinite(u)
-    h = e / s
+    h = e / ss
     series = finite & (h < SERIES_BELOW)
     if series.any():
-        zc = u[series] / s
+        zc = u[series] / (ss if np.ndim(ss) == 0 else ss[series])
         hh = h[series] ** 2
         p = _phi(zc)
         out[series] = ndtr(zc) - 0.1 * hh * zc * p + (hh * hh / 280.0) * (3.0 * zc - zc**3) * p
     full = finite & ~series
     if full.any():
         uu, ee = (u, e) if full.all() else (u[full], e[full])
+        s = ss if np.ndim(ss) == 0 or full.all() else ss[full]
         z1 = (uu - ee) / s
         z2 = (uu + ee) / s
         alpha = uu / ee
@@ -86,8 +92,8 @@ def epan_gauss_cdf(u, e, s) -> NDArray[np.float64]:
 
 
 def epan_gauss_interval(a, b, e, s) -> NDArray[np.float64]:
-    """P(a < e E + s Z <= b) (s a scalar); the distribution is symmetric, so each
-    interval is taken from the tail it lies in (no 1 - 1 cancellation)."""
+    """P(a < e E + s Z <= b) (s a scalar or one per element); the distribution is
+    symmetric, so each interval is taken from the tail it lies in (no 1 - 1 cancellation)."""
     a, b, e = np.broadcast_arrays(*(np.asarray(v, float) for v in (a, b, e)))
     upper = (a + b) > 0
     lo = np.where(upper, -b, a)
@@ -191,7 +197,8 @@ _XP, _WP = np.polynomial.legendre.leggauss(6)
 
 def smoothed_ball_disk_cdf(log_t, gamma, s3) -> NDArray[np.float64]:
     """E[G(t exp(s3 Z); gamma)], Z standard normal: :func:`ball_disk_cdf` seen through a
-    log-normal error of the threshold (the pose error, s3 = 3 sigma in log |h|).
+    log-normal error of the threshold (the pose error, s3 = 3 sigma in log |h|; a scalar
+    or one per row).
 
     G(.; gamma) is smooth except at t = |gamma - 1| and t = gamma + 1, where its support
     starts (gamma > 1) and ends: there 1 - G or G grows like a square, so without the pose
@@ -204,11 +211,16 @@ def smoothed_ball_disk_cdf(log_t, gamma, s3) -> NDArray[np.float64]:
     """
     log_t = np.asarray(log_t, dtype=np.float64)
     gamma = np.asarray(gamma, dtype=np.float64)
-    if not s3 > 0:
-        return ball_disk_cdf(np.exp(np.minimum(log_t, 700.0)), gamma)
+    if np.ndim(s3) == 0:
+        if not s3 > 0:
+            return ball_disk_cdf(np.exp(np.minimum(log_t, 700.0)), gamma)
+        sc = s3
+    else:  # one s3 > 0 per row (the errors-in-variables model)
+        s3 = np.broadcast_to(np.asarray(s3, dtype=np.float64), log_t.shape)
+        sc = s3[:, None]
     # Away from the kinks G is smooth: the 3-point Gauss-Hermite rule (exact for
     # polynomials of degree 5 in z) is accurate to (s3 / spread)^6. One call for all nodes.
-    nodes = np.minimum(log_t[:, None] + s3 * _GH3_X, 700.0)
+    nodes = np.minimum(log_t[:, None] + sc * _GH3_X, 700.0)
     g3 = ball_disk_cdf(np.exp(nodes), np.broadcast_to(gamma[:, None], nodes.shape))
     out = g3 @ _GH3_W
     with np.errstate(divide="ignore"):
@@ -219,6 +231,7 @@ def smoothed_ball_disk_cdf(log_t, gamma, s3) -> NDArray[np.float64]:
     if not near.any():
         return out
     lt, g = log_t[near], gamma[near]
+    sn = s3 if np.ndim(s3) == 0 else s3[near][:, None]
     # Breakpoints: every 2 standard deviations on [-8, 8] plus the two kinks, so each of
     # the 10 pieces has a smooth integrand no wider than 2 (6 Gauss-Legendre nodes each).
     kinks = np.clip(np.stack([z1[near], z2[near]], axis=1), -Z_SPAN, Z_SPAN)
@@ -230,7 +243,7 @@ def smoothed_ball_disk_cdf(log_t, gamma, s3) -> NDArray[np.float64]:
     z = np.concatenate([z, np.full((lt.shape[0], 1), Z_SPAN)], axis=1)
     wz = np.concatenate([wz, np.full((lt.shape[0], 1), ndtr(-Z_SPAN))], axis=1)  # the upper tail
     with np.errstate(over="ignore"):
-        tz = np.exp(np.minimum(lt[:, None] + s3 * z, 700.0))
+        tz = np.exp(np.minimum(lt[:, None] + sn * z, 700.0))
     acc = np.einsum("ij,ij->i", wz, ball_disk_cdf(tz, np.broadcast_to(g[:, None], tz.shape)))
     # Between Z_KINK and Z_KINK + Z_BLEND the two rules are blended with a C2 smooth step,
     # so the likelihood has no jump where a row changes rule (they differ by ~1e-7).

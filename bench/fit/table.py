@@ -23,6 +23,12 @@ COLUMNS: tuple[str, ...] = (
     "tx_x", "tx_y", "tx_z", "tx_qw", "tx_qx", "tx_qy", "tx_qz",
 )  # fmt: skip
 INTEGER_COLUMNS = frozenset({"seq", "id", "d", "delta"})
+#: Optional columns after the normative ones: the receiver GPS fix's GGA quality (0-8)
+#: and HDOP, which set each row's share of the GPS error (:func:`gps_scale`).
+OPTIONAL_COLUMNS: tuple[str, ...] = ("fix_quality", "hdop")
+#: Typical horizontal 1-sigma (m) per unit HDOP for each GGA fix quality: 1 GPS, 2 DGPS/SBAS,
+#: 4 RTK fixed, 5 RTK float, 6 dead reckoning; others count as plain GPS.
+QUALITY_SIGMA = {1: 1.5, 2: 0.5, 3: 1.5, 4: 0.02, 5: 0.3, 6: 3.0}
 
 
 class FitInputError(InputError):
@@ -46,6 +52,8 @@ class Table:
     tx_pos: NDArray[np.float64]
     tx_quat: NDArray[np.float64]
     lines: NDArray[np.int64] | None = None  # file line of each row (1 = header)
+    fix_quality: NDArray[np.int64] | None = None  # optional: GGA fix quality of the receiver pose
+    hdop: NDArray[np.float64] | None = None  # optional: its HDOP
 
     def __len__(self) -> int:
         return int(self.d.shape[0])
@@ -68,13 +76,18 @@ class Table:
         if missing:
             raise FitInputError(f"{source}: missing column{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
         g = lambda *names: np.stack([np.asarray(cols[c], dtype=np.float64) for c in names], axis=-1)  # noqa: E731
-        return cls.from_columns(
+        table = cls.from_columns(
             source,
             cols["t"], cols["seq"], cols["id"], cols["d"], cols["delta"],
             g("rx_x", "rx_y", "rx_z"), g("rx_qw", "rx_qx", "rx_qy", "rx_qz"),
             g("tx_x", "tx_y", "tx_z"), g("tx_qw", "tx_qx", "tx_qy", "tx_qz"),
             lines,
         )  # fmt: skip
+        if "fix_quality" in cols:
+            table.fix_quality = np.asarray(cols["fix_quality"], dtype=np.int64).reshape(-1)
+        if "hdop" in cols:
+            table.hdop = np.asarray(cols["hdop"], dtype=np.float64).reshape(-1)
+        return table
 
     def columns(self) -> dict[str, NDArray]:
         out: dict[str, NDArray] = {"t": self.t, "seq": self.seq, "id": self.id, "d": self.d, "delta": self.delta}
@@ -90,6 +103,8 @@ class Table:
             self.source, self.t[mask], self.seq[mask], self.id[mask], self.d[mask], self.delta[mask],
             self.rx_pos[mask], self.rx_quat[mask], self.tx_pos[mask], self.tx_quat[mask],
             None if self.lines is None else self.lines[mask],
+            None if self.fix_quality is None else self.fix_quality[mask],
+            None if self.hdop is None else self.hdop[mask],
         )  # fmt: skip
 
     def where(self, row: int) -> str:
@@ -111,3 +126,28 @@ class Table:
             Path(path).write_text(text)
         else:
             path.write(text)
+
+
+def gps_scale(table: Table) -> NDArray[np.float64] | None:
+    """Each row's GPS error relative to the table's median row: QUALITY_SIGMA[quality] x
+    HDOP (either may be missing), divided by its median; None without both columns.
+    The fitted gps_sigma is then the error of a median row. Quality 0 (no fix) rows get
+    a factor 1e3: the fit leaves them out (their pose says nothing)."""
+    if table.fix_quality is None and table.hdop is None:
+        return None
+    n = len(table)
+    q = np.ones(n, dtype=np.int64) if table.fix_quality is None else table.fix_quality
+    sig = _quality_sigma(q)
+    if table.hdop is not None:
+        sig = sig * table.hdop
+    valid = q > 0
+    med = float(np.median(sig[valid])) if valid.any() else 1.0
+    out = sig / (med if med > 0 else 1.0)
+    return np.where(valid, out, 1e3)
+
+
+def _quality_sigma(q: NDArray[np.int64]) -> NDArray[np.float64]:
+    lut = np.full(10, 1.5)
+    for k, v in QUALITY_SIGMA.items():
+        lut[k] = v
+    return lut[np.clip(q, 0, 9)]

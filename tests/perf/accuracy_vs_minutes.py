@@ -2,7 +2,7 @@
 
 Usage: python tests/perf/accuracy_vs_minutes.py [--seeds N] [--no-write]
 
-Emulates campaigns of 2 to 60 minutes at 1 Hz (``bench.fit.campaign``: radial walks
+Emulates campaigns of 2 to 60 minutes at 1 Hz (``tests/fit_campaign.py``: radial walks
 around a buried transmitter, EMI on, kappa_eq = 1.542, r_en = 80 m), fits each one and
 reports, per length, the 95 % confidence-interval width of each parameter (median over
 seeds), the actual error, how often the interval covers the truth, and the fit time.
@@ -24,11 +24,12 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE.parents[1]))
 
 from _report import ROOT, git_revision, machine, markdown_table  # noqa: E402
 
-from bench.fit.campaign import Walk, emulate_campaign  # noqa: E402
+from fit_campaign import Walk, emulate_campaign  # noqa: E402
 from bench.fit.fit import fit_table  # noqa: E402
 from emulator.receiver.model import ModelParams  # noqa: E402
 
@@ -38,6 +39,17 @@ PNG = ROOT / "docs" / "img" / "accuracy_calibration.png"
 SCRIPT = "python tests/perf/accuracy_vs_minutes.py"
 MINUTES = (2, 5, 10, 20, 30, 45, 60)
 TRUTH = {"kappa_eq": 1.542, "r_en": 80.0}
+
+
+def pose_error_block() -> str:
+    """The pose-error part of section (b), kept as it is: tests/perf/accuracy_pose_error.py
+    writes it (between its own markers)."""
+    text = ACCURACY_MD.read_text() if ACCURACY_MD.exists() else ""
+    begin, end = "<!-- BEGIN pose-error -->", "<!-- END pose-error -->"
+    lead = "**With real ground truth.**"
+    if begin in text and end in text and lead in text:
+        return text[text.index(lead) : text.index(end) + len(end)]
+    return f"{lead} See `python tests/perf/accuracy_pose_error.py`.\n\n{begin}\n{end}"
 
 
 def study(seeds: int):
@@ -177,7 +189,8 @@ def main(argv=None) -> int:
     first_1 = next((r["minutes"] for r in results if 50 * r["ci"][1] <= 1.0), None)
     body = f"""## (b) Calibration accuracy versus minutes of logging
 
-`arva-bench fit` on emulated campaigns (`bench.fit.campaign`: radial walks from 1 to 80 m
+`arva-bench fit --gps-sigma 0 --attitude-sigma 0` (poses declared exact: the relative pose
+error model) on emulated campaigns (`tests/fit_campaign.py`: radial walks from 1 to 80 m
 at 1.1 m/s around a transmitter buried 1 m deep, hand-held orientations, one epoch per
 second, EMI on; truth kappa_eq = 1.542, r_en = 80 m, exact poses), {args.seeds} seeds per
 length. Interval: ± 1.96 standard errors (median over seeds, in % of the estimate); rms
@@ -188,9 +201,9 @@ standard errors were exact).
 
 **How long to walk:** r_en to ± 2 % after {first_2} minutes, ± 1 % after {first_1} minutes;
 kappa_eq to better than ± 0.1 % from the first minutes (every near reading pins it).
-Both shrink like 1/sqrt(minutes) (dotted lines in the plot). The intervals assume exact poses; with real GPS and
-attitude errors the fit estimates a pose error too and the intervals widen (see
-[calibration.md](calibration.md)).
+Both shrink like 1/sqrt(minutes) (dotted lines in the plot). The table above assumes exact poses.
+
+{pose_error_block()}
 
 {"![calibration accuracy versus minutes](img/accuracy_calibration.png)" if have_png or PNG.exists() else ""}
 """

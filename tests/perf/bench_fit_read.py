@@ -3,7 +3,7 @@ docs/performance.md (section ``fit_read``).
 
 Usage: python tests/perf/bench_fit_read.py [--rows N] [--rounds R] [--no-write]
 
-An emulated campaign (``bench.fit.campaign``, kappa_eq = 1.542, r_en = 80 m, exact poses)
+An emulated campaign (``tests/fit_campaign.py``, kappa_eq = 1.542, r_en = 80 m, exact poses)
 written as the normative CSV, then: ``read_csv`` (its one-pass numeric route, and the
 general csv-module route it falls back to), and ``fit_table`` on the table read. Times
 are best of R, on CPU time (the process's, all threads) and on the wall clock: on a host
@@ -25,11 +25,12 @@ import pytest
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parents[1]))
+sys.path.insert(0, str(HERE.parent))  # tests/: the campaign generator
 
 from _report import markdown_table, write_section  # noqa: E402
 
 from bench.fit import csvio  # noqa: E402
-from bench.fit.campaign import emulate_campaign  # noqa: E402
+from fit_campaign import emulate_campaign  # noqa: E402
 from bench.fit.fit import fit_table  # noqa: E402
 from emulator.receiver.model import ModelParams  # noqa: E402
 

@@ -10,6 +10,13 @@ transmitter's pose, as the session export writes them.
 
 Rows are produced by :func:`emulator.receiver.model.measure` with :class:`NoiseEffect` noise, so a
 campaign is exactly what ``arva-emulate`` would print for that walk (BRIEF 3, 3.2).
+
+:class:`PoseError` makes the *logged* poses differ from the true ones the receiver saw, as
+field ground truth does: GPS position error (horizontal and vertical sigma in metres,
+white or first-order Gauss-Markov with correlation time ``gps_tau`` s), attitude error
+(per body axis, degrees, white or Gauss-Markov) and a constant time offset (the pose
+stream logged ``time_offset`` s late: the pose logged at t is the true pose at
+t - time_offset). Test support only: not part of the shipped package.
 """
 
 from __future__ import annotations
@@ -23,9 +30,56 @@ from scipy.spatial.transform import Rotation
 from emulator.receiver.noise import NoiseEffect
 from emulator.receiver.model import ModelParams, measure
 
-from .table import Table
+from bench.fit.table import Table
 
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
+
+
+@dataclass(frozen=True)
+class PoseError:
+    """Error of the logged receiver poses (metres, degrees, seconds); zero: exact poses."""
+
+    gps_h: float = 0.0  # horizontal sigma per axis (m)
+    gps_v: float = 0.0  # vertical sigma (m)
+    gps_tau: float = 0.0  # Gauss-Markov correlation time (s); 0 = white
+    attitude_deg: float = 0.0  # sigma of the small rotation about each body axis (deg)
+    attitude_tau: float = 0.0  # its correlation time (s); 0 = white
+    time_offset: float = 0.0  # pose stream late by this much (s)
+
+    @property
+    def exact(self) -> bool:
+        return self.gps_h == 0 and self.gps_v == 0 and self.attitude_deg == 0 and self.time_offset == 0
+
+
+def gauss_markov(t, sigma, tau, rng: np.random.Generator, dims: int):
+    """Stationary first-order Gauss-Markov noise (n, dims) with s.d. ``sigma`` (a scalar or
+    one per dimension) and correlation exp(-|dt| / tau); tau = 0: white."""
+    t = np.asarray(t, dtype=np.float64)
+    n = t.shape[0]
+    w = rng.standard_normal((n, dims))
+    if tau <= 0 or n == 0:
+        return w * sigma
+    a = np.exp(-np.diff(t, prepend=t[0]) / tau)
+    x = np.empty((n, dims))
+    x[0] = w[0]
+    b = np.sqrt(1.0 - a * a)
+    for i in range(1, n):  # a linear recursion; 1e5 steps take ~0.1 s
+        x[i] = a[i] * x[i - 1] + b[i] * w[i]
+    return x * sigma
+
+
+def logged_poses(t, true_pos, true_quat, walk_again, err: PoseError, rng: np.random.Generator):
+    """The receiver poses a field log would hold for true poses (n, 3), (n, 4);
+    ``walk_again(times)`` gives the true poses at other times (for the time offset)."""
+    pos, quat = true_pos, true_quat
+    if err.time_offset != 0.0:
+        pos, quat = walk_again(np.asarray(t) - err.time_offset)
+    if err.gps_h > 0 or err.gps_v > 0:
+        pos = pos + gauss_markov(t, np.array([err.gps_h, err.gps_h, err.gps_v]), err.gps_tau, rng, 3)
+    if err.attitude_deg > 0:
+        rotvec = gauss_markov(t, math.radians(err.attitude_deg), err.attitude_tau, rng, 3)
+        quat = (Rotation.from_quat(quat, scalar_first=True) * Rotation.from_rotvec(rotvec)).as_quat(scalar_first=True)
+    return pos, quat
 
 
 @dataclass(frozen=True)
@@ -78,20 +132,30 @@ def emulate_campaign(
     rate_hz: float = 1.0,
     tx_id: int = 1,
     n_rows: int | None = None,
+    pose_error: PoseError = PoseError(),
 ) -> Table:
     """The normative table of a campaign of ``minutes`` at ``rate_hz`` (or ``n_rows``).
 
     The transmitter is buried at (0, 0, -depth) with a random tilt; everything random
-    (tilt, bearings, holds, wobble, EMI) comes from ``seed``.
+    (tilt, bearings, holds, wobble, EMI) comes from ``seed``; ``pose_error`` makes the
+    logged receiver poses differ from the true ones (its draws come after all others, so
+    the true walk and the readings do not depend on it).
     """
     n = int(round(minutes * 60.0 * rate_hz)) if n_rows is None else int(n_rows)
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(7,)))
-    tx_rot = Rotation.from_euler("ZYX", [rng.uniform(0, 360), rng.normal(0, 30), rng.normal(0, 30)], degrees=True)
-    tx_q = tx_rot.as_quat(scalar_first=True)
+
+    def draws(times):  # the same transmitter and walk for any times (same draws)
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(7,)))
+        tx_rot = Rotation.from_euler("ZYX", [rng.uniform(0, 360), rng.normal(0, 30), rng.normal(0, 30)], degrees=True)
+        return tx_rot.as_quat(scalar_first=True), walk_poses(times, walk, rng)
+
     tx_p = np.array([0.0, 0.0, -walk.depth])
-    rx_p, rx_q = walk_poses(np.arange(n) / rate_hz, walk, rng)
+    t = np.arange(n) / rate_hz
+    tx_q, (rx_p, rx_q) = draws(t)
     noise = NoiseEffect(seed).draw(n, 1)
     meas = measure(rx_p, rx_q, tx_p[None], tx_q[None], params, noise=noise)
+    if not pose_error.exact:
+        err_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(11,)))
+        rx_p, rx_q = logged_poses(t, rx_p, rx_q, lambda times: draws(times)[1], pose_error, err_rng)
     d = meas.d[:, 0]
     delta = meas.delta[:, 0]
     ids = np.where(d == -1, -1, tx_id)

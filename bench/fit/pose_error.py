@@ -1,0 +1,197 @@
+"""How error in the logged receiver pose moves each row's predicted distance (errors in variables).
+
+The likelihood predicts log d from the logged poses through
+
+    a_xy = log r - log |g_xy| / 3   (mid zone)      a_3 = log r - log |g| / 3   (inner zone)
+
+(r in metres, g the receiver-frame field direction, BRIEF 3). The logged receiver
+position is the true one plus GPS error e (world frame, metres; sigma_h on x and y,
+sigma_v = ratio * sigma_h on z), and the logged attitude is the true one turned by a
+small body-frame rotation phi (radians, sigma_a on each axis). The transmitter pose is
+taken as exact (it is buried and static). So the true a is a(logged pose - error): a
+random variable for each row.
+
+This module replaces that distribution by a Gaussian with the same mean and variance
+(moment matching), from a 3-point Gauss-Hermite rule along each of the six error axes
+(nodes at +-sqrt(3) sigma_0, weights 1/6, 2/3, 1/6):
+
+    mean shift  = sum_j sigma_j^2 M_j,   variance = sum_j sigma_j^2 V_j
+
+with M_j = (D+ + D-) / (6 sigma_0j^2), V_j = [(D+^2 + D-^2)/6 - ((D+ + D-)/6)^2] / sigma_0j^2,
+D+- = a(pose +- sqrt(3) sigma_0j along axis j) - a(pose). Both are exact for a that is
+quadratic along each axis at sigma = sigma_0 and scale as sigma^2 around it; the fit
+evaluates them at a pilot sigma_0 and again at its estimate (:func:`pose_moments`).
+Cross terms between axes are left out (the six errors are independent; only the mixed
+second derivatives are neglected). The axis sums are kept per group (horizontal,
+vertical, attitude) so the likelihood can scale each by its own sigma.
+
+Far from the transmitter the variance is ~ (sigma_h^2 + sigma_v^2 ...) / r^2 and the shift
+tiny; within a few sigma of it the Gaussian is a rough stand-in for a skewed distribution,
+and :data:`MAX_SD` says which rows are left out of the fit for that reason (see
+docs/calibration.md section 2).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
+
+SQRT3 = math.sqrt(3.0)
+#: Rows whose predicted log-distance spread from the pose error (at the linearisation
+#: sigmas) exceeds this are not used: the moment-matched Gaussian is poor there and such
+#: rows carry almost no information on kappa_eq or r_en.
+MAX_SD = 0.15
+
+
+@dataclass
+class PoseMoments:
+    """Per-row mean-shift and variance coefficients of a_xy and a_3, per error group
+    (h: horizontal GPS per m^2, v: vertical GPS per m^2, a: attitude per rad^2)."""
+
+    m_xy: NDArray[np.float64]  # (3, N): h, v, a
+    v_xy: NDArray[np.float64]  # (3, N)
+    m_3: NDArray[np.float64]
+    v_3: NDArray[np.float64]
+    sigma0: tuple[float, float, float]  # the sigmas the rule was evaluated at (m, m, rad)
+    dz_xy: NDArray[np.float64]  # d a_xy / d (receiver height), 1/m (for the height offset)
+    dz_3: NDArray[np.float64]
+
+    def take(self, idx) -> "PoseMoments":
+        return PoseMoments(
+            self.m_xy[:, idx], self.v_xy[:, idx], self.m_3[:, idx], self.v_3[:, idx], self.sigma0,
+            self.dz_xy[idx], self.dz_3[idx],
+        )  # fmt: skip
+
+    def spread(self, s: NDArray[np.float64] | tuple) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        """(shift_xy, var_xy, shift_3, var_3) for sigmas s = (h, v, a) (squared inside)."""
+        w = np.asarray(s, dtype=np.float64) ** 2
+        return w @ self.m_xy, np.maximum(w @ self.v_xy, 0.0), w @ self.m_3, np.maximum(w @ self.v_3, 0.0)
+
+
+def _a(diff, m, rr_t_rows):
+    """a_xy, a_3 for rx - tx offsets ``diff`` (3, N), transmitter axes m (3, N) and the
+    receiver rotations (3, 3, N) (g = R^T u_w)."""
+    r = np.sqrt(np.einsum("in,in->n", diff, diff))
+    n = diff / np.where(r > 0, r, 1.0)
+    uw = 3.0 * np.einsum("in,in->n", m, n) * n - m
+    g = np.einsum("ijn,in->jn", rr_t_rows, uw)
+    return _a_of(r, g)
+
+
+def _a_of(r, g):
+    with np.errstate(divide="ignore"):
+        log_r = np.log(r)
+        gxy = np.hypot(g[0], g[1])
+        return log_r - np.log(gxy) / 3.0, log_r - 0.5 * np.log(gxy * gxy + g[2] * g[2]) / 3.0
+
+
+def _rotate(g, axis: int, angle: float):
+    """g (3, N) turned by ``angle`` about body axis ``axis``: the true g when the logged
+    attitude is off by that rotation (g_true = R(phi) g_logged to first order and beyond)."""
+    c, s = math.cos(angle), math.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    out = g.copy()
+    out[i] = c * g[i] - s * g[j]
+    out[j] = s * g[i] + c * g[j]
+    return out
+
+
+@dataclass
+class Posterior:
+    """Where the receiver was, given its logged position: logged + shift (n, 3), and the
+    vertical error's posterior s.d. as a fraction of sigma_v."""
+
+    pos: NDArray[np.float64]
+    v_factor: float
+
+
+def posterior_positions(rx_pos, tx_pos, sigma_h: float, sigma_v: float) -> Posterior:
+    """E[true position | logged position] for logged = true + e (classical error).
+
+    Horizontal (Tweedie's formula): E[x | x_log] = x_log + sigma_h^2 grad log p(x_log),
+    p the density of the logged positions, estimated as radial about the transmitter:
+    p ~ n(rho) / rho with n a Gaussian-smoothed histogram of the logged horizontal
+    distances rho (bandwidth max(sigma_h, 1 m)); the shift is capped at sigma_h. A radial
+    walk (n flat) gives the shift -sigma_h^2 / rho towards the transmitter: without it the
+    fit sees every distance as too long by sigma_h^2 / (2 rho^2) on average, and kappa_eq
+    came out 1.8 % low at 1 m GPS error.
+    Vertical (empirical Bayes, Gaussian prior on the height): the true heights vary by
+    tau^2 = max(var(z_log) - sigma_v^2, 0), so E[z | z_log] = m + k (z_log - m) with
+    k = tau^2 / (tau^2 + sigma_v^2), and the error left has s.d. sqrt(k) sigma_v.
+    """
+    pos = np.array(rx_pos, dtype=np.float64)
+    rel = pos - np.asarray(tx_pos, dtype=np.float64)
+    if sigma_h > 0:
+        rho = np.hypot(rel[:, 0], rel[:, 1])
+        bw = max(sigma_h, 1.0)
+        width = bw / 4.0
+        edges_n = int(np.ceil((rho.max() + 4 * bw) / width)) + 1
+        hist = np.bincount(np.minimum((rho / width).astype(np.int64), edges_n - 1), minlength=edges_n).astype(float)
+        kx = np.arange(-16, 17) * width
+        kern = np.exp(-0.5 * (kx / bw) ** 2)
+        padded = np.concatenate([hist[16:0:-1], hist])  # reflect at rho = 0
+        dens = np.convolve(padded, kern, mode="same")[16:] + 1e-9
+        centres = (np.arange(edges_n) + 0.5) * width
+        dlog = np.gradient(np.log(dens), centres)
+        slope = np.interp(rho, centres, dlog) - 1.0 / np.maximum(rho, 1e-9)
+        step = np.clip(sigma_h * sigma_h * slope, -sigma_h, sigma_h)
+        unit = rel[:, :2] / np.maximum(rho, 1e-9)[:, None]
+        pos[:, :2] += step[:, None] * unit
+    k = 1.0
+    if sigma_v > 0:
+        z = pos[:, 2]
+        m = float(np.mean(z))
+        tau2 = max(float(np.var(z)) - sigma_v * sigma_v, 0.0)
+        k = tau2 / (tau2 + sigma_v * sigma_v)
+        pos[:, 2] = m + k * (z - m)
+    return Posterior(pos, math.sqrt(k))
+
+
+def pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0: tuple[float, float, float]) -> PoseMoments:
+    """The coefficients of :class:`PoseMoments` for each row, at sigmas ``sigma0``
+    (horizontal m, vertical m, attitude rad; each > 0). Rows at the transmitter get
+    zeros (they are dropped by the fit anyway); non-finite values become 0 shift and a
+    huge variance, so those rows drop out."""
+    rr = rotation_components(unit_quaternion_components(rx_quat, "rx_q"))  # (3, 3, N)
+    m = x_axis_components(unit_quaternion_components(tx_quat, "tx_q"))
+    diff = (np.asarray(rx_pos, float) - np.asarray(tx_pos, float)).T
+    n = diff.shape[1]
+    a0 = _a(diff, m, rr)
+    r = np.sqrt(np.einsum("in,in->n", diff, diff))
+    uw_n = diff / np.where(r > 0, r, 1.0)
+    g0 = np.einsum("ijn,in->jn", rr, 3.0 * np.einsum("in,in->n", m, uw_n) * uw_n - m)
+    out = [np.zeros((3, n)) for _ in range(4)]  # m_xy, v_xy, m_3, v_3
+    dz = [np.zeros(n), np.zeros(n)]
+
+    def accumulate(group, plus, minus, s0):
+        if group == 1:  # the vertical axis: also the slope, for the height offset
+            for k in range(2):
+                dz[k] = (plus[k] - minus[k]) / (2.0 * SQRT3 * s0)
+        for k in range(2):
+            dp, dm = plus[k] - a0[k], minus[k] - a0[k]
+            mean = (dp + dm) / 6.0
+            var = (dp * dp + dm * dm) / 6.0 - mean * mean
+            out[2 * k][group] += mean / (s0 * s0)
+            out[2 * k + 1][group] += var / (s0 * s0)
+
+    sh, sv, sa = sigma0
+    for axis, group, s0 in ((0, 0, sh), (1, 0, sh), (2, 1, sv)):
+        step = np.zeros((3, 1))
+        step[axis] = SQRT3 * s0
+        # logged = true + e, so the true offset is diff - e: the rule is symmetric in e.
+        accumulate(group, _a(diff + step, m, rr), _a(diff - step, m, rr), s0)
+    for axis in range(3):
+        accumulate(2, _a_of(r, _rotate(g0, axis, SQRT3 * sa)), _a_of(r, _rotate(g0, axis, -SQRT3 * sa)), sa)
+    m_xy, v_xy, m_3, v_3 = out
+    bad = ~(np.all(np.isfinite(m_xy), axis=0) & np.all(np.isfinite(v_xy), axis=0))
+    bad |= ~(np.all(np.isfinite(m_3), axis=0) & np.all(np.isfinite(v_3), axis=0))
+    if bad.any():
+        for arr, fill in ((m_xy, 0.0), (v_xy, 1e12), (m_3, 0.0), (v_3, 1e12)):
+            arr[:, bad] = fill
+    dz_xy, dz_3 = (np.where(np.isfinite(v) & ~bad, v, 0.0) for v in dz)
+    return PoseMoments(m_xy, v_xy, m_3, v_3, (float(sh), float(sv), float(sa)), dz_xy, dz_3)

@@ -1,0 +1,197 @@
+"""The errors-in-variables fit (issue 15): pose error moments, the time-block covariance,
+HDOP / fix-quality scaling, the campaign's pose-error models, and recovery of kappa_eq and
+r_en from a campaign whose logged poses carry correlated GPS and attitude error."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bench.fit.csvio import parse_csv
+from bench.fit.fit import FitOptions, fit_table, time_block_meat
+from bench.fit.likelihood import Params
+from bench.fit.pose_error import pose_moments, posterior_positions
+from bench.fit.table import FitInputError, gps_scale
+from emulator.receiver.model import ModelParams
+from fit_campaign import PoseError, Walk, emulate_campaign, gauss_markov
+
+TRUTH = ModelParams(kappa_eq=1.542, r_en=80.0)
+IDENTITY = np.array([[1.0, 0.0, 0.0, 0.0]])
+
+
+def a_xy(rx, quat, tx, txq):
+    """a_xy = log r - log|g_xy| / 3 straight from the emulator's model (d = cbrt(kappa) e^a)."""
+    from bench.fit.likelihood import geometry
+
+    geo = geometry(rx, quat, tx, txq)
+    return geo.log_r - np.log(np.hypot(geo.g[0], geo.g[1])) / 3.0
+
+
+@pytest.mark.parametrize("rx", [(20.0, 5.0, 2.0), (-8.0, 9.0, 2.0), (3.0, -30.0, 1.5)])
+def test_moments_match_monte_carlo(rx):
+    """Mean shift and variance of a_xy under GPS error 0.5 m / 0.75 m and 2 deg attitude
+    error agree with 200,000 draws (the Gaussian moments the likelihood uses)."""
+    rng = np.random.default_rng(1)
+    tx, txq = np.array([[0.0, 0.0, -1.0]]), np.array([[0.9, 0.1, 0.3, 0.2]])
+    txq = txq / np.linalg.norm(txq)
+    s = (0.5, 0.75, math.radians(2.0))
+    mom = pose_moments(np.array([rx]), IDENTITY, tx, txq, s)
+    shift, var, _s3, _v3 = mom.spread(s)
+    n = 200_000
+    e = rng.standard_normal((n, 3)) * np.array([s[0], s[0], s[1]])
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_rotvec(rng.standard_normal((n, 3)) * s[2]).as_quat(scalar_first=True)
+    a0 = a_xy(np.array([rx]), IDENTITY, tx, txq)[0]
+    a = a_xy(np.array(rx) - e, q, np.broadcast_to(tx, (n, 3)), np.broadcast_to(txq, (n, 4)))
+    assert abs(shift[0] - (a.mean() - a0)) < 0.1 * abs(a.mean() - a0) + 2e-4
+    assert var[0] == pytest.approx(a.var(), rel=0.1)
+
+
+def test_posterior_positions_radial_walk_and_flat_heights():
+    """A radial walk (distances uniform) gets the Tweedie shift -sigma^2 / rho towards the
+    transmitter; heights that only vary by the GPS error are shrunk to their mean."""
+    rng = np.random.default_rng(2)
+    n = 200_000
+    rho = rng.uniform(1.0, 80.0, n)
+    bearing = rng.uniform(0, 2 * math.pi, n)
+    pos = np.stack([rho * np.cos(bearing), rho * np.sin(bearing), 1.0 + 1.5 * rng.standard_normal(n)], axis=1)
+    post = posterior_positions(pos, np.zeros((n, 3)), 1.0, 1.5)
+    pick = (rho > 20) & (rho < 60)
+    moved = np.hypot(post.pos[pick, 0], post.pos[pick, 1]) - rho[pick]
+    assert np.median(moved * rho[pick]) == pytest.approx(-1.0, abs=0.1)
+    assert post.v_factor < 0.05 and np.ptp(post.pos[:, 2]) < 0.2
+
+
+def test_time_block_meat_white_and_ar1():
+    rng = np.random.default_rng(3)
+    t = np.arange(20_000.0)
+    white = rng.standard_normal((20_000, 2))
+    meat, lag = time_block_meat(white, t)
+    assert lag == pytest.approx(4 * math.sqrt(20_000)) and meat / 20_000 == pytest.approx(np.eye(2), abs=0.3)
+    rho = math.exp(-1 / 30)
+    ar = gauss_markov(t, 1.0, 30.0, rng, 1)
+    meat, lag = time_block_meat(ar, t)
+    long_run = (1 + rho) / (1 - rho)  # spectral density at 0 of a unit-variance AR(1)
+    assert 30 < lag < 1000 and meat[0, 0] / 20_000 == pytest.approx(long_run, rel=0.35)  # its s.d. is ~20 %
+
+
+def test_time_block_meat_sees_a_small_correlated_part_under_white_noise():
+    """The fit's case: white EMI scores plus a small part correlated over 30 s (pose error)."""
+    rng = np.random.default_rng(4)
+    t = np.arange(20_000.0)
+    x = rng.standard_normal((20_000, 1)) + gauss_markov(t, 0.2, 30.0, rng, 1)
+    rho = math.exp(-1 / 30)
+    long_run = 1.0 + 0.04 * (1 + rho) / (1 - rho)  # 3.4: the white part alone would say 1
+    meat, _lag = time_block_meat(x, t)
+    assert meat[0, 0] / 20_000 == pytest.approx(long_run, rel=0.25)
+
+
+def test_time_block_meat_sums_rows_of_the_same_second():
+    scores = np.array([[1.0], [2.0], [-3.0], [4.0]])
+    meat, lag = time_block_meat(scores, np.array([0.0, 0.5, 1.2, 2.9]))
+    x = np.array([3.0, -3.0, 4.0]) - 4.0 / 3.0  # per second, centred
+    assert lag < 1 and meat[0, 0] == pytest.approx(float(x @ x), rel=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.5, 100.0), st.integers(1, 4000), st.integers(1, 3))
+def test_gauss_markov_is_finite_and_seeded(tau, seed, dims):
+    t = np.arange(0.0, 40 * tau, max(tau / 10.0, 0.05))[:4000]
+    x = gauss_markov(t, 2.0, tau, np.random.default_rng(seed), dims)
+    assert x.shape == (t.shape[0], dims) and np.all(np.isfinite(x))
+    assert np.array_equal(x, gauss_markov(t, 2.0, tau, np.random.default_rng(seed), dims))
+
+
+def test_gauss_markov_correlation_at_tau():
+    rng = np.random.default_rng(5)
+    x = gauss_markov(np.arange(200_000.0), 1.0, 30.0, rng, 1)[:, 0]
+    c = np.corrcoef(x[30:], x[:-30])[0, 1]
+    assert c == pytest.approx(math.exp(-1), abs=0.03) and np.std(x) == pytest.approx(1.0, abs=0.05)
+
+
+def test_campaign_pose_error_changes_only_the_logged_poses():
+    exact = emulate_campaign(3, TRUTH, seed=4)
+    pe = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0, attitude_deg=2.0, time_offset=0.5)
+    noisy = emulate_campaign(3, TRUTH, seed=4, pose_error=pe)
+    assert np.array_equal(exact.d, noisy.d) and np.array_equal(exact.tx_pos, noisy.tx_pos)
+    assert not np.allclose(exact.rx_pos, noisy.rx_pos) and not np.allclose(exact.rx_quat, noisy.rx_quat)
+    late = emulate_campaign(3, TRUTH, seed=4, pose_error=PoseError(time_offset=2.0))
+    # the pose logged at t is the true pose at t - 2 s (same leg: same positions 2 s earlier)
+    assert np.allclose(late.rx_pos[10:100], exact.rx_pos[8:98])
+
+
+def test_gps_scale_from_quality_and_hdop():
+    t = emulate_campaign(0, TRUTH, seed=1, n_rows=6)
+    t.fix_quality = np.array([4, 4, 2, 1, 1, 0])
+    t.hdop = np.array([1.0, 2.0, 1.0, 1.0, 2.0, 1.0])
+    sig = np.array([0.02, 0.04, 0.5, 1.5, 3.0])
+    assert np.allclose(gps_scale(t), np.append(sig / 0.5, 1e3))
+    t.fix_quality, t.hdop = None, None
+    assert gps_scale(t) is None
+
+
+def csv_with(extra_header: str, extra_cells: list[str]) -> bytes:
+    import io
+
+    t = emulate_campaign(0, TRUTH, seed=1, n_rows=len(extra_cells))
+    buf = io.StringIO()
+    t.write_csv(buf)
+    lines = buf.getvalue().splitlines()
+    lines[0] += "," + extra_header
+    for i, cell in enumerate(extra_cells):
+        lines[i + 1] += "," + cell
+    return ("\n".join(lines) + "\n").encode()
+
+
+def test_csv_reads_the_optional_gps_columns():
+    t = parse_csv(csv_with("fix_quality,hdop", ["4,0.8", "1,1.9", "2,1.0"]), "x.csv")
+    assert t.fix_quality.tolist() == [4, 1, 2] and t.hdop.tolist() == [0.8, 1.9, 1.0]
+    assert parse_csv(csv_with("hdop", ["1", "2", "3"]), "x.csv").fix_quality is None
+
+
+@pytest.mark.parametrize(
+    "header, cells, why",
+    [
+        ("hdop", ["1", "0", "2"], "x.csv: line 3: column hdop: not a finite HDOP > 0: '0'"),
+        ("hdop", ["1", "2", "inf"], "x.csv: line 4: column hdop: not a finite HDOP > 0: 'inf'"),
+        ("fix_quality", ["1", "9", "2"], "x.csv: line 3: column fix_quality: not a GGA fix quality 0..8: '9'"),
+        ("fix_quality", ["1.5", "1", "2"], "x.csv: line 2: column fix_quality: not a GGA fix quality 0..8: '1.5'"),
+    ],
+)
+def test_csv_rejects_bad_gps_columns(header, cells, why):
+    with pytest.raises(FitInputError) as exc:
+        parse_csv(csv_with(header, cells), "x.csv")
+    assert str(exc.value) == "fit: " + why
+
+
+def test_recovery_with_correlated_gps_error_known_sigmas():
+    """Seeded 60-minute campaign, Gauss-Markov GPS error 1 m / 1.5 m (tau 30 s) and 2 deg
+    attitude error, sigmas given (--gps-sigma 1,1.5 --attitude-sigma 2): kappa_eq within
+    1 %, r_en within 5 %, both inside their +-1.96 se (sandwich) intervals. Without the
+    errors-in-variables model the same rows put r_en far off (the issue's report)."""
+    pe = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0)
+    table = emulate_campaign(60, TRUTH, seed=0, pose_error=pe)
+    base = Params(gps_sigma=1.0, gps_ratio=1.5, attitude_sigma=math.radians(2.0))
+    res = fit_table(table, FitOptions(free=("kappa_eq", "r_en"), base=base))
+    assert res.converged and res.separable
+    for name, truth, tol in (("kappa_eq", 1.542, 0.01), ("r_en", 80.0, 0.05)):
+        assert abs(res.estimate[name] / truth - 1) < tol, (name, res.estimate[name])
+        assert abs(res.estimate[name] - truth) < 1.96 * res.se[name], (name, res.estimate[name], res.se[name])
+    assert res.se["kappa_eq"] > res.se_model["kappa_eq"]  # correlated errors: wider than the Hessian says
+    old = fit_table(table)  # relative pose error only
+    assert not old.converged or abs(old.estimate["r_en"] / 80.0 - 1) > 0.2
+
+
+def test_estimates_gps_error_from_the_data():
+    """The default errors-in-variables fit (sigmas free) on a 20-minute campaign with
+    1 m / 1.5 m Gauss-Markov GPS error finds that error and covers the truth."""
+    pe = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0)
+    table = emulate_campaign(20, TRUTH, seed=0, pose_error=pe)
+    res = fit_table(table, FitOptions(free=("kappa_eq", "r_en", "gps_sigma")))
+    assert res.converged and res.separable
+    assert abs(res.estimate["gps_sigma"] - 1.0) < 3 * res.se["gps_sigma"]
+    for name, truth in (("kappa_eq", 1.542), ("r_en", 80.0)):
+        assert abs(res.estimate[name] - truth) < 1.96 * res.se[name], name
