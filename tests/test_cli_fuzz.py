@@ -18,6 +18,7 @@ side by side (``BATCH``), so the whole file takes about a minute on 2 shared cor
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -199,8 +200,17 @@ def test_every_option_survives_hostile_values(inputs, batch):
         argv = _argv(cmd, opt, value, names)
         what = f"{cmd.label} {b' '.join(argv)!r}"
         running.append((cmd, _launch(cmd, argv, cwd), what))
-    for cmd, proc, what in running:
-        _finish(cmd, proc, what)
+    try:
+        for cmd, proc, what in running:
+            _finish(cmd, proc, what)
+    finally:
+        # A failed assertion (or a pytest timeout) must not leave a dashboard running in
+        # its own session for ever: kill whatever of this batch is still alive.
+        for _, proc, _ in running:
+            if proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=10)
 
 
 def test_every_option_is_listed():
