@@ -255,7 +255,7 @@ def test_tcp_server_with_a_plain_socket():
                         "--delay", "5"])
     host, port = urls["arva"].removeprefix("socket://").rsplit(":", 1)
     with socket.create_connection((host, int(port)), timeout=5) as sock:
-        sock.settimeout(5)
+        sock.settimeout(15)  # longer than the emulator's --delay 5: the first bytes come after it
         got = read_exactly(sock.recv, len(expected))
         assert sock.recv(1) == b""  # the emulator closes the connection when it ends
     assert got == expected
