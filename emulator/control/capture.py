@@ -11,20 +11,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from emulator.output.ports import Port
+from emulator.output.ports import Port, PortWrapper
 
 
-class CapturePort(Port):
+class CapturePort(PortWrapper):
     """Writes through to ``inner`` and appends the same bytes to ``path``."""
 
     def __init__(self, inner: Port, path: Path) -> None:
-        super().__init__(inner.label)
-        self.inner = inner
+        super().__init__(inner)
         self._file = open(path, "ab", buffering=0)
-
-    @property
-    def path(self) -> str | None:  # type: ignore[override]
-        return self.inner.path
 
     def write(self, data: bytes) -> int:
         if not self._file.closed:
@@ -39,25 +34,11 @@ class CapturePort(Port):
     def bytes_dropped(self, value: int) -> None:
         pass  # the device port counts its own drops
 
-    def set_drain_wait(self, seconds: float) -> None:
-        self.inner.set_drain_wait(seconds)
-
-    def disconnect(self) -> None:
-        self.inner.disconnect()
-
-    def reconnect(self) -> None:
-        self.inner.reconnect()
-
     def close(self, *args, **kwargs) -> None:
-        self.inner.close(*args, **kwargs)
+        super().close(*args, **kwargs)
         self.close_file()
 
     def close_file(self) -> None:
         """Stop capturing (the device port stays open)."""
         self._file.close()
 
-    def __getattr__(self, name: str):
-        # pending(), link, on_reconnect ... of the device port read through.
-        if name.startswith("_") or name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)

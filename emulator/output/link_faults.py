@@ -48,7 +48,7 @@ import numpy as np
 
 from firmware_proto.errors import InputError, LinkError
 
-from emulator.output.ports import Port
+from emulator.output.ports import Port, PortWrapper
 
 #: Most bytes a held stall keeps (a UART FIFO plus a driver buffer, generously).
 MAX_HELD = 65536
@@ -106,7 +106,7 @@ class LinkFaultConfig:
             )
 
 
-class FaultyPort(Port):
+class FaultyPort(PortWrapper):
     """A port that injects link faults into another port's stream (BRIEF 3.1).
 
     Cost per write: with byte faults on, 1 or 2 uniform draws per byte plus a few numpy
@@ -129,8 +129,7 @@ class FaultyPort(Port):
         sleep: Callable[[float], None] = time.sleep,
         clock: Callable[[], float] | None = None,
     ) -> None:
-        super().__init__(port.label)
-        self.inner = port
+        super().__init__(port)
         self.config = config
         if seed is None:
             seed = np.random.SeedSequence().entropy
@@ -169,10 +168,6 @@ class FaultyPort(Port):
         self.writes_split = 0
         self.stalls = 0
         self.disconnects = 0
-
-    @property
-    def path(self) -> str | None:  # type: ignore[override]
-        return self.inner.path
 
     @property
     def disconnected(self) -> bool:
@@ -290,23 +285,6 @@ class FaultyPort(Port):
             if t >= k * every + self.config.disconnect_s:  # the whole outage fell between writes
                 self._up()
 
-    def set_drain_wait(self, seconds: float) -> None:
-        self.inner.set_drain_wait(seconds)
-
-    def disconnect(self) -> None:
-        self.inner.disconnect()
-
-    def reconnect(self) -> None:
-        self.inner.reconnect()
-
-    def close(self, *args, **kwargs) -> None:
-        self.inner.close(*args, **kwargs)
-
-    def __getattr__(self, name: str):
-        # Anything else a specific port offers (pending(), link, ...) reads through.
-        if name.startswith("_") or name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)
 
     # --- faults --------------------------------------------------------------------------
 

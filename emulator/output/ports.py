@@ -56,6 +56,37 @@ class Port:
         return accepted
 
 
+class PortWrapper(Port):
+    """A port layered on a device port (link faults, a capture): unplug, replug, drain
+    policy and close pass through to ``inner``, and so does anything else the device port
+    offers (``pending()``, ``link`` ...). Subclasses write through and count."""
+
+    def __init__(self, inner: Port) -> None:
+        super().__init__(inner.label)
+        self.inner = inner
+
+    @property
+    def path(self) -> str | None:  # type: ignore[override]
+        return self.inner.path
+
+    def set_drain_wait(self, seconds: float) -> None:
+        self.inner.set_drain_wait(seconds)
+
+    def disconnect(self) -> None:
+        self.inner.disconnect()
+
+    def reconnect(self) -> None:
+        self.inner.reconnect()
+
+    def close(self, *args, **kwargs) -> None:
+        self.inner.close(*args, **kwargs)
+
+    def __getattr__(self, name: str):
+        if name.startswith("_") or name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+
 class StdoutPort(Port):
     """Standard output. Blocking: a pipe applies back-pressure instead of losing data."""
 
