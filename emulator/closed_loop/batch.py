@@ -51,7 +51,19 @@ import time
 
 import numpy as np
 
-from emulator.closed_loop.controllers import PLAN_BACK, PLAN_CONST, PLAN_SEARCH, Observation
+from emulator.closed_loop.controllers import (
+    PLAN_BACK,
+    PLAN_CONST,
+    PLAN_SEARCH,
+    SEARCH,
+    EpochArrays,
+    FluxFollower,
+    FluxParams,
+    FluxState,
+    Located,
+    Observation,
+    flux_epoch,
+)
 from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
 from emulator.closed_loop.vehicle import FlatTerrain
 from emulator.receiver.model import measure, select_channels
@@ -77,6 +89,9 @@ class BatchLoop:
     """Receiver ``index`` of each scene on its vehicle, all stepped together (see the
     module docstring); :meth:`run` returns one :class:`RunResult` per scene, as
     ``ClosedLoop(scene, index, record=False).run(t_max)`` would."""
+
+    #: Epochs of noise normals drawn at a time from each run's stream.
+    NOISE_BLOCK = 32
 
     def __init__(self, scenes: list[Scene], index: int = 0) -> None:
         if not scenes:
@@ -105,6 +120,9 @@ class BatchLoop:
                 tx_quat[j, c] = tx.trajectory.orientations[0]
         self.tx_pos, self.tx_quat = tx_pos, tx_quat
         self.noise = [NoiseEffect(s.seed, index) for s in scenes] if self.noise_on else None
+        # Each run's noise normals, NOISE_BLOCK epochs ahead (the same stream: see NoiseEffect).
+        self.noise_buf = np.zeros((n, self.NOISE_BLOCK, m, 5)) if self.noise_on else None
+        self.noise_used = self.NOISE_BLOCK
         # Vehicles and controllers: the per-run objects, then their state as arrays.
         pairs = [make_vehicle(s, index, self.dt) for s in scenes]
         uavs = [u for u, _ in pairs]
@@ -147,7 +165,19 @@ class BatchLoop:
                 self.wp[j, : len(st.waypoints)] = st.waypoints
                 self.wp_count[j] = len(st.waypoints)
                 self.wp_next[j] = st.next
+        self.has_strips = np.array([st is not None for st in strips])
         self.sets_heading = np.array([c.search_sets_heading for c in self.ctrl])
+        # Flux followers decide in numpy, all together (flux_epoch): their state and
+        # what they located live here; the other controllers are their own objects.
+        self.is_flux = np.array([isinstance(c, FluxFollower) for c in self.ctrl])
+        self.flux = FluxState.empty(n)
+        self.flux_par = FluxParams.of(specs)
+        self.yaws = np.array(self.yaw, dtype=np.float64)
+        self.found: list[list[Located]] = [[] for _ in range(n)]
+        self.marked = np.zeros((n, m + 1), dtype=bool)  # by id column; column m: no id
+        self.col = np.full(int(self.ids.max()) + 2, m, dtype=np.int64)  # id + 1 -> column
+        self.col[self.ids + 1] = np.arange(m)
+        self.n_marked = np.zeros(n, dtype=np.int64)
         self.uses_field = np.array([c.uses_field for c in self.ctrl])
         # Tick plans (filled at each epoch).
         self.mode = np.full(n, PLAN_CONST, dtype=np.int8)
@@ -232,26 +262,57 @@ class BatchLoop:
             for j, value in zip(live[head].tolist(), h.tolist()):
                 self.ctrl[j].heading = value
 
-    def _decide(self, live: np.ndarray, t: float, height: np.ndarray):
-        """The epoch tick: every live run's controller, on its own new epoch."""
-        cmds, plans = [], []
-        xs, ys, zs = self.x[live].tolist(), self.y[live].tolist(), self.z[live].tolist()
-        for j, x, y, z, h in zip(live.tolist(), xs, ys, zs, height.tolist()):
-            ctrl = self.ctrl[j]
-            ids, d, delta, fld = self.held[j]
-            cmds.append(ctrl.command(Observation(t, x, y, z, self.yaw[j], h, ids, d, delta, fld, True)))
-            plans.append(ctrl.tick_plan())
-        vx, vy, vz = (np.array(c, dtype=np.float64) for c in zip(*cmds))
-        self.mode[live] = [p.mode for p in plans]
-        self.pvx[live] = [p.vx for p in plans]
-        self.pvy[live] = [p.vy for p in plans]
-        self.bx[live] = [p.x for p in plans]
-        self.by[live] = [p.y for p in plans]
-        self.bspeed[live] = [p.speed for p in plans]
-        for j, p in zip(live.tolist(), plans):
-            if p.mode == PLAN_SEARCH:
-                self.wp_next[j] = self.ctrl[j].strips.next
+    def _decide(self, live: np.ndarray, t: float, height: np.ndarray, vz: np.ndarray, ep) -> tuple:
+        """The epoch tick: every live run's controller decides on its new epoch (flux
+        followers all together, the others one by one); the tick's velocities."""
+        flux = self.is_flux[live]
+        fl = np.flatnonzero(flux)
+        if fl.size:
+            self._flux_decide(live, fl, t, ep)
+        vx, vy = self.pvx[live], self.pvy[live]
+        other = np.flatnonzero(~flux)
+        if other.size:
+            cmds, plans = [], []
+            rows = live[other]
+            xs, ys, zs = self.x[rows].tolist(), self.y[rows].tolist(), self.z[rows].tolist()
+            for j, x, y, z, h in zip(rows.tolist(), xs, ys, zs, height[other].tolist()):
+                ctrl = self.ctrl[j]
+                ids, d, delta, fld = self.held[j]
+                cmds.append(ctrl.command(Observation(t, x, y, z, self.yaw[j], h, ids, d, delta, fld, True)))
+                plans.append(ctrl.tick_plan())
+            vx[other], vy[other], vz[other] = (np.array(c, dtype=np.float64) for c in zip(*cmds))
+            self.mode[rows] = [p.mode for p in plans]
+            self.pvx[rows] = [p.vx for p in plans]
+            self.pvy[rows] = [p.vy for p in plans]
+            self.bx[rows] = [p.x for p in plans]
+            self.by[rows] = [p.y for p in plans]
+            self.bspeed[rows] = [p.speed for p in plans]
+            for j, p in zip(rows.tolist(), plans):
+                if p.mode == PLAN_SEARCH:
+                    self.wp_next[j] = self.ctrl[j].strips.next
+        search = fl[self.mode[live[fl]] == PLAN_SEARCH]
+        if search.size:
+            vx[search], vy[search] = 0.0, 0.0
+            self._search(search, live, vx, vy)
         return vx, vy, vz
+
+    def _flux_decide(self, live: np.ndarray, fl: np.ndarray, t: float, ep) -> None:
+        """:func:`flux_epoch` for the flux followers live[fl]; their tick plans."""
+        j = live[fl]
+        ids = ep.ids[fl]
+        marked = self.marked[j[:, None], self.col[ids + 1]]
+        arrays = EpochArrays(t, self.x[j], self.y[j], self.yaws[j], ids, ep.d[fl], ep.delta[fl], ep.field[fl], marked)
+        st = self.flux.take(j)
+        marks, located = flux_epoch(st, arrays, self.flux_par.take(j))
+        self.flux.put(j, st)
+        for k, tx_id in zip(j[marks].tolist(), located.tolist()):
+            self.found[k].append(Located(tx_id, t, float(self.x[k]), float(self.y[k])))
+            self.marked[k, self.col[tx_id + 1]] = True
+            self.n_marked[k] += 1
+        search = st.phase == SEARCH
+        self.mode[j] = np.where(search & self.has_strips[j], PLAN_SEARCH, PLAN_CONST)
+        self.pvx[j] = np.where(search, 0.0, st.vx)
+        self.pvy[j] = np.where(search, 0.0, st.vy)
 
     def _plan(self, j: int) -> None:
         p = self.ctrl[j].tick_plan()
@@ -289,10 +350,12 @@ class BatchLoop:
         n = live.size
         noise = None
         if self.noise is not None:
-            z = np.zeros((n, len(self.ids), 5))
-            for i, j in enumerate(live.tolist()):
-                z[i, : self.m[j]] = self.noise[j].normals(1, int(self.m[j]))[0]
-            noise = ball_points(z)
+            if self.noise_used == self.NOISE_BLOCK:
+                for j in live.tolist():
+                    self.noise_buf[j, :, : self.m[j]] = self.noise[j].normals(self.NOISE_BLOCK, int(self.m[j]))
+                self.noise_used = 0
+            noise = ball_points(self.noise_buf[live, self.noise_used])
+            self.noise_used += 1
         pos = np.stack([self.x[live], self.y[live], self.z[live]], axis=1)
         meas = measure(pos, self.quat[live], self.tx_pos[live], self.tx_quat[live], self.model, noise=noise, want_field=True)
         return select_channels(meas, self.ids, self.channels)
@@ -301,11 +364,14 @@ class BatchLoop:
         t_k = self.next_k / self.rate_hz
         ep = self._measure(live)
         self.next_k += 1
-        # The field as nested lists only for controllers that read it (the costliest part).
-        fields = ep.field.tolist() if self.uses_field[live].any() else [None] * live.size
-        rows = zip(ep.ids.tolist(), ep.d.tolist(), ep.delta.tolist(), fields)
-        for j, (ids, d, delta, fld) in zip(live.tolist(), rows):
-            self.held[j] = (ids, d, delta, fld if self.uses_field[j] else None)
+        # The per-run controllers' epoch as lists (the field only for those that read it).
+        other = np.flatnonzero(~self.is_flux[live])
+        if other.size:
+            wants = self.uses_field[live[other]]
+            fields = ep.field[other].tolist() if wants.any() else [None] * other.size
+            rows = zip(ep.ids[other].tolist(), ep.d[other].tolist(), ep.delta[other].tolist(), fields)
+            for j, (ids, d, delta, fld) in zip(live[other].tolist(), rows):
+                self.held[j] = (ids, d, delta, fld if self.uses_field[j] else None)
         dt = self.dt
         n = live.size
         for i in range(self.ticks):
@@ -313,7 +379,7 @@ class BatchLoop:
             height = self._height_reading(live)
             vz = self.k_z[live] * (self.r_s[live] - height)
             if i == 0:
-                vx, vy, vz = self._decide(live, t, height)
+                vx, vy, vz = self._decide(live, t, height, vz, ep)
             else:
                 vx, vy = self.pvx[live], self.pvy[live]
                 mode = self.mode[live]
@@ -352,8 +418,11 @@ class BatchLoop:
             self._epoch(live)
             step = _f64(_hypot3(self.x[live] - last[0], self.y[live] - last[1], self.z[live] - last[2]))
             self.path[live] += step
-            done = np.zeros(live.size, dtype=bool)
-            for r, j in enumerate(live.tolist()):
+            flux = self.is_flux[live]
+            done = (stop_when_found & (self.n_marked[live] >= self.m[live])) | self._flux_exhausted(live)
+            done &= flux
+            for r in np.flatnonzero(~flux).tolist():
+                j = int(live[r])
                 ctrl = self.ctrl[j]
                 if self.mode[j] == PLAN_SEARCH and ctrl.strips is not None:
                     ctrl.strips.next = int(self.wp_next[j])
@@ -364,10 +433,17 @@ class BatchLoop:
         wall = time.perf_counter() - wall
         return [self._result(j, float(t_end[j]), wall / n) for j in range(n)]
 
+    def _flux_exhausted(self, rows: np.ndarray) -> np.ndarray:
+        """Controller.exhausted of flux followers: searching, and no strip left."""
+        return (self.flux.phase[rows] == SEARCH) & self.has_strips[rows] & (self.wp_next[rows] >= self.wp_count[rows])
+
     def _result(self, j: int, t_end: float, wall_s: float) -> RunResult:
         s = self.scenes[j]
         ch = self.channels
         ctrl = self.ctrl[j]
+        flux = bool(self.is_flux[j])
+        located = self.found[j] if flux else ctrl.located
+        exhausted = bool(self._flux_exhausted(np.array([j]))[0]) if flux else ctrl.exhausted
         return RunResult(
             t=np.array([]),
             position=np.zeros((0, 3)),
@@ -375,11 +451,11 @@ class BatchLoop:
             ids=np.zeros((0, ch), dtype=np.int64),
             d=np.zeros((0, ch), dtype=np.int64),
             delta=np.zeros((0, ch), dtype=np.int64),
-            located=list(ctrl.located),
+            located=list(located),
             tx_ids=s.transmitter_ids,
             tx_position=np.array([tx.trajectory.positions[0] for tx in s.transmitters]).reshape(-1, 3),
             t_end=t_end,
-            exhausted=ctrl.exhausted,
+            exhausted=exhausted,
             wall_s=wall_s,
             ground_contacts=int(self.contacts[j]),
             path_length=float(self.path[j]),

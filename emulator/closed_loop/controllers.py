@@ -38,7 +38,9 @@ yaw (its navigation solution), the range-sensor reading, and the latest receiver
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+
+import numpy as np
 
 from emulator.receiver.model import ModelParams
 from emulator.closed_loop.vehicle import VehicleSpec
@@ -60,6 +62,169 @@ class Observation:
     delta: list[int]  # deg
     field: list[list[float]] | None  # receiver-frame field per slot (scene units)
     new_epoch: bool
+
+
+@dataclass
+class EpochArrays:
+    """One receiver epoch for B controllers at once (the array form of the epoch part of
+    :class:`Observation`; a per-run controller uses B = 1): positions and yaws (B,),
+    slots (B, C), the receiver-frame field (B, C, 3) or None, and ``marked`` (B, C):
+    whether the slot's id is one this run has marked already."""
+
+    t: float
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    ids: np.ndarray
+    d: np.ndarray
+    delta: np.ndarray
+    field: np.ndarray | None
+    marked: np.ndarray
+
+    @classmethod
+    def of(cls, obs: Observation, marked: set[int]) -> "EpochArrays":
+        """A batch of one: ``obs`` of a run that has marked ``marked``."""
+        fld = None if obs.field is None else np.array([obs.field], dtype=np.float64)
+        return cls(obs.t, np.array([obs.x]), np.array([obs.y]), np.array([obs.yaw]), np.array([obs.ids]),
+                   np.array([obs.d]), np.array([obs.delta]), fld, np.array([[i in marked for i in obs.ids]]))
+
+
+class StateArrays:
+    """Controller state as numpy arrays, one element per run: a dataclass of arrays
+    whose rows can be taken out (:meth:`take`) and put back (:meth:`put`)."""
+
+    @classmethod
+    def empty(cls, n: int):
+        return cls(**{f.name: np.full(n, f.default, dtype=type(f.default)) for f in fields(cls)})
+
+    def take(self, rows: np.ndarray):
+        return type(self)(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})
+
+    def put(self, rows: np.ndarray, part) -> None:
+        for f in fields(self):
+            getattr(self, f.name)[rows] = getattr(part, f.name)
+
+
+#: Exact Python functions element by element: CPython's ``math`` results (``math.hypot``
+#: is not libm's, numpy's SIMD cos/sin/pow are not either), so the array form of a
+#: decision is the scalar one bit for bit.
+_hypot = np.frompyfunc(math.hypot, 2, 1)
+_pow = np.frompyfunc(pow, 2, 1)
+_cos = np.frompyfunc(math.cos, 1, 1)
+_sin = np.frompyfunc(math.sin, 1, 1)
+_atan2 = np.frompyfunc(math.atan2, 2, 1)
+
+
+def exact(fn, *args) -> np.ndarray:
+    """``fn`` (one of the element-wise ``math`` functions above) as a float64 array."""
+    return np.asarray(fn(*args), dtype=np.float64) if np.size(args[0]) else np.zeros(0)
+
+
+def pick_slots(target: np.ndarray, ep: EpochArrays) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`Controller.pick_target` for B runs: (slot, -1 for none; the new target, -1
+    for none). The current target while it is heard, else the first heard unmarked slot
+    (the strongest: slots are ordered), else no slot and the target unchanged."""
+    heard = ep.d >= 0
+    cur = heard & (ep.ids == target[:, None]) & (target[:, None] >= 0)
+    free = heard & (ep.ids >= 0) & ~ep.marked
+    has_cur, has_free = cur.any(axis=1), free.any(axis=1)
+    free_slot = free.argmax(axis=1)
+    slot = np.where(has_cur, cur.argmax(axis=1), np.where(has_free, free_slot, -1))
+    new = np.where(~has_cur & has_free, ep.ids[np.arange(target.size), free_slot], target)
+    return slot, new
+
+
+#: Controller phases in state arrays.
+SEARCH, FOLLOW = 0, 1
+_PHASE_NAMES = {SEARCH: "search", FOLLOW: "follow"}
+
+
+@dataclass
+class FluxState(StateArrays):
+    """:class:`FluxFollower` state, one element per run."""
+
+    phase: np.ndarray = SEARCH
+    target: np.ndarray = -1
+    vx: np.ndarray = 0.0  # zero-order hold of V_xy between epochs
+    vy: np.ndarray = 0.0
+    settled: np.ndarray = 0
+    lost: np.ndarray = 0
+    following: np.ndarray = -1
+    sign: np.ndarray = 1.0
+    best: np.ndarray = math.inf
+    since_flip: np.ndarray = 0
+
+
+@dataclass
+class FluxParams:
+    """:class:`FluxFollower` constants per run (from its :class:`VehicleSpec`)."""
+
+    v_max: np.ndarray
+    k_c: np.ndarray
+    v_stop: np.ndarray
+    reverse: np.ndarray
+
+    @classmethod
+    def of(cls, specs: list[VehicleSpec]) -> "FluxParams":
+        return cls(np.array([s.v_max for s in specs], dtype=np.float64), np.array([s.k_c for s in specs], dtype=np.float64),
+                   np.array([s.v_stop for s in specs], dtype=np.float64), np.array([s.flux_reverse for s in specs]))
+
+    def take(self, rows: np.ndarray) -> "FluxParams":
+        return FluxParams(self.v_max[rows], self.k_c[rows], self.v_stop[rows], self.reverse[rows])
+
+
+def flux_epoch(st: FluxState, ep: EpochArrays, par: FluxParams) -> tuple[np.ndarray, np.ndarray]:
+    """:class:`FluxFollower`'s decision on a new epoch, for B runs at once (the one copy
+    of that logic: a single FluxFollower runs it with B = 1). Updates ``st`` in place;
+    returns (mask of the runs that located their target now, the ids they located):
+    the caller records those (:meth:`Controller.mark` without the state part, done here).
+    """
+    n = st.phase.size
+    slot, st.target[:] = pick_slots(st.target, ep)
+    ok = slot >= 0 if ep.field is not None else np.zeros(n, dtype=bool)
+    # A missing epoch (pulses, overlap) keeps the last command for a few epochs.
+    miss = ~ok
+    st.lost[miss] += 1
+    reset = miss & ((st.lost > 3) | (st.phase == SEARCH))
+    st.phase[reset], st.vx[reset], st.vy[reset], st.settled[reset] = SEARCH, 0.0, 0.0, 0
+    st.lost[ok] = 0
+    st.phase[ok] = FOLLOW
+    new = ok & (st.target != st.following)
+    st.following[new], st.sign[new], st.best[new], st.since_flip[new] = st.target[new], 1.0, math.inf, 0
+    marks = np.zeros(n, dtype=bool)
+    g = np.flatnonzero(ok)
+    if not g.size:
+        return marks, st.target[marks]
+    h = ep.field[g, slot[g]]
+    hx, hy, hz = h[:, 0], h[:, 1], h[:, 2]
+    norm = np.sqrt(hx * hx + hy * hy + hz * hz)
+    flat = ~(norm > 0.0)
+    st.vx[g[flat]], st.vy[g[flat]] = 0.0, 0.0
+    go = ~flat
+    g, hx, hy, norm = g[go], hx[go], hy[go], norm[go]
+    rho = exact(_pow, norm, -1.0 / 3.0)  # proportional to the distance, within a factor 1.26
+    sign, best, since = st.sign[g], st.best[g], st.since_flip[g]
+    rev = par.reverse[g]
+    since = since + rev
+    better = rho < best
+    flip = rev & ~better & (rho > FluxFollower.REVERSE_GROWTH * best) & (since >= FluxFollower.REVERSE_EVERY)
+    best = np.where(rev & better, rho, best)
+    sign = np.where(flip, -sign, sign)
+    best = np.where(flip, rho, best)
+    since = np.where(flip, 0, since)
+    st.sign[g], st.best[g], st.since_flip[g] = sign, best, since
+    s = sign * speed_law(par.v_max[g], par.k_c[g] * rho) / norm
+    # R_r h for a level receiver yawed by psi: rotate (hx, hy) by psi.
+    c, si = exact(_cos, ep.yaw[g]), exact(_sin, ep.yaw[g])
+    vx, vy = s * (c * hx - si * hy), s * (si * hx + c * hy)
+    slow = exact(_hypot, vx, vy) < par.v_stop[g]
+    settled = np.where(slow, st.settled[g] + 1, 0)
+    st.vx[g], st.vy[g], st.settled[g] = vx, vy, settled
+    marks[g] = settled >= FluxFollower.SETTLE_EPOCHS
+    located = st.target[marks]
+    st.target[marks], st.phase[marks], st.following[marks] = -1, SEARCH, -1
+    st.vx[marks], st.vy[marks], st.settled[marks] = 0.0, 0.0, 0
+    return marks, located
 
 
 #: :class:`TickPlan` modes.
@@ -155,28 +320,21 @@ class Controller:
     def height_hold(self, obs: Observation) -> float:
         return self.spec.k_z * (self.spec.r_s - obs.height)
 
-    def slot_of(self, obs: Observation, tx_id: int | None) -> int | None:
-        if tx_id is None:
-            return None
-        for i, (j, d) in enumerate(zip(obs.ids, obs.d)):
-            if j == tx_id and d >= 0:
-                return i
-        return None
-
     def pick_target(self, obs: Observation) -> int | None:
-        """The current target while it is heard, else the nearest unmarked transmitter."""
-        slot = self.slot_of(obs, self.target)
-        if slot is not None:
-            return slot
-        for i, (j, d) in enumerate(zip(obs.ids, obs.d)):
-            if j >= 0 and d >= 0 and j not in self.marked:
-                self.target = j
-                return i
-        return None
+        """The current target while it is heard, else the nearest unmarked transmitter
+        (:func:`pick_slots` on a batch of one)."""
+        target = np.array([-1 if self.target is None else self.target])
+        slot, new = pick_slots(target, EpochArrays.of(obs, self.marked))
+        self.target = None if new[0] < 0 else int(new[0])
+        return None if slot[0] < 0 else int(slot[0])
+
+    def record(self, tx_id: int, t: float, x: float, y: float) -> None:
+        """Transmitter ``tx_id`` located under (x, y) at time t: marked from now on."""
+        self.located.append(Located(tx_id, t, x, y))
+        self.marked.add(tx_id)
 
     def mark(self, obs: Observation, x: float, y: float) -> None:
-        self.located.append(Located(self.target, obs.t, x, y))
-        self.marked.add(self.target)
+        self.record(self.target, obs.t, x, y)
         self.target = None
         self.phase = "search"
 
@@ -195,9 +353,11 @@ class Controller:
         return TickPlan(PLAN_CONST, *self._v)
 
 
-def speed_law(v_max: float, g: float) -> float:
-    """v_max g / sqrt(1 + g^2): in [0, v_max), ~v_max for g >> 1, ~v_max g for g << 1."""
-    return v_max * g / math.sqrt(1.0 + g * g)
+def speed_law(v_max, g):
+    """v_max g / sqrt(1 + g^2): in [0, v_max), ~v_max for g >> 1, ~v_max g for g << 1.
+    Floats or arrays (both square roots are correctly rounded: the same values)."""
+    root = np.sqrt(1.0 + g * g) if isinstance(g, np.ndarray) else math.sqrt(1.0 + g * g)
+    return v_max * g / root
 
 
 class FluxFollower(Controller):
@@ -215,14 +375,16 @@ class FluxFollower(Controller):
     REVERSE_EVERY = 5
 
     def __init__(self, spec: VehicleSpec, model: ModelParams = ModelParams(), dt: float | None = None) -> None:
+        self.state = FluxState.empty(1)  # this run's state: flux_epoch on a batch of one
+        self.params = FluxParams.of([spec])
         super().__init__(spec, model, dt)
-        self._v = (0.0, 0.0)  # zero-order hold of V_xy between epochs
-        self._settled = 0
-        self._lost = 0
-        self._following: int | None = None
-        self._sign = 1.0
-        self._best = math.inf
-        self._since_flip = 0
+
+    # The state array's element, under the names the rest of the code reads.
+    phase = property(lambda self: _PHASE_NAMES[int(self.state.phase[0])],
+                     lambda self, name: self.state.phase.__setitem__(0, SEARCH if name == "search" else FOLLOW))
+    target = property(lambda self: None if self.state.target[0] < 0 else int(self.state.target[0]),
+                      lambda self, tx_id: self.state.target.__setitem__(0, -1 if tx_id is None else tx_id))
+    _v = property(lambda self: (float(self.state.vx[0]), float(self.state.vy[0])))
 
     def command(self, obs: Observation) -> tuple[float, float, float]:
         vz = self.height_hold(obs)
@@ -234,38 +396,9 @@ class FluxFollower(Controller):
         return self._v[0], self._v[1], vz
 
     def _on_epoch(self, obs: Observation) -> None:
-        slot = self.pick_target(obs)
-        if slot is None or obs.field is None:
-            # A missing epoch (pulses, overlap) keeps the last command for a few epochs.
-            self._lost += 1
-            if self._lost > 3 or self.phase == "search":
-                self.phase, self._v, self._settled = "search", (0.0, 0.0), 0
-            return
-        self._lost = 0
-        self.phase = "follow"
-        if self.target != self._following:
-            self._following, self._sign, self._best, self._since_flip = self.target, 1.0, math.inf, 0
-        hx, hy, hz = obs.field[slot]
-        norm = math.sqrt(hx * hx + hy * hy + hz * hz)
-        if not norm > 0.0:
-            self._v = (0.0, 0.0)
-            return
-        rho = norm ** (-1.0 / 3.0)  # proportional to the distance, within a factor 1.26
-        if self.spec.flux_reverse:
-            self._since_flip += 1
-            if rho < self._best:
-                self._best = rho
-            elif rho > self.REVERSE_GROWTH * self._best and self._since_flip >= self.REVERSE_EVERY:
-                self._sign, self._best, self._since_flip = -self._sign, rho, 0
-        s = self._sign * speed_law(self.spec.v_max, self.spec.k_c * rho) / norm
-        # R_r h for a level receiver yawed by psi: rotate (hx, hy) by psi.
-        c, si = math.cos(obs.yaw), math.sin(obs.yaw)
-        self._v = (s * (c * hx - si * hy), s * (si * hx + c * hy))
-        slow = math.hypot(*self._v) < self.spec.v_stop
-        self._settled = self._settled + 1 if slow else 0
-        if self._settled >= self.SETTLE_EPOCHS:
-            self.mark(obs, obs.x, obs.y)
-            self._v, self._settled, self._following = (0.0, 0.0), 0, None
+        marks, ids = flux_epoch(self.state, EpochArrays.of(obs, self.marked), self.params)
+        if marks[0]:
+            self.record(int(ids[0]), obs.t, obs.x, obs.y)
 
 
 @dataclass
