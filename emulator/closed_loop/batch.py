@@ -61,8 +61,14 @@ from emulator.closed_loop.controllers import (
     FluxParams,
     FluxState,
     Located,
-    Observation,
+    ReceiverOnlySearch,
+    RxParams,
+    RxState,
+    fly_back,
     flux_epoch,
+    rx_arrive,
+    rx_epoch,
+    rx_plan,
 )
 from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
 from emulator.closed_loop.vehicle import FlatTerrain
@@ -77,8 +83,6 @@ _atan2 = np.frompyfunc(math.atan2, 2, 1)
 
 #: A padding transmitter sits this far below the origin: its field never leaves the outer zone.
 _FAR = -1.0e7
-#: A fine-search line's return ends within this distance (m) of its minimum (ReceiverOnlySearch).
-_ARRIVE_M = 0.02
 
 
 def _f64(obj: np.ndarray) -> np.ndarray:
@@ -167,19 +171,21 @@ class BatchLoop:
                 self.wp_next[j] = st.next
         self.has_strips = np.array([st is not None for st in strips])
         self.sets_heading = np.array([c.search_sets_heading for c in self.ctrl])
-        # Flux followers decide in numpy, all together (flux_epoch): their state and
-        # what they located live here; the other controllers are their own objects.
+        # The controllers decide in numpy, all runs of a strategy together (flux_epoch,
+        # rx_epoch: the code each controller object runs on a batch of one); their state,
+        # and what they located, live here.
         self.is_flux = np.array([isinstance(c, FluxFollower) for c in self.ctrl])
         self.flux = FluxState.empty(n)
         self.flux_par = FluxParams.of(specs)
+        self.rx = RxState.empty(n)
+        self.rx_par = RxParams.of(specs, self.model)
         self.yaws = np.array(self.yaw, dtype=np.float64)
         self.found: list[list[Located]] = [[] for _ in range(n)]
         self.marked = np.zeros((n, m + 1), dtype=bool)  # by id column; column m: no id
         self.col = np.full(int(self.ids.max()) + 2, m, dtype=np.int64)  # id + 1 -> column
         self.col[self.ids + 1] = np.arange(m)
         self.n_marked = np.zeros(n, dtype=np.int64)
-        self.uses_field = np.array([c.uses_field for c in self.ctrl])
-        # Tick plans (filled at each epoch).
+        # Tick plans (filled at each epoch, and when a fine-search line ends).
         self.mode = np.full(n, PLAN_CONST, dtype=np.int8)
         self.pvx = np.zeros(n)
         self.pvy = np.zeros(n)
@@ -187,7 +193,6 @@ class BatchLoop:
         self.by = np.zeros(n)
         self.bspeed = np.zeros(n)
         self.path = np.zeros(n)
-        self.held: list[tuple] = [()] * n  # each run's latest epoch, as Observation lists
         self.next_k = 0
 
     def _check(self, s: Scene, index: int) -> None:
@@ -258,73 +263,46 @@ class BatchLoop:
             pending = pending[arrived]
         head = rows[self.sets_heading[live[rows]] & ((vx[rows] != 0.0) | (vy[rows] != 0.0))]
         if head.size:
-            h = _f64(_atan2(vy[head], vx[head]))
-            for j, value in zip(live[head].tolist(), h.tolist()):
-                self.ctrl[j].heading = value
+            j = live[head]
+            self.rx.heading[j], self.rx.headed[j] = _f64(_atan2(vy[head], vx[head])), True
 
-    def _decide(self, live: np.ndarray, t: float, height: np.ndarray, vz: np.ndarray, ep) -> tuple:
-        """The epoch tick: every live run's controller decides on its new epoch (flux
-        followers all together, the others one by one); the tick's velocities."""
+    def _decide(self, live: np.ndarray, t: float, ep) -> None:
+        """The epoch tick: the controllers of the live runs decide on their new epoch
+        (each strategy's runs together) and state their tick plans."""
         flux = self.is_flux[live]
-        fl = np.flatnonzero(flux)
-        if fl.size:
-            self._flux_decide(live, fl, t, ep)
-        vx, vy = self.pvx[live], self.pvy[live]
-        other = np.flatnonzero(~flux)
-        if other.size:
-            cmds, plans = [], []
-            rows = live[other]
-            xs, ys, zs = self.x[rows].tolist(), self.y[rows].tolist(), self.z[rows].tolist()
-            for j, x, y, z, h in zip(rows.tolist(), xs, ys, zs, height[other].tolist()):
-                ctrl = self.ctrl[j]
-                ids, d, delta, fld = self.held[j]
-                cmds.append(ctrl.command(Observation(t, x, y, z, self.yaw[j], h, ids, d, delta, fld, True)))
-                plans.append(ctrl.tick_plan())
-            vx[other], vy[other], vz[other] = (np.array(c, dtype=np.float64) for c in zip(*cmds))
-            self.mode[rows] = [p.mode for p in plans]
-            self.pvx[rows] = [p.vx for p in plans]
-            self.pvy[rows] = [p.vy for p in plans]
-            self.bx[rows] = [p.x for p in plans]
-            self.by[rows] = [p.y for p in plans]
-            self.bspeed[rows] = [p.speed for p in plans]
-            for j, p in zip(rows.tolist(), plans):
-                if p.mode == PLAN_SEARCH:
-                    self.wp_next[j] = self.ctrl[j].strips.next
-        search = fl[self.mode[live[fl]] == PLAN_SEARCH]
-        if search.size:
-            vx[search], vy[search] = 0.0, 0.0
-            self._search(search, live, vx, vy)
-        return vx, vy, vz
+        for kind in (flux, ~flux):
+            rows = np.flatnonzero(kind)
+            if not rows.size:
+                continue
+            j = live[rows]
+            ids = ep.ids[rows]
+            marked = self.marked[j[:, None], self.col[ids + 1]]
+            field = ep.field[rows] if kind is flux else None
+            arrays = EpochArrays(t, self.x[j], self.y[j], self.yaws[j], ids, ep.d[rows], ep.delta[rows], field, marked)
+            if kind is flux:
+                st = self.flux.take(j)
+                marks, located = flux_epoch(st, arrays, self.flux_par.take(j))
+                self.flux.put(j, st)
+                self._record(j[marks], located, t, self.x[j[marks]], self.y[j[marks]])
+                search = st.phase == SEARCH
+                self.mode[j] = np.where(search & self.has_strips[j], PLAN_SEARCH, PLAN_CONST)
+                self.pvx[j] = np.where(search, 0.0, st.vx)
+                self.pvy[j] = np.where(search, 0.0, st.vy)
+            else:
+                st = self.rx.take(j)
+                rx_epoch(st, arrays, self.rx_par.take(j))
+                self.rx.put(j, st)
+                self._rx_plan(j, st)
 
-    def _flux_decide(self, live: np.ndarray, fl: np.ndarray, t: float, ep) -> None:
-        """:func:`flux_epoch` for the flux followers live[fl]; their tick plans."""
-        j = live[fl]
-        ids = ep.ids[fl]
-        marked = self.marked[j[:, None], self.col[ids + 1]]
-        arrays = EpochArrays(t, self.x[j], self.y[j], self.yaws[j], ids, ep.d[fl], ep.delta[fl], ep.field[fl], marked)
-        st = self.flux.take(j)
-        marks, located = flux_epoch(st, arrays, self.flux_par.take(j))
-        self.flux.put(j, st)
-        for k, tx_id in zip(j[marks].tolist(), located.tolist()):
-            self.found[k].append(Located(tx_id, t, float(self.x[k]), float(self.y[k])))
+    def _rx_plan(self, j: np.ndarray, st: RxState) -> None:
+        self.mode[j], self.pvx[j], self.pvy[j], self.bx[j], self.by[j], self.bspeed[j] = rx_plan(st, self.has_strips[j])
+
+    def _record(self, j: np.ndarray, tx_ids: np.ndarray, t: float, x: np.ndarray, y: np.ndarray) -> None:
+        """Runs j located tx_ids under (x, y) at time t: marked from now on."""
+        for k, tx_id, xk, yk in zip(j.tolist(), tx_ids.tolist(), x.tolist(), y.tolist()):
+            self.found[k].append(Located(tx_id, t, xk, yk))
             self.marked[k, self.col[tx_id + 1]] = True
             self.n_marked[k] += 1
-        search = st.phase == SEARCH
-        self.mode[j] = np.where(search & self.has_strips[j], PLAN_SEARCH, PLAN_CONST)
-        self.pvx[j] = np.where(search, 0.0, st.vx)
-        self.pvy[j] = np.where(search, 0.0, st.vy)
-
-    def _plan(self, j: int) -> None:
-        p = self.ctrl[j].tick_plan()
-        self.mode[j], self.pvx[j], self.pvy[j] = p.mode, p.vx, p.vy
-        self.bx[j], self.by[j], self.bspeed[j] = p.x, p.y, p.speed
-        if p.mode == PLAN_SEARCH:
-            self.wp_next[j] = self.ctrl[j].strips.next
-
-    def _observation(self, j: int, t: float, height: float, new_epoch: bool) -> Observation:
-        ids, d, delta, fld = self.held[j]
-        return Observation(t, float(self.x[j]), float(self.y[j]), float(self.z[j]), self.yaw[j], height,
-                           ids, d, delta, fld, new_epoch)
 
     def _step_vehicles(self, live, vx, vy, vz) -> None:
         """UAV.step for every live run (paper eq. 9)."""
@@ -364,52 +342,39 @@ class BatchLoop:
         t_k = self.next_k / self.rate_hz
         ep = self._measure(live)
         self.next_k += 1
-        # The per-run controllers' epoch as lists (the field only for those that read it).
-        other = np.flatnonzero(~self.is_flux[live])
-        if other.size:
-            wants = self.uses_field[live[other]]
-            fields = ep.field[other].tolist() if wants.any() else [None] * other.size
-            rows = zip(ep.ids[other].tolist(), ep.d[other].tolist(), ep.delta[other].tolist(), fields)
-            for j, (ids, d, delta, fld) in zip(live[other].tolist(), rows):
-                self.held[j] = (ids, d, delta, fld if self.uses_field[j] else None)
-        dt = self.dt
-        n = live.size
         for i in range(self.ticks):
-            t = t_k + i * dt
+            t = t_k + i * self.dt
             height = self._height_reading(live)
             vz = self.k_z[live] * (self.r_s[live] - height)
             if i == 0:
-                vx, vy, vz = self._decide(live, t, height, vz, ep)
-            else:
-                vx, vy = self.pvx[live], self.pvy[live]
-                mode = self.mode[live]
-                search = np.flatnonzero(mode == PLAN_SEARCH)
-                if search.size:
-                    self._search(search, live, vx, vy)
-                back = np.flatnonzero(mode == PLAN_BACK)
-                if back.size:
-                    self._fly_back(back, live, vx, vy, vz, t, height)
+                self._decide(live, t, ep)
+            vx, vy = self.pvx[live], self.pvy[live]
+            mode = self.mode[live]
+            search = np.flatnonzero(mode == PLAN_SEARCH)
+            if search.size:
+                self._search(search, live, vx, vy)
+            back = np.flatnonzero(mode == PLAN_BACK)
+            if back.size:
+                self._fly_back(back, live, vx, vy, t)
             self._step_vehicles(live, vx, vy, vz)
 
-    def _fly_back(self, rows, live, vx, vy, vz, t, height) -> None:
+    def _fly_back(self, rows: np.ndarray, live: np.ndarray, vx: np.ndarray, vy: np.ndarray, t: float) -> None:
+        """PLAN_BACK (fine-search lines on their way back) for live[rows]; on arrival the
+        controller decides what comes next (rx_arrive) and states a new plan."""
         j = live[rows]
-        dx = self.bx[j] - self.x[j]
-        dy = self.by[j] - self.y[j]
-        dist = _f64(_hypot(dx, dy))
-        go = dist >= _ARRIVE_M
-        v = np.minimum(self.bspeed[j[go]], dist[go] / self.dt)
-        vx[rows[go]] = dx[go] / dist[go] * v
-        vy[rows[go]] = dy[go] / dist[go] * v
-        for r in rows[~go].tolist():  # on the minimum: the controller decides
-            k = int(live[r])
-            vx[r], vy[r], vz[r] = self.ctrl[k].command(self._observation(k, t, float(height[r]), False))
-            self._plan(k)
+        vx[rows], vy[rows], arrived = fly_back(self.bx[j], self.by[j], self.bspeed[j], self.x[j], self.y[j], self.dt)
+        if arrived.any():
+            a = j[arrived]
+            st = self.rx.take(a)
+            marks, located, lx, ly, vx[rows[arrived]], vy[rows[arrived]] = rx_arrive(st, self.x[a], self.y[a], self.rx_par.take(a))
+            self.rx.put(a, st)
+            self._record(a[marks], located, t, lx, ly)
+            self._rx_plan(a, st)
 
     # -- whole searches -----------------------------------------------------------------
     def run(self, t_max: float, stop_when_found: bool = True) -> list[RunResult]:
         wall = time.perf_counter()
         n = len(self.scenes)
-        want = [set(s.transmitter_ids.tolist()) for s in self.scenes]
         k_max = math.ceil(t_max * self.rate_hz)
         t_end = np.zeros(n)
         live = np.arange(n)
@@ -418,32 +383,22 @@ class BatchLoop:
             self._epoch(live)
             step = _f64(_hypot3(self.x[live] - last[0], self.y[live] - last[1], self.z[live] - last[2]))
             self.path[live] += step
-            flux = self.is_flux[live]
-            done = (stop_when_found & (self.n_marked[live] >= self.m[live])) | self._flux_exhausted(live)
-            done &= flux
-            for r in np.flatnonzero(~flux).tolist():
-                j = int(live[r])
-                ctrl = self.ctrl[j]
-                if self.mode[j] == PLAN_SEARCH and ctrl.strips is not None:
-                    ctrl.strips.next = int(self.wp_next[j])
-                if (stop_when_found and want[j] <= ctrl.marked) or ctrl.exhausted:
-                    done[r] = True
+            done = (stop_when_found & (self.n_marked[live] >= self.m[live])) | self._exhausted(live)
             t_end[live] = self.next_k / self.rate_hz
             live = live[~done]
         wall = time.perf_counter() - wall
         return [self._result(j, float(t_end[j]), wall / n) for j in range(n)]
 
-    def _flux_exhausted(self, rows: np.ndarray) -> np.ndarray:
-        """Controller.exhausted of flux followers: searching, and no strip left."""
-        return (self.flux.phase[rows] == SEARCH) & self.has_strips[rows] & (self.wp_next[rows] >= self.wp_count[rows])
+    def _exhausted(self, rows: np.ndarray) -> np.ndarray:
+        """Controller.exhausted: searching, and no strip left."""
+        phase = np.where(self.is_flux[rows], self.flux.phase[rows], self.rx.phase[rows])
+        return (phase == SEARCH) & self.has_strips[rows] & (self.wp_next[rows] >= self.wp_count[rows])
 
     def _result(self, j: int, t_end: float, wall_s: float) -> RunResult:
         s = self.scenes[j]
         ch = self.channels
-        ctrl = self.ctrl[j]
-        flux = bool(self.is_flux[j])
-        located = self.found[j] if flux else ctrl.located
-        exhausted = bool(self._flux_exhausted(np.array([j]))[0]) if flux else ctrl.exhausted
+        located = self.found[j]
+        exhausted = bool(self._exhausted(np.array([j]))[0])
         return RunResult(
             t=np.array([]),
             position=np.zeros((0, 3)),
