@@ -304,16 +304,20 @@ class BatchLoop:
             self.marked[k, self.col[tx_id + 1]] = True
             self.n_marked[k] += 1
 
-    def _step_vehicles(self, live, vx, vy, vz) -> None:
-        """UAV.step for every live run (paper eq. 9)."""
-        v_max = self.v_max[live]
-        speed = _f64(_hypot(vx, vy))
-        over = speed > v_max
-        if over.any():
-            k = v_max[over] / speed[over]
-            vx[over] *= k
-            vy[over] *= k
-        vz = np.minimum(np.maximum(vz, -self.v_z_max[live]), self.v_z_max[live])
+    def _step_vehicles(self, live, vx, vy, vz, v_max, v_z_max) -> None:
+        """UAV.step for every live run (paper eq. 9); v_max, v_z_max: the live runs'."""
+        # |v| > v_max needs the exact math.hypot only where it is not clearly below:
+        # sqrt(vx^2 + vy^2) is within a few ulp of it (1e-12 is far beyond that).
+        near = np.flatnonzero(~(np.sqrt(vx * vx + vy * vy) < v_max * (1.0 - 1e-12)))
+        if near.size:
+            speed = _f64(_hypot(vx[near], vy[near]))
+            over = speed > v_max[near]
+            if over.any():
+                o = near[over]
+                k = v_max[o] / speed[over]
+                vx[o] *= k
+                vy[o] *= k
+        vz = np.minimum(np.maximum(vz, -v_z_max), v_z_max)
         x = self.x[live] + vx * self.dt
         y = self.y[live] + vy * self.dt
         z = self.z[live] + vz * self.dt
@@ -321,7 +325,8 @@ class BatchLoop:
         below = z < ground
         self.x[live], self.y[live] = x, y
         self.z[live] = np.where(below, ground, z)
-        self.contacts[live] += below
+        if below.any():
+            self.contacts[live[below]] += 1
 
     # -- one epoch ----------------------------------------------------------------------
     def _measure(self, live: np.ndarray):
@@ -342,10 +347,11 @@ class BatchLoop:
         t_k = self.next_k / self.rate_hz
         ep = self._measure(live)
         self.next_k += 1
+        k_z, r_s, v_max, v_z_max = self.k_z[live], self.r_s[live], self.v_max[live], self.v_z_max[live]
         for i in range(self.ticks):
             t = t_k + i * self.dt
             height = self._height_reading(live)
-            vz = self.k_z[live] * (self.r_s[live] - height)
+            vz = k_z * (r_s - height)
             if i == 0:
                 self._decide(live, t, ep)
             vx, vy = self.pvx[live], self.pvy[live]
@@ -356,7 +362,7 @@ class BatchLoop:
             back = np.flatnonzero(mode == PLAN_BACK)
             if back.size:
                 self._fly_back(back, live, vx, vy, t)
-            self._step_vehicles(live, vx, vy, vz)
+            self._step_vehicles(live, vx, vy, vz, v_max, v_z_max)
 
     def _fly_back(self, rows: np.ndarray, live: np.ndarray, vx: np.ndarray, vy: np.ndarray, t: float) -> None:
         """PLAN_BACK (fine-search lines on their way back) for live[rows]; on arrival the
