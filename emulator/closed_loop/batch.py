@@ -3,31 +3,33 @@
 Same frames and units as :mod:`emulator.closed_loop.loop` (world ENU metres, scene
 seconds). Each run keeps everything that makes it *its* run — its scene seed, its
 receiver noise stream (:class:`~emulator.receiver.noise.NoiseEffect`), its range-sensor
-stream, its own :class:`~emulator.closed_loop.controllers.Controller` object — and the
-batch steps all of them one epoch at a time:
+stream, its controller's state — and the batch steps all of them one epoch at a time:
 
 1. **receiver model, batched**: one :func:`~emulator.receiver.model.measure` call for
    all runs (per-run transmitters as a (B, M, 3) array; runs with fewer transmitters
    are padded with silent ones far away, which never reach a channel), then
-   :func:`~emulator.receiver.model.select_channels`. Each run's noise is drawn from its
-   own stream (the normals of ``draw(1, m)``), and all are mapped into the unit ball together;
-2. **controllers at the epoch tick**: each run's controller decides on the new epoch
-   (``command`` with ``new_epoch``), exactly the per-run code (the observation's
-   ``field`` is None for a controller whose ``uses_field`` is false); it then states its
-   :class:`~emulator.closed_loop.controllers.TickPlan` for the ticks until the next
-   epoch;
-3. **the other ticks, batched**: the plans (hold a velocity, strip search, fly back to a
-   minimum) and the vehicle (paper eq. 9: speed limits, integration, terrain contact)
-   and the range sensor are evaluated in numpy for all runs; the rare tick where a plan
-   ends (a fine-search line arrives on its minimum) is handed to that run's controller.
+   :func:`~emulator.receiver.model.select_channels`. Each run's noise comes from its
+   own stream (the normals of ``draw``, 32 epochs at a time: the same stream), and all
+   are mapped into the unit ball together;
+2. **controllers at the epoch tick, batched**: the runs of each strategy decide
+   together — :func:`~emulator.closed_loop.controllers.flux_epoch` and
+   :func:`~emulator.closed_loop.controllers.rx_epoch` on their state arrays
+   (:class:`~emulator.closed_loop.controllers.FluxState`, ``RxState``), the very code a
+   per-run controller object runs on a batch of one — and state their tick plans
+   (hold a velocity, strip search, fly back to a fine-search minimum);
+3. **the other ticks, batched**: the plans and the vehicle (paper eq. 9: speed limits,
+   integration, terrain contact) and the range sensor are evaluated in numpy for all
+   runs; where a fine-search line arrives on its minimum,
+   :func:`~emulator.closed_loop.controllers.rx_arrive` decides for those runs.
 
 Finished runs (all located, search exhausted, ``t_max``) drop out of the batch.
 
 **Bit equality with ClosedLoop.** Every float operation is the per-run one on the same
 operands: numpy's element-wise +, -, *, /, sqrt, min/max and comparisons are IEEE
 correctly rounded, so they equal Python's float arithmetic; the functions that are not
-(``math.hypot``, ``math.atan2``; CPython's ``hypot`` is not libm's) are applied element
-by element with the very ``math`` function (``np.frompyfunc``). The receiver model is
+(``math.hypot``, ``atan2``, ``cos``, ``sin``, ``pow``; CPython's ``hypot`` is not libm's,
+numpy's SIMD loops are neither) are applied element by element with the very Python
+function (``np.frompyfunc``). The receiver model is
 the same numpy code on a larger array, and so is the noise's mapping into the ball; the
 one assumption IEEE does not guarantee is that numpy's vectorised ``cbrt``, ``arctan``
 and ``einsum`` give an element the same result whatever the length of the array around
@@ -61,7 +63,6 @@ from emulator.closed_loop.controllers import (
     FluxParams,
     FluxState,
     Located,
-    ReceiverOnlySearch,
     RxParams,
     RxState,
     fly_back,

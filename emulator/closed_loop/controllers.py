@@ -33,6 +33,16 @@ search goes on with the nearest unmarked one, or resumes the strips.
 Controllers see an :class:`Observation` per control tick: the vehicle's own position and
 yaw (its navigation solution), the range-sensor reading, and the latest receiver epoch
 (held between epochs; ``new_epoch`` is true on the tick it arrived).
+
+**Written once, over arrays of runs.** The decisions (:func:`flux_epoch`;
+:func:`rx_epoch`, :func:`rx_plan`, :func:`fly_back`, :func:`rx_arrive`) take the state
+of B runs as numpy arrays (:class:`FluxState`, :class:`RxState`, one element per run)
+and an epoch as arrays (:class:`EpochArrays`). A controller object (what
+:class:`~emulator.closed_loop.loop.ClosedLoop` flies) holds the state of one run and
+calls them with B = 1; :class:`~emulator.closed_loop.batch.BatchLoop` calls them with all
+runs of a strategy. The ``math`` functions numpy does not reproduce bit for bit (hypot,
+atan2, cos, sin, pow) are applied element by element with CPython's own, so a run's
+decisions do not depend on the batch it is in.
 """
 
 from __future__ import annotations
@@ -121,7 +131,7 @@ def exact(fn, *args) -> np.ndarray:
 
 
 def pick_slots(target: np.ndarray, ep: EpochArrays) -> tuple[np.ndarray, np.ndarray]:
-    """:meth:`Controller.pick_target` for B runs: (slot, -1 for none; the new target, -1
+    """Each run's target slot, for B runs: (slot, -1 for none; the new target id, -1
     for none). The current target while it is heard, else the first heard unmarked slot
     (the strongest: slots are ordered), else no slot and the target unchanged."""
     heard = ep.d >= 0
@@ -298,8 +308,6 @@ class Controller:
     name = "controller"
     #: The search phase sets ``heading`` from each non-zero strip velocity.
     search_sets_heading = False
-    #: Reads ``Observation.field`` (a batch loop skips building it for those that do not).
-    uses_field = True
 
     def __init__(self, spec: VehicleSpec, model: ModelParams = ModelParams(), dt: float | None = None) -> None:
         self.spec = spec
@@ -320,23 +328,10 @@ class Controller:
     def height_hold(self, obs: Observation) -> float:
         return self.spec.k_z * (self.spec.r_s - obs.height)
 
-    def pick_target(self, obs: Observation) -> int | None:
-        """The current target while it is heard, else the nearest unmarked transmitter
-        (:func:`pick_slots` on a batch of one)."""
-        target = np.array([-1 if self.target is None else self.target])
-        slot, new = pick_slots(target, EpochArrays.of(obs, self.marked))
-        self.target = None if new[0] < 0 else int(new[0])
-        return None if slot[0] < 0 else int(slot[0])
-
     def record(self, tx_id: int, t: float, x: float, y: float) -> None:
         """Transmitter ``tx_id`` located under (x, y) at time t: marked from now on."""
         self.located.append(Located(tx_id, t, x, y))
         self.marked.add(tx_id)
-
-    def mark(self, obs: Observation, x: float, y: float) -> None:
-        self.record(self.target, obs.t, x, y)
-        self.target = None
-        self.phase = "search"
 
     def search_velocity(self, obs: Observation) -> tuple[float, float]:
         if self.strips is None:
@@ -345,12 +340,6 @@ class Controller:
 
     def command(self, obs: Observation) -> tuple[float, float, float]:
         raise NotImplementedError
-
-    def tick_plan(self) -> TickPlan:
-        """What :meth:`command` does until the next epoch (see :class:`TickPlan`)."""
-        if self.phase == "search":
-            return TickPlan(PLAN_CONST) if self.strips is None else TickPlan(PLAN_SEARCH)
-        return TickPlan(PLAN_CONST, *self._v)
 
 
 def speed_law(v_max, g):
@@ -685,7 +674,6 @@ class ReceiverOnlySearch(Controller):
 
     name = "receiver_only"
     search_sets_heading = True
-    uses_field = False  # (id, d, delta) only
     REVERSE_FRACTION = 0.1
     REVERSE_CM = 100
     REVERSE_EVERY = 5
