@@ -145,6 +145,7 @@ class BatchLoop:
         self.r_s = np.array([sp.r_s for sp in specs])
         self.sigma = np.array([u.range.sigma for u in uavs])
         self.noisy_range = self.sigma > 0
+        self.any_noisy_range = bool(self.noisy_range.any())
         self.range_buf = np.zeros((n, uavs[0].range.BLOCK))
         self.range_used = self.range_buf.shape[1]  # readings taken from the current blocks
         self.contacts = np.zeros(n, dtype=np.int64)
@@ -232,7 +233,7 @@ class BatchLoop:
     def _height_reading(self, live: np.ndarray) -> np.ndarray:
         x, y, z = self.x[live], self.y[live], self.z[live]
         value = z - self._heights(x, y, live)
-        if self.noisy_range.any():
+        if self.any_noisy_range:
             if self.range_used == self.range_buf.shape[1]:
                 for j in np.flatnonzero(self.noisy_range).tolist():
                     self.range_buf[j] = self.sensors[j].draw_block()
@@ -262,7 +263,10 @@ class BatchLoop:
             vx[pending[go]] = dx[go] / dist[go] * v
             vy[pending[go]] = dy[go] / dist[go] * v
             pending = pending[arrived]
-        head = rows[self.sets_heading[live[rows]] & ((vx[rows] != 0.0) | (vy[rows] != 0.0))]
+        heads = self.sets_heading[live[rows]]
+        if not heads.any():
+            return
+        head = rows[heads & ((vx[rows] != 0.0) | (vy[rows] != 0.0))]
         if head.size:
             j = live[head]
             self.rx.heading[j], self.rx.headed[j] = _f64(_atan2(vy[head], vx[head])), True
@@ -341,7 +345,8 @@ class BatchLoop:
             noise = ball_points(self.noise_buf[live, self.noise_used])
             self.noise_used += 1
         pos = np.stack([self.x[live], self.y[live], self.z[live]], axis=1)
-        meas = measure(pos, self.quat[live], self.tx_pos[live], self.tx_quat[live], self.model, noise=noise, want_field=True)
+        field = bool(self.is_flux[live].any())  # only flux followers read the field
+        meas = measure(pos, self.quat[live], self.tx_pos[live], self.tx_quat[live], self.model, noise=noise, want_field=field)
         return select_channels(meas, self.ids, self.channels)
 
     def _epoch(self, live: np.ndarray) -> None:
@@ -349,25 +354,28 @@ class BatchLoop:
         ep = self._measure(live)
         self.next_k += 1
         k_z, r_s, v_max, v_z_max = self.k_z[live], self.r_s[live], self.v_max[live], self.v_z_max[live]
+        search = back = None  # the rows of each plan mode, while the plans stay
         for i in range(self.ticks):
             t = t_k + i * self.dt
             height = self._height_reading(live)
             vz = k_z * (r_s - height)
             if i == 0:
                 self._decide(live, t, ep)
+            if search is None:
+                mode = self.mode[live]
+                search = np.flatnonzero(mode == PLAN_SEARCH)
+                back = np.flatnonzero(mode == PLAN_BACK)
             vx, vy = self.pvx[live], self.pvy[live]
-            mode = self.mode[live]
-            search = np.flatnonzero(mode == PLAN_SEARCH)
             if search.size:
                 self._search(search, live, vx, vy)
-            back = np.flatnonzero(mode == PLAN_BACK)
-            if back.size:
-                self._fly_back(back, live, vx, vy, t)
+            if back.size and self._fly_back(back, live, vx, vy, t):
+                search = None  # new plans from the next tick on
             self._step_vehicles(live, vx, vy, vz, v_max, v_z_max)
 
-    def _fly_back(self, rows: np.ndarray, live: np.ndarray, vx: np.ndarray, vy: np.ndarray, t: float) -> None:
+    def _fly_back(self, rows: np.ndarray, live: np.ndarray, vx: np.ndarray, vy: np.ndarray, t: float) -> bool:
         """PLAN_BACK (fine-search lines on their way back) for live[rows]; on arrival the
-        controller decides what comes next (rx_arrive) and states a new plan."""
+        controller decides what comes next (rx_arrive) and states a new plan (then
+        returns True)."""
         j = live[rows]
         vx[rows], vy[rows], arrived = fly_back(self.bx[j], self.by[j], self.bspeed[j], self.x[j], self.y[j], self.dt)
         if arrived.any():
@@ -377,6 +385,8 @@ class BatchLoop:
             self.rx.put(a, st)
             self._record(a[marks], located, t, lx, ly)
             self._rx_plan(a, st)
+            return True
+        return False
 
     # -- whole searches -----------------------------------------------------------------
     def run(self, t_max: float, stop_when_found: bool = True) -> list[RunResult]:
