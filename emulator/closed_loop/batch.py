@@ -70,6 +70,7 @@ from emulator.closed_loop.controllers import (
     rx_arrive,
     rx_epoch,
     rx_plan,
+    strip_velocity,
 )
 from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
 from emulator.closed_loop.vehicle import FlatTerrain
@@ -244,25 +245,11 @@ class BatchLoop:
         return value
 
     def _search(self, rows: np.ndarray, live: np.ndarray, vx: np.ndarray, vy: np.ndarray) -> None:
-        """StripSearch.velocity for live[rows], into vx[rows], vy[rows]."""
-        pending = rows
-        while pending.size:
-            j = live[pending]
-            going = self.wp_next[j] < self.wp_count[j]
-            pending, j = pending[going], j[going]  # finished strips: (0, 0)
-            if not pending.size:
-                break
-            w = self.wp[j, self.wp_next[j]]
-            dx = w[:, 0] - self.x[j]
-            dy = w[:, 1] - self.y[j]
-            dist = _f64(_hypot(dx, dy))
-            arrived = dist < 0.25
-            self.wp_next[j[arrived]] += 1
-            go = ~arrived
-            v = np.minimum(self.v_max[j[go]], dist[go])
-            vx[pending[go]] = dx[go] / dist[go] * v
-            vy[pending[go]] = dy[go] / dist[go] * v
-            pending = pending[arrived]
+        """The strip search (:func:`strip_velocity`) for live[rows], into vx[rows], vy[rows]."""
+        j = live[rows]
+        nxt = self.wp_next[j]
+        vx[rows], vy[rows] = strip_velocity(self.wp[j], self.wp_count[j], nxt, self.x[j], self.y[j], self.v_max[j])
+        self.wp_next[j] = nxt
         heads = self.sets_heading[live[rows]]
         if not heads.any():
             return

@@ -284,22 +284,43 @@ class StripSearch:
             ends = [(x, ymin), (x, ymax)]
             self.waypoints += ends if k % 2 == 0 else ends[::-1]
         self.next = 0
+        self._wp = np.array([self.waypoints], dtype=np.float64)
+        self._count = np.array([len(self.waypoints)])
 
     @property
     def finished(self) -> bool:
         return self.next >= len(self.waypoints)
 
     def velocity(self, x: float, y: float, speed: float) -> tuple[float, float]:
-        while not self.finished:
-            wx, wy = self.waypoints[self.next]
-            dx, dy = wx - x, wy - y
-            dist = math.hypot(dx, dy)
-            if dist < 0.25:
-                self.next += 1
-                continue
-            v = min(speed, dist)  # arrive without overshooting at the next tick
-            return dx / dist * v, dy / dist * v
-        return 0.0, 0.0
+        """:func:`strip_velocity` on a batch of one."""
+        nxt = np.array([self.next])
+        vx, vy = strip_velocity(self._wp, self._count, nxt, np.array([x]), np.array([y]), np.array([speed]))
+        self.next = int(nxt[0])
+        return float(vx[0]), float(vy[0])
+
+
+def strip_velocity(wp, count, nxt, x, y, speed) -> tuple[np.ndarray, np.ndarray]:
+    """The strip search's velocity for B runs: waypoints ``wp`` (B, W, 2) of which the
+    first ``count`` (B,) are used, the next one ``nxt`` (B,; advanced in place past the
+    waypoints within 0.25 m), at (x, y) and at most ``speed``: towards the next waypoint,
+    arriving without overshooting at the next tick; (0, 0) once all are passed."""
+    vx, vy = np.zeros(x.size), np.zeros(x.size)
+    pending = np.arange(x.size)
+    while pending.size:
+        pending = pending[nxt[pending] < count[pending]]
+        if not pending.size:
+            break
+        w = wp[pending, nxt[pending]]
+        dx, dy = w[:, 0] - x[pending], w[:, 1] - y[pending]
+        dist = exact(_hypot, dx, dy)
+        arrived = dist < 0.25
+        nxt[pending[arrived]] += 1
+        go = ~arrived
+        g = pending[go]
+        v = np.minimum(speed[g], dist[go])
+        vx[g], vy[g] = dx[go] / dist[go] * v, dy[go] / dist[go] * v
+        pending = pending[arrived]
+    return vx, vy
 
 
 class Controller:
