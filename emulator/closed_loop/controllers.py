@@ -35,7 +35,8 @@ yaw (its navigation solution), the range-sensor reading, and the latest receiver
 (held between epochs; ``new_epoch`` is true on the tick it arrived).
 
 **Written once, over arrays of runs.** The decisions (:func:`flux_epoch`;
-:func:`rx_epoch`, :func:`rx_plan`, :func:`fly_back`, :func:`rx_arrive`) take the state
+:func:`rx_epoch`, :func:`rx_plan`, :func:`fly_back`, :func:`rx_arrive`;
+:func:`strip_velocity`) take the state
 of B runs as numpy arrays (:class:`FluxState`, :class:`RxState`, one element per run)
 and an epoch as arrays (:class:`EpochArrays`). A controller object (what
 :class:`~emulator.closed_loop.loop.ClosedLoop` flies) holds the state of one run and
