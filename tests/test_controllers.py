@@ -1,18 +1,30 @@
 """Controllers: eq. 10 exactly, height hold, marking, strips, the rescuer's logic."""
 
+import dataclasses
 import math
 
+import numpy as np
 import pytest
 
 from emulator.closed_loop.controllers import (
+    FINE,
+    EpochArrays,
     FluxFollower,
+    FluxParams,
+    FluxState,
     Observation,
     ReceiverOnlySearch,
+    RxParams,
+    RxState,
     StripSearch,
+    flux_epoch,
     make_controller,
+    rx_arrive,
+    rx_epoch,
     speed_law,
 )
 from emulator.closed_loop.vehicle import VehicleSpec
+from emulator.receiver.model import ModelParams
 
 SPEC = VehicleSpec(v_max=1.0, k_c=0.2, k_z=1.5, r_s=1.0, control_rate_hz=10.0)
 
@@ -164,3 +176,72 @@ def test_receiver_only_stuck_in_the_mid_zone_searches_from_the_best_point():
     c = ReceiverOnlySearch(SPEC)
     located = fly(c, lambda x, y: 400 + round(10 * math.hypot(x + 4.0, y)), x=-1.0, y=0.5)
     assert len(located) == 1 and math.hypot(located[0].x + 4.0, located[0].y) < 0.5
+
+
+# --------------------------------------------------------------------------- arrays
+def _row(ep, i):
+    pick = lambda a: None if a is None else a[i : i + 1]  # noqa: E731
+    return EpochArrays(ep.t, *(pick(getattr(ep, f)) for f in ("x", "y", "yaw", "ids", "d", "delta", "field", "marked")))
+
+
+def _same_rows(batch, alone):
+    for f in dataclasses.fields(batch):
+        got = getattr(batch, f.name)
+        want = np.array([getattr(s, f.name)[0] for s in alone])
+        assert np.array_equal(got, want), f.name
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_the_array_decisions_of_a_run_do_not_depend_on_its_batch(seed):
+    """flux_epoch, rx_epoch and rx_arrive on B runs at once leave each run in the state
+    it reaches alone (B = 1) — random epochs: lost signals, marked ids, the inner zone,
+    stuck approaches, fine-search lines and their ends."""
+    rng = np.random.default_rng(seed)
+    b, c = 32, 3
+    specs = [VehicleSpec(v_max=float(rng.choice([0.5, 1, 2])), k_c=float(rng.choice([0.1, 0.2, 0.4])),
+                         flux_reverse=bool(i % 2), v_stop=0.05) for i in range(b)]
+    fpar, rpar = FluxParams.of(specs), RxParams.of(specs, ModelParams())
+    flux, rx = FluxState.empty(b), RxState.empty(b)
+    flux1, rx1 = [FluxState.empty(1) for _ in range(b)], [RxState.empty(1) for _ in range(b)]
+    x, y = rng.uniform(0, 80, b), rng.uniform(0, 80, b)
+    marks = arrivals = 0
+    seen: set[str] = set()
+    for k in range(200):
+        ids = rng.integers(-1, 4, (b, c))
+        if k // 10 % 2:
+            ids[1::6] = -1  # a fifth of the runs hear nothing for 10 epochs
+        ids[2::3] = [1, 2, 3]  # a third hear the same ids, never in the inner zone:
+        low = np.where(np.arange(b) % 3 == 2, 600, 20)[:, None]  # stuck, bracketing, retrying
+        d = np.where(ids >= 0, rng.integers(low, 2500, (b, c)), -1)
+        field = rng.normal(size=(b, c, 3)) * 10.0 ** rng.uniform(-7, -1, (b, 1, 1))
+        field[::4, :, :2] *= 1e-4  # a quarter of the runs over a vertical field: they settle
+        ep = EpochArrays(float(k), x, y, rng.uniform(-3, 3, b), ids, d, rng.integers(-90, 91, (b, c)), field,
+                         rng.random((b, c)) < 0.2)
+        got, located = flux_epoch(flux, ep, fpar)
+        by_row = dict(zip(np.flatnonzero(got).tolist(), located.tolist()))
+        rx_epoch(rx, ep, rpar)
+        for i in range(b):
+            one, loc1 = flux_epoch(flux1[i], _row(ep, i), fpar.take([i]))
+            assert (bool(one[0]), loc1.tolist()) == (bool(got[i]), [by_row[i]] if got[i] else [])
+            rx_epoch(rx1[i], _row(ep, i), rpar.take([i]))
+        marks += int(got.sum())
+        # Some runs on their way back arrive on the minimum.
+        back = np.flatnonzero((rx.phase == FINE) & rx.line & rx.going_back & (rng.random(b) < 0.8))
+        if back.size:
+            part = rx.take(back)
+            done, ids_b, lx, ly, vx, vy = rx_arrive(part, x[back], y[back], rpar.take(back))
+            rx.put(back, part)
+            where = {r: (i, xx, yy) for r, i, xx, yy in zip(np.flatnonzero(done), ids_b, lx, ly)}
+            for r, i in enumerate(back):
+                one = rx_arrive(rx1[i], x[i : i + 1], y[i : i + 1], rpar.take([i]))
+                assert (bool(one[0][0]), float(one[4][0]), float(one[5][0])) == (bool(done[r]), vx[r], vy[r])
+                assert [(a[0], b_[0], c_[0]) for a, b_, c_ in [one[1:4]] if a.size] == ([where[r]] if done[r] else [])
+                arrivals += 1
+        _same_rows(flux, flux1)
+        _same_rows(rx, rx1)
+        seen |= {name for name, hit in (("reversal", rx.reversals > 0), ("retry", rx.attempts > 0),
+                                        ("rx located", rx.approaching[back] < 0 if back.size else rx.line & False),
+                                        ("lost", flux.lost > 3)) if hit.any()}
+        x, y = x + rng.normal(0, 0.5, b), y + rng.normal(0, 0.5, b)
+    assert marks > 0 and arrivals > 0
+    assert seen == {"reversal", "retry", "rx located", "lost"}

@@ -3,31 +3,33 @@
 Same frames and units as :mod:`emulator.closed_loop.loop` (world ENU metres, scene
 seconds). Each run keeps everything that makes it *its* run — its scene seed, its
 receiver noise stream (:class:`~emulator.receiver.noise.NoiseEffect`), its range-sensor
-stream, its own :class:`~emulator.closed_loop.controllers.Controller` object — and the
-batch steps all of them one epoch at a time:
+stream, its controller's state — and the batch steps all of them one epoch at a time:
 
 1. **receiver model, batched**: one :func:`~emulator.receiver.model.measure` call for
    all runs (per-run transmitters as a (B, M, 3) array; runs with fewer transmitters
    are padded with silent ones far away, which never reach a channel), then
-   :func:`~emulator.receiver.model.select_channels`. Each run's noise is drawn from its
-   own stream (the normals of ``draw(1, m)``), and all are mapped into the unit ball together;
-2. **controllers at the epoch tick**: each run's controller decides on the new epoch
-   (``command`` with ``new_epoch``), exactly the per-run code (the observation's
-   ``field`` is None for a controller whose ``uses_field`` is false); it then states its
-   :class:`~emulator.closed_loop.controllers.TickPlan` for the ticks until the next
-   epoch;
-3. **the other ticks, batched**: the plans (hold a velocity, strip search, fly back to a
-   minimum) and the vehicle (paper eq. 9: speed limits, integration, terrain contact)
-   and the range sensor are evaluated in numpy for all runs; the rare tick where a plan
-   ends (a fine-search line arrives on its minimum) is handed to that run's controller.
+   :func:`~emulator.receiver.model.select_channels`. Each run's noise comes from its
+   own stream (the normals of ``draw``, 32 epochs at a time: the same stream), and all
+   are mapped into the unit ball together;
+2. **controllers at the epoch tick, batched**: the runs of each strategy decide
+   together — :func:`~emulator.closed_loop.controllers.flux_epoch` and
+   :func:`~emulator.closed_loop.controllers.rx_epoch` on their state arrays
+   (:class:`~emulator.closed_loop.controllers.FluxState`, ``RxState``), the very code a
+   per-run controller object runs on a batch of one — and state their tick plans
+   (hold a velocity, strip search, fly back to a fine-search minimum);
+3. **the other ticks, batched**: the plans and the vehicle (paper eq. 9: speed limits,
+   integration, terrain contact) and the range sensor are evaluated in numpy for all
+   runs; where a fine-search line arrives on its minimum,
+   :func:`~emulator.closed_loop.controllers.rx_arrive` decides for those runs.
 
 Finished runs (all located, search exhausted, ``t_max``) drop out of the batch.
 
 **Bit equality with ClosedLoop.** Every float operation is the per-run one on the same
 operands: numpy's element-wise +, -, *, /, sqrt, min/max and comparisons are IEEE
 correctly rounded, so they equal Python's float arithmetic; the functions that are not
-(``math.hypot``, ``math.atan2``; CPython's ``hypot`` is not libm's) are applied element
-by element with the very ``math`` function (``np.frompyfunc``). The receiver model is
+(``math.hypot``, ``atan2``, ``cos``, ``sin``, ``pow``; CPython's ``hypot`` is not libm's,
+numpy's SIMD loops are neither) are applied element by element with the very Python
+function (``np.frompyfunc``). The receiver model is
 the same numpy code on a larger array, and so is the noise's mapping into the ball; the
 one assumption IEEE does not guarantee is that numpy's vectorised ``cbrt``, ``arctan``
 and ``einsum`` give an element the same result whatever the length of the array around
@@ -51,7 +53,25 @@ import time
 
 import numpy as np
 
-from emulator.closed_loop.controllers import PLAN_BACK, PLAN_CONST, PLAN_SEARCH, Observation
+from emulator.closed_loop.controllers import (
+    PLAN_BACK,
+    PLAN_CONST,
+    PLAN_SEARCH,
+    SEARCH,
+    EpochArrays,
+    FluxFollower,
+    FluxParams,
+    FluxState,
+    Located,
+    RxParams,
+    RxState,
+    fly_back,
+    flux_epoch,
+    rx_arrive,
+    rx_epoch,
+    rx_plan,
+    strip_velocity,
+)
 from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
 from emulator.closed_loop.vehicle import FlatTerrain
 from emulator.receiver.model import measure, select_channels
@@ -65,8 +85,6 @@ _atan2 = np.frompyfunc(math.atan2, 2, 1)
 
 #: A padding transmitter sits this far below the origin: its field never leaves the outer zone.
 _FAR = -1.0e7
-#: A fine-search line's return ends within this distance (m) of its minimum (ReceiverOnlySearch).
-_ARRIVE_M = 0.02
 
 
 def _f64(obj: np.ndarray) -> np.ndarray:
@@ -77,6 +95,9 @@ class BatchLoop:
     """Receiver ``index`` of each scene on its vehicle, all stepped together (see the
     module docstring); :meth:`run` returns one :class:`RunResult` per scene, as
     ``ClosedLoop(scene, index, record=False).run(t_max)`` would."""
+
+    #: Epochs of noise normals drawn at a time from each run's stream.
+    NOISE_BLOCK = 32
 
     def __init__(self, scenes: list[Scene], index: int = 0) -> None:
         if not scenes:
@@ -105,6 +126,9 @@ class BatchLoop:
                 tx_quat[j, c] = tx.trajectory.orientations[0]
         self.tx_pos, self.tx_quat = tx_pos, tx_quat
         self.noise = [NoiseEffect(s.seed, index) for s in scenes] if self.noise_on else None
+        # Each run's noise normals, NOISE_BLOCK epochs ahead (the same stream: see NoiseEffect).
+        self.noise_buf = np.zeros((n, self.NOISE_BLOCK, m, 5)) if self.noise_on else None
+        self.noise_used = self.NOISE_BLOCK
         # Vehicles and controllers: the per-run objects, then their state as arrays.
         pairs = [make_vehicle(s, index, self.dt) for s in scenes]
         uavs = [u for u, _ in pairs]
@@ -122,6 +146,7 @@ class BatchLoop:
         self.r_s = np.array([sp.r_s for sp in specs])
         self.sigma = np.array([u.range.sigma for u in uavs])
         self.noisy_range = self.sigma > 0
+        self.any_noisy_range = bool(self.noisy_range.any())
         self.range_buf = np.zeros((n, uavs[0].range.BLOCK))
         self.range_used = self.range_buf.shape[1]  # readings taken from the current blocks
         self.contacts = np.zeros(n, dtype=np.int64)
@@ -147,9 +172,23 @@ class BatchLoop:
                 self.wp[j, : len(st.waypoints)] = st.waypoints
                 self.wp_count[j] = len(st.waypoints)
                 self.wp_next[j] = st.next
+        self.has_strips = np.array([st is not None for st in strips])
         self.sets_heading = np.array([c.search_sets_heading for c in self.ctrl])
-        self.uses_field = np.array([c.uses_field for c in self.ctrl])
-        # Tick plans (filled at each epoch).
+        # The controllers decide in numpy, all runs of a strategy together (flux_epoch,
+        # rx_epoch: the code each controller object runs on a batch of one); their state,
+        # and what they located, live here.
+        self.is_flux = np.array([isinstance(c, FluxFollower) for c in self.ctrl])
+        self.flux = FluxState.empty(n)
+        self.flux_par = FluxParams.of(specs)
+        self.rx = RxState.empty(n)
+        self.rx_par = RxParams.of(specs, self.model)
+        self.yaws = np.array(self.yaw, dtype=np.float64)
+        self.found: list[list[Located]] = [[] for _ in range(n)]
+        self.marked = np.zeros((n, m + 1), dtype=bool)  # by id column; column m: no id
+        self.col = np.full(int(self.ids.max()) + 2, m, dtype=np.int64)  # id + 1 -> column
+        self.col[self.ids + 1] = np.arange(m)
+        self.n_marked = np.zeros(n, dtype=np.int64)
+        # Tick plans (filled at each epoch, and when a fine-search line ends).
         self.mode = np.full(n, PLAN_CONST, dtype=np.int8)
         self.pvx = np.zeros(n)
         self.pvy = np.zeros(n)
@@ -157,7 +196,6 @@ class BatchLoop:
         self.by = np.zeros(n)
         self.bspeed = np.zeros(n)
         self.path = np.zeros(n)
-        self.held: list[tuple] = [()] * n  # each run's latest epoch, as Observation lists
         self.next_k = 0
 
     def _check(self, s: Scene, index: int) -> None:
@@ -196,7 +234,7 @@ class BatchLoop:
     def _height_reading(self, live: np.ndarray) -> np.ndarray:
         x, y, z = self.x[live], self.y[live], self.z[live]
         value = z - self._heights(x, y, live)
-        if self.noisy_range.any():
+        if self.any_noisy_range:
             if self.range_used == self.range_buf.shape[1]:
                 for j in np.flatnonzero(self.noisy_range).tolist():
                     self.range_buf[j] = self.sensors[j].draw_block()
@@ -207,74 +245,71 @@ class BatchLoop:
         return value
 
     def _search(self, rows: np.ndarray, live: np.ndarray, vx: np.ndarray, vy: np.ndarray) -> None:
-        """StripSearch.velocity for live[rows], into vx[rows], vy[rows]."""
-        pending = rows
-        while pending.size:
-            j = live[pending]
-            going = self.wp_next[j] < self.wp_count[j]
-            pending, j = pending[going], j[going]  # finished strips: (0, 0)
-            if not pending.size:
-                break
-            w = self.wp[j, self.wp_next[j]]
-            dx = w[:, 0] - self.x[j]
-            dy = w[:, 1] - self.y[j]
-            dist = _f64(_hypot(dx, dy))
-            arrived = dist < 0.25
-            self.wp_next[j[arrived]] += 1
-            go = ~arrived
-            v = np.minimum(self.v_max[j[go]], dist[go])
-            vx[pending[go]] = dx[go] / dist[go] * v
-            vy[pending[go]] = dy[go] / dist[go] * v
-            pending = pending[arrived]
-        head = rows[self.sets_heading[live[rows]] & ((vx[rows] != 0.0) | (vy[rows] != 0.0))]
+        """The strip search (:func:`strip_velocity`) for live[rows], into vx[rows], vy[rows]."""
+        j = live[rows]
+        nxt = self.wp_next[j]
+        vx[rows], vy[rows] = strip_velocity(self.wp[j], self.wp_count[j], nxt, self.x[j], self.y[j], self.v_max[j])
+        self.wp_next[j] = nxt
+        heads = self.sets_heading[live[rows]]
+        if not heads.any():
+            return
+        head = rows[heads & ((vx[rows] != 0.0) | (vy[rows] != 0.0))]
         if head.size:
-            h = _f64(_atan2(vy[head], vx[head]))
-            for j, value in zip(live[head].tolist(), h.tolist()):
-                self.ctrl[j].heading = value
+            j = live[head]
+            self.rx.heading[j], self.rx.headed[j] = _f64(_atan2(vy[head], vx[head])), True
 
-    def _decide(self, live: np.ndarray, t: float, height: np.ndarray):
-        """The epoch tick: every live run's controller, on its own new epoch."""
-        cmds, plans = [], []
-        xs, ys, zs = self.x[live].tolist(), self.y[live].tolist(), self.z[live].tolist()
-        for j, x, y, z, h in zip(live.tolist(), xs, ys, zs, height.tolist()):
-            ctrl = self.ctrl[j]
-            ids, d, delta, fld = self.held[j]
-            cmds.append(ctrl.command(Observation(t, x, y, z, self.yaw[j], h, ids, d, delta, fld, True)))
-            plans.append(ctrl.tick_plan())
-        vx, vy, vz = (np.array(c, dtype=np.float64) for c in zip(*cmds))
-        self.mode[live] = [p.mode for p in plans]
-        self.pvx[live] = [p.vx for p in plans]
-        self.pvy[live] = [p.vy for p in plans]
-        self.bx[live] = [p.x for p in plans]
-        self.by[live] = [p.y for p in plans]
-        self.bspeed[live] = [p.speed for p in plans]
-        for j, p in zip(live.tolist(), plans):
-            if p.mode == PLAN_SEARCH:
-                self.wp_next[j] = self.ctrl[j].strips.next
-        return vx, vy, vz
+    def _decide(self, live: np.ndarray, t: float, ep) -> None:
+        """The epoch tick: the controllers of the live runs decide on their new epoch
+        (each strategy's runs together) and state their tick plans."""
+        flux = self.is_flux[live]
+        for kind in (flux, ~flux):
+            rows = np.flatnonzero(kind)
+            if not rows.size:
+                continue
+            j = live[rows]
+            ids = ep.ids[rows]
+            marked = self.marked[j[:, None], self.col[ids + 1]]
+            field = ep.field[rows] if kind is flux else None
+            arrays = EpochArrays(t, self.x[j], self.y[j], self.yaws[j], ids, ep.d[rows], ep.delta[rows], field, marked)
+            if kind is flux:
+                st = self.flux.take(j)
+                marks, located = flux_epoch(st, arrays, self.flux_par.take(j))
+                self.flux.put(j, st)
+                self._record(j[marks], located, t, self.x[j[marks]], self.y[j[marks]])
+                search = st.phase == SEARCH
+                self.mode[j] = np.where(search & self.has_strips[j], PLAN_SEARCH, PLAN_CONST)
+                self.pvx[j] = np.where(search, 0.0, st.vx)
+                self.pvy[j] = np.where(search, 0.0, st.vy)
+            else:
+                st = self.rx.take(j)
+                rx_epoch(st, arrays, self.rx_par.take(j))
+                self.rx.put(j, st)
+                self._rx_plan(j, st)
 
-    def _plan(self, j: int) -> None:
-        p = self.ctrl[j].tick_plan()
-        self.mode[j], self.pvx[j], self.pvy[j] = p.mode, p.vx, p.vy
-        self.bx[j], self.by[j], self.bspeed[j] = p.x, p.y, p.speed
-        if p.mode == PLAN_SEARCH:
-            self.wp_next[j] = self.ctrl[j].strips.next
+    def _rx_plan(self, j: np.ndarray, st: RxState) -> None:
+        self.mode[j], self.pvx[j], self.pvy[j], self.bx[j], self.by[j], self.bspeed[j] = rx_plan(st, self.has_strips[j])
 
-    def _observation(self, j: int, t: float, height: float, new_epoch: bool) -> Observation:
-        ids, d, delta, fld = self.held[j]
-        return Observation(t, float(self.x[j]), float(self.y[j]), float(self.z[j]), self.yaw[j], height,
-                           ids, d, delta, fld, new_epoch)
+    def _record(self, j: np.ndarray, tx_ids: np.ndarray, t: float, x: np.ndarray, y: np.ndarray) -> None:
+        """Runs j located tx_ids under (x, y) at time t: marked from now on."""
+        for k, tx_id, xk, yk in zip(j.tolist(), tx_ids.tolist(), x.tolist(), y.tolist()):
+            self.found[k].append(Located(tx_id, t, xk, yk))
+            self.marked[k, self.col[tx_id + 1]] = True
+            self.n_marked[k] += 1
 
-    def _step_vehicles(self, live, vx, vy, vz) -> None:
-        """UAV.step for every live run (paper eq. 9)."""
-        v_max = self.v_max[live]
-        speed = _f64(_hypot(vx, vy))
-        over = speed > v_max
-        if over.any():
-            k = v_max[over] / speed[over]
-            vx[over] *= k
-            vy[over] *= k
-        vz = np.minimum(np.maximum(vz, -self.v_z_max[live]), self.v_z_max[live])
+    def _step_vehicles(self, live, vx, vy, vz, v_max, v_z_max) -> None:
+        """UAV.step for every live run (paper eq. 9); v_max, v_z_max: the live runs'."""
+        # |v| > v_max needs the exact math.hypot only where it is not clearly below:
+        # sqrt(vx^2 + vy^2) is within a few ulp of it (1e-12 is far beyond that).
+        near = np.flatnonzero(~(np.sqrt(vx * vx + vy * vy) < v_max * (1.0 - 1e-12)))
+        if near.size:
+            speed = _f64(_hypot(vx[near], vy[near]))
+            over = speed > v_max[near]
+            if over.any():
+                o = near[over]
+                k = v_max[o] / speed[over]
+                vx[o] *= k
+                vy[o] *= k
+        vz = np.minimum(np.maximum(vz, -v_z_max), v_z_max)
         x = self.x[live] + vx * self.dt
         y = self.y[live] + vy * self.dt
         z = self.z[live] + vz * self.dt
@@ -282,68 +317,68 @@ class BatchLoop:
         below = z < ground
         self.x[live], self.y[live] = x, y
         self.z[live] = np.where(below, ground, z)
-        self.contacts[live] += below
+        if below.any():
+            self.contacts[live[below]] += 1
 
     # -- one epoch ----------------------------------------------------------------------
     def _measure(self, live: np.ndarray):
         n = live.size
         noise = None
         if self.noise is not None:
-            z = np.zeros((n, len(self.ids), 5))
-            for i, j in enumerate(live.tolist()):
-                z[i, : self.m[j]] = self.noise[j].normals(1, int(self.m[j]))[0]
-            noise = ball_points(z)
+            if self.noise_used == self.NOISE_BLOCK:
+                for j in live.tolist():
+                    self.noise_buf[j, :, : self.m[j]] = self.noise[j].normals(self.NOISE_BLOCK, int(self.m[j]))
+                self.noise_used = 0
+            noise = ball_points(self.noise_buf[live, self.noise_used])
+            self.noise_used += 1
         pos = np.stack([self.x[live], self.y[live], self.z[live]], axis=1)
-        meas = measure(pos, self.quat[live], self.tx_pos[live], self.tx_quat[live], self.model, noise=noise, want_field=True)
+        field = bool(self.is_flux[live].any())  # only flux followers read the field
+        meas = measure(pos, self.quat[live], self.tx_pos[live], self.tx_quat[live], self.model, noise=noise, want_field=field)
         return select_channels(meas, self.ids, self.channels)
 
     def _epoch(self, live: np.ndarray) -> None:
         t_k = self.next_k / self.rate_hz
         ep = self._measure(live)
         self.next_k += 1
-        # The field as nested lists only for controllers that read it (the costliest part).
-        fields = ep.field.tolist() if self.uses_field[live].any() else [None] * live.size
-        rows = zip(ep.ids.tolist(), ep.d.tolist(), ep.delta.tolist(), fields)
-        for j, (ids, d, delta, fld) in zip(live.tolist(), rows):
-            self.held[j] = (ids, d, delta, fld if self.uses_field[j] else None)
-        dt = self.dt
-        n = live.size
+        k_z, r_s, v_max, v_z_max = self.k_z[live], self.r_s[live], self.v_max[live], self.v_z_max[live]
+        search = back = None  # the rows of each plan mode, while the plans stay
         for i in range(self.ticks):
-            t = t_k + i * dt
+            t = t_k + i * self.dt
             height = self._height_reading(live)
-            vz = self.k_z[live] * (self.r_s[live] - height)
+            vz = k_z * (r_s - height)
             if i == 0:
-                vx, vy, vz = self._decide(live, t, height)
-            else:
-                vx, vy = self.pvx[live], self.pvy[live]
+                self._decide(live, t, ep)
+            if search is None:
                 mode = self.mode[live]
                 search = np.flatnonzero(mode == PLAN_SEARCH)
-                if search.size:
-                    self._search(search, live, vx, vy)
                 back = np.flatnonzero(mode == PLAN_BACK)
-                if back.size:
-                    self._fly_back(back, live, vx, vy, vz, t, height)
-            self._step_vehicles(live, vx, vy, vz)
+            vx, vy = self.pvx[live], self.pvy[live]
+            if search.size:
+                self._search(search, live, vx, vy)
+            if back.size and self._fly_back(back, live, vx, vy, t):
+                search = None  # new plans from the next tick on
+            self._step_vehicles(live, vx, vy, vz, v_max, v_z_max)
 
-    def _fly_back(self, rows, live, vx, vy, vz, t, height) -> None:
+    def _fly_back(self, rows: np.ndarray, live: np.ndarray, vx: np.ndarray, vy: np.ndarray, t: float) -> bool:
+        """PLAN_BACK (fine-search lines on their way back) for live[rows]; on arrival the
+        controller decides what comes next (rx_arrive) and states a new plan (then
+        returns True)."""
         j = live[rows]
-        dx = self.bx[j] - self.x[j]
-        dy = self.by[j] - self.y[j]
-        dist = _f64(_hypot(dx, dy))
-        go = dist >= _ARRIVE_M
-        v = np.minimum(self.bspeed[j[go]], dist[go] / self.dt)
-        vx[rows[go]] = dx[go] / dist[go] * v
-        vy[rows[go]] = dy[go] / dist[go] * v
-        for r in rows[~go].tolist():  # on the minimum: the controller decides
-            k = int(live[r])
-            vx[r], vy[r], vz[r] = self.ctrl[k].command(self._observation(k, t, float(height[r]), False))
-            self._plan(k)
+        vx[rows], vy[rows], arrived = fly_back(self.bx[j], self.by[j], self.bspeed[j], self.x[j], self.y[j], self.dt)
+        if arrived.any():
+            a = j[arrived]
+            st = self.rx.take(a)
+            marks, located, lx, ly, vx[rows[arrived]], vy[rows[arrived]] = rx_arrive(st, self.x[a], self.y[a], self.rx_par.take(a))
+            self.rx.put(a, st)
+            self._record(a[marks], located, t, lx, ly)
+            self._rx_plan(a, st)
+            return True
+        return False
 
     # -- whole searches -----------------------------------------------------------------
     def run(self, t_max: float, stop_when_found: bool = True) -> list[RunResult]:
         wall = time.perf_counter()
         n = len(self.scenes)
-        want = [set(s.transmitter_ids.tolist()) for s in self.scenes]
         k_max = math.ceil(t_max * self.rate_hz)
         t_end = np.zeros(n)
         live = np.arange(n)
@@ -352,22 +387,22 @@ class BatchLoop:
             self._epoch(live)
             step = _f64(_hypot3(self.x[live] - last[0], self.y[live] - last[1], self.z[live] - last[2]))
             self.path[live] += step
-            done = np.zeros(live.size, dtype=bool)
-            for r, j in enumerate(live.tolist()):
-                ctrl = self.ctrl[j]
-                if self.mode[j] == PLAN_SEARCH and ctrl.strips is not None:
-                    ctrl.strips.next = int(self.wp_next[j])
-                if (stop_when_found and want[j] <= ctrl.marked) or ctrl.exhausted:
-                    done[r] = True
+            done = (stop_when_found & (self.n_marked[live] >= self.m[live])) | self._exhausted(live)
             t_end[live] = self.next_k / self.rate_hz
             live = live[~done]
         wall = time.perf_counter() - wall
         return [self._result(j, float(t_end[j]), wall / n) for j in range(n)]
 
+    def _exhausted(self, rows: np.ndarray) -> np.ndarray:
+        """Controller.exhausted: searching, and no strip left."""
+        phase = np.where(self.is_flux[rows], self.flux.phase[rows], self.rx.phase[rows])
+        return (phase == SEARCH) & self.has_strips[rows] & (self.wp_next[rows] >= self.wp_count[rows])
+
     def _result(self, j: int, t_end: float, wall_s: float) -> RunResult:
         s = self.scenes[j]
         ch = self.channels
-        ctrl = self.ctrl[j]
+        located = self.found[j]
+        exhausted = bool(self._exhausted(np.array([j]))[0])
         return RunResult(
             t=np.array([]),
             position=np.zeros((0, 3)),
@@ -375,11 +410,11 @@ class BatchLoop:
             ids=np.zeros((0, ch), dtype=np.int64),
             d=np.zeros((0, ch), dtype=np.int64),
             delta=np.zeros((0, ch), dtype=np.int64),
-            located=list(ctrl.located),
+            located=list(located),
             tx_ids=s.transmitter_ids,
             tx_position=np.array([tx.trajectory.positions[0] for tx in s.transmitters]).reshape(-1, 3),
             t_end=t_end,
-            exhausted=ctrl.exhausted,
+            exhausted=exhausted,
             wall_s=wall_s,
             ground_contacts=int(self.contacts[j]),
             path_length=float(self.path[j]),

@@ -27,7 +27,7 @@ Command line (``python -m emulator.closed_loop.sweep``; console script ``arva-sw
     python -m emulator.closed_loop.sweep --n 5000 --scheduler tcp://10.0.0.5:8786 --out big.csv
 
 The default executor is a local process pool (``--workers``, default the CPU count);
-tasks are chunks of runs, about two per worker (:func:`chunk_size`);
+tasks are chunks of runs, one batch per worker (:func:`chunk_size`, at most 2048 runs);
 ``--scheduler ADDRESS`` runs the same chunks on a dask.distributed cluster (extra
 ``cluster``), whose workers need this package importable.
 """
@@ -88,7 +88,7 @@ class SweepConfig:
     rate_hz: float = 1.0
     control_rate_hz: float = 10.0
     t_max: float = 1800.0
-    chunk: int = 0  # runs per task; 0: about two tasks per worker, at most MAX_CHUNK
+    chunk: int = 0  # runs per task; 0: one per worker, at most MAX_CHUNK
     engine: str = "batch"  # "batch": BatchLoop, runs stepped together; "run": ClosedLoop one by one
     bootstrap: int = 1000  # resamples for the tail statistics' confidence intervals
     antennas: int = 3  # receiver class (emulator.receiver.model.ModelParams.antennas)
@@ -223,15 +223,15 @@ MAX_CHUNK = 2048
 
 
 def chunk_size(config: SweepConfig, n_tasks: int, workers: int) -> int:
-    """Runs per task: ``config.chunk``, or about two tasks per worker (a batch is faster
-    the larger it is, a pool wants a few tasks per worker to balance; a single process
-    takes one batch), at most MAX_CHUNK."""
+    """Runs per task: ``config.chunk``, or one batch per worker, at most MAX_CHUNK. A
+    batch is faster the larger it is: each one pays a fixed cost per epoch, all the more
+    in its tail (the last runs, flying to ``t_max``), so splitting a worker's share in
+    two would pay that tail twice."""
     if config.chunk > 0:
         return config.chunk
     if config.engine == "run":
         return 8
-    per_worker = 1 if workers <= 1 else 2  # one process: one batch is fastest
-    return max(1, min(MAX_CHUNK, math.ceil(n_tasks / (per_worker * max(1, workers)))))
+    return max(1, min(MAX_CHUNK, math.ceil(n_tasks / max(1, workers))))
 
 
 # --------------------------------------------------------------------------- executors
