@@ -839,6 +839,12 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             base = replace(base, attitude_sigma=EIV_START[1])
         all_rows.gps_scale = gps_scale_of(table)
     notes: list[str] = []
+    if eiv and all_rows.gps_scale is not None:
+        varied = float(np.ptp(all_rows.gps_scale[all_rows.gps_scale < 1e3])) if np.any(all_rows.gps_scale < 1e3) else 0.0
+        notes.append(
+            "each row's GPS error follows its logged fix quality and HDOP"
+            + (" (gps_sigma is the median row's)" if varied > 0 else " (the same for every row)")
+        )
     start = None
     n_evals = 0
     n_dropped = 0
