@@ -905,6 +905,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         if name in free:
             estimate[name] = getattr(params, name)
     se_model = {m: float("nan") for m in free}
+    nuisance_floor: list[str] = []  # sigmas at their floor whose uncertainty the s.e. include
     hac_lag = float("nan")
     cov = np.full((len(free), len(free)), np.nan)
     se = {m: float("nan") for m in free}
@@ -919,8 +920,17 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             sub_cov = model_cov
             if options.covariance == "hac" and eiv and like.rows.t is not None:
                 scores = _scores(like, base, newton_free, theta_n, res.steps, live=keep)
-                meat, hac_lag = time_block_meat(scores, like.rows.t)
-                sub_cov = model_cov @ meat @ model_cov
+                floor = [i for i in np.flatnonzero(active) if newton_free[i] in ("gps_sigma", "attitude_sigma")
+                         and theta_n[i] <= lo_n[i] + 1e-6]  # fmt: skip
+                widened = None
+                if floor:
+                    widened = boundary_nuisance_cov(like, base, newton_free, theta_n, res.steps, keep, floor, hk, scores)
+                if widened is not None:
+                    model_cov, sub_cov, hac_lag = widened
+                    nuisance_floor = [newton_free[i] for i in floor]
+                else:
+                    meat, hac_lag = time_block_meat(scores, like.rows.t)
+                    sub_cov = model_cov @ meat @ model_cov
             for a_, i in enumerate(keep):
                 name = newton_free[i]
                 sd = math.sqrt(max(model_cov[a_, a_], 0.0))
@@ -941,10 +951,13 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
                 what = {"pose_sigma": "the poses look exact", "gps_sigma": "no GPS error is visible"}.get(
                     name, "no attitude error is visible"
                 )
-                notes.append(
-                    f"{name} is at its lower bound {BOUNDS[name][0]:g} ({what}); "
-                    "the other standard errors hold it there"
+                held_how = (
+                    "the other standard errors include how far it could be above it (its variance is a "
+                    "nuisance parameter there)"
+                    if name in nuisance_floor
+                    else "the other standard errors hold it there"
                 )
+                notes.append(f"{name} is at its lower bound {BOUNDS[name][0]:g} ({what}); {held_how}")
             else:
                 ok = False
                 bound = BOUNDS[name][0 if at_lower else 1]
@@ -997,6 +1010,76 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         separable=separable,
         n_pose_dropped=n_dropped,
     )
+
+
+def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, scores_keep):
+    """The sandwich covariance of the ``keep`` parameters when pose-error sigmas (indices
+    ``floor``) sit at their lower bound: their variances v = sigma^2 join as nuisance
+    parameters instead of being held fixed.
+
+    At the floor the likelihood is flat in log sigma (it depends on sigma through
+    sigma^2), so the log-scale Hessian has no information about it; in v it has. A sigma
+    held there as known made the others' standard errors too small: on emulated
+    60-minute campaigns with 2 deg attitude error, attitude_sigma went to its floor in
+    about one seed in four and those seeds' kappa_eq errors were up to 2.2 of their
+    standard errors (docs/accuracy.md (b)). Here the Hessian and the per-row scores are
+    extended by one-sided differences in v (steps about half a standard error of v, from
+    v at the floor upwards; second-order forward rules), the time-block meat is taken
+    over all of them, and the ``keep`` block of A^-1 B A^-1 is returned with the
+    inverse-Hessian block and the Newey-West lag, or None when the likelihood is not
+    curved upwards in v (then the caller holds the sigmas as before).
+    """
+    keep = list(keep)
+    m = len(floor)
+    logp = lambda th: like.logp(to_params(base, free, th))  # noqa: E731
+    v0 = np.exp(2.0 * theta[floor])
+
+    def at(th, dv):  # theta with the floor sigmas at sqrt(v0 + dv)
+        out = th.copy()
+        out[floor] = 0.5 * np.log(v0 + dv)
+        return out
+
+    start = {"gps_sigma": 0.5**2, "attitude_sigma": math.radians(1.0) ** 2}
+    delta = np.array([0.25 * start[free[i]] for i in floor])
+    for _attempt in range(2):
+        l00 = logp(theta)
+        one = [logp(at(theta, delta * np.eye(m)[a])) for a in range(m)]
+        two = [logp(at(theta, 2.0 * delta * np.eye(m)[a])) for a in range(m)]
+        a_vv = np.empty((m, m))
+        for a in range(m):
+            a_vv[a, a] = -float(np.sum(two[a] - 2.0 * one[a] + l00)) / delta[a] ** 2
+            for b in range(a + 1, m):
+                both = logp(at(theta, delta * (np.eye(m)[a] + np.eye(m)[b])))
+                a_vv[a, b] = a_vv[b, a] = -float(np.sum(both - one[a] - one[b] + l00)) / (delta[a] * delta[b])
+        if not np.all(np.diag(a_vv) > 0):
+            return None
+        se_v = 1.0 / np.sqrt(np.diag(a_vv))
+        new = np.clip(0.5 * se_v, delta / 100.0, delta * 100.0)
+        if _attempt == 0 and np.all(np.abs(np.log(new / delta)) < math.log(2.0)):
+            break
+        delta = new
+    # Mixed terms theta_j (log scale, central) x v_a (forward).
+    a_tv = np.empty((len(keep), m))
+    for c, j in enumerate(keep):
+        e = np.zeros_like(theta)
+        e[j] = h[j]
+        for a in range(m):
+            dv = delta * np.eye(m)[a]
+            val = logp(at(theta + e, dv)) - logp(at(theta - e, dv)) - logp(theta + e) + logp(theta - e)
+            a_tv[c, a] = -float(np.sum(val)) / (2.0 * h[j] * delta[a])
+    big = np.block([[hess_keep, a_tv], [a_tv.T, a_vv]])
+    try:
+        np.linalg.cholesky(big)
+    except np.linalg.LinAlgError:
+        return None
+    # Per-row scores in v at the floor: (-3 l(0) + 4 l(d) - l(2d)) / 2d.
+    s_v = np.stack([(-3.0 * l00 + 4.0 * one[a] - two[a]) / (2.0 * delta[a]) for a in range(m)], axis=1)
+    scores = np.concatenate([scores_keep, s_v], axis=1)
+    inv = np.linalg.inv(big)
+    meat, lag = time_block_meat(scores, like.rows.t)
+    cov = inv @ meat @ inv
+    k = len(keep)
+    return inv[:k, :k], cov[:k, :k], lag
 
 
 #: |correlation| of r_en with a pose-error sigma above which the two are not told apart.
