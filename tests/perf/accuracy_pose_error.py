@@ -87,6 +87,71 @@ def run_one(minutes: int, grade: str, seed: int) -> dict:
     return row
 
 
+#: Walks confined to one distance band (horizontal m from the transmitter), for "which
+#: distances pay": 30 minutes each, the sigmas given (as with --gps-sigma/--attitude-sigma).
+WALK_BANDS = ((2, 10), (10, 25), (25, 45), (45, 65))
+WALKS = HERE / "out" / "pose_error_walks.jsonl"
+
+
+def walk_one(band: tuple[int, int], grade: str, seed: int, minutes: int = 30) -> dict:
+    """One 30-minute campaign walked only between band[0] and band[1] m, fitted with the
+    GPS and attitude sigmas given: how much a minute spent there tells."""
+    from fit_campaign import PoseError, Walk, emulate_campaign
+
+    from bench.fit.fit import FitOptions, fit_table
+    from bench.fit.likelihood import Params
+    from bench.fit.table import FitInputError
+    from emulator.receiver.model import ModelParams
+
+    h = GRADES[grade]
+    pe = PoseError(gps_h=h, gps_v=1.5 * h, gps_tau=TAU, attitude_deg=ATTITUDE_DEG, attitude_tau=TAU)
+    walk = Walk(r_min=float(band[0]), r_max=float(band[1]))
+    table = emulate_campaign(minutes, ModelParams(**TRUTH), seed=9700 + seed, walk=walk, pose_error=pe)
+    base = Params(gps_sigma=h, gps_ratio=1.5, attitude_sigma=math.radians(ATTITUDE_DEG), **TRUTH)
+    c0 = time.process_time()
+    row = {"band": list(band), "grade": grade, "seed": seed, "minutes": minutes, "revision": git_revision()}
+    # Each parameter with the other given: a band near the transmitter shows no noise floor
+    # (r_en alone cannot be told there), a far one little of kappa_eq.
+    row["used"], row["rows"] = 0, len(table)
+    for k in TRUTH:
+        try:
+            res = fit_table(table, FitOptions(free=(k,), base=base))
+        except FitInputError:  # too few rows farther than the pose error: nothing to fit
+            row[k] = row[k + "_se"] = None
+            continue
+        row[k] = res.estimate.get(k) if res.converged else None
+        row[k + "_se"] = res.se.get(k) if res.converged else None
+        row["used"] = res.n_used
+    row["cpu"] = time.process_time() - c0
+    return row
+
+
+def walks_md(runs: list[dict]) -> str:
+    """Per band and grade: median +-1.96 se and RMS error of kappa_eq and r_en after 30 minutes."""
+    keyed: dict = {}
+    for r in runs:
+        keyed.setdefault((tuple(r["band"]), r["grade"]), []).append(r)
+    head = ["walked only at (m)", "GPS", "seeds", "rows used", "kappa_eq ±1.96 se (r_en given)", "kappa_eq RMS error",
+            "r_en ±1.96 se (kappa_eq given)", "r_en RMS error"]  # fmt: skip
+    body = []
+    order = {"RTK": 0, "SBAS": 1, "target": 2, "consumer": 3}
+    for (band, grade), rs in sorted(keyed.items(), key=lambda kv: (order[kv[0][1]], kv[0][0])):
+        line = [f"{band[0]}-{band[1]}", grade, str(len(rs)), f"{np.median([r['used'] for r in rs]):.0f} of {rs[0]['rows']}"]
+        for k in TRUTH:
+            ok = [r for r in rs if r[k] is not None and r[k + "_se"] is not None and r[k + "_se"] == r[k + "_se"]]
+            if not ok:
+                line += ["no fit", "-"]
+                continue
+            est = np.array([r[k] for r in ok])
+            se = np.array([r[k + "_se"] for r in ok])
+            cell = f"± {100 * np.median(1.96 * se / est):.2f} %"
+            if len(ok) < len(rs):
+                cell += f" ({len(rs) - len(ok)} of {len(rs)} no fit)"
+            line += [cell, f"{100 * np.sqrt(np.mean((est / TRUTH[k] - 1) ** 2)):.2f} %"]
+        body.append(line)
+    return markdown_table(head, body)
+
+
 BANDS = (0, 4, 6, 10, 15, 25, 40, 60, 90)
 
 
@@ -121,10 +186,10 @@ def info_by_distance(grade: str, minutes: int = 30, seed: int = 0) -> dict:
     return out
 
 
-def load() -> list[dict]:
-    if not RUNS.exists():
+def load(path: Path = RUNS) -> list[dict]:
+    if not path.exists():
         return []
-    return [json.loads(line) for line in RUNS.read_text().splitlines() if line.strip()]
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
 def cells(runs: list[dict]):
@@ -243,6 +308,7 @@ def main(argv=None) -> int:
     p.add_argument("--table-only", action="store_true")
     p.add_argument("--fresh", action="store_true", help="forget the saved runs first")
     p.add_argument("--no-bands", action="store_true", help="skip the information-per-distance table")
+    p.add_argument("--walks", type=int, default=0, metavar="N", help="first run N seeds of the band-confined walks")
     args = p.parse_args(argv)
     t_start = time.time()
     if not args.table_only:
@@ -269,6 +335,15 @@ def main(argv=None) -> int:
                     j = next(it, None)
                     if j is not None:
                         pending.add(pool.submit(run_one, *j))
+    if args.walks:
+        done = {(tuple(r["band"]), r["grade"], r["seed"]) for r in load(WALKS)}
+        todo = [(b, g, s) for s in range(args.walks) for g in ("RTK", "SBAS", "consumer") for b in WALK_BANDS
+                if (b, g, s) not in done]  # fmt: skip
+        with ProcessPoolExecutor(args.workers) as pool:
+            for row in pool.map(walk_one, *zip(*todo)) if todo else []:
+                with WALKS.open("a") as f:
+                    f.write(json.dumps(row) + "\n")
+                print(json.dumps(row), flush=True)
     rows = cells(load())
     print(table_md(rows))
     bands = {g: info_by_distance(g) for g in ("RTK", "consumer")} if not args.no_bands else {}
@@ -283,6 +358,14 @@ def main(argv=None) -> int:
     )
     if bands:
         note += "\n\n" + bands_md(bands)
+    walks = load(WALKS)
+    if walks:
+        note += (
+            "\n\n**Walking only at one distance.** The same 30 minutes spent within one distance band "
+            "(radial legs between its ends), sigmas given, "
+            f"{len({r['seed'] for r in walks})} seeds per cell: the interval and RMS error each band buys.\n\n"
+            + walks_md(walks)
+        )
     write_docs(rows, note)
     return 0
 
