@@ -234,6 +234,10 @@ class Likelihood:
         self.regimes = regimes
         self.n_evals = 0
         self._count = threading.Lock()  # the fit evaluates a stencil's points on several threads
+        #: How many per-row results :meth:`logp` keeps, by parameters (0: none). The fit's
+        #: full-data stage sets it: the sandwich's scores are the last gradient's points.
+        self.remember = 0
+        self._memo: dict = {}
 
     def choose_regimes(self, p: Params, eps_split: float = EPS_SPLIT) -> Regimes:
         geo = self._geo(p)
@@ -243,6 +247,7 @@ class Likelihood:
         fxy, _ = _qfactors(geo.g, p.q)
         exact = _log_eps(geo.log_r, log_gxy, fxy, p.r_en) > math.log(eps_split)
         self.regimes = Regimes(exact, eps_split)
+        self._memo.clear()
         return self.regimes
 
     def _geo(self, p: Params) -> Geometry:
@@ -250,12 +255,24 @@ class Likelihood:
         return geo if p.antennas == 3 else Geometry(geo.log_r, geo.g * np.array([[1.0], [1.0], [0.0]]))
 
     def logp(self, p: Params) -> NDArray[np.float64]:
-        """log P(d_i) for each row, gross-error floor included."""
+        """log P(d_i) for each row, gross-error floor included (the array may be shared:
+        do not write to it)."""
+        key = (p, None if self.regimes is None else id(self.regimes.exact))
+        if self.remember:
+            hit = self._memo.get(key)
+            if hit is not None and (self.regimes is None or hit[0] is self.regimes.exact):
+                return hit[1]
         with self._count:
             self.n_evals += 1
         prob = self.prob(p)
         n_out = 100.0 * p.r_outer + 2.0
-        return np.log((1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out)
+        out = np.log((1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out)
+        if self.remember:
+            with self._count:
+                while len(self._memo) >= self.remember:
+                    self._memo.pop(next(iter(self._memo)))
+                self._memo[key] = (None if self.regimes is None else self.regimes.exact, out)
+        return out
 
     def nll(self, p: Params) -> float:
         return -float(np.sum(self.logp(p)))
