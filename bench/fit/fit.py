@@ -506,11 +506,11 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
     return _Newton(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
 
 
-def _newton_fixed(f, theta, free, h, held, max_iter=10):
+def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL):
     """Quasi-Newton on ``f`` from a good start: the Hessian by differences (steps ``h``) at
     the start, then steps with it, corrected by BFGS updates from the gradient changes
     (the curvature of a pose-error sigma changes over a few standard errors), until the
-    decrement is below DECREMENT_TOL; then the Hessian by differences at the point
+    decrement is below ``tol``; then the Hessian by differences at the point
     reached (its axis points are the last gradient's: with a memoising ``f`` only the
     diagonal pairs cost). The ``held`` parameters (at a bound) stay where they are.
     Returns (theta, f, Hessian of the live parameters, iterations, converged)."""
@@ -526,7 +526,7 @@ def _newton_fixed(f, theta, free, h, held, max_iter=10):
         stepf, _mod = _solve(hq, g)
         if stepf is None:
             break
-        if -0.5 * float(g @ stepf) < DECREMENT_TOL:
+        if -0.5 * float(g @ stepf) < tol:
             ok = True
             break
         step = np.zeros(len(free))
@@ -564,10 +564,12 @@ class _Objective:
         return self.like.nll(to_params(self.base, self.free, theta))
 
 
-def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL):
+def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=False):
     """Newton with the S/L split re-chosen until the one at the estimate is the one the
     estimate was found with (the first pass stops early, at a decrement of 0.5 nats, the
-    others at ``tol``)."""
+    others at ``tol``; from a ``warm`` start, the previous pass's estimate, the first
+    pass goes to ``tol`` too). A subsample's search (``tol`` above DECREMENT_TOL) stops
+    after one full pass: all rows follow, with the split chosen at its estimate."""
     like = options.likelihood(rows)
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
     iters = 0
@@ -575,16 +577,17 @@ def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
-        res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, 0.5 if _pass == 0 else tol)
+        settled = _pass > 0 or warm
+        res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, tol if settled else 0.5)
         iters += res.iterations
         theta, h = res.theta, res.steps
-        if not res.ok:
+        if not res.ok or (settled and tol > DECREMENT_TOL):
             break
         changed = int(np.sum(like.choose_regimes(to_params(base, free, theta), **eps_kw).exact != split))
-        if changed == 0 and _pass > 0:
+        if changed == 0 and settled:
             like.regimes.exact = split
             break
-        if changed and _pass > 0:
+        if changed and settled:
             notes.append(f"{changed} rows changed likelihood regime at the estimate; refitted")
     res.iterations = iters
     return like, res
@@ -667,6 +670,9 @@ SUBSAMPLE = 10000
 #: Newton on the subsample stops at this decrement (nats) when all rows follow: within
 #: 0.15 of the subsample's standard errors, which the full-data steps then remove.
 SUB_TOL = 1e-2
+#: The full-data steps stop at this decrement (nats): within 0.015 standard errors of the
+#: optimum. Below it the differences' own noise (~1e-5 nats with 1e5 rows) takes over.
+FULL_TOL = 1e-4
 
 
 def _subset(rows: Rows, idx) -> Rows:
@@ -678,10 +684,11 @@ def _subset(rows: Rows, idx) -> Rows:
 
 def _core(
     rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], start: Params | None,
-    full: bool = True,
+    full: bool = True, steps: NDArray[np.float64] | None = None,
 ):
     """Pilot + Newton (+ the full-data stage for big tables, :func:`_full_stage`, unless
-    ``full`` is False: then the result is the subsample's) for the parameters ``free``."""
+    ``full`` is False: then the result is the subsample's) for the parameters ``free``.
+    ``start``: skip the pilot (a previous pass's estimate; ``steps``: its difference steps)."""
     n = rows.k.shape[0]
     big = n > SUBSAMPLE and "time_offset" not in free  # the pose track needs every row
     if big:
@@ -690,6 +697,7 @@ def _core(
     else:
         sub = rows
     n_evals = 0
+    warm = start is not None
     if start is None:  # pilot on (at most) the subsample
         start = base
         if "time_offset" in free and rows.track is not None:
@@ -728,7 +736,7 @@ def _core(
     theta = from_params(start, free)
     if "time_offset" in free and rows.track is not None:
         sub = rows  # the likelihood recomputes the geometry from the track at each offset
-    like, res = _optimise(sub, base, free, theta, options, notes, tol=SUB_TOL if big else DECREMENT_TOL)
+    like, res = _optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else DECREMENT_TOL, warm)
     n_evals += like.n_evals
     if big and res.ok and full:
         like, res, extra = _full_stage(rows, base, free, options, notes, res)
@@ -740,7 +748,7 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
     """From the subsample's estimate, Newton on all rows: the Hessian by differences on all
     rows there (a subsample's, scaled, is too noisy for the standard errors: a few rows
     near the noise edge carry much of the curvature), then Newton steps with it until the
-    decrement is below DECREMENT_TOL. The subsample's estimate is ~sqrt(n / SUBSAMPLE)
+    decrement is below FULL_TOL. The subsample's estimate is ~sqrt(n / SUBSAMPLE)
     standard errors away, where the Hessian is the optimum's to O(1 / sqrt(n)): one step
     usually lands, and the gradient at the new point confirms it. The per-row log P of
     that last gradient's points are kept for the sandwich's scores (:func:`_scores`)."""
@@ -758,7 +766,7 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
         se_live = res.steps[live] / 0.3 / math.sqrt(scale)
     steps = res.steps.copy()
     steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
-    theta, fval, h_live, it, ok_r = _newton_fixed(_Objective(full, base, free), res.theta, free, steps, res.active)
+    theta, fval, h_live, it, ok_r = _newton_fixed(_Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL)
     hess = np.zeros_like(res.hess)
     hess[np.ix_(live, live)] = h_live
     res.theta, res.hess, res.f, res.steps = theta, hess, fval, steps
@@ -857,6 +865,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         all_rows.gps_scale = gps_scale_of(table)
     notes: list[str] = []
     start = None
+    steps = None
     n_evals = 0
     n_dropped = 0
     for eiv_pass in range(3 if eiv else 1):
@@ -878,7 +887,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         # Between errors-in-variables passes only the sigmas matter: the subsample's
         # estimate is enough, and all rows are fitted once, in the last pass.
         searching = eiv and "r_outer" not in free
-        like, res, extra = _core(rows, base, newton_free, options, notes, start, full=not searching)
+        like, res, extra = _core(rows, base, newton_free, options, notes, start, not searching, steps)
         n_evals += extra
         r_outer_se = float("nan")
         if "r_outer" in free and res.ok:
@@ -891,7 +900,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             n_evals += extra
         if not eiv or not res.ok:
             break
-        start = to_params(base, newton_free, res.theta)
+        start, steps = to_params(base, newton_free, res.theta), res.steps
         new0 = _sigma0(start, free)
         if eiv_pass == 2 or all(abs(math.log(a / b)) < math.log(1.25) for a, b in zip(new0, sigma0)):
             if searching and rows.k.shape[0] > SUBSAMPLE and "time_offset" not in newton_free:
