@@ -119,6 +119,7 @@ class FitResult:
     hac_lag: float = float("nan")  # the Newey-West bandwidth used (s)
     separable: bool = True  # False: pose error and EMI noise could not be told apart
     n_pose_dropped: int = 0  # rows left out: the pose error hides where they were
+    n_evals_all_rows: int = 0  # of n_evals, those on all rows (the rest: a subsample's, or the pilot's)
 
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
@@ -394,6 +395,7 @@ class _Newton:
     iterations: int
     ok: bool
     why: str
+    full_evals: int = 0  # evaluations on all rows (the full-data stage)
 
 
 def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
@@ -442,6 +444,10 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if stepf is None:
             return _Newton(theta, f0, hess, active, h, it, False, "the Hessian is not finite")
         decrement = -0.5 * float(g[keep] @ stepf)
+        if tol >= 0.5 and decrement < tol:
+            # The pre-pass only settles the likelihood regimes: close enough, whatever the
+            # curvature at these steps (the next pass looks closer).
+            return _Newton(theta, f0, hess, active, h, it, True, "converged")
         if modified and decrement < 0.5 and shrinks < 3:
             # Close to the optimum but not convex at this step size: a difference straddles
             # a steep side (the noise edge). Look again with smaller steps.
@@ -506,21 +512,26 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
     return _Newton(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
 
 
-def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL):
+def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0=None, final_hessian=True):
     """Quasi-Newton on ``f`` from a good start: the Hessian by differences (steps ``h``) at
     the start, then steps with it, corrected by BFGS updates from the gradient changes
     (the curvature of a pose-error sigma changes over a few standard errors), until the
     decrement is below ``tol``; then the Hessian by differences at the point
     reached (its axis points are the last gradient's: with a memoising ``f`` only the
     diagonal pairs cost). The ``held`` parameters (at a bound) stay where they are.
+    ``hess0``: start from this Hessian (all parameters) instead; ``final_hessian`` False:
+    return the BFGS one (a search's, whose result is only a start).
     Returns (theta, f, Hessian of the live parameters, iterations, converged)."""
     lo, hi = _box(free)
     live = np.flatnonzero(~held)
     point = {"theta": theta}
     sub = lambda th_l: f(_merge(point["theta"], ~held, th_l))  # noqa: E731
     f0 = f(theta)
-    g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
-    moved, ok, it = False, False, 0
+    if hess0 is None:
+        g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
+    else:
+        (g, _), hl = _gradient(sub, theta[live], h[live], f0), hess0[np.ix_(live, live)]
+    moved, ok, it = hess0 is not None, False, 0
     hq = hl.copy()
     for it in range(1, max_iter + 1):
         stepf, _mod = _solve(hq, g)
@@ -546,6 +557,8 @@ def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL):
         shs = float(s_l @ hs)
         if ys > 1e-12 * max(shs, 1e-300) and shs > 0:
             hq = hq + np.outer(y, y) / ys - np.outer(hs, hs) / shs
+    if not final_hessian:
+        return theta, f0, hq, it, ok
     if moved:
         _g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
     return theta, f0, hl, it, ok
@@ -564,20 +577,35 @@ class _Objective:
         return self.like.nll(to_params(self.base, self.free, theta))
 
 
-def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=False):
+def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=None):
     """Newton with the S/L split re-chosen until the one at the estimate is the one the
     estimate was found with (the first pass stops early, at a decrement of 0.5 nats, the
     others at ``tol``; from a ``warm`` start, the previous pass's estimate, the first
     pass goes to ``tol`` too). A subsample's search (``tol`` above DECREMENT_TOL) stops
-    after one full pass: all rows follow, with the split chosen at its estimate."""
+    after one full pass: all rows follow, with the split chosen at its estimate; from a
+    ``warm`` start (the previous pass's :class:`_Newton`, whose rows were linearised at
+    other sigmas) it takes quasi-Newton steps from that pass's Hessian."""
     like = options.likelihood(rows)
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    if warm is not None and tol > DECREMENT_TOL and warm.hess is not None:
+        like.choose_regimes(to_params(base, free, theta), **eps_kw)
+        held = warm.active.copy()
+        theta_n, fval, hq, it, ok = _newton_fixed(
+            _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, warm.hess, final_hessian=False
+        )
+        hess = np.zeros((len(free), len(free)))
+        live = np.flatnonzero(~held)
+        hess[np.ix_(live, live)] = hq
+        if held.any():
+            hess[held, held] = 1.0  # placeholder, as in _newton
+        why = "converged" if ok else "no convergence of the quasi-Newton search"
+        return like, _Newton(theta_n, fval, hess, held, h, it, ok, why)
     iters = 0
     res = None
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
-        settled = _pass > 0 or warm
+        settled = _pass > 0 or warm is not None
         res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, tol if settled else 0.5)
         iters += res.iterations
         theta, h = res.theta, res.steps
@@ -684,11 +712,11 @@ def _subset(rows: Rows, idx) -> Rows:
 
 def _core(
     rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], start: Params | None,
-    full: bool = True, steps: NDArray[np.float64] | None = None,
+    full: bool = True, prev: "_Newton | None" = None,
 ):
     """Pilot + Newton (+ the full-data stage for big tables, :func:`_full_stage`, unless
     ``full`` is False: then the result is the subsample's) for the parameters ``free``.
-    ``start``: skip the pilot (a previous pass's estimate; ``steps``: its difference steps)."""
+    ``start``: skip the pilot (a previous pass's estimate; ``prev``: that pass's result)."""
     n = rows.k.shape[0]
     big = n > SUBSAMPLE and "time_offset" not in free  # the pose track needs every row
     if big:
@@ -697,7 +725,7 @@ def _core(
     else:
         sub = rows
     n_evals = 0
-    warm = start is not None
+    warm = prev if start is not None else None
     if start is None:  # pilot on (at most) the subsample
         start = base
         if "time_offset" in free and rows.track is not None:
@@ -736,6 +764,7 @@ def _core(
     theta = from_params(start, free)
     if "time_offset" in free and rows.track is not None:
         sub = rows  # the likelihood recomputes the geometry from the track at each offset
+    steps = None if prev is None else prev.steps
     like, res = _optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else DECREMENT_TOL, warm)
     n_evals += like.n_evals
     if big and res.ok and full:
@@ -766,11 +795,12 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
         se_live = res.steps[live] / 0.3 / math.sqrt(scale)
     steps = res.steps.copy()
     steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
-    theta, fval, h_live, it, ok_r = _newton_fixed(_Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL)
+    theta, fval, h_live, it, ok_r = _newton_fixed(_Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=res.hess * scale)
     hess = np.zeros_like(res.hess)
     hess[np.ix_(live, live)] = h_live
     res.theta, res.hess, res.f, res.steps = theta, hess, fval, steps
     res.iterations += it
+    res.full_evals = full.n_evals
     if not ok_r:
         res.ok, res.why = False, "no convergence of the full-data refinement"
     notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then Newton steps and the Hessian on all rows")
@@ -865,7 +895,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         all_rows.gps_scale = gps_scale_of(table)
     notes: list[str] = []
     start = None
-    steps = None
+    prev = None
     n_evals = 0
     n_dropped = 0
     for eiv_pass in range(3 if eiv else 1):
@@ -887,7 +917,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         # Between errors-in-variables passes only the sigmas matter: the subsample's
         # estimate is enough, and all rows are fitted once, in the last pass.
         searching = eiv and "r_outer" not in free
-        like, res, extra = _core(rows, base, newton_free, options, notes, start, not searching, steps)
+        like, res, extra = _core(rows, base, newton_free, options, notes, start, not searching, prev)
         n_evals += extra
         r_outer_se = float("nan")
         if "r_outer" in free and res.ok:
@@ -900,7 +930,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             n_evals += extra
         if not eiv or not res.ok:
             break
-        start, steps = to_params(base, newton_free, res.theta), res.steps
+        start, prev = to_params(base, newton_free, res.theta), res
         new0 = _sigma0(start, free)
         if eiv_pass == 2 or all(abs(math.log(a / b)) < math.log(1.25) for a, b in zip(new0, sigma0)):
             if searching and rows.k.shape[0] > SUBSAMPLE and "time_offset" not in newton_free:
@@ -1022,6 +1052,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         hac_lag=hac_lag,
         separable=separable,
         n_pose_dropped=n_dropped,
+        n_evals_all_rows=res.full_evals or (n_evals if n <= SUBSAMPLE or "time_offset" in newton_free else 0),
     )
 
 
