@@ -119,6 +119,7 @@ class FitResult:
     hac_lag: float = float("nan")  # the Newey-West bandwidth used (s)
     separable: bool = True  # False: pose error and EMI noise could not be told apart
     n_pose_dropped: int = 0  # rows left out: the pose error hides where they were
+    n_evals_all_rows: int = 0  # of n_evals, those on all rows (the rest: a subsample's, or the pilot's)
 
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
@@ -327,22 +328,6 @@ def _gradient(f, theta, h, f0=None, hessian=False):
     return g, hess
 
 
-class _Memo:
-    """f with its values remembered by the exact point: the full-data Hessian at the
-    refined estimate reuses the axis points of the refinement's last gradient."""
-
-    def __init__(self, f) -> None:
-        self.f = f
-        self.values: dict[bytes, float] = {}
-
-    def __call__(self, theta) -> float:
-        key = np.asarray(theta, dtype=np.float64).tobytes()
-        value = self.values.get(key)
-        if value is None:
-            value = self.values[key] = self.f(theta)
-        return value
-
-
 def _merge(theta, mask, values):
     out = theta.copy()
     out[mask] = values
@@ -410,6 +395,7 @@ class _Newton:
     iterations: int
     ok: bool
     why: str
+    full_evals: int = 0  # evaluations on all rows (the full-data stage)
 
 
 def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
@@ -458,6 +444,10 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if stepf is None:
             return _Newton(theta, f0, hess, active, h, it, False, "the Hessian is not finite")
         decrement = -0.5 * float(g[keep] @ stepf)
+        if tol >= 0.5 and decrement < tol:
+            # The pre-pass only settles the likelihood regimes: close enough, whatever the
+            # curvature at these steps (the next pass looks closer).
+            return _Newton(theta, f0, hess, active, h, it, True, "converged")
         if modified and decrement < 0.5 and shrinks < 3:
             # Close to the optimum but not convex at this step size: a difference straddles
             # a steep side (the noise edge). Look again with smaller steps.
@@ -522,28 +512,56 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
     return _Newton(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
 
 
-def _refine(f, theta, free, hess, h, held, max_iter=12):
-    """Gradient steps preconditioned by a fixed Hessian (the scaled subsample's); the
-    ``held`` parameters (at a bound) stay where they are."""
+def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0=None, final_hessian=True):
+    """Quasi-Newton on ``f`` from a good start: the Hessian by differences (steps ``h``) at
+    the start, then steps with it, corrected by BFGS updates from the gradient changes
+    (the curvature of a pose-error sigma changes over a few standard errors), until the
+    decrement is below ``tol``; then the Hessian by differences at the point
+    reached (its axis points are the last gradient's: with a memoising ``f`` only the
+    diagonal pairs cost). The ``held`` parameters (at a bound) stay where they are.
+    ``hess0``: start from this Hessian (all parameters) instead; ``final_hessian`` False:
+    return the BFGS one (a search's, whose result is only a start).
+    Returns (theta, f, Hessian of the live parameters, iterations, converged)."""
     lo, hi = _box(free)
     live = np.flatnonzero(~held)
-    sub = lambda th_l: f(_merge(theta, ~held, th_l))  # noqa: E731
-    hl = hess[np.ix_(live, live)]
+    point = {"theta": theta}
+    sub = lambda th_l: f(_merge(point["theta"], ~held, th_l))  # noqa: E731
     f0 = f(theta)
+    if hess0 is None:
+        g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
+    else:
+        (g, _), hl = _gradient(sub, theta[live], h[live], f0), hess0[np.ix_(live, live)]
+    moved, ok, it = hess0 is not None, False, 0
+    hq = hl.copy()
     for it in range(1, max_iter + 1):
-        g, _ = _gradient(sub, theta[live], h[live], f0)
-        stepf, _mod = _solve(hl, g)
+        stepf, _mod = _solve(hq, g)
         if stepf is None:
-            return theta, f0, it, False
-        if -0.5 * float(g @ stepf) < DECREMENT_TOL:
-            return theta, f0, it, True
+            break
+        if -0.5 * float(g @ stepf) < tol:
+            ok = True
+            break
         step = np.zeros(len(free))
         step[live] = stepf
         trial, f1 = _line_search(f, theta, step, f0, lo, hi)
         if trial is None:
-            return theta, f0, it, True
+            ok = True
+            break
+        s_l = (trial - theta)[live]
         theta, f0 = trial, f1
-    return theta, f0, max_iter, False
+        point["theta"] = theta
+        g_new, _ = _gradient(sub, theta[live], h[live], f0)
+        y = g_new - g
+        g, moved = g_new, True
+        ys = float(y @ s_l)
+        hs = hq @ s_l
+        shs = float(s_l @ hs)
+        if ys > 1e-12 * max(shs, 1e-300) and shs > 0:
+            hq = hq + np.outer(y, y) / ys - np.outer(hs, hs) / shs
+    if not final_hessian:
+        return theta, f0, hq, it, ok
+    if moved:
+        _g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
+    return theta, f0, hl, it, ok
 
 
 # -- the likelihood as an objective ----------------------------------------------------------
@@ -559,27 +577,45 @@ class _Objective:
         return self.like.nll(to_params(self.base, self.free, theta))
 
 
-def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None):
+def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=None):
     """Newton with the S/L split re-chosen until the one at the estimate is the one the
-    estimate was found with (the first pass stops early, at a decrement of 0.5 nats)."""
+    estimate was found with (the first pass stops early, at a decrement of 0.5 nats, the
+    others at ``tol``; from a ``warm`` start, the previous pass's estimate, the first
+    pass goes to ``tol`` too). A subsample's search (``tol`` above DECREMENT_TOL) stops
+    after one full pass: all rows follow, with the split chosen at its estimate; from a
+    ``warm`` start (the previous pass's :class:`_Newton`, whose rows were linearised at
+    other sigmas) it takes quasi-Newton steps from that pass's Hessian."""
     like = options.likelihood(rows)
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    if warm is not None and tol > DECREMENT_TOL and warm.hess is not None:
+        like.choose_regimes(to_params(base, free, theta), **eps_kw)
+        held = warm.active.copy()
+        theta_n, fval, hq, it, ok = _newton_fixed(
+            _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, warm.hess, final_hessian=False
+        )
+        hess = np.zeros((len(free), len(free)))
+        live = np.flatnonzero(~held)
+        hess[np.ix_(live, live)] = hq
+        if held.any():
+            hess[held, held] = 1.0  # placeholder, as in _newton
+        why = "converged" if ok else "no convergence of the quasi-Newton search"
+        return like, _Newton(theta_n, fval, hess, held, h, it, ok, why)
     iters = 0
     res = None
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
-        tol = 0.5 if _pass == 0 else DECREMENT_TOL
-        res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, tol)
+        settled = _pass > 0 or warm is not None
+        res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, tol if settled else 0.5)
         iters += res.iterations
         theta, h = res.theta, res.steps
-        if not res.ok:
+        if not res.ok or (settled and tol > DECREMENT_TOL):
             break
         changed = int(np.sum(like.choose_regimes(to_params(base, free, theta), **eps_kw).exact != split))
-        if changed == 0 and tol == DECREMENT_TOL:
+        if changed == 0 and settled:
             like.regimes.exact = split
             break
-        if changed and _pass > 0:
+        if changed and settled:
             notes.append(f"{changed} rows changed likelihood regime at the estimate; refitted")
     res.iterations = iters
     return like, res
@@ -659,6 +695,12 @@ def pilot_sigma(rows: Rows, kappa: float, r_inner: float) -> float:
 #: (the Hessian is a sum over rows: scaled by n / SUBSAMPLE its relative error is about
 #: 1 / sqrt(SUBSAMPLE) times the rows' spread of curvature).
 SUBSAMPLE = 10000
+#: Newton on the subsample stops at this decrement (nats) when all rows follow: within
+#: 0.15 of the subsample's standard errors, which the full-data steps then remove.
+SUB_TOL = 1e-2
+#: The full-data steps stop at this decrement (nats): within 0.015 standard errors of the
+#: optimum. Below it the differences' own noise (~1e-5 nats with 1e5 rows) takes over.
+FULL_TOL = 1e-4
 
 
 def _subset(rows: Rows, idx) -> Rows:
@@ -668,8 +710,13 @@ def _subset(rows: Rows, idx) -> Rows:
 # -- the fit ------------------------------------------------------------------------------------
 
 
-def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], start: Params | None):
-    """Pilot + Newton (+ full-data refinement for big tables) for the parameters ``free``."""
+def _core(
+    rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], start: Params | None,
+    full: bool = True, prev: "_Newton | None" = None,
+):
+    """Pilot + Newton (+ the full-data stage for big tables, :func:`_full_stage`, unless
+    ``full`` is False: then the result is the subsample's) for the parameters ``free``.
+    ``start``: skip the pilot (a previous pass's estimate; ``prev``: that pass's result)."""
     n = rows.k.shape[0]
     big = n > SUBSAMPLE and "time_offset" not in free  # the pose track needs every row
     if big:
@@ -678,6 +725,7 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
     else:
         sub = rows
     n_evals = 0
+    warm = prev if start is not None else None
     if start is None:  # pilot on (at most) the subsample
         start = base
         if "time_offset" in free and rows.track is not None:
@@ -716,40 +764,47 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
     theta = from_params(start, free)
     if "time_offset" in free and rows.track is not None:
         sub = rows  # the likelihood recomputes the geometry from the track at each offset
-    like, res = _optimise(sub, base, free, theta, options, notes)
+    steps = None if prev is None else prev.steps
+    like, res = _optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else DECREMENT_TOL, warm)
     n_evals += like.n_evals
-    hess, fval = res.hess, res.f
-    if big and res.ok:
-        # Full data: gradient steps preconditioned by the subsample Hessian scaled to n rows.
-        scale = n / SUBSAMPLE
-        full = options.likelihood(rows)
-        eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
-        full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
-        # Differences of 0.3 standard errors of all rows, from the scaled subsample
-        # Hessian: for the refinement's gradients and for the Hessian at its end.
-        live = np.flatnonzero(~res.active)
-        try:
-            se_live = np.sqrt(np.maximum(np.diag(np.linalg.inv(hess[np.ix_(live, live)] * scale)), 1e-18))
-        except np.linalg.LinAlgError:
-            se_live = res.steps[live] / 0.3 / math.sqrt(scale)
-        steps = res.steps.copy()
-        steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
-        f_full = _Memo(_Objective(full, base, free))
-        theta, fval, it, ok_r = _refine(f_full, res.theta, free, hess * scale, steps, res.active)
-        res.iterations += it
-        # The Hessian for the standard errors on all rows (a subsample's, scaled, is too
-        # noisy: a few rows near the noise edge carry much of the curvature).
-        on_live = lambda th_l: f_full(_merge(theta, ~res.active, th_l))  # noqa: E731
-        _g, h_live = _gradient(on_live, theta[live], steps[live], fval, hessian=True)
-        hess = np.zeros_like(hess)
-        hess[np.ix_(live, live)] = h_live
-        res.theta, res.hess, res.f = theta, hess, fval
-        n_evals += full.n_evals
-        like = full
-        if not ok_r:
-            res.ok, res.why = False, "no convergence of the full-data refinement"
-        notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then gradient steps and the Hessian on all rows")
+    if big and res.ok and full:
+        like, res, extra = _full_stage(rows, base, free, options, notes, res)
+        n_evals += extra
     return like, res, n_evals
+
+
+def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], res: "_Newton"):
+    """From the subsample's estimate, Newton on all rows: the Hessian by differences on all
+    rows there (a subsample's, scaled, is too noisy for the standard errors: a few rows
+    near the noise edge carry much of the curvature), then Newton steps with it until the
+    decrement is below FULL_TOL. The subsample's estimate is ~sqrt(n / SUBSAMPLE)
+    standard errors away, where the Hessian is the optimum's to O(1 / sqrt(n)): one step
+    usually lands, and the gradient at the new point confirms it. The per-row log P of
+    that last gradient's points are kept for the sandwich's scores (:func:`_scores`)."""
+    n = rows.k.shape[0]
+    scale = n / SUBSAMPLE
+    full = options.likelihood(rows)
+    eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
+    full.remember = 4 * len(free) + 8
+    # Differences of 0.3 standard errors of all rows, from the scaled subsample Hessian.
+    live = np.flatnonzero(~res.active)
+    try:
+        se_live = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.hess[np.ix_(live, live)] * scale)), 1e-18))
+    except np.linalg.LinAlgError:
+        se_live = res.steps[live] / 0.3 / math.sqrt(scale)
+    steps = res.steps.copy()
+    steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
+    theta, fval, h_live, it, ok_r = _newton_fixed(_Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=res.hess * scale)
+    hess = np.zeros_like(res.hess)
+    hess[np.ix_(live, live)] = h_live
+    res.theta, res.hess, res.f, res.steps = theta, hess, fval, steps
+    res.iterations += it
+    res.full_evals = full.n_evals
+    if not ok_r:
+        res.ok, res.why = False, "no convergence of the full-data refinement"
+    notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then Newton steps and the Hessian on all rows")
+    return full, res, full.n_evals
 
 
 def _fit_r_outer(like: Likelihood, params: Params, rows: Rows) -> tuple[float, float, float]:
@@ -846,6 +901,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             + (" (gps_sigma is the median row's)" if varied > 0 else " (the same for every row)")
         )
     start = None
+    prev = None
     n_evals = 0
     n_dropped = 0
     for eiv_pass in range(3 if eiv else 1):
@@ -864,7 +920,10 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         naive = naive_fit(rows, base.r_inner)
         n = rows.k.shape[0]
 
-        like, res, extra = _core(rows, base, newton_free, options, notes, start)
+        # Between errors-in-variables passes only the sigmas matter: the subsample's
+        # estimate is enough, and all rows are fitted once, in the last pass.
+        searching = eiv and "r_outer" not in free
+        like, res, extra = _core(rows, base, newton_free, options, notes, start, not searching, prev)
         n_evals += extra
         r_outer_se = float("nan")
         if "r_outer" in free and res.ok:
@@ -877,9 +936,12 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             n_evals += extra
         if not eiv or not res.ok:
             break
-        start = to_params(base, newton_free, res.theta)
+        start, prev = to_params(base, newton_free, res.theta), res
         new0 = _sigma0(start, free)
-        if all(abs(math.log(a / b)) < math.log(1.25) for a, b in zip(new0, sigma0)):
+        if eiv_pass == 2 or all(abs(math.log(a / b)) < math.log(1.25) for a, b in zip(new0, sigma0)):
+            if searching and rows.k.shape[0] > SUBSAMPLE and "time_offset" not in newton_free:
+                like, res, extra = _full_stage(rows, base, newton_free, options, notes, res)
+                n_evals += extra
             break
     if eiv and n_dropped:
         notes.append(
@@ -1009,6 +1071,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         hac_lag=hac_lag,
         separable=separable,
         n_pose_dropped=n_dropped,
+        n_evals_all_rows=res.full_evals or (n_evals if n <= SUBSAMPLE or "time_offset" in newton_free else 0),
     )
 
 
