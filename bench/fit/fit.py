@@ -1113,8 +1113,10 @@ def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tupl
     alpha = num / den if den > 0 else 0.0
     lag = min(max(1.1447 * (alpha * T) ** (1.0 / 3.0), 4.0 * math.sqrt(T)), T / 4.0)
     big_l = int(math.floor(lag))
-    meat = x.T @ x
-    for l in range(1, big_l + 1):
-        g = x[l:].T @ x[:-l]
-        meat += (1.0 - l / (big_l + 1.0)) * (g + g.T)
+    # sum_l (1 - |l|/(L + 1)) Gamma_l = sum_m S_m S_m^T / (L + 1), S_m the sums of x over the
+    # windows [m, m + L] (x zero outside [0, T)): each pair (t, s) lies in L + 1 - |t - s|
+    # windows. O(T p^2) instead of O(T L p^2).
+    cs = np.concatenate([np.zeros((1, p)), np.cumsum(np.concatenate([x, np.zeros((big_l, p))]), axis=0)])
+    windows = cs[1:] - np.concatenate([np.zeros((big_l, p)), cs[:T]])  # m = -L .. T - 1
+    meat = windows.T @ windows / (big_l + 1.0)
     return meat, float(lag)
