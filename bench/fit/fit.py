@@ -577,39 +577,60 @@ class _Objective:
         return self.like.nll(to_params(self.base, self.free, theta))
 
 
+def _convex(res: "_Newton") -> bool:
+    """Whether ``res`` has a Hessian worth starting quasi-Newton steps from (positive
+    definite in its live parameters)."""
+    if res.hess is None:
+        return False
+    live = np.flatnonzero(~res.active)
+    w = np.linalg.eigvalsh(res.hess[np.ix_(live, live)]) if live.size else np.ones(1)
+    return bool(np.all(np.isfinite(w)) and np.all(w > 0))
+
+
+def _quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "_Newton") -> "_Newton":
+    """Quasi-Newton (:func:`_newton_fixed`) on ``like`` from ``prev``'s Hessian and bounds."""
+    held = prev.active.copy()
+    h = prev.steps if h is None else h
+    theta_n, fval, hq, it, ok = _newton_fixed(
+        _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess, final_hessian=False
+    )
+    hess = np.zeros((len(free), len(free)))
+    live = np.flatnonzero(~held)
+    hess[np.ix_(live, live)] = hq
+    if held.any():
+        hess[held, held] = 1.0  # placeholder, as in _newton
+    why = "converged" if ok else "no convergence of the quasi-Newton search"
+    return _Newton(theta_n, fval, hess, held, h, it, ok, why)
+
+
 def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=None):
     """Newton with the S/L split re-chosen until the one at the estimate is the one the
     estimate was found with (the first pass stops early, at a decrement of 0.5 nats, the
     others at ``tol``; from a ``warm`` start, the previous pass's estimate, the first
     pass goes to ``tol`` too). A subsample's search (``tol`` above DECREMENT_TOL) stops
-    after one full pass: all rows follow, with the split chosen at its estimate; from a
-    ``warm`` start (the previous pass's :class:`_Newton`, whose rows were linearised at
-    other sigmas) it takes quasi-Newton steps from that pass's Hessian."""
+    after one full pass: all rows follow, with the split chosen at its estimate; it takes
+    quasi-Newton steps from the previous pass's Hessian (``warm``: a :class:`_Newton` from
+    rows linearised at other sigmas; else the 0.5-nat pass's)."""
     like = options.likelihood(rows)
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
-    if warm is not None and tol > DECREMENT_TOL and warm.hess is not None:
+    search = tol > DECREMENT_TOL
+    if warm is not None and search and _convex(warm):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
-        held = warm.active.copy()
-        theta_n, fval, hq, it, ok = _newton_fixed(
-            _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, warm.hess, final_hessian=False
-        )
-        hess = np.zeros((len(free), len(free)))
-        live = np.flatnonzero(~held)
-        hess[np.ix_(live, live)] = hq
-        if held.any():
-            hess[held, held] = 1.0  # placeholder, as in _newton
-        why = "converged" if ok else "no convergence of the quasi-Newton search"
-        return like, _Newton(theta_n, fval, hess, held, h, it, ok, why)
+        return like, _quasi(like, base, free, theta, options, h, tol, warm)
     iters = 0
     res = None
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
         settled = _pass > 0 or warm is not None
+        if settled and search and res is not None and _convex(res):
+            res = _quasi(like, base, free, theta, options, h, tol, res)
+            res.iterations += iters
+            return like, res
         res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, tol if settled else 0.5)
         iters += res.iterations
         theta, h = res.theta, res.steps
-        if not res.ok or (settled and tol > DECREMENT_TOL):
+        if not res.ok or (settled and search):
             break
         changed = int(np.sum(like.choose_regimes(to_params(base, free, theta), **eps_kw).exact != split))
         if changed == 0 and settled:
