@@ -352,7 +352,7 @@ def _solve(hf, gf):
     return -(v @ ((v.T @ gf) / mod)), bool(np.any(w <= 0))
 
 
-def _line_search(f, theta, step, f0, lo, hi, cap=None):
+def _line_search(f, theta, step, f0, lo, hi, cap=None, double=True):
     """Backtracking from the full step; if the full step already decreases f, keep
     doubling it while f keeps decreasing (the likelihood is steeper on the barrier side
     of r_en than a quadratic, so Newton steps from there fall short). The full and the
@@ -360,12 +360,16 @@ def _line_search(f, theta, step, f0, lo, hi, cap=None):
     lands usually costs; the search itself is unchanged."""
     trial = np.clip(theta + step, lo, hi)
     longer = step * 2.0
-    if cap is None or not np.any(np.abs(longer) > cap):
+    if not double:  # quasi-Newton near the optimum: the full step, else backtracking
+        f1 = f(trial)
+        if f1 < f0:
+            return trial, f1
+    elif cap is None or not np.any(np.abs(longer) > cap):
         t2 = np.clip(theta + longer, lo, hi)
         f1, f2 = _evaluate(f, [trial, t2])
     else:
         f1, f2 = f(trial), None
-    if f1 < f0:
+    if double and f1 < f0:
         for doubled in range(1, 5):
             if f2 is None or not f2 < f1:
                 break
@@ -449,8 +453,18 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
             # curvature at these steps (the next pass looks closer).
             return _Newton(theta, f0, hess, active, h, it, True, "converged")
         if modified and decrement < 0.5 and shrinks < 3:
-            # Close to the optimum but not convex at this step size: a difference straddles
-            # a steep side (the noise edge). Look again with smaller steps.
+            # Not convex at this step size. Either a difference straddles a steep side (the
+            # noise edge: look again with smaller steps) or a flat, curved direction (a
+            # pose-error sigma far from its estimate): try the (modified) step first, and
+            # keep it if it clearly lowers f.
+            step = np.zeros(p)
+            step[keep] = stepf
+            step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+            trial = np.clip(theta + step, lo, hi)
+            f1 = f(trial)
+            if f1 < f0 - 1e-3:
+                theta, f0 = trial, f1
+                continue
             shrinks += 1
             h = h / 3.0
             continue
@@ -523,6 +537,7 @@ def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0
     return the BFGS one (a search's, whose result is only a start).
     Returns (theta, f, Hessian of the live parameters, iterations, converged)."""
     lo, hi = _box(free)
+    cap = _caps(free)
     live = np.flatnonzero(~held)
     point = {"theta": theta}
     sub = lambda th_l: f(_merge(point["theta"], ~held, th_l))  # noqa: E731
@@ -542,7 +557,8 @@ def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0
             break
         step = np.zeros(len(free))
         step[live] = stepf
-        trial, f1 = _line_search(f, theta, step, f0, lo, hi)
+        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        trial, f1 = _line_search(f, theta, step, f0, lo, hi, double=False)
         if trial is None:
             ok = True
             break
@@ -592,7 +608,7 @@ def _quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "
     held = prev.active.copy()
     h = prev.steps if h is None else h
     theta_n, fval, hq, it, ok = _newton_fixed(
-        _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess, final_hessian=False
+        _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess
     )
     hess = np.zeros((len(free), len(free)))
     live = np.flatnonzero(~held)
