@@ -824,6 +824,8 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
     full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
     full.remember = 4 * len(free) + 8
+    if options.likelihood is Likelihood:  # (the benchmark's alternatives draw per-row noise)
+        full.threads = STENCIL_THREADS
     # Differences of 0.3 standard errors of all rows, from the scaled subsample Hessian.
     live = np.flatnonzero(~res.active)
     try:

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -50,6 +51,20 @@ from .table import Table
 
 GROSS_ERROR = 1e-6
 EPS_SPLIT = 0.03
+#: A single evaluation of at least twice this many rows, asked for by the main thread of a
+#: Likelihood whose ``threads`` is 2, is split in two halves evaluated on two threads
+#: (numpy releases the GIL; every row is computed as it would be in one piece).
+CHUNK_MIN = 20000
+_row_pool: ThreadPoolExecutor | None = None
+_row_pool_lock = threading.Lock()
+
+
+def _rows_pool() -> ThreadPoolExecutor:
+    global _row_pool
+    with _row_pool_lock:
+        if _row_pool is None:
+            _row_pool = ThreadPoolExecutor(2, thread_name_prefix="fit-rows")
+    return _row_pool
 
 
 @dataclass(frozen=True)
@@ -241,6 +256,9 @@ class Likelihood:
         #: full-data stage sets it: the sandwich's scores are the last gradient's points.
         self.remember = 0
         self._memo: dict = {}
+        #: 2: split single evaluations of many rows over two threads (see CHUNK_MIN).
+        self.threads = 1
+        self._halves: tuple | None = None
 
     def choose_regimes(self, p: Params, eps_split: float = EPS_SPLIT) -> Regimes:
         geo = self._geo(p)
@@ -272,7 +290,7 @@ class Likelihood:
                 return hit[1]
         with self._count:
             self.n_evals += 1
-        prob = self.prob(p)
+        prob = self._prob_halves(p) if self._split() else self.prob(p)
         n_out = 100.0 * p.r_outer + 2.0
         out = np.log((1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out)
         if self.remember:
@@ -284,6 +302,25 @@ class Likelihood:
 
     def nll(self, p: Params) -> float:
         return -float(np.sum(self.logp(p)))
+
+    def _split(self) -> bool:
+        return (
+            self.threads > 1 and self.regimes is not None and self.k.shape[0] >= 2 * CHUNK_MIN
+            and threading.current_thread() is threading.main_thread()
+        )  # fmt: skip
+
+    def _prob_halves(self, p: Params) -> NDArray[np.float64]:
+        """:meth:`prob` of the two halves of the rows, on two threads."""
+        reg = self.regimes
+        if self._halves is None or self._halves[0] is not reg.exact or self._halves[1] is not reg.narrow:
+            n = self.k.shape[0]
+            parts = []
+            for sl in (slice(0, n // 2), slice(n // 2, n)):
+                part = type(self)(self.rows.take(sl))
+                part.regimes = Regimes(reg.exact[sl], reg.eps_split, None if reg.narrow is None else reg.narrow[sl])
+                parts.append(part)
+            self._halves = (reg.exact, reg.narrow, parts)
+        return np.concatenate(list(_rows_pool().map(lambda part: part.prob(p), self._halves[2])))
 
     # -- the model ------------------------------------------------------------------
     def pose_spread(self, p: Params, l3, lxy, sel=None):
