@@ -9,9 +9,10 @@ time_offset).
 Standard errors come from the observed information, the Hessian at the optimum, with
 difference steps re-set to 0.3 standard errors so they measure the curvature on the
 scale of the uncertainty; the delta method maps them back (se(kappa) = kappa
-se(log kappa)). Above ``SUBSAMPLE`` rows the Newton iterations and the Hessian run on a
-random subsample (Hessian scaled by n / n_sub) and the full data only refine the
-estimate with gradient steps: the fit of 1e5 rows stays within a few seconds.
+se(log kappa)). Above ``SUBSAMPLE`` rows the search runs on a random subsample (and the
+errors-in-variables passes that only move the linearisation sigmas stay there); all rows
+are evaluated once, by quasi-Newton steps from the subsample's Hessian scaled by
+n / n_sub and the Hessian by differences at the estimate (:func:`_full_stage`).
 """
 
 from __future__ import annotations

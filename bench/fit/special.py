@@ -10,6 +10,8 @@
   receiver's |(h_x, h_y)| under ball noise, by an 8-node Gauss-Legendre rule after a
   substitution that removes the square-root end-point behaviour (error < 3e-7, see the
   accuracy table in docs/calibration.md).
+* :func:`smoothed_ball_disk_cdf` / :func:`smoothed_ball_disk_bin` — G seen through the
+  log-normal pose error, and the probability of a bin narrow against it.
 """
 
 from __future__ import annotations
