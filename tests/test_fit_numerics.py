@@ -5,7 +5,7 @@
 * ``smoothed_ball_disk_bin`` (one series evaluation per narrow bin) against the
   difference of two CDFs computed with a fine rule;
 * the Newey-West meat from window sums against the lag-by-lag sum;
-* a single evaluation split over two threads gives the same per-row log P, bit for bit.
+* an evaluation in blocks (on one or two threads) gives the same per-row log P, bit for bit.
 """
 
 import math
@@ -19,7 +19,7 @@ from scipy.stats import norm
 
 import bench.fit.special as special
 from bench.fit.fit import check_table, FitOptions, time_block_meat, usable
-from bench.fit.likelihood import CHUNK_MIN, Likelihood, Params
+from bench.fit.likelihood import Likelihood, Params
 from bench.fit.special import ball_disk_cdf, smoothed_ball_disk_bin, smoothed_ball_disk_cdf
 from emulator.receiver.model import ModelParams
 from fit_campaign import emulate_campaign
@@ -91,15 +91,17 @@ def test_window_sum_meat_is_the_lag_by_lag_sum(n, p, seed):
     assert np.allclose(meat, ref, rtol=1e-10, atol=1e-10 * np.max(np.abs(ref)))
 
 
-def test_split_evaluation_is_bit_for_bit_the_same():
-    table = emulate_campaign(0, ModelParams(kappa_eq=1.542, r_en=80.0), seed=3, n_rows=2 * CHUNK_MIN + 11)
+@pytest.mark.parametrize("threads", [1, 2])
+def test_evaluation_in_blocks_is_bit_for_bit_the_same(threads):
+    table = emulate_campaign(0, ModelParams(kappa_eq=1.542, r_en=80.0), seed=3, n_rows=4 * 1000 + 11)
     rows = usable(check_table(table, FitOptions()))
     p = Params(kappa_eq=1.55, r_en=75.0, pose_sigma=2e-3)
     one = Likelihood(rows)
     one.choose_regimes(p)
-    two = Likelihood(rows)
-    two.choose_regimes(p)
-    two.threads = 2
-    assert two._split()
-    a, b = one.logp(p), two.logp(p)
+    blocks = Likelihood(rows)
+    blocks.choose_regimes(p)
+    blocks.block, blocks.threads = 1000, threads
+    assert blocks._split()
+    a, b = one.logp(p), blocks.logp(p)
     assert a.shape == b.shape and np.array_equal(a, b)
+    assert len(blocks._blocks[2]) == 5

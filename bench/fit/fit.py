@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .likelihood import (
+    BLOCK_ROWS,
     FREE_PARAMS,
     LINEAR,
     Geometry,
@@ -826,7 +827,7 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
     full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
     full.remember = 4 * len(free) + 8
     if options.likelihood is Likelihood:  # (the benchmark's alternatives draw per-row noise)
-        full.threads = STENCIL_THREADS
+        full.block, full.threads = BLOCK_ROWS, STENCIL_THREADS
     # Differences of 0.3 standard errors of all rows, from the scaled subsample Hessian.
     live = np.flatnonzero(~res.active)
     try:
