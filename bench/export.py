@@ -3,7 +3,13 @@
 One row per (epoch, slot) of every logged receiver::
 
     t, seq, id, d, delta, rx_x, rx_y, rx_z, rx_qw, rx_qx, rx_qy, rx_qz,
-    tx_x, tx_y, tx_z, tx_qw, tx_qx, tx_qy, tx_qz
+    tx_x, tx_y, tx_z, tx_qw, tx_qx, tx_qy, tx_qz, fix_quality, hdop
+
+The first 19 are the normative columns, in that order. ``fix_quality`` (GGA fix quality,
+1-8) and ``hdop`` are the receiver GPS's logged fix quality: those of the receiver fix
+nearest in time to the pose lookup (of two equally near, the earlier); an empty ``hdop``
+cell means the GGA carried none. ``arva-bench fit`` scales each row's GPS error by them
+(docs/calibration.md, section 2); readers that know only the normative columns ignore them.
 
 ``t`` is the epoch's arrival (UTC POSIX seconds: the arrival of its last byte, by the
 stamp rule of :mod:`bench.ingest.stamp`) minus ``--latency``; poses are in the session's
@@ -45,6 +51,8 @@ COLUMNS = (
     "rx_x", "rx_y", "rx_z", "rx_qw", "rx_qx", "rx_qy", "rx_qz",
     "tx_x", "tx_y", "tx_z", "tx_qw", "tx_qx", "tx_qy", "tx_qz",
 )  # fmt: skip
+#: After the normative ones: the receiver GPS fix quality (GGA, 1-8) and HDOP of each row.
+GPS_QUALITY_COLUMNS = ("fix_quality", "hdop")
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 #: Rows written between progress updates (a terminal's bar only; nothing in a pipe).
 _PROGRESS_ROWS = 65536
@@ -60,6 +68,19 @@ class Track:
     att: np.ndarray = field(default_factory=lambda: np.empty((0, 4)))
     fixed_pos: np.ndarray | None = None
     fixed_att: np.ndarray | None = None
+    fix_quality: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))  # per pos_t (GGA)
+    hdop: np.ndarray = field(default_factory=lambda: np.empty(0))  # per pos_t; NaN: not given
+
+    def gps_quality(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fix quality and HDOP of the fix nearest to each time (the earlier of two equally
+        near); quality 0 and HDOP NaN where the track has no fixes (a fixed pose)."""
+        if self.pos_t.size == 0:
+            return np.zeros(t.size, dtype=np.int64), np.full(t.size, np.nan)
+        i = np.clip(np.searchsorted(self.pos_t, t, side="left"), 1, max(self.pos_t.size - 1, 1))
+        before = np.clip(i - 1, 0, self.pos_t.size - 1)
+        after = np.clip(i, 0, self.pos_t.size - 1)
+        k = np.where(np.abs(t - self.pos_t[before]) <= np.abs(self.pos_t[after] - t), before, after)
+        return self.fix_quality[k], self.hdop[k]
 
     def positions(self, t: np.ndarray, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
         if self.fixed_pos is not None:
@@ -176,18 +197,22 @@ def export_rows(
             for s in _decode(path, decoder_for(dev.kind, dev.format), dev.baudrate):
                 r = s.record
                 if r.get("sentence") == "GGA" and r.get("valid") and r.get("alt_hae") is not None:
-                    fixes.setdefault(dev.role, []).append((s.mono, r["lat"], r["lon"], r["alt_hae"]))
+                    hdop = r.get("hdop")
+                    fixes.setdefault(dev.role, []).append(
+                        (s.mono, r["lat"], r["lon"], r["alt_hae"], r.get("quality") or 0, np.nan if hdop is None else hdop)
+                    )
                 elif "q" in r:
                     attitudes.setdefault(dev.role, []).append((s.mono, r["q"]))
     # The earliest receiver fix, as the logger stores it when there is no --origin.
     first_rx = min((fs[0] for role, fs in fixes.items() if role.startswith("rx") and fs), default=None)
-    org = _origin_from(manifest, origin, None if first_rx is None else first_rx[1:])
+    org = _origin_from(manifest, origin, None if first_rx is None else first_rx[1:4])
     tracks: dict[str, Track] = {}
     for role, fs in fixes.items():
         a = np.array(fs)
         e, n, u = geodetic_to_enu(a[:, 1], a[:, 2], a[:, 3], org)
         tr = tracks.setdefault(role, Track())
-        tr.pos_t, tr.pos = _last_of_ties(a[:, 0], np.c_[e, n, u])
+        tr.pos_t, kept = _last_of_ties(a[:, 0], np.c_[e, n, u, a[:, 4], a[:, 5]])
+        tr.pos, tr.fix_quality, tr.hdop = kept[:, :3], kept[:, 3].astype(np.int64), kept[:, 4]
     for role, ats in attitudes.items():
         tr = tracks.setdefault(role, Track())
         tr.att_t, tr.att = _last_of_ties(np.array([m for m, _ in ats]), np.array([q for _, q in ats]))
@@ -217,6 +242,7 @@ def export_rows(
         rx = tracks.get(role, Track())
         rx_p, ok_p = rx.positions(t_query, max_gap)
         rx_q, ok_q = rx.orientations(t_query, max_gap)
+        rx_quality, rx_hdop = rx.gps_quality(t_query)
         dropped["no receiver position"] += int((~ok_p).sum())
         dropped["no receiver orientation"] += int((ok_p & ~ok_q).sum())
         keep = ok_p & ok_q
@@ -249,24 +275,33 @@ def export_rows(
                 **{f"rx_q{c}": rx_q[keep, i] for i, c in enumerate("wxyz")},
                 **{f"tx_{c}": tx_p[keep, i] for i, c in enumerate("xyz")},
                 **{f"tx_q{c}": tx_q[keep, i] for i, c in enumerate("wxyz")},
+                "fix_quality": rx_quality[keep],
+                "hdop": rx_hdop[keep],
             }
         )
     if parts:
-        columns = {c: np.concatenate([p[c] for p in parts]) for c in COLUMNS}
+        columns = {c: np.concatenate([p[c] for p in parts]) for c in COLUMNS + GPS_QUALITY_COLUMNS}
     else:
-        columns = {c: np.empty(0, dtype=np.int64 if c in ("seq", "id", "d", "delta") else np.float64) for c in COLUMNS}
+        ints = ("seq", "id", "d", "delta", "fix_quality")
+        columns = {c: np.empty(0, dtype=np.int64 if c in ints else np.float64) for c in COLUMNS + GPS_QUALITY_COLUMNS}
     return ExportResult(columns, Counter({k: v for k, v in dropped.items() if v}), org)
 
 
 def write_csv(columns: dict[str, np.ndarray], path: str | Path, tracker: Tracker | None = None) -> None:
-    """The normative CSV: header, then one row per slot (µm, 1e-9 quaternion digits).
-    ``tracker`` (a progress bar) is advanced by the rows written, a block at a time."""
+    """The CSV: the normative header (then ``fix_quality, hdop`` when ``columns`` has
+    them), one row per slot (µm, 1e-9 quaternion digits, HDOP to 0.01; an unknown HDOP
+    is an empty cell). ``tracker`` (a progress bar) is advanced by the rows written, a
+    block at a time."""
     n = columns["t"].size
-    fmt = {"t": "%.6f", "seq": "%d", "id": "%d", "d": "%d", "delta": "%d"}
-    cols = [np.asarray(columns[c]) for c in COLUMNS]
+    names = COLUMNS + tuple(c for c in GPS_QUALITY_COLUMNS if c in columns)
+    fmt = {"t": "%.6f", "seq": "%d", "id": "%d", "d": "%d", "delta": "%d", "fix_quality": "%d", "hdop": "%s"}
+    cols = [np.asarray(columns[c]) for c in names]
+    if "hdop" in columns:
+        h = np.asarray(columns["hdop"], dtype=np.float64)
+        cols[names.index("hdop")] = np.array(["" if v != v else f"{v:.2f}" for v in h.tolist()], dtype=object)
     with open(path, "w", newline="") as f:
-        f.write(",".join(COLUMNS) + "\n")
-        formats = [fmt.get(c, "%.9f" if "_q" in c else "%.6f") for c in COLUMNS]
+        f.write(",".join(names) + "\n")
+        formats = [fmt.get(c, "%.9f" if "_q" in c else "%.6f") for c in names]
         line = ",".join(formats) + "\n"
         for i in range(n):
             f.write(line % tuple(col[i] for col in cols))
@@ -278,7 +313,7 @@ def register(sub) -> None:
     p = sub.add_parser("export", help="the aligned CSV the fit consumes", description=__doc__,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("session", type=session_dir, metavar="DIR", help="session directory")
-    p.add_argument("--csv", required=True, type=output_file(), metavar="FILE", help="output CSV (normative columns)")
+    p.add_argument("--csv", required=True, type=output_file(), metavar="FILE", help="output CSV (normative columns, then fix_quality, hdop)")
     p.add_argument("--origin", type=origin_type, metavar="LAT,LON[,ALT]", help="ENU origin (default: the session's, else the first receiver fix)")
     p.add_argument("--latency", type=signed_seconds, default=0.0, metavar="S",
                    help="the receiver's output latency: poses are taken S seconds before each epoch's arrival")

@@ -63,9 +63,11 @@ def test_summary_with_exact_poses_given(campaign, capsys):
     "argv, why",
     [
         (["--gps-sigma", "1,2,3"], "argument --gps-sigma: expected H or H,V (metres), got '1,2,3'"),
-        (["--gps-sigma", "-1"], "argument --gps-sigma: must be a finite number >= 0, got '-1'"),
+        (["--gps-sigma", "-1"], "argument --gps-sigma: must be >= 0, got -1"),
         (["--gps-sigma", "0,1"], "argument --gps-sigma: horizontal and vertical must both be 0 or both > 0, got '0,1'"),
-        (["--attitude-sigma", "nan"], "argument --attitude-sigma: must be a finite number >= 0, got 'nan'"),
+        (["--attitude-sigma", "nan"], "argument --attitude-sigma: expected a finite number, got 'nan'"),
+        (["--attitude-sigma", "200"], "argument --attitude-sigma: must be <= 180, got 200"),
+        (["--gps-sigma", "1,abc"], "argument --gps-sigma: expected a number, got 'abc'"),
     ],
 )
 def test_pose_error_options_reject_bad_values(campaign, capsys, argv, why):

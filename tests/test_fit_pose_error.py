@@ -167,20 +167,33 @@ def test_csv_rejects_bad_gps_columns(header, cells, why):
     assert str(exc.value) == "fit: " + why
 
 
-def test_recovery_with_correlated_gps_error_known_sigmas():
-    """Seeded 60-minute campaign, Gauss-Markov GPS error 1 m / 1.5 m (tau 30 s) and 2 deg
-    attitude error, sigmas given (--gps-sigma 1,1.5 --attitude-sigma 2): kappa_eq within
-    1 %, r_en within 5 %, both inside their +-1.96 se (sandwich) intervals. Without the
-    errors-in-variables model the same rows put r_en far off (the issue's report)."""
-    pe = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0)
-    table = emulate_campaign(60, TRUTH, seed=0, pose_error=pe)
+TARGET_ERROR = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0)
+
+
+def test_recovery_within_the_targets_on_a_4_hour_campaign():
+    """The issue's target: a seeded 4-hour campaign at 1 Hz with Gauss-Markov GPS error
+    1 m / 1.5 m (tau 30 s) and 2 deg attitude error, sigmas given (--gps-sigma 1,1.5
+    --attitude-sigma 2): kappa_eq within 1 %, r_en within 5 %, both inside their +-1.96 se
+    (sandwich) intervals, which are wider than the inverse Hessian's (correlated errors).
+    Fails if the pose error is left out (next test) or mis-modelled: without the Tweedie
+    shift kappa_eq came out 1.8 % low at this GPS error (docs/calibration.md section 2);
+    the coverage of such intervals over 50 seeds is in docs/accuracy.md (b)."""
+    table = emulate_campaign(240, TRUTH, seed=0, pose_error=TARGET_ERROR)
     base = Params(gps_sigma=1.0, gps_ratio=1.5, attitude_sigma=math.radians(2.0))
     res = fit_table(table, FitOptions(free=("kappa_eq", "r_en"), base=base))
-    assert res.converged and res.separable
+    assert res.converged and res.separable and res.n_used > 0.9 * len(table)
     for name, truth, tol in (("kappa_eq", 1.542, 0.01), ("r_en", 80.0, 0.05)):
         assert abs(res.estimate[name] / truth - 1) < tol, (name, res.estimate[name])
         assert abs(res.estimate[name] - truth) < 1.96 * res.se[name], (name, res.estimate[name], res.se[name])
-    assert res.se["kappa_eq"] > res.se_model["kappa_eq"]  # correlated errors: wider than the Hessian says
+    assert res.se["kappa_eq"] > 1.5 * res.se_model["kappa_eq"]  # correlated errors: wider than the Hessian says
+    # and not widened without need: +-1.96 se is about +-1.2 % after 4 hours (seed 0: 0.62 % s.e.)
+    assert res.se["kappa_eq"] < 0.0075 * 1.542
+
+
+def test_without_the_pose_error_model_r_en_is_far_off():
+    """The same kind of campaign (60 minutes) fitted with the relative pose error only
+    (the model before issue 15): r_en far off or no convergence (the issue's report)."""
+    table = emulate_campaign(60, TRUTH, seed=0, pose_error=TARGET_ERROR)
     old = fit_table(table)  # relative pose error only
     assert not old.converged or abs(old.estimate["r_en"] / 80.0 - 1) > 0.2
 

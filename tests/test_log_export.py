@@ -122,7 +122,10 @@ def test_log_then_export_matches_the_scene(tmp_path):
     assert proc.returncode == 0 and proc.stderr == f"arva-bench: export: {N} rows to {csv_path}; dropped: none\n"
     with open(csv_path) as f:
         rows = list(csv.reader(f))
-    assert tuple(rows[0]) == COLUMNS and len(rows) == N + 1
+    # The normative header first (BRIEF 7), then the receiver GPS's fix quality and HDOP
+    # (issue 15): the emulator's GGA says 1 (GPS) and 0.8.
+    assert tuple(rows[0][:19]) == COLUMNS and rows[0][19:] == ["fix_quality", "hdop"] and len(rows) == N + 1
+    assert {(r[19], r[20]) for r in rows[1:]} == {("1", "0.80")}
     assert [int(r[3]) for r in rows[1:]] == cols["d"].tolist()
 
 

@@ -74,7 +74,7 @@ def register(subparsers) -> None:
     )
     fixed.add_argument(
         "--attitude-sigma",
-        type=_non_negative,
+        type=_attitude_degrees,
         metavar="DEG",
         help="the receiver attitude error, 1-sigma per axis in degrees, instead of estimating it (0 = exact)",
     )
@@ -88,22 +88,17 @@ _positive = real(0.0, 99_999.99, lo_open=True)
 TIME_OFFSET = real(-3600.0, 3600.0)
 
 
-def _non_negative(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return v
+#: A pose-error sigma: 0 (exact) or more; metres for GPS, degrees for attitude.
+_gps_metres = real(0.0, 99_999.99)
+_attitude_degrees = real(0.0, 180.0)
 
 
 def _gps_sigma(text: str) -> tuple[float, float]:
     parts = text.split(",")
     if len(parts) > 2:
         raise argparse.ArgumentTypeError(f"expected H or H,V (metres), got {text!r}")
-    h = _non_negative(parts[0])
-    v = _non_negative(parts[1]) if len(parts) == 2 else 1.5 * h
+    h = _gps_metres(parts[0])
+    v = _gps_metres(parts[1]) if len(parts) == 2 else 1.5 * h
     if (h == 0) != (v == 0):
         raise argparse.ArgumentTypeError(f"horizontal and vertical must both be 0 or both > 0, got {text!r}")
     return h, v

@@ -167,9 +167,12 @@ def _parse_simple(text: str, source: str) -> Table | None:
 
 
 def _optional_column(source: str, name: str, cells, line_no) -> np.ndarray:
-    """fix_quality: integers 0..8; hdop: finite numbers > 0 (one clear error otherwise)."""
+    """fix_quality: integers 0..8; hdop: finite numbers > 0, or an empty cell (the GGA gave
+    none: NaN, the fit then takes the median HDOP); one clear error otherwise."""
     values = np.empty(len(cells))
+    empty = np.zeros(len(cells), bool)
     for k, cell in enumerate(cells):
+        empty[k] = not cell.strip()
         try:
             values[k] = float(cell.strip()) if "_" not in cell else float("nan")
         except ValueError:
@@ -178,7 +181,7 @@ def _optional_column(source: str, name: str, cells, line_no) -> np.ndarray:
         bad = ~np.isfinite(values) | (values != np.round(values)) | (values < 0) | (values > 8)
         what = "a GGA fix quality 0..8"
     else:
-        bad = ~(np.isfinite(values) & (values > 0))
+        bad = ~(np.isfinite(values) & (values > 0)) & ~empty
         what = "a finite HDOP > 0"
     if bad.any():
         k = int(np.argmax(bad))

@@ -9,9 +9,10 @@ time_offset).
 Standard errors come from the observed information, the Hessian at the optimum, with
 difference steps re-set to 0.3 standard errors so they measure the curvature on the
 scale of the uncertainty; the delta method maps them back (se(kappa) = kappa
-se(log kappa)). Above ``SUBSAMPLE`` rows the Newton iterations and the Hessian run on a
-random subsample (Hessian scaled by n / n_sub) and the full data only refine the
-estimate with gradient steps: the fit of 1e5 rows stays within a few seconds.
+se(log kappa)). Above ``SUBSAMPLE`` rows the search runs on a random subsample (and the
+errors-in-variables passes that only move the linearisation sigmas stay there); all rows
+are evaluated once, by quasi-Newton steps from the subsample's Hessian scaled by
+n / n_sub and the Hessian by differences at the estimate (:func:`_full_stage`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .likelihood import (
+    BLOCK_ROWS,
     FREE_PARAMS,
     LINEAR,
     Geometry,
@@ -119,6 +121,7 @@ class FitResult:
     hac_lag: float = float("nan")  # the Newey-West bandwidth used (s)
     separable: bool = True  # False: pose error and EMI noise could not be told apart
     n_pose_dropped: int = 0  # rows left out: the pose error hides where they were
+    n_evals_all_rows: int = 0  # of n_evals, those on all rows (the rest: a subsample's, or the pilot's)
 
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
@@ -327,22 +330,6 @@ def _gradient(f, theta, h, f0=None, hessian=False):
     return g, hess
 
 
-class _Memo:
-    """f with its values remembered by the exact point: the full-data Hessian at the
-    refined estimate reuses the axis points of the refinement's last gradient."""
-
-    def __init__(self, f) -> None:
-        self.f = f
-        self.values: dict[bytes, float] = {}
-
-    def __call__(self, theta) -> float:
-        key = np.asarray(theta, dtype=np.float64).tobytes()
-        value = self.values.get(key)
-        if value is None:
-            value = self.values[key] = self.f(theta)
-        return value
-
-
 def _merge(theta, mask, values):
     out = theta.copy()
     out[mask] = values
@@ -367,7 +354,7 @@ def _solve(hf, gf):
     return -(v @ ((v.T @ gf) / mod)), bool(np.any(w <= 0))
 
 
-def _line_search(f, theta, step, f0, lo, hi, cap=None):
+def _line_search(f, theta, step, f0, lo, hi, cap=None, double=True):
     """Backtracking from the full step; if the full step already decreases f, keep
     doubling it while f keeps decreasing (the likelihood is steeper on the barrier side
     of r_en than a quadratic, so Newton steps from there fall short). The full and the
@@ -375,12 +362,16 @@ def _line_search(f, theta, step, f0, lo, hi, cap=None):
     lands usually costs; the search itself is unchanged."""
     trial = np.clip(theta + step, lo, hi)
     longer = step * 2.0
-    if cap is None or not np.any(np.abs(longer) > cap):
+    if not double:  # quasi-Newton near the optimum: the full step, else backtracking
+        f1 = f(trial)
+        if f1 < f0:
+            return trial, f1
+    elif cap is None or not np.any(np.abs(longer) > cap):
         t2 = np.clip(theta + longer, lo, hi)
         f1, f2 = _evaluate(f, [trial, t2])
     else:
         f1, f2 = f(trial), None
-    if f1 < f0:
+    if double and f1 < f0:
         for doubled in range(1, 5):
             if f2 is None or not f2 < f1:
                 break
@@ -410,6 +401,7 @@ class _Newton:
     iterations: int
     ok: bool
     why: str
+    full_evals: int = 0  # evaluations on all rows (the full-data stage)
 
 
 def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
@@ -458,9 +450,23 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if stepf is None:
             return _Newton(theta, f0, hess, active, h, it, False, "the Hessian is not finite")
         decrement = -0.5 * float(g[keep] @ stepf)
+        if tol >= 0.5 and decrement < tol:
+            # The pre-pass only settles the likelihood regimes: close enough, whatever the
+            # curvature at these steps (the next pass looks closer).
+            return _Newton(theta, f0, hess, active, h, it, True, "converged")
         if modified and decrement < 0.5 and shrinks < 3:
-            # Close to the optimum but not convex at this step size: a difference straddles
-            # a steep side (the noise edge). Look again with smaller steps.
+            # Not convex at this step size. Either a difference straddles a steep side (the
+            # noise edge: look again with smaller steps) or a flat, curved direction (a
+            # pose-error sigma far from its estimate): try the (modified) step first, and
+            # keep it if it clearly lowers f.
+            step = np.zeros(p)
+            step[keep] = stepf
+            step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+            trial = np.clip(theta + step, lo, hi)
+            f1 = f(trial)
+            if f1 < f0 - 1e-3:
+                theta, f0 = trial, f1
+                continue
             shrinks += 1
             h = h / 3.0
             continue
@@ -522,28 +528,58 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
     return _Newton(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
 
 
-def _refine(f, theta, free, hess, h, held, max_iter=12):
-    """Gradient steps preconditioned by a fixed Hessian (the scaled subsample's); the
-    ``held`` parameters (at a bound) stay where they are."""
+def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0=None, final_hessian=True):
+    """Quasi-Newton on ``f`` from a good start: the Hessian by differences (steps ``h``) at
+    the start, then steps with it, corrected by BFGS updates from the gradient changes
+    (the curvature of a pose-error sigma changes over a few standard errors), until the
+    decrement is below ``tol``; then the Hessian by differences at the point
+    reached (its axis points are the last gradient's: with a memoising ``f`` only the
+    diagonal pairs cost). The ``held`` parameters (at a bound) stay where they are.
+    ``hess0``: start from this Hessian (all parameters) instead; ``final_hessian`` False:
+    return the BFGS one (a search's, whose result is only a start).
+    Returns (theta, f, Hessian of the live parameters, iterations, converged)."""
     lo, hi = _box(free)
+    cap = _caps(free)
     live = np.flatnonzero(~held)
-    sub = lambda th_l: f(_merge(theta, ~held, th_l))  # noqa: E731
-    hl = hess[np.ix_(live, live)]
+    point = {"theta": theta}
+    sub = lambda th_l: f(_merge(point["theta"], ~held, th_l))  # noqa: E731
     f0 = f(theta)
+    if hess0 is None:
+        g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
+    else:
+        (g, _), hl = _gradient(sub, theta[live], h[live], f0), hess0[np.ix_(live, live)]
+    moved, ok, it = hess0 is not None, False, 0
+    hq = hl.copy()
     for it in range(1, max_iter + 1):
-        g, _ = _gradient(sub, theta[live], h[live], f0)
-        stepf, _mod = _solve(hl, g)
+        stepf, _mod = _solve(hq, g)
         if stepf is None:
-            return theta, f0, it, False
-        if -0.5 * float(g @ stepf) < DECREMENT_TOL:
-            return theta, f0, it, True
+            break
+        if -0.5 * float(g @ stepf) < tol:
+            ok = True
+            break
         step = np.zeros(len(free))
         step[live] = stepf
-        trial, f1 = _line_search(f, theta, step, f0, lo, hi)
+        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        trial, f1 = _line_search(f, theta, step, f0, lo, hi, double=False)
         if trial is None:
-            return theta, f0, it, True
+            ok = True
+            break
+        s_l = (trial - theta)[live]
         theta, f0 = trial, f1
-    return theta, f0, max_iter, False
+        point["theta"] = theta
+        g_new, _ = _gradient(sub, theta[live], h[live], f0)
+        y = g_new - g
+        g, moved = g_new, True
+        ys = float(y @ s_l)
+        hs = hq @ s_l
+        shs = float(s_l @ hs)
+        if ys > 1e-12 * max(shs, 1e-300) and shs > 0:
+            hq = hq + np.outer(y, y) / ys - np.outer(hs, hs) / shs
+    if not final_hessian:
+        return theta, f0, hq, it, ok
+    if moved:
+        _g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
+    return theta, f0, hl, it, ok
 
 
 # -- the likelihood as an objective ----------------------------------------------------------
@@ -559,27 +595,66 @@ class _Objective:
         return self.like.nll(to_params(self.base, self.free, theta))
 
 
-def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None):
+def _convex(res: "_Newton") -> bool:
+    """Whether ``res`` has a Hessian worth starting quasi-Newton steps from (positive
+    definite in its live parameters)."""
+    if res.hess is None:
+        return False
+    live = np.flatnonzero(~res.active)
+    w = np.linalg.eigvalsh(res.hess[np.ix_(live, live)]) if live.size else np.ones(1)
+    return bool(np.all(np.isfinite(w)) and np.all(w > 0))
+
+
+def _quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "_Newton") -> "_Newton":
+    """Quasi-Newton (:func:`_newton_fixed`) on ``like`` from ``prev``'s Hessian and bounds."""
+    held = prev.active.copy()
+    h = prev.steps if h is None else h
+    theta_n, fval, hq, it, ok = _newton_fixed(
+        _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess
+    )
+    hess = np.zeros((len(free), len(free)))
+    live = np.flatnonzero(~held)
+    hess[np.ix_(live, live)] = hq
+    if held.any():
+        hess[held, held] = 1.0  # placeholder, as in _newton
+    why = "converged" if ok else "no convergence of the quasi-Newton search"
+    return _Newton(theta_n, fval, hess, held, h, it, ok, why)
+
+
+def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=None):
     """Newton with the S/L split re-chosen until the one at the estimate is the one the
-    estimate was found with (the first pass stops early, at a decrement of 0.5 nats)."""
+    estimate was found with (the first pass stops early, at a decrement of 0.5 nats, the
+    others at ``tol``; from a ``warm`` start, the previous pass's estimate, the first
+    pass goes to ``tol`` too). A subsample's search (``tol`` above DECREMENT_TOL) stops
+    after one full pass: all rows follow, with the split chosen at its estimate; it takes
+    quasi-Newton steps from the previous pass's Hessian (``warm``: a :class:`_Newton` from
+    rows linearised at other sigmas; else the 0.5-nat pass's)."""
     like = options.likelihood(rows)
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    search = tol > DECREMENT_TOL
+    if warm is not None and search and _convex(warm):
+        like.choose_regimes(to_params(base, free, theta), **eps_kw)
+        return like, _quasi(like, base, free, theta, options, h, tol, warm)
     iters = 0
     res = None
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
-        tol = 0.5 if _pass == 0 else DECREMENT_TOL
-        res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, tol)
+        settled = _pass > 0 or warm is not None
+        if settled and search and res is not None and _convex(res):
+            res = _quasi(like, base, free, theta, options, h, tol, res)
+            res.iterations += iters
+            return like, res
+        res = _newton(_Objective(like, base, free), theta, free, options.max_iter, h, tol if settled else 0.5)
         iters += res.iterations
         theta, h = res.theta, res.steps
-        if not res.ok:
+        if not res.ok or (settled and search):
             break
         changed = int(np.sum(like.choose_regimes(to_params(base, free, theta), **eps_kw).exact != split))
-        if changed == 0 and tol == DECREMENT_TOL:
+        if changed == 0 and settled:
             like.regimes.exact = split
             break
-        if changed and _pass > 0:
+        if changed and settled:
             notes.append(f"{changed} rows changed likelihood regime at the estimate; refitted")
     res.iterations = iters
     return like, res
@@ -659,6 +734,12 @@ def pilot_sigma(rows: Rows, kappa: float, r_inner: float) -> float:
 #: (the Hessian is a sum over rows: scaled by n / SUBSAMPLE its relative error is about
 #: 1 / sqrt(SUBSAMPLE) times the rows' spread of curvature).
 SUBSAMPLE = 10000
+#: Newton on the subsample stops at this decrement (nats) when all rows follow: within
+#: 0.15 of the subsample's standard errors, which the full-data steps then remove.
+SUB_TOL = 1e-2
+#: The full-data steps stop at this decrement (nats): within 0.015 standard errors of the
+#: optimum. Below it the differences' own noise (~1e-5 nats with 1e5 rows) takes over.
+FULL_TOL = 1e-4
 
 
 def _subset(rows: Rows, idx) -> Rows:
@@ -668,8 +749,13 @@ def _subset(rows: Rows, idx) -> Rows:
 # -- the fit ------------------------------------------------------------------------------------
 
 
-def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], start: Params | None):
-    """Pilot + Newton (+ full-data refinement for big tables) for the parameters ``free``."""
+def _core(
+    rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], start: Params | None,
+    full: bool = True, prev: "_Newton | None" = None,
+):
+    """Pilot + Newton (+ the full-data stage for big tables, :func:`_full_stage`, unless
+    ``full`` is False: then the result is the subsample's) for the parameters ``free``.
+    ``start``: skip the pilot (a previous pass's estimate; ``prev``: that pass's result)."""
     n = rows.k.shape[0]
     big = n > SUBSAMPLE and "time_offset" not in free  # the pose track needs every row
     if big:
@@ -678,6 +764,7 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
     else:
         sub = rows
     n_evals = 0
+    warm = prev if start is not None else None
     if start is None:  # pilot on (at most) the subsample
         start = base
         if "time_offset" in free and rows.track is not None:
@@ -716,40 +803,49 @@ def _core(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, 
     theta = from_params(start, free)
     if "time_offset" in free and rows.track is not None:
         sub = rows  # the likelihood recomputes the geometry from the track at each offset
-    like, res = _optimise(sub, base, free, theta, options, notes)
+    steps = None if prev is None else prev.steps
+    like, res = _optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else DECREMENT_TOL, warm)
     n_evals += like.n_evals
-    hess, fval = res.hess, res.f
-    if big and res.ok:
-        # Full data: gradient steps preconditioned by the subsample Hessian scaled to n rows.
-        scale = n / SUBSAMPLE
-        full = options.likelihood(rows)
-        eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
-        full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
-        # Differences of 0.3 standard errors of all rows, from the scaled subsample
-        # Hessian: for the refinement's gradients and for the Hessian at its end.
-        live = np.flatnonzero(~res.active)
-        try:
-            se_live = np.sqrt(np.maximum(np.diag(np.linalg.inv(hess[np.ix_(live, live)] * scale)), 1e-18))
-        except np.linalg.LinAlgError:
-            se_live = res.steps[live] / 0.3 / math.sqrt(scale)
-        steps = res.steps.copy()
-        steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
-        f_full = _Memo(_Objective(full, base, free))
-        theta, fval, it, ok_r = _refine(f_full, res.theta, free, hess * scale, steps, res.active)
-        res.iterations += it
-        # The Hessian for the standard errors on all rows (a subsample's, scaled, is too
-        # noisy: a few rows near the noise edge carry much of the curvature).
-        on_live = lambda th_l: f_full(_merge(theta, ~res.active, th_l))  # noqa: E731
-        _g, h_live = _gradient(on_live, theta[live], steps[live], fval, hessian=True)
-        hess = np.zeros_like(hess)
-        hess[np.ix_(live, live)] = h_live
-        res.theta, res.hess, res.f = theta, hess, fval
-        n_evals += full.n_evals
-        like = full
-        if not ok_r:
-            res.ok, res.why = False, "no convergence of the full-data refinement"
-        notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then gradient steps and the Hessian on all rows")
+    if big and res.ok and full:
+        like, res, extra = _full_stage(rows, base, free, options, notes, res)
+        n_evals += extra
     return like, res, n_evals
+
+
+def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], res: "_Newton"):
+    """From the subsample's estimate, Newton on all rows: the Hessian by differences on all
+    rows there (a subsample's, scaled, is too noisy for the standard errors: a few rows
+    near the noise edge carry much of the curvature), then Newton steps with it until the
+    decrement is below FULL_TOL. The subsample's estimate is ~sqrt(n / SUBSAMPLE)
+    standard errors away, where the Hessian is the optimum's to O(1 / sqrt(n)): one step
+    usually lands, and the gradient at the new point confirms it. The per-row log P of
+    that last gradient's points are kept for the sandwich's scores (:func:`_scores`)."""
+    n = rows.k.shape[0]
+    scale = n / SUBSAMPLE
+    full = options.likelihood(rows)
+    eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
+    full.remember = 4 * len(free) + 8
+    if options.likelihood is Likelihood:  # (the benchmark's alternatives draw per-row noise)
+        full.block, full.threads = BLOCK_ROWS, STENCIL_THREADS
+    # Differences of 0.3 standard errors of all rows, from the scaled subsample Hessian.
+    live = np.flatnonzero(~res.active)
+    try:
+        se_live = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.hess[np.ix_(live, live)] * scale)), 1e-18))
+    except np.linalg.LinAlgError:
+        se_live = res.steps[live] / 0.3 / math.sqrt(scale)
+    steps = res.steps.copy()
+    steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
+    theta, fval, h_live, it, ok_r = _newton_fixed(_Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=res.hess * scale)
+    hess = np.zeros_like(res.hess)
+    hess[np.ix_(live, live)] = h_live
+    res.theta, res.hess, res.f, res.steps = theta, hess, fval, steps
+    res.iterations += it
+    res.full_evals = full.n_evals
+    if not ok_r:
+        res.ok, res.why = False, "no convergence of the full-data refinement"
+    notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then Newton steps and the Hessian on all rows")
+    return full, res, full.n_evals
 
 
 def _fit_r_outer(like: Likelihood, params: Params, rows: Rows) -> tuple[float, float, float]:
@@ -839,7 +935,14 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             base = replace(base, attitude_sigma=EIV_START[1])
         all_rows.gps_scale = gps_scale_of(table)
     notes: list[str] = []
+    if eiv and all_rows.gps_scale is not None:
+        varied = float(np.ptp(all_rows.gps_scale[all_rows.gps_scale < 1e3])) if np.any(all_rows.gps_scale < 1e3) else 0.0
+        notes.append(
+            "each row's GPS error follows its logged fix quality and HDOP"
+            + (" (gps_sigma is the median row's)" if varied > 0 else " (the same for every row)")
+        )
     start = None
+    prev = None
     n_evals = 0
     n_dropped = 0
     for eiv_pass in range(3 if eiv else 1):
@@ -858,7 +961,10 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         naive = naive_fit(rows, base.r_inner)
         n = rows.k.shape[0]
 
-        like, res, extra = _core(rows, base, newton_free, options, notes, start)
+        # Between errors-in-variables passes only the sigmas matter: the subsample's
+        # estimate is enough, and all rows are fitted once, in the last pass.
+        searching = eiv and "r_outer" not in free
+        like, res, extra = _core(rows, base, newton_free, options, notes, start, not searching, prev)
         n_evals += extra
         r_outer_se = float("nan")
         if "r_outer" in free and res.ok:
@@ -871,9 +977,12 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             n_evals += extra
         if not eiv or not res.ok:
             break
-        start = to_params(base, newton_free, res.theta)
+        start, prev = to_params(base, newton_free, res.theta), res
         new0 = _sigma0(start, free)
-        if all(abs(math.log(a / b)) < math.log(1.25) for a, b in zip(new0, sigma0)):
+        if eiv_pass == 2 or all(abs(math.log(a / b)) < math.log(1.25) for a, b in zip(new0, sigma0)):
+            if searching and rows.k.shape[0] > SUBSAMPLE and "time_offset" not in newton_free:
+                like, res, extra = _full_stage(rows, base, newton_free, options, notes, res)
+                n_evals += extra
             break
     if eiv and n_dropped:
         notes.append(
@@ -899,6 +1008,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         if name in free:
             estimate[name] = getattr(params, name)
     se_model = {m: float("nan") for m in free}
+    nuisance_floor: list[str] = []  # sigmas at their floor whose uncertainty the s.e. include
     hac_lag = float("nan")
     cov = np.full((len(free), len(free)), np.nan)
     se = {m: float("nan") for m in free}
@@ -913,8 +1023,17 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             sub_cov = model_cov
             if options.covariance == "hac" and eiv and like.rows.t is not None:
                 scores = _scores(like, base, newton_free, theta_n, res.steps, live=keep)
-                meat, hac_lag = time_block_meat(scores, like.rows.t)
-                sub_cov = model_cov @ meat @ model_cov
+                floor = [i for i in np.flatnonzero(active) if newton_free[i] in ("gps_sigma", "attitude_sigma")
+                         and theta_n[i] <= lo_n[i] + 1e-6]  # fmt: skip
+                widened = None
+                if floor:
+                    widened = boundary_nuisance_cov(like, base, newton_free, theta_n, res.steps, keep, floor, hk, scores)
+                if widened is not None:
+                    model_cov, sub_cov, hac_lag = widened
+                    nuisance_floor = [newton_free[i] for i in floor]
+                else:
+                    meat, hac_lag = time_block_meat(scores, like.rows.t)
+                    sub_cov = model_cov @ meat @ model_cov
             for a_, i in enumerate(keep):
                 name = newton_free[i]
                 sd = math.sqrt(max(model_cov[a_, a_], 0.0))
@@ -935,10 +1054,13 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
                 what = {"pose_sigma": "the poses look exact", "gps_sigma": "no GPS error is visible"}.get(
                     name, "no attitude error is visible"
                 )
-                notes.append(
-                    f"{name} is at its lower bound {BOUNDS[name][0]:g} ({what}); "
-                    "the other standard errors hold it there"
+                held_how = (
+                    "the other standard errors include how far it could be above it (its variance is a "
+                    "nuisance parameter there)"
+                    if name in nuisance_floor
+                    else "the other standard errors hold it there"
                 )
+                notes.append(f"{name} is at its lower bound {BOUNDS[name][0]:g} ({what}); {held_how}")
             else:
                 ok = False
                 bound = BOUNDS[name][0 if at_lower else 1]
@@ -990,7 +1112,78 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         hac_lag=hac_lag,
         separable=separable,
         n_pose_dropped=n_dropped,
+        n_evals_all_rows=res.full_evals or (n_evals if n <= SUBSAMPLE or "time_offset" in newton_free else 0),
     )
+
+
+def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, scores_keep):
+    """The sandwich covariance of the ``keep`` parameters when pose-error sigmas (indices
+    ``floor``) sit at their lower bound: their variances v = sigma^2 join as nuisance
+    parameters instead of being held fixed.
+
+    At the floor the likelihood is flat in log sigma (it depends on sigma through
+    sigma^2), so the log-scale Hessian has no information about it; in v it has. A sigma
+    held there as known made the others' standard errors too small: on emulated
+    60-minute campaigns with 2 deg attitude error, attitude_sigma went to its floor in
+    about one seed in four and those seeds' kappa_eq errors were up to 2.2 of their
+    standard errors (docs/accuracy.md (b)). Here the Hessian and the per-row scores are
+    extended by one-sided differences in v (steps about half a standard error of v, from
+    v at the floor upwards; second-order forward rules), the time-block meat is taken
+    over all of them, and the ``keep`` block of A^-1 B A^-1 is returned with the
+    inverse-Hessian block and the Newey-West lag, or None when the likelihood is not
+    curved upwards in v (then the caller holds the sigmas as before).
+    """
+    keep = list(keep)
+    m = len(floor)
+    logp = lambda th: like.logp(to_params(base, free, th))  # noqa: E731
+    v0 = np.exp(2.0 * theta[floor])
+
+    def at(th, dv):  # theta with the floor sigmas at sqrt(v0 + dv)
+        out = th.copy()
+        out[floor] = 0.5 * np.log(v0 + dv)
+        return out
+
+    start = {"gps_sigma": 0.5**2, "attitude_sigma": math.radians(1.0) ** 2}
+    delta = np.array([0.25 * start[free[i]] for i in floor])
+    for _attempt in range(2):
+        l00 = logp(theta)
+        one = [logp(at(theta, delta * np.eye(m)[a])) for a in range(m)]
+        two = [logp(at(theta, 2.0 * delta * np.eye(m)[a])) for a in range(m)]
+        a_vv = np.empty((m, m))
+        for a in range(m):
+            a_vv[a, a] = -float(np.sum(two[a] - 2.0 * one[a] + l00)) / delta[a] ** 2
+            for b in range(a + 1, m):
+                both = logp(at(theta, delta * (np.eye(m)[a] + np.eye(m)[b])))
+                a_vv[a, b] = a_vv[b, a] = -float(np.sum(both - one[a] - one[b] + l00)) / (delta[a] * delta[b])
+        if not np.all(np.diag(a_vv) > 0):
+            return None
+        se_v = 1.0 / np.sqrt(np.diag(a_vv))
+        new = np.clip(0.5 * se_v, delta / 100.0, delta * 100.0)
+        if _attempt == 0 and np.all(np.abs(np.log(new / delta)) < math.log(2.0)):
+            break
+        delta = new
+    # Mixed terms theta_j (log scale, central) x v_a (forward).
+    a_tv = np.empty((len(keep), m))
+    for c, j in enumerate(keep):
+        e = np.zeros_like(theta)
+        e[j] = h[j]
+        for a in range(m):
+            dv = delta * np.eye(m)[a]
+            val = logp(at(theta + e, dv)) - logp(at(theta - e, dv)) - logp(theta + e) + logp(theta - e)
+            a_tv[c, a] = -float(np.sum(val)) / (2.0 * h[j] * delta[a])
+    big = np.block([[hess_keep, a_tv], [a_tv.T, a_vv]])
+    try:
+        np.linalg.cholesky(big)
+    except np.linalg.LinAlgError:
+        return None
+    # Per-row scores in v at the floor: (-3 l(0) + 4 l(d) - l(2d)) / 2d.
+    s_v = np.stack([(-3.0 * l00 + 4.0 * one[a] - two[a]) / (2.0 * delta[a]) for a in range(m)], axis=1)
+    scores = np.concatenate([scores_keep, s_v], axis=1)
+    inv = np.linalg.inv(big)
+    meat, lag = time_block_meat(scores, like.rows.t)
+    cov = inv @ meat @ inv
+    k = len(keep)
+    return inv[:k, :k], cov[:k, :k], lag
 
 
 #: |correlation| of r_en with a pose-error sigma above which the two are not told apart.
@@ -1050,8 +1243,10 @@ def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tupl
     alpha = num / den if den > 0 else 0.0
     lag = min(max(1.1447 * (alpha * T) ** (1.0 / 3.0), 4.0 * math.sqrt(T)), T / 4.0)
     big_l = int(math.floor(lag))
-    meat = x.T @ x
-    for l in range(1, big_l + 1):
-        g = x[l:].T @ x[:-l]
-        meat += (1.0 - l / (big_l + 1.0)) * (g + g.T)
+    # sum_l (1 - |l|/(L + 1)) Gamma_l = sum_m S_m S_m^T / (L + 1), S_m the sums of x over the
+    # windows [m, m + L] (x zero outside [0, T)): each pair (t, s) lies in L + 1 - |t - s|
+    # windows. O(T p^2) instead of O(T L p^2).
+    cs = np.concatenate([np.zeros((1, p)), np.cumsum(np.concatenate([x, np.zeros((big_l, p))]), axis=0)])
+    windows = cs[1:] - np.concatenate([np.zeros((big_l, p)), cs[:T]])  # m = -L .. T - 1
+    meat = windows.T @ windows / (big_l + 1.0)
     return meat, float(lag)

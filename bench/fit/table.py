@@ -132,14 +132,17 @@ def gps_scale(table: Table) -> NDArray[np.float64] | None:
     """Each row's GPS error relative to the table's median row: QUALITY_SIGMA[quality] x
     HDOP (either may be missing), divided by its median; None without both columns.
     The fitted gps_sigma is then the error of a median row. Quality 0 (no fix) rows get
-    a factor 1e3: the fit leaves them out (their pose says nothing)."""
+    a factor 1e3: the fit leaves them out (their pose says nothing). A row without an
+    HDOP (NaN: the GGA gave none) takes the median of the others (1 if none has one)."""
     if table.fix_quality is None and table.hdop is None:
         return None
     n = len(table)
     q = np.ones(n, dtype=np.int64) if table.fix_quality is None else table.fix_quality
     sig = _quality_sigma(q)
     if table.hdop is not None:
-        sig = sig * table.hdop
+        known = np.isfinite(table.hdop)
+        fill = float(np.median(table.hdop[known])) if known.any() else 1.0
+        sig = sig * np.where(known, table.hdop, fill)
     valid = q > 0
     med = float(np.median(sig[valid])) if valid.any() else 1.0
     out = sig / (med if med > 0 else 1.0)

@@ -1,0 +1,118 @@
+"""Why kappa_eq intervals under pose error cover what they cover (issue 15): cheap checks.
+
+Usage: python tests/perf/pose_error_diagnosis.py MINUTES GPS_H SEEDS {known,free} VARIANTS [--workers 2]
+   e.g. python tests/perf/pose_error_diagnosis.py 30 1.0 24 known plain,nocommon_v
+
+Campaigns as in accuracy_pose_error.py (seeds 9000 + s, Gauss-Markov GPS error GPS_H /
+1.5 GPS_H, tau 30 s, 2 deg attitude error), fitted with the sigmas given (``known``) or
+estimated (``free``). Variants: ``plain``; ``nocommon_v``, the logged heights minus the
+campaign mean of their vertical error (the common height error removed, all else equal);
+``nocommon_all``, the mean of all three error components removed. Each fit is appended
+to tests/perf/out/pose_error_diagnosis.jsonl with the realised mean GPS error; the
+summary per (minutes, grade, sigmas, variant) gives bias, RMS error, median s.e., the RMS
+of error / s.e. and the coverage of +-1.96 s.e., and for ``nocommon_v`` how far removing
+the common height error moved kappa_eq.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+OUT = HERE / "out" / "pose_error_diagnosis.jsonl"
+TRUTH = {"kappa_eq": 1.542, "r_en": 80.0}
+
+
+def one(minutes: float, h: float, seed: int, known: bool, variant: str) -> dict:
+    from fit_campaign import PoseError, emulate_campaign
+
+    from bench.fit.fit import FitOptions, fit_table
+    from bench.fit.likelihood import Params
+    from emulator.receiver.model import ModelParams
+
+    pe = PoseError(gps_h=h, gps_v=1.5 * h, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0)
+    table = emulate_campaign(minutes, ModelParams(**TRUTH), seed=9000 + seed, pose_error=pe)
+    true = emulate_campaign(minutes, ModelParams(**TRUTH), seed=9000 + seed)
+    mean = (table.rx_pos - true.rx_pos).mean(axis=0)
+    if variant == "nocommon_v":
+        table.rx_pos = table.rx_pos - np.array([0.0, 0.0, mean[2]])
+    elif variant == "nocommon_all":
+        table.rx_pos = table.rx_pos - mean
+    if known:
+        opts = FitOptions(free=("kappa_eq", "r_en"), base=Params(gps_sigma=h, attitude_sigma=math.radians(2.0)))
+    else:
+        opts = FitOptions(free=("kappa_eq", "r_en", "gps_sigma", "attitude_sigma"))
+    c0 = time.process_time()
+    res = fit_table(table, opts)
+    out = {"minutes": minutes, "h": h, "seed": seed, "known": known, "variant": variant, "conv": res.converged,
+           "cpu": time.process_time() - c0, "mean_err": mean.tolist(), "lag": res.hac_lag,
+           "floor": [n.split(" ")[0] for n in res.notes if "at its lower bound" in n]}  # fmt: skip
+    for k in ("gps_sigma", "attitude_sigma", *TRUTH):
+        out[k] = res.estimate.get(k)
+        out[k + "_se"] = res.se.get(k)
+        out[k + "_sem"] = res.se_model.get(k)
+    return out
+
+
+def summary(rows: list[dict]) -> str:
+    lines = []
+    keys = sorted({(r["minutes"], r["h"], r["known"], r["variant"]) for r in rows})
+    for key in keys:
+        rs = [r for r in rows if (r["minutes"], r["h"], r["known"], r["variant"]) == key and r["conv"] and r["kappa_eq_se"]]
+        if not rs:
+            continue
+        text = f"{key[0]:g} min, GPS {key[1]:g} m, sigmas {'given' if key[2] else 'estimated'}, {key[3]}: {len(rs)} seeds"
+        for k in TRUTH:
+            e = np.array([r[k] / TRUTH[k] - 1 for r in rs])
+            se = np.array([r[k + "_se"] / TRUTH[k] for r in rs])
+            z = e / se
+            text += (f" | {k}: bias {100 * e.mean():+.2f} %, RMS {100 * np.sqrt(np.mean(e**2)):.2f} %, median se "
+                     f"{100 * np.median(se):.2f} %, RMS z {np.sqrt(np.mean(z**2)):.2f}, covers {100 * np.mean(abs(z) <= 1.96):.0f} %")  # fmt: skip
+        lines.append(text)
+    plain = {(r["minutes"], r["h"], r["known"], r["seed"]): r for r in rows if r["variant"] == "plain" and r["conv"]}
+    moved = [(r["kappa_eq"] / plain[k]["kappa_eq"] - 1, plain[k]["mean_err"][2], plain[k]["kappa_eq_se"] / plain[k]["kappa_eq"])
+             for r in rows if r["variant"] == "nocommon_v" and r["conv"]
+             for k in [(r["minutes"], r["h"], r["known"], r["seed"])] if k in plain]  # fmt: skip
+    if moved:
+        d, zb, se = (np.array(v) for v in zip(*moved))
+        lines.append(
+            f"common height error: removing it moved kappa_eq by RMS {100 * np.sqrt(np.mean(d**2)):.2f} % (max "
+            f"{100 * np.abs(d).max():.2f} %) = {np.sqrt(np.mean(d**2)) / np.median(se):.2f} s.e.; campaign-mean vertical "
+            f"error RMS {np.sqrt(np.mean(zb**2)):.3f} m; slope {100 * np.polyfit(zb, d, 1)[0]:.2f} % per m ({len(d)} seeds)"
+        )
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("minutes", type=float)
+    p.add_argument("gps_h", type=float)
+    p.add_argument("seeds", type=int)
+    p.add_argument("sigmas", choices=("known", "free"))
+    p.add_argument("variants")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--summary-only", action="store_true")
+    a = p.parse_args(argv)
+    if not a.summary_only:
+        OUT.parent.mkdir(exist_ok=True)
+        jobs = [(a.minutes, a.gps_h, s, a.sigmas == "known", v) for s in range(a.seeds) for v in a.variants.split(",")]
+        with ProcessPoolExecutor(a.workers) as pool, OUT.open("a") as f:
+            for row in pool.map(one, *zip(*jobs)):
+                f.write(json.dumps(row) + "\n")
+                f.flush()
+    rows = [json.loads(line) for line in OUT.read_text().splitlines() if line.strip()] if OUT.exists() else []
+    print(summary(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
