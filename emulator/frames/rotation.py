@@ -124,3 +124,46 @@ def quaternion_matrices(q_unit: ArrayLike) -> NDArray[np.float64]:
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) ``[w, x, y, z]``."""
     qc = np.moveaxis(np.asarray(q_unit, dtype=np.float64), -1, 0)
     return np.moveaxis(rotation_components(qc), (0, 1), (-2, -1))
+
+
+def rotation_unnormalized_components(qc: NDArray[np.float64], out: NDArray[np.float64], work: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rotation matrices (3, 3, n) of q / |q| for finite component-major quaternions ``qc`` (4, n).
+
+    Without normalising q first: with k = 2 / |q|^2 the entries are 1 - k (yy + zz),
+    k (xy - wz), ... (the products scaled once by k). ``work`` is (12, n) scratch; ``out``
+    may be a transposed view. Returns |q|^2 (n,), a row of ``work``: the caller checks its
+    range, since |q|^2 may under- or overflow for components beyond about 1e+-150 (then use
+    :func:`unit_quaternion_components`). The same matrices as :func:`rotation_components`
+    of the normalised quaternion to a few ulps (the batch model's per-pose work).
+    """
+    w, x, y, z = qc
+    n2, t, k, kx, ky, kz, xx, yy, zz, xy, xz, yz = work
+    np.multiply(w, w, out=n2)
+    for c in (x, y, z):
+        np.multiply(c, c, out=t)
+        n2 += t
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        np.divide(2.0, n2, out=k)
+        np.multiply(k, x, out=kx)
+        np.multiply(k, y, out=ky)
+        np.multiply(k, z, out=kz)
+        for a, b, o in ((kx, x, xx), (ky, y, yy), (kz, z, zz), (kx, y, xy), (kx, z, xz), (ky, z, yz)):
+            np.multiply(a, b, out=o)
+        wx, wy, wz = kx, ky, kz  # in place: kx, ky, kz are not needed after these
+        wx *= w
+        wy *= w
+        wz *= w
+        m = out
+        np.add(yy, zz, out=m[0, 0])
+        np.subtract(1.0, m[0, 0], out=m[0, 0])
+        np.add(xx, zz, out=m[1, 1])
+        np.subtract(1.0, m[1, 1], out=m[1, 1])
+        np.add(xx, yy, out=m[2, 2])
+        np.subtract(1.0, m[2, 2], out=m[2, 2])
+        np.subtract(xy, wz, out=m[0, 1])
+        np.add(xy, wz, out=m[1, 0])
+        np.add(xz, wy, out=m[0, 2])
+        np.subtract(xz, wy, out=m[2, 0])
+        np.subtract(yz, wx, out=m[1, 2])
+        np.add(yz, wx, out=m[2, 1])
+    return n2

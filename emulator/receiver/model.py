@@ -36,6 +36,7 @@ may overflow to inf; its reciprocal is then 0 and nothing ever computes inf * 0.
 from __future__ import annotations
 
 import math
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -47,6 +48,7 @@ from firmware_proto.errors import InputError, PoseError
 from emulator.frames.rotation import (
     normalize_components_inplace,
     rotation_components,
+    rotation_unnormalized_components,
     unit_quaternion_components,
     x_axis_components,
 )
@@ -231,8 +233,29 @@ def measure(
     # by an exact power of two (decided per chunk, as before, see _measure_chunk).
     any_big = max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE
 
+    fast = noise is None and fld is None and not moving_tx and _FastTables.applies(params)
+    if fast:
+        tab = _tables(params)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates: those pairs go general
+            ftx = _FastTx(tx_p, tx_m, tab.lam)
+
+    def run_fast(first: int, last: int) -> None:
+        """Like ``run`` on the fast path; pairs it leaves out take the general path."""
+        buf = _fast_buffers(min(last - first, rows), m)
+        for lo in range(first, last, rows):
+            sl = slice(lo, min(last, lo + rows))
+            with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+                bad = _fast_block(rx_p[sl], rx_q[sl], ftx, tab, d[sl], delta[sl], zone[sl], buf)
+            if bad.size:
+                ip, it = np.divmod(bad, m)
+                out = _general_pairs(rx_p, rx_q, lo + ip, tx_p, tx_m, it, params)
+                for arr, val in zip((d[sl], delta[sl], zone[sl]), out):
+                    arr.reshape(-1)[bad] = val
+
     def run(first: int, last: int) -> None:
         """Poses first..last-1, block by block, with this call's own buffers."""
+        if fast:
+            return run_fast(first, last)
         size = min(last - first, rows)
         scratch = _Scratch(size * m)
         rot = np.empty((3, 3, size))
@@ -290,6 +313,38 @@ def measure(
             for job in [pool.submit(run, lo, min(n, lo + step)) for lo in range(0, n, step)]:
                 job.result()  # re-raises a worker's error (e.g. a PoseError)
     return Measurement(d, delta, zone, fld)
+
+
+def _general_pairs(rx_p, rx_q, ip, tx_p, tx_m, it, params):
+    """(d, delta, zone) of the pairs (rx ip[k], tx it[k]) on the general path (1-D)."""
+    k = ip.size
+    qc = np.ascontiguousarray(rx_q[ip].T)
+    if normalize_components_inplace(qc, np.empty_like(qc)) is not None:
+        unit_quaternion_components(rx_q, "receiver.orientation")  # as for the whole array
+    rr = rotation_components(qc)
+    row = lambda a: a.reshape(1, k)  # noqa: E731
+    rx = tuple(row(rx_p[ip, c]) for c in range(3))
+    tx = tuple(row(tx_p[it, c]) for c in range(3))
+    big = max(_max_abs(np.stack(rx)), _max_abs(np.stack(tx))) > _HUGE
+    out = (np.empty((1, k), np.int64), np.empty((1, k), np.int64), np.empty((1, k), np.int8))
+    with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+        _measure_chunk(rx, tuple(tuple(row(rr[i, j]) for j in range(3)) for i in range(3)), tx,
+                       tuple(row(tx_m[c, it]) for c in range(3)), 0.25 if big else 1.0, params, None,
+                       *out, None, _Scratch(k).view((1, k)))
+    return tuple(o.reshape(-1) for o in out)
+
+
+_TABLES: dict = {}
+
+
+def _tables(params: ModelParams) -> "_FastTables":
+    """The fast path's tables for ``params`` (cached: a few hundred KB, built once)."""
+    tab = _TABLES.get(params)
+    if tab is None:
+        if len(_TABLES) > 16:
+            _TABLES.clear()
+        tab = _TABLES[params] = _FastTables(params)
+    return tab
 
 
 def _max_abs(a: NDArray[np.float64]) -> float:
@@ -530,6 +585,227 @@ def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
         dist_scale,
         field_scale,
     )
+
+
+# ---------------------------------------------------------------------------------------
+# Fast path (issue 20): ideal receiver, 3 antennas, static transmitters, no field.
+#
+# Same model, fewer numpy passes. With d = p_r - p_t, s = |d|^2 and a, b the receiver-frame
+# d and dipole axis (a = R_r^T d, b = R_r^T m), the receiver-frame field direction scaled
+# by s is G = 3 (m.d) a - s b (= s g: no sqrt, no division per component), and
+#
+#     200 dxy = (s^5 / (lam^2 (G_x^2 + G_y^2)))^(1/6),   lam = (200 c)^-3,  c = distance_scale
+#
+# (lam is folded into b and m.d, so the scaled G costs nothing extra). a, b and 3 m.d are
+# bilinear in per-pose and per-transmitter values: one small matrix product each
+# (BLAS, K = 4) instead of five passes. The outputs come from integer tables indexed by
+# floor(200 dxy + 1 + off), whose last entry is the outer zone: d, zone and (with the
+# delta index) delta in one gather each, no masks. Zone tests happen in that scaled domain,
+# so a value within ~1e-12 (relative) of a rounding or zone boundary may land on the other
+# side than with the general path; everywhere else the integers are the same
+# (tests/test_model_fast.py checks both on millions of random pairs).
+#
+# Pairs where this formulation could lose accuracy go to the general path, pair by pair
+# (so the result of a pair never depends on its block): s outside [1e-50, 1e50] (r = 0,
+# r below 1e-25 m or above 1e25 m, huge coordinates), coordinates much larger than the
+# separation (|p_r|^2 + |p_t|^2 > 1e8 s: a = R^T p_r - R^T p_t would cancel), and
+# receiver quaternions whose |q|^2 leaves [1e-16, 1e290].
+# ---------------------------------------------------------------------------------------
+
+_S_LO, _S_HI = 1e-50, 1e50
+_CANCEL = 1e8
+_Q2_LO, _Q2_HI = 1e-16, 1e290
+_RAD2DEG = 180.0 / math.pi
+
+
+class _FastTables:
+    """Constants and the delta table of the fast path for one ModelParams."""
+
+    def __init__(self, params: ModelParams) -> None:
+        c = params.distance_scale
+        self.lam = (200.0 * c) ** -3.0
+        self.e_mid = (200.0 * params.r_outer) ** 6
+        self.v_inner = 200.0 * params.r_inner
+        # Without noise |g| <= 2 (to rounding): d3 <= r_inner needs s <= this.
+        self.s_inner = (params.r_inner * _CBRT2_MARGIN / c) ** 2
+        k = np.arange(181)  # floor(degrees + 90.5) -> delta
+        self.delta = np.clip(k - 90, -MAX_DELTA_DEG, MAX_DELTA_DEG).astype(np.int64)
+
+    @staticmethod
+    def applies(params: ModelParams) -> bool:
+        c = params.distance_scale
+        return params.antennas == 3 and 1e-6 < c < 1e6 and params.r_inner < 1e6 and params.r_outer < 1e6
+
+
+def _fast_block(rx_p, rx_q, tx, tab, d_out, delta_out, zone_out, buf):
+    """Poses rx_p (rows, 3), rx_q (rows, 4) against the static transmitters of ``tx``.
+
+    Outputs (rows, M) contiguous. Returns the flat indices of the pairs left to the general
+    path (usually empty), whose outputs the caller overwrites.
+    """
+    rows = rx_p.shape[0]
+    m = tx.count
+    qc = buf.qc[:, :rows]
+    np.copyto(qc, rx_q.T)
+    # Pose features, feature-major: lay[i] = [R_0i, R_1i, R_2i, (R^T p_r)_i] (4, rows) and
+    # pos = [p_r, 1] (4, rows); the products below read them transposed (BLAS, no copy).
+    lay = buf.lay[:, :, :rows]
+    pos = buf.pos[:, :rows]
+    np.copyto(pos[:3], rx_p.T)
+    n2 = rotation_unnormalized_components(qc, lay[:, :3].transpose(1, 0, 2), buf.qwork[:, :rows])
+    pose_ok = n2.min() > _Q2_LO and n2.max() < _Q2_HI
+    t = buf.prow[:rows]
+    for i in range(3):  # (R^T p_r)_i
+        col = lay[i, 3]
+        np.multiply(lay[i, 0], pos[0], out=col)
+        np.multiply(lay[i, 1], pos[1], out=t)
+        col += t
+        np.multiply(lay[i, 2], pos[2], out=t)
+        col += t
+    size = rows * m
+    a = buf.a[:, :size].reshape(3, rows, m)
+    b = buf.b[:, :size].reshape(2, rows, m)
+    md3 = buf.f[0, :size].reshape(rows, m)
+    feats = lay.transpose(0, 2, 1)
+    np.matmul(feats, tx.a_mat, out=a)
+    np.matmul(feats[:2], tx.b_mat, out=b)
+    np.matmul(pos.T, tx.m_mat, out=md3)
+    x2 = _square3(max(float(pos[:3].max()), -float(pos[:3].min()))) + tx.x2
+    s, t = (buf.f[i, :size].reshape(rows, m) for i in (1, 2))
+    a0, a1, a2 = a
+    np.multiply(a0, a0, out=s)
+    np.multiply(a1, a1, out=t)
+    s += t
+    np.multiply(a2, a2, out=t)
+    s += t
+    s_min, s_max = s.min(), s.max()
+    bad = _NO_INDEX
+    if not (pose_ok and s_min > _S_LO and s_max < _S_HI and x2 <= _CANCEL * s_min):
+        rx2 = np.sum(rx_p * rx_p, axis=1)
+        ok = (s > _S_LO) & (s < _S_HI) & (rx2[:, None] + tx.p2[None, :] <= _CANCEL * s)
+        ok &= ((n2 > _Q2_LO) & (n2 < _Q2_HI))[:, None]
+        bad = np.flatnonzero(~ok)
+    b0, b1 = b
+    # G = 3 (m.d) a - s b, scaled by lam (in b and md3), in place of a0, a1.
+    g0, g1 = a0, a1
+    g0 *= md3
+    np.multiply(s, b0, out=t)
+    g0 -= t
+    g1 *= md3
+    np.multiply(s, b1, out=t)
+    g1 -= t
+    q = b0
+    np.multiply(g0, g0, out=q)
+    np.multiply(g1, g1, out=t)
+    q += t
+    e = b1  # (200 dxy)^6 = s^5 / q; q = 0: inf (outer); never nan (s^5 > 0)
+    np.multiply(s, s, out=e)
+    e *= e
+    e *= s
+    e /= q
+    inner = _fast_inner(s, s_min, q, md3, a2, lay, tx, tab, bad)
+    # Mid zone: (200 dxy)^6 <= (200 r_outer)^6; only those pairs need d and delta.
+    mid = np.flatnonzero(np.less_equal(e, tab.e_mid, out=buf.mask[:size].reshape(rows, m)))
+    d_out.fill(-1)
+    delta_out.fill(-1)
+    zone_out.fill(ZONE_OUTER)
+    if mid.size:
+        v = np.take(e.reshape(-1), mid)
+        np.sqrt(v, out=v)
+        np.cbrt(v, out=v)  # 200 dxy
+        v += 1.0
+        v *= 0.5
+        d_out.reshape(-1)[mid] = v.astype(np.int64)  # floor(100 dxy + 1/2): v > 0 truncates
+        # delta = floor(degrees(atan(g1 / g0)) + 90.5) - 90, clipped to +-89 (a table);
+        # g0 + 0.0 turns -0 into +0 (h_x = 0 exactly: +-90 with the sign of h_y).
+        x = np.take(g0.reshape(-1), mid)
+        x += 0.0
+        ang = np.take(g1.reshape(-1), mid)
+        ang /= x
+        np.arctan(ang, out=ang)
+        ang *= _RAD2DEG
+        ang += 90.5
+        delta_out.reshape(-1)[mid] = np.take(tab.delta, ang.astype(np.intp), mode="clip")
+        zone_out.reshape(-1)[mid] = ZONE_MID
+    if inner is not None:
+        idx, d_inner = inner
+        d_out.reshape(-1)[idx] = d_inner
+        delta_out.reshape(-1)[idx] = 0
+        zone_out.reshape(-1)[idx] = ZONE_INNER
+    return bad
+
+
+def _fast_inner(s, s_min, q, md3, a2, lay, tx, tab, bad):
+    """(flat indices, d) of the inner-zone pairs of a fast block, or None.
+
+    Only pairs with s <= s_inner can have d3 <= r_inner (|g| <= 2); for them
+    200 d3 = (s^5 / (q + G_z^2))^(1/6), G_z = 3 (m.d) a_z - s b_z (scaled like G).
+    """
+    if not s_min <= tab.s_inner:
+        return None
+    cand = np.flatnonzero(np.less_equal(s, tab.s_inner))  # a few per block
+    if bad.size:
+        cand = np.setdiff1d(cand, bad, assume_unique=True)
+    if not cand.size:
+        return None
+    ip, it = np.divmod(cand, s.shape[1])
+    bz = lay[2, 0][ip] * tx.b_mat[0, it] + lay[2, 1][ip] * tx.b_mat[1, it] + lay[2, 2][ip] * tx.b_mat[2, it]
+    sc = s.reshape(-1)[cand]
+    gz = md3.reshape(-1)[cand] * a2.reshape(-1)[cand] - sc * bz
+    v3 = np.cbrt(np.sqrt(sc * sc * sc * sc * sc / (q.reshape(-1)[cand] + gz * gz)))
+    keep = v3 <= tab.v_inner
+    if not keep.any():
+        return None
+    return cand[keep], np.floor((v3[keep] + 1.0) * 0.5).astype(np.int64)
+
+
+def _square3(x: float) -> float:
+    """3 x^2 (an upper bound of |p|^2 for coordinates up to x), inf instead of overflowing."""
+    return 3.0 * x * x if x < 1e150 else math.inf
+
+
+class _FastTx:
+    """Per-transmitter matrices of the fast path (static transmitters (M, 3), axes (3, M))."""
+
+    def __init__(self, tx_p, tx_m, lam: float) -> None:
+        self.count = m = tx_p.shape[0]
+        # a_i = [R_0i, R_1i, R_2i, (R^T p_r)_i] . [-p_t, 1]
+        self.a_mat = np.ascontiguousarray(np.vstack([-tx_p.T, np.ones((1, m))]))
+        # b_i = lam [R_0i, R_1i, R_2i, .] . [m, 0]
+        self.b_mat = np.ascontiguousarray(np.vstack([lam * tx_m, np.zeros((1, m))]))
+        # 3 lam m.(p_r - p_t) = [p_r, 1] . [3 lam m, -3 lam m.p_t]
+        mt = np.einsum("km,mk->m", tx_m, tx_p)
+        self.m_mat = np.ascontiguousarray(np.vstack([3.0 * lam * tx_m, -3.0 * lam * mt[None, :]]))
+        self.p2 = np.sum(tx_p * tx_p, axis=1)
+        self.x2 = _square3(float(np.max(np.abs(tx_p), initial=0.0)))
+
+
+_LOCAL = threading.local()
+
+
+def _fast_buffers(rows: int, m: int) -> "_FastBuffers":
+    """This thread's fast-path scratch, reused across calls (a few MB, touched once)."""
+    buf = getattr(_LOCAL, "fast", None)
+    if buf is None or buf.rows < rows or buf.size < rows * m:
+        buf = _LOCAL.fast = _FastBuffers(max(rows, 1), m)
+    return buf
+
+
+class _FastBuffers:
+    """Scratch of the fast path for blocks of up to ``rows`` poses x ``m`` transmitters."""
+
+    def __init__(self, rows: int, m: int) -> None:
+        size = rows * m
+        self.rows, self.size = rows, size
+        self.qc = np.empty((4, rows))
+        self.qwork = np.empty((12, rows))
+        self.lay = np.empty((3, 4, rows))
+        self.prow = np.empty(rows)
+        self.pos = np.ones((4, rows))
+        self.a = np.empty((3, size))
+        self.b = np.empty((2, size))
+        self.f = np.empty((3, size))
+        self.mask = np.empty(size, dtype=bool)
 
 
 @dataclass
