@@ -238,6 +238,7 @@ def measure(
         tab = _tables(params)
         with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates: those pairs go general
             ftx = _FastTx(tx_p, tx_m, tab.lam)
+        x2 = _square3(_max_abs(rx_p)) + ftx.x2  # bounds |p_r|^2 + |p_t|^2 of every pair
 
     def run_fast(first: int, last: int) -> None:
         """Like ``run`` on the fast path; pairs it leaves out take the general path."""
@@ -245,7 +246,7 @@ def measure(
         for lo in range(first, last, rows):
             sl = slice(lo, min(last, lo + rows))
             with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
-                bad = _fast_block(rx_p[sl], rx_q[sl], ftx, tab, d[sl], delta[sl], zone[sl], buf)
+                bad = _fast_block(rx_p[sl], rx_q[sl], x2, ftx, tab, d[sl], delta[sl], zone[sl], buf)
             if bad.size:
                 ip, it = np.divmod(bad, m)
                 out = _general_pairs(rx_p, rx_q, lo + ip, tx_p, tx_m, it, params)
@@ -594,26 +595,29 @@ def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
 # d and dipole axis (a = R_r^T d, b = R_r^T m), the receiver-frame field direction scaled
 # by s is G = 3 (m.d) a - s b (= s g: no sqrt, no division per component), and
 #
-#     200 dxy = (s^5 / (lam^2 (G_x^2 + G_y^2)))^(1/6),   lam = (200 c)^-3,  c = distance_scale
+#     (200 dxy)^6 = s^5 / (lam^2 (G_x^2 + G_y^2)),   lam = (200 c)^-3,  c = distance_scale
 #
-# (lam is folded into b and m.d, so the scaled G costs nothing extra). a, b and 3 m.d are
-# bilinear in per-pose and per-transmitter values: one small matrix product each
-# (BLAS, K = 4) instead of five passes. The outputs come from integer tables indexed by
-# floor(200 dxy + 1 + off), whose last entry is the outer zone: d, zone and (with the
-# delta index) delta in one gather each, no masks. Zone tests happen in that scaled domain,
-# so a value within ~1e-12 (relative) of a rounding or zone boundary may land on the other
-# side than with the general path; everywhere else the integers are the same
-# (tests/test_model_fast.py checks both on millions of random pairs).
+# (lam is folded into b and m.d, so the scaled G costs nothing extra). a_x, a_y, b_x, b_y,
+# 3 m.d and s = |p_r|^2 - 2 p_r.p_t + |p_t|^2 are bilinear in per-pose and
+# per-transmitter values: one small BLAS product each (K = 4 or 5) instead of five numpy
+# passes. The zone test is on (200 dxy)^6 against (200 r_outer)^6, so sqrt, cbrt and atan
+# run only for the mid-zone pairs (gathered); d = floor((200 dxy + 1) / 2) and delta =
+# floor(degrees(atan(G_y / G_x)) + 90.5) - 90 (clipped, a table). Inner pairs are rare and
+# found from s alone (|g| <= 2). Rounding and zone tests thus happen on different but
+# equivalent expressions: a value within ~1e-11 (relative) of a rounding or zone boundary
+# may land on the other side than with the general path; everywhere else the integers
+# are the same (tests/test_model_fast.py, millions of random pairs).
 #
 # Pairs where this formulation could lose accuracy go to the general path, pair by pair
 # (so the result of a pair never depends on its block): s outside [1e-50, 1e50] (r = 0,
-# r below 1e-25 m or above 1e25 m, huge coordinates), coordinates much larger than the
-# separation (|p_r|^2 + |p_t|^2 > 1e8 s: a = R^T p_r - R^T p_t would cancel), and
-# receiver quaternions whose |q|^2 leaves [1e-16, 1e290].
+# r below 1e-25 m or above 1e25 m, huge coordinates), coordinates large against the
+# separation (|p_r|^2 + |p_t|^2 > 1e5 s: the expanded s and a = R^T p_r - R^T p_t lose
+# more than ~1e-11 to cancellation), and receiver quaternions whose |q|^2 leaves
+# [1e-16, 1e290].
 # ---------------------------------------------------------------------------------------
 
 _S_LO, _S_HI = 1e-50, 1e50
-_CANCEL = 1e8
+_CANCEL = 1e5
 _Q2_LO, _Q2_HI = 1e-16, 1e290
 _RAD2DEG = 180.0 / math.pi
 
@@ -637,25 +641,32 @@ class _FastTables:
         return params.antennas == 3 and 1e-6 < c < 1e6 and params.r_inner < 1e6 and params.r_outer < 1e6
 
 
-def _fast_block(rx_p, rx_q, tx, tab, d_out, delta_out, zone_out, buf):
+def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     """Poses rx_p (rows, 3), rx_q (rows, 4) against the static transmitters of ``tx``.
 
-    Outputs (rows, M) contiguous. Returns the flat indices of the pairs left to the general
-    path (usually empty), whose outputs the caller overwrites.
+    ``x2`` bounds |p_r|^2 + |p_t|^2 for every pair of the block. Outputs (rows, M)
+    contiguous. Returns the flat indices of the pairs left to the general path (usually
+    empty), whose outputs the caller overwrites.
     """
     rows = rx_p.shape[0]
     m = tx.count
     qc = buf.qc[:, :rows]
     np.copyto(qc, rx_q.T)
     # Pose features, feature-major: lay[i] = [R_0i, R_1i, R_2i, (R^T p_r)_i] (4, rows) and
-    # pos = [p_r, 1] (4, rows); the products below read them transposed (BLAS, no copy).
+    # pos = [p_r, 1, |p_r|^2] (5, rows); the products below read them transposed (BLAS).
     lay = buf.lay[:, :, :rows]
     pos = buf.pos[:, :rows]
     np.copyto(pos[:3], rx_p.T)
-    n2 = rotation_unnormalized_components(qc, lay[:, :3].transpose(1, 0, 2), buf.qwork[:, :rows])
-    pose_ok = n2.min() > _Q2_LO and n2.max() < _Q2_HI
     t = buf.prow[:rows]
-    for i in range(3):  # (R^T p_r)_i
+    rx2 = pos[4]
+    np.multiply(pos[0], pos[0], out=rx2)
+    for k in (1, 2):
+        np.multiply(pos[k], pos[k], out=t)
+        rx2 += t
+    n2 = rotation_unnormalized_components(qc, lay[:, :3].transpose(1, 0, 2), buf.pose_work(rows))
+    pose_ok = n2.min() > _Q2_LO and n2.max() < _Q2_HI
+    pose_bad = None if pose_ok else ~((n2 > _Q2_LO) & (n2 < _Q2_HI))  # before n2's row is reused
+    for i in range(2):  # (R^T p_r)_i
         col = lay[i, 3]
         np.multiply(lay[i, 0], pos[0], out=col)
         np.multiply(lay[i, 1], pos[1], out=t)
@@ -663,28 +674,22 @@ def _fast_block(rx_p, rx_q, tx, tab, d_out, delta_out, zone_out, buf):
         np.multiply(lay[i, 2], pos[2], out=t)
         col += t
     size = rows * m
-    a = buf.a[:, :size].reshape(3, rows, m)
+    a = buf.a[:, :size].reshape(2, rows, m)
     b = buf.b[:, :size].reshape(2, rows, m)
-    md3 = buf.f[0, :size].reshape(rows, m)
-    feats = lay.transpose(0, 2, 1)
+    md3, s, t = (buf.f[i, :size].reshape(rows, m) for i in range(3))
+    feats = lay[:2].transpose(0, 2, 1)
     np.matmul(feats, tx.a_mat, out=a)
-    np.matmul(feats[:2], tx.b_mat, out=b)
+    np.matmul(feats, tx.b_mat, out=b)
     np.matmul(pos.T, tx.m_mat, out=md3)
-    x2 = _square3(max(float(pos[:3].max()), -float(pos[:3].min()))) + tx.x2
-    s, t = (buf.f[i, :size].reshape(rows, m) for i in (1, 2))
-    a0, a1, a2 = a
-    np.multiply(a0, a0, out=s)
-    np.multiply(a1, a1, out=t)
-    s += t
-    np.multiply(a2, a2, out=t)
-    s += t
+    np.matmul(pos.T, tx.s_mat, out=s)  # |p_r|^2 - 2 p_r.p_t + |p_t|^2 (see _CANCEL)
     s_min, s_max = s.min(), s.max()
     bad = _NO_INDEX
     if not (pose_ok and s_min > _S_LO and s_max < _S_HI and x2 <= _CANCEL * s_min):
-        rx2 = np.sum(rx_p * rx_p, axis=1)
         ok = (s > _S_LO) & (s < _S_HI) & (rx2[:, None] + tx.p2[None, :] <= _CANCEL * s)
-        ok &= ((n2 > _Q2_LO) & (n2 < _Q2_HI))[:, None]
+        if pose_bad is not None:
+            ok &= ~pose_bad[:, None]
         bad = np.flatnonzero(~ok)
+    a0, a1 = a
     b0, b1 = b
     # G = 3 (m.d) a - s b, scaled by lam (in b and md3), in place of a0, a1.
     g0, g1 = a0, a1
@@ -703,7 +708,7 @@ def _fast_block(rx_p, rx_q, tx, tab, d_out, delta_out, zone_out, buf):
     e *= e
     e *= s
     e /= q
-    inner = _fast_inner(s, s_min, q, md3, a2, lay, tx, tab, bad)
+    inner = _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad)
     # Mid zone: (200 dxy)^6 <= (200 r_outer)^6; only those pairs need d and delta.
     mid = np.flatnonzero(np.less_equal(e, tab.e_mid, out=buf.mask[:size].reshape(rows, m)))
     d_out.fill(-1)
@@ -735,7 +740,7 @@ def _fast_block(rx_p, rx_q, tx, tab, d_out, delta_out, zone_out, buf):
     return bad
 
 
-def _fast_inner(s, s_min, q, md3, a2, lay, tx, tab, bad):
+def _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad):
     """(flat indices, d) of the inner-zone pairs of a fast block, or None.
 
     Only pairs with s <= s_inner can have d3 <= r_inner (|g| <= 2); for them
@@ -749,9 +754,12 @@ def _fast_inner(s, s_min, q, md3, a2, lay, tx, tab, bad):
     if not cand.size:
         return None
     ip, it = np.divmod(cand, s.shape[1])
-    bz = lay[2, 0][ip] * tx.b_mat[0, it] + lay[2, 1][ip] * tx.b_mat[1, it] + lay[2, 2][ip] * tx.b_mat[2, it]
+    # G_z for the candidates only: a_z = R_z^T (p_r - p_t), b_z = lam R_z^T m.
+    rz = lay[2, :3][:, ip]
+    a2 = np.einsum("kc,ck->c", rz, rx_p[ip] - tx.p[it])
+    bz = np.einsum("kc,kc->c", rz, tx.b_mat[:3, it])
     sc = s.reshape(-1)[cand]
-    gz = md3.reshape(-1)[cand] * a2.reshape(-1)[cand] - sc * bz
+    gz = md3.reshape(-1)[cand] * a2 - sc * bz
     v3 = np.cbrt(np.sqrt(sc * sc * sc * sc * sc / (q.reshape(-1)[cand] + gz * gz)))
     keep = v3 <= tab.v_inner
     if not keep.any():
@@ -769,14 +777,17 @@ class _FastTx:
 
     def __init__(self, tx_p, tx_m, lam: float) -> None:
         self.count = m = tx_p.shape[0]
+        self.p = tx_p
         # a_i = [R_0i, R_1i, R_2i, (R^T p_r)_i] . [-p_t, 1]
         self.a_mat = np.ascontiguousarray(np.vstack([-tx_p.T, np.ones((1, m))]))
         # b_i = lam [R_0i, R_1i, R_2i, .] . [m, 0]
         self.b_mat = np.ascontiguousarray(np.vstack([lam * tx_m, np.zeros((1, m))]))
-        # 3 lam m.(p_r - p_t) = [p_r, 1] . [3 lam m, -3 lam m.p_t]
+        # 3 lam m.(p_r - p_t) = [p_r, 1, |p_r|^2] . [3 lam m, -3 lam m.p_t, 0]
         mt = np.einsum("km,mk->m", tx_m, tx_p)
-        self.m_mat = np.ascontiguousarray(np.vstack([3.0 * lam * tx_m, -3.0 * lam * mt[None, :]]))
+        self.m_mat = np.ascontiguousarray(np.vstack([3.0 * lam * tx_m, -3.0 * lam * mt[None, :], np.zeros((1, m))]))
         self.p2 = np.sum(tx_p * tx_p, axis=1)
+        # s = |p_r - p_t|^2 = [p_r, 1, |p_r|^2] . [-2 p_t, |p_t|^2, 1]
+        self.s_mat = np.ascontiguousarray(np.vstack([-2.0 * tx_p.T, self.p2[None, :], np.ones((1, m))]))
         self.x2 = _square3(float(np.max(np.abs(tx_p), initial=0.0)))
 
 
@@ -798,14 +809,21 @@ class _FastBuffers:
         size = rows * m
         self.rows, self.size = rows, size
         self.qc = np.empty((4, rows))
-        self.qwork = np.empty((12, rows))
+        # The per-pose work (12 rows) shares the pair buffers (used only after it) when they fit.
+        self.qwork = None if 3 * size >= 12 * rows else np.empty((12, rows))
         self.lay = np.empty((3, 4, rows))
         self.prow = np.empty(rows)
-        self.pos = np.ones((4, rows))
-        self.a = np.empty((3, size))
+        self.pos = np.ones((5, rows))
+        self.a = np.empty((2, size))
         self.b = np.empty((2, size))
         self.f = np.empty((3, size))
         self.mask = np.empty(size, dtype=bool)
+
+    def pose_work(self, rows: int) -> NDArray[np.float64]:
+        """(12, rows) scratch for the rotations (overwritten by the block's products)."""
+        if self.qwork is not None:
+            return self.qwork[:, :rows]
+        return self.f.reshape(-1)[: 12 * rows].reshape(12, rows)
 
 
 @dataclass
