@@ -708,9 +708,10 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     e *= e
     e *= s
     e /= q
-    inner = _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad)
+    mask = buf.mask[:size].reshape(rows, m)
+    inner = _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad, mask)
     # Mid zone: (200 dxy)^6 <= (200 r_outer)^6; only those pairs need d and delta.
-    mid = np.flatnonzero(np.less_equal(e, tab.e_mid, out=buf.mask[:size].reshape(rows, m)))
+    mid = np.flatnonzero(np.less_equal(e, tab.e_mid, out=mask))
     d_out.fill(-1)
     delta_out.fill(-1)
     zone_out.fill(ZONE_OUTER)
@@ -740,7 +741,7 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     return bad
 
 
-def _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad):
+def _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad, mask):
     """(flat indices, d) of the inner-zone pairs of a fast block, or None.
 
     Only pairs with s <= s_inner can have d3 <= r_inner (|g| <= 2); for them
@@ -748,7 +749,7 @@ def _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad):
     """
     if not s_min <= tab.s_inner:
         return None
-    cand = np.flatnonzero(np.less_equal(s, tab.s_inner))  # a few per block
+    cand = np.flatnonzero(np.less_equal(s, tab.s_inner, out=mask))  # a few per block
     if bad.size:
         cand = np.setdiff1d(cand, bad, assume_unique=True)
     if not cand.size:
@@ -756,8 +757,8 @@ def _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad):
     ip, it = np.divmod(cand, s.shape[1])
     # G_z for the candidates only: a_z = R_z^T (p_r - p_t), b_z = lam R_z^T m.
     rz = lay[2, :3][:, ip]
-    a2 = np.einsum("kc,ck->c", rz, rx_p[ip] - tx.p[it])
-    bz = np.einsum("kc,kc->c", rz, tx.b_mat[:3, it])
+    a2 = (rz * (rx_p[ip] - tx.p[it]).T).sum(axis=0)
+    bz = (rz * tx.b_mat[:3, it]).sum(axis=0)
     sc = s.reshape(-1)[cand]
     gz = md3.reshape(-1)[cand] * a2 - sc * bz
     v3 = np.cbrt(np.sqrt(sc * sc * sc * sc * sc / (q.reshape(-1)[cand] + gz * gz)))
