@@ -131,7 +131,7 @@ def rotation_unnormalized_components(qc: NDArray[np.float64], out: NDArray[np.fl
 
     Without normalising q first: with k = 2 / |q|^2 the entries are 1 - k (yy + zz),
     k (xy - wz), ... (the products scaled once by k). ``work`` is (12, n) scratch; ``out``
-    may be a transposed view. Returns |q|^2 (n,), a row of ``work``: the caller checks its
+    (3, c, n), c <= 3, receives the first c columns and may be a transposed view. Returns |q|^2 (n,), a row of ``work``: the caller checks its
     range, since |q|^2 may under- or overflow for components beyond about 1e+-150 (then use
     :func:`unit_quaternion_components`). The same matrices as :func:`rotation_components`
     of the normalised quaternion to a few ulps (the batch model's per-pose work).
@@ -153,17 +153,19 @@ def rotation_unnormalized_components(qc: NDArray[np.float64], out: NDArray[np.fl
         wx *= w
         wy *= w
         wz *= w
-        m = out
+        m = out  # column by column: out may hold only the first columns
         np.add(yy, zz, out=m[0, 0])
         np.subtract(1.0, m[0, 0], out=m[0, 0])
-        np.add(xx, zz, out=m[1, 1])
-        np.subtract(1.0, m[1, 1], out=m[1, 1])
-        np.add(xx, yy, out=m[2, 2])
-        np.subtract(1.0, m[2, 2], out=m[2, 2])
-        np.subtract(xy, wz, out=m[0, 1])
         np.add(xy, wz, out=m[1, 0])
-        np.add(xz, wy, out=m[0, 2])
         np.subtract(xz, wy, out=m[2, 0])
-        np.subtract(yz, wx, out=m[1, 2])
-        np.add(yz, wx, out=m[2, 1])
+        if out.shape[1] > 1:
+            np.subtract(xy, wz, out=m[0, 1])
+            np.add(xx, zz, out=m[1, 1])
+            np.subtract(1.0, m[1, 1], out=m[1, 1])
+            np.add(yz, wx, out=m[2, 1])
+        if out.shape[1] > 2:
+            np.add(xz, wy, out=m[0, 2])
+            np.subtract(yz, wx, out=m[1, 2])
+            np.add(xx, yy, out=m[2, 2])
+            np.subtract(1.0, m[2, 2], out=m[2, 2])
     return n2

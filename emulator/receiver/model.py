@@ -663,7 +663,8 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     for k in (1, 2):
         np.multiply(pos[k], pos[k], out=t)
         rx2 += t
-    n2 = rotation_unnormalized_components(qc, lay[:, :3].transpose(1, 0, 2), buf.pose_work(rows))
+    # Columns 0 and 1 of R (x and y antennas); column 2 only for inner candidates.
+    n2 = rotation_unnormalized_components(qc, lay[:2, :3].transpose(1, 0, 2), buf.pose_work(rows))
     pose_ok = n2.min() > _Q2_LO and n2.max() < _Q2_HI
     pose_bad = None if pose_ok else ~((n2 > _Q2_LO) & (n2 < _Q2_HI))  # before n2's row is reused
     for i in range(2):  # (R^T p_r)_i
@@ -709,7 +710,7 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     e *= s
     e /= q
     mask = buf.mask[:size].reshape(rows, m)
-    inner = _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad, mask)
+    inner = _fast_inner(s, s_min, q, md3, rx_p, qc, tx, tab, bad, mask)
     # Mid zone: (200 dxy)^6 <= (200 r_outer)^6; only those pairs need d and delta.
     mid = np.flatnonzero(np.less_equal(e, tab.e_mid, out=mask))
     d_out.fill(-1)
@@ -741,7 +742,7 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     return bad
 
 
-def _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad, mask):
+def _fast_inner(s, s_min, q, md3, rx_p, qc, tx, tab, bad, mask):
     """(flat indices, d) of the inner-zone pairs of a fast block, or None.
 
     Only pairs with s <= s_inner can have d3 <= r_inner (|g| <= 2); for them
@@ -756,7 +757,9 @@ def _fast_inner(s, s_min, q, md3, rx_p, lay, tx, tab, bad, mask):
         return None
     ip, it = np.divmod(cand, s.shape[1])
     # G_z for the candidates only: a_z = R_z^T (p_r - p_t), b_z = lam R_z^T m.
-    rz = lay[2, :3][:, ip]
+    rot = np.empty((3, 3, ip.size))
+    rotation_unnormalized_components(qc[:, ip], rot, np.empty((12, ip.size)))
+    rz = rot[:, 2]  # R_k2: the z antenna's axis in the world
     a2 = (rz * (rx_p[ip] - tx.p[it]).T).sum(axis=0)
     bz = (rz * tx.b_mat[:3, it]).sum(axis=0)
     sc = s.reshape(-1)[cand]
@@ -812,7 +815,7 @@ class _FastBuffers:
         self.qc = np.empty((4, rows))
         # The per-pose work (12 rows) shares the pair buffers (used only after it) when they fit.
         self.qwork = None if 3 * size >= 12 * rows else np.empty((12, rows))
-        self.lay = np.empty((3, 4, rows))
+        self.lay = np.empty((2, 4, rows))
         self.prow = np.empty(rows)
         self.pos = np.ones((5, rows))
         self.a = np.empty((2, size))
