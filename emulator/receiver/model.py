@@ -243,15 +243,20 @@ def measure(
     def run_fast(first: int, last: int) -> None:
         """Like ``run`` on the fast path; pairs it leaves out take the general path."""
         buf = _fast_buffers(min(last - first, rows), m)
-        for lo in range(first, last, rows):
-            sl = slice(lo, min(last, lo + rows))
-            with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
-                bad = _fast_block(rx_p[sl], rx_q[sl], x2, ftx, tab, d[sl], delta[sl], zone[sl], buf)
-            if bad.size:
-                ip, it = np.divmod(bad, m)
-                out = _general_pairs(rx_p, rx_q, lo + ip, tx_p, tx_m, it, params)
-                for arr, val in zip((d[sl], delta[sl], zone[sl]), out):
-                    arr.reshape(-1)[bad] = val
+        found = []  # inner-zone candidates of every block, decided once at the end
+        with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+            for lo in range(first, last, rows):
+                sl = slice(lo, min(last, lo + rows))
+                bad, cand = _fast_block(rx_p[sl], rx_q[sl], x2, ftx, tab, d[sl], delta[sl], zone[sl], buf)
+                if cand is not None:
+                    found.append((lo * m + cand[0],) + cand[1:])
+                if bad.size:
+                    ip, it = np.divmod(bad, m)
+                    out = _general_pairs(rx_p, rx_q, lo + ip, tx_p, tx_m, it, params)
+                    for arr, val in zip((d[sl], delta[sl], zone[sl]), out):
+                        arr.reshape(-1)[bad] = val
+            if found:
+                _fast_inner(found, rx_p, rx_q, ftx, tab, m, d, delta, zone)
 
     def run(first: int, last: int) -> None:
         """Poses first..last-1, block by block, with this call's own buffers."""
@@ -710,7 +715,7 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     e *= s
     e /= q
     mask = buf.mask[:size].reshape(rows, m)
-    inner = _fast_inner(s, s_min, q, md3, rx_p, qc, tx, tab, bad, mask)
+    cand = _inner_candidates(s, s_min, q, md3, tab, bad, mask)
     # Mid zone: (200 dxy)^6 <= (200 r_outer)^6; only those pairs need d and delta.
     mid = np.flatnonzero(np.less_equal(e, tab.e_mid, out=mask))
     d_out.fill(-1)
@@ -734,41 +739,46 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
         ang += 90.5
         delta_out.reshape(-1)[mid] = np.take(tab.delta, ang.astype(np.intp), mode="clip")
         zone_out.reshape(-1)[mid] = ZONE_MID
-    if inner is not None:
-        idx, d_inner = inner
-        d_out.reshape(-1)[idx] = d_inner
-        delta_out.reshape(-1)[idx] = 0
-        zone_out.reshape(-1)[idx] = ZONE_INNER
-    return bad
+    return bad, cand
 
 
-def _fast_inner(s, s_min, q, md3, rx_p, qc, tx, tab, bad, mask):
-    """(flat indices, d) of the inner-zone pairs of a fast block, or None.
+def _inner_candidates(s, s_min, q, md3, tab, bad, mask):
+    """(flat index, s, q, 3 m.d) of a fast block's pairs that may be inner, or None.
 
-    Only pairs with s <= s_inner can have d3 <= r_inner (|g| <= 2); for them
-    200 d3 = (s^5 / (q + G_z^2))^(1/6), G_z = 3 (m.d) a_z - s b_z (scaled like G).
+    Only pairs with s <= s_inner can have d3 <= r_inner (|g| <= 2): a few per block,
+    decided once per call by :func:`_fast_inner`.
     """
     if not s_min <= tab.s_inner:
         return None
-    cand = np.flatnonzero(np.less_equal(s, tab.s_inner, out=mask))  # a few per block
+    cand = np.flatnonzero(np.less_equal(s, tab.s_inner, out=mask))
     if bad.size:
         cand = np.setdiff1d(cand, bad, assume_unique=True)
     if not cand.size:
         return None
-    ip, it = np.divmod(cand, s.shape[1])
-    # G_z for the candidates only: a_z = R_z^T (p_r - p_t), b_z = lam R_z^T m.
+    return cand, s.reshape(-1)[cand], q.reshape(-1)[cand], md3.reshape(-1)[cand]
+
+
+def _fast_inner(found, rx_p, rx_q, tx, tab, m, d, delta, zone):
+    """Write the inner-zone pairs among the candidates ``found`` (one list per call).
+
+    For them 200 d3 = (s^5 / (q + G_z^2))^(1/6), G_z = 3 (m.d) a_z - s b_z (scaled like G),
+    with the z column of R from the same unnormalised-quaternion formulas.
+    """
+    cand, s, q, md3 = (np.concatenate(parts) for parts in zip(*found))
+    ip, it = np.divmod(cand, m)
+    qc = np.ascontiguousarray(rx_q[ip].T)
     rot = np.empty((3, 3, ip.size))
-    rotation_unnormalized_components(qc[:, ip], rot, np.empty((12, ip.size)))
+    rotation_unnormalized_components(qc, rot, np.empty((12, ip.size)))
     rz = rot[:, 2]  # R_k2: the z antenna's axis in the world
     a2 = (rz * (rx_p[ip] - tx.p[it]).T).sum(axis=0)
     bz = (rz * tx.b_mat[:3, it]).sum(axis=0)
-    sc = s.reshape(-1)[cand]
-    gz = md3.reshape(-1)[cand] * a2 - sc * bz
-    v3 = np.cbrt(np.sqrt(sc * sc * sc * sc * sc / (q.reshape(-1)[cand] + gz * gz)))
+    gz = md3 * a2 - s * bz
+    v3 = np.cbrt(np.sqrt(s * s * s * s * s / (q + gz * gz)))
     keep = v3 <= tab.v_inner
-    if not keep.any():
-        return None
-    return cand[keep], np.floor((v3[keep] + 1.0) * 0.5).astype(np.int64)
+    idx = cand[keep]
+    d.reshape(-1)[idx] = np.floor((v3[keep] + 1.0) * 0.5).astype(np.int64)
+    delta.reshape(-1)[idx] = 0
+    zone.reshape(-1)[idx] = ZONE_INNER
 
 
 def _square3(x: float) -> float:
