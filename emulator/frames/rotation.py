@@ -126,13 +126,16 @@ def quaternion_matrices(q_unit: ArrayLike) -> NDArray[np.float64]:
     return np.moveaxis(rotation_components(qc), (0, 1), (-2, -1))
 
 
-def rotation_unnormalized_components(qc: NDArray[np.float64], out: NDArray[np.float64], work: NDArray[np.float64]) -> NDArray[np.float64]:
+def rotation_unnormalized_components(
+    qc: NDArray[np.float64], out: NDArray[np.float64], work: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Rotation matrices (3, 3, n) of q / |q| for finite component-major quaternions ``qc`` (4, n).
 
     Without normalising q first: with k = 2 / |q|^2 the entries are 1 - k (yy + zz),
     k (xy - wz), ... (the products scaled once by k). ``work`` is (12, n) scratch; ``out``
-    (3, c, n), c <= 3, receives the first c columns and may be a transposed view. Returns |q|^2 (n,), a row of ``work``: the caller checks its
-    range, since |q|^2 may under- or overflow for components beyond about 1e+-150 (then use
+    (3, c, n), c <= 3, receives the first c columns and may be a transposed view. Returns
+    |q|^2 (n,), a row of ``work``: the caller checks its range, since |q|^2 may under- or
+    overflow for components beyond about 1e+-150 (then use
     :func:`unit_quaternion_components`). The same matrices as :func:`rotation_components`
     of the normalised quaternion to a few ulps (the batch model's per-pose work).
     """

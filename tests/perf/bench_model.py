@@ -170,7 +170,8 @@ def floor_table(batch_ns: float, mid_fraction: float) -> tuple[str, float]:
                      f"{costs[op]:.2f} ns", f"{count * costs[op]:.1f} ns"])
     rows.append(["**sum: numpy's floor for this formulation**", "", "", f"**{total:.1f} ns**"])
     rows.append(["measured batch (CPU time per pair, above)", "", "", f"{batch_ns:.1f} ns = {batch_ns / total:.2f}x the floor"])
-    return markdown_table(["pass", "per pair (+ per mid pair x mid fraction)", "cost per element (block in cache)", "ns per pair"], rows), total
+    head = ["pass", "per pair (+ per mid pair x mid fraction)", "cost per element (block in cache)", "ns per pair"]
+    return markdown_table(head, rows), total
 
 
 def bench_python(rx_p, rx_q, count: int):
