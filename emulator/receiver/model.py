@@ -243,7 +243,9 @@ def measure(
     def run_fast(first: int, last: int) -> None:
         """Like ``run`` on the fast path; pairs it leaves out take the general path."""
         buf = _fast_buffers(min(last - first, rows), m)
-        found = []  # inner-zone candidates of every block, decided once at the end
+        # Inner-zone candidates and pairs for the general path, of every block (flat
+        # indices into the (N, M) outputs): decided once at the end, not per block.
+        found, general = [], []
         with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
             for lo in range(first, last, rows):
                 sl = slice(lo, min(last, lo + rows))
@@ -251,12 +253,15 @@ def measure(
                 if cand is not None:
                     found.append((lo * m + cand[0],) + cand[1:])
                 if bad.size:
-                    ip, it = np.divmod(bad, m)
-                    out = _general_pairs(rx_p, rx_q, lo + ip, tx_p, tx_m, it, params)
-                    for arr, val in zip((d[sl], delta[sl], zone[sl]), out):
-                        arr.reshape(-1)[bad] = val
+                    general.append(lo * m + bad)
             if found:
-                _fast_inner(found, rx_p, rx_q, ftx, tab, m, d, delta, zone)
+                general.append(_fast_inner(found, rx_p, rx_q, ftx, tab, m, d, delta, zone))
+            flat = np.concatenate(general) if general else _NO_INDEX
+            if flat.size:
+                ip, it = np.divmod(flat, m)
+                out = _general_pairs(rx_p, rx_q, ip, tx_p, tx_m, it, params)
+                for arr, val in zip((d, delta, zone), out):
+                    arr.reshape(-1)[flat] = val
 
     def run(first: int, last: int) -> None:
         """Poses first..last-1, block by block, with this call's own buffers."""
@@ -609,9 +614,10 @@ def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
 # run only for the mid-zone pairs (gathered); d = floor((200 dxy + 1) / 2) and delta =
 # floor(degrees(atan(G_y / G_x)) + 90.5) - 90 (clipped, a table). Inner pairs are rare and
 # found from s alone (|g| <= 2). Rounding and zone tests thus happen on different but
-# equivalent expressions: a value within ~1e-11 (relative) of a rounding or zone boundary
-# may land on the other side than with the general path; everywhere else the integers
-# are the same (tests/test_model_fast.py, millions of random pairs).
+# equivalent expressions, good to ~1e-11 (relative); a pair within 1e-8 of a zone or
+# rounding boundary (or 1e-6 degrees of atan's fold at +-90) is handed to the general
+# path, so the integers are the general path's for every pair
+# (tests/test_model_fast.py: millions of random pairs, hairs from each boundary).
 #
 # Pairs where this formulation could lose accuracy go to the general path, pair by pair
 # (so the result of a pair never depends on its block): s outside [1e-50, 1e50] (r = 0,
@@ -625,6 +631,12 @@ _S_LO, _S_HI = 1e-50, 1e50
 _CANCEL = 1e5
 _Q2_LO, _Q2_HI = 1e-16, 1e290
 _RAD2DEG = 180.0 / math.pi
+#: Pairs this close to a boundary take the general path (the fast path's own error is
+#: ~1e-11 relative): relative on (200 dxy)^6 and 200 d3, absolute in degrees; near +-90
+#: degrees the sign of a rounding residue of h_x decides delta's sign.
+_EDGE = 1e-8
+_DEG_TOL = 1e-7
+_FOLD_TOL = 1e-6
 
 
 class _FastTables:
@@ -634,6 +646,8 @@ class _FastTables:
         c = params.distance_scale
         self.lam = (200.0 * c) ** -3.0
         self.e_mid = (200.0 * params.r_outer) ** 6
+        self.e_lo, self.e_hi = self.e_mid * (1.0 - _EDGE), self.e_mid * (1.0 + _EDGE)
+        self.d_tol = _EDGE * (100.0 * max(params.r_outer, params.r_inner) + 1.0)  # cm
         self.v_inner = 200.0 * params.r_inner
         # Without noise |g| <= 2 (to rounding): d3 <= r_inner needs s <= this.
         self.s_inner = (params.r_inner * _CBRT2_MARGIN / c) ** 2
@@ -714,20 +728,23 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     e *= e
     e *= s
     e /= q
+    # Mid zone: (200 dxy)^6 <= (200 r_outer)^6; only those pairs need d and delta. Pairs
+    # within EDGE of a zone or rounding boundary (or of atan's fold at +-90) go to the
+    # general path, so the integers are the general path's everywhere.
     mask = buf.mask[:size].reshape(rows, m)
-    cand = _inner_candidates(s, s_min, q, md3, tab, bad, mask)
-    # Mid zone: (200 dxy)^6 <= (200 r_outer)^6; only those pairs need d and delta.
-    mid = np.flatnonzero(np.less_equal(e, tab.e_mid, out=mask))
+    mid = np.flatnonzero(np.less_equal(e, tab.e_hi, out=mask))
     d_out.fill(-1)
     delta_out.fill(-1)
     zone_out.fill(ZONE_OUTER)
     if mid.size:
         v = np.take(e.reshape(-1), mid)
+        edge = v > tab.e_lo
         np.sqrt(v, out=v)
         np.cbrt(v, out=v)  # 200 dxy
         v += 1.0
-        v *= 0.5
-        d_out.reshape(-1)[mid] = v.astype(np.int64)  # floor(100 dxy + 1/2): v > 0 truncates
+        v *= 0.5  # 100 dxy + 1/2
+        d_mid = np.floor(v)
+        edge |= _near_integer(v, d_mid, tab.d_tol)
         # delta = floor(degrees(atan(g1 / g0)) + 90.5) - 90, clipped to +-89 (a table);
         # g0 + 0.0 turns -0 into +0 (h_x = 0 exactly: +-90 with the sign of h_y).
         x = np.take(g0.reshape(-1), mid)
@@ -737,9 +754,24 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
         np.arctan(ang, out=ang)
         ang *= _RAD2DEG
         ang += 90.5
-        delta_out.reshape(-1)[mid] = np.take(tab.delta, ang.astype(np.intp), mode="clip")
+        k = np.floor(ang)
+        edge |= _near_integer(ang, k, _DEG_TOL)
+        ang -= 90.5
+        np.abs(ang, out=ang)
+        edge |= ang > 90.0 - _FOLD_TOL
+        d_out.reshape(-1)[mid] = d_mid.astype(np.int64)
+        delta_out.reshape(-1)[mid] = np.take(tab.delta, k.astype(np.intp), mode="clip")
         zone_out.reshape(-1)[mid] = ZONE_MID
+        if edge.any():
+            bad = mid[edge] if not bad.size else np.union1d(bad, mid[edge])
+    cand = _inner_candidates(s, s_min, q, md3, tab, bad, mask)
     return bad, cand
+
+
+def _near_integer(x, fl, tol):
+    """x within ``tol`` of an integer, given fl = floor(x)."""
+    f = x - fl
+    return (f < tol) | (f > 1.0 - tol)
 
 
 def _inner_candidates(s, s_min, q, md3, tab, bad, mask):
@@ -759,7 +791,8 @@ def _inner_candidates(s, s_min, q, md3, tab, bad, mask):
 
 
 def _fast_inner(found, rx_p, rx_q, tx, tab, m, d, delta, zone):
-    """Write the inner-zone pairs among the candidates ``found`` (one list per call).
+    """Write the inner-zone pairs among the candidates ``found`` (one list per call);
+    return the flat indices of those left to the general path.
 
     For them 200 d3 = (s^5 / (q + G_z^2))^(1/6), G_z = 3 (m.d) a_z - s b_z (scaled like G),
     with the z column of R from the same unnormalised-quaternion formulas.
@@ -773,12 +806,16 @@ def _fast_inner(found, rx_p, rx_q, tx, tab, m, d, delta, zone):
     a2 = (rz * (rx_p[ip] - tx.p[it]).T).sum(axis=0)
     bz = (rz * tx.b_mat[:3, it]).sum(axis=0)
     gz = md3 * a2 - s * bz
-    v3 = np.cbrt(np.sqrt(s * s * s * s * s / (q + gz * gz)))
-    keep = v3 <= tab.v_inner
+    v3 = np.cbrt(np.sqrt(s * s * s * s * s / (q + gz * gz)))  # 200 d3
+    w = (v3 + 1.0) * 0.5  # 100 d3 + 1/2
+    fl = np.floor(w)
+    edge = (np.abs(v3 - tab.v_inner) <= _EDGE * tab.v_inner) | _near_integer(w, fl, tab.d_tol)
+    keep = (v3 <= tab.v_inner) & ~edge
     idx = cand[keep]
-    d.reshape(-1)[idx] = np.floor((v3[keep] + 1.0) * 0.5).astype(np.int64)
+    d.reshape(-1)[idx] = fl[keep].astype(np.int64)
     delta.reshape(-1)[idx] = 0
     zone.reshape(-1)[idx] = ZONE_INNER
+    return cand[edge]  # near the inner boundary or a rounding point: the general path decides
 
 
 def _square3(x: float) -> float:
