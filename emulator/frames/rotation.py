@@ -139,23 +139,20 @@ def rotation_unnormalized_components(
     :func:`unit_quaternion_components`). The same matrices as :func:`rotation_components`
     of the normalised quaternion to a few ulps (the batch model's per-pose work).
     """
-    w, x, y, z = qc
-    n2, t, k, kx, ky, kz, xx, yy, zz, xy, xz, yz = work
-    np.multiply(w, w, out=n2)
-    for c in (x, y, z):
-        np.multiply(c, c, out=t)
-        n2 += t
+    sq, n2, k, kq, dg = work[0:4], work[4], work[5], work[6:9], work[9:12]
+    np.multiply(qc, qc, out=sq)
+    np.add(sq[0:2], sq[2:4], out=sq[0:2])
+    np.add(sq[0], sq[1], out=n2)  # |q|^2
     with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
         np.divide(2.0, n2, out=k)
-        np.multiply(k, x, out=kx)
-        np.multiply(k, y, out=ky)
-        np.multiply(k, z, out=kz)
-        for a, b, o in ((kx, x, xx), (ky, y, yy), (kz, z, zz), (kx, y, xy), (kx, z, xz), (ky, z, yz)):
-            np.multiply(a, b, out=o)
-        wx, wy, wz = kx, ky, kz  # in place: kx, ky, kz are not needed after these
-        wx *= w
-        wy *= w
-        wz *= w
+        np.multiply(qc[1:], k, out=kq)  # k x, k y, k z
+        np.multiply(kq, qc[1:], out=dg)  # k xx, k yy, k zz
+        xx, yy, zz = dg
+        np.multiply(kq[0:2], qc[2:4], out=sq[0:2])  # k xy, k yz (the squares are spent)
+        np.multiply(kq[0], qc[3], out=sq[2])  # k xz
+        xy, yz, xz = sq[0], sq[1], sq[2]
+        kq *= qc[0]  # k wx, k wy, k wz, in place: the last use of k x, k y, k z
+        wx, wy, wz = kq
         m = out  # column by column: out may hold only the first columns
         np.add(yy, zz, out=m[0, 0])
         np.subtract(1.0, m[0, 0], out=m[0, 0])

@@ -732,10 +732,11 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     # within EDGE of a zone or rounding boundary (or of atan's fold at +-90) go to the
     # general path, so the integers are the general path's everywhere.
     mask = buf.mask[:size].reshape(rows, m)
-    mid = np.flatnonzero(np.less_equal(e, tab.e_hi, out=mask))
+    np.less_equal(e, tab.e_hi, out=mask)
+    mid = np.flatnonzero(mask)
     d_out.fill(-1)
     delta_out.fill(-1)
-    zone_out.fill(ZONE_OUTER)
+    np.subtract(ZONE_OUTER, mask.view(np.int8), out=zone_out)  # mid (1) or outer (2)
     if mid.size:
         v = np.take(e.reshape(-1), mid)
         edge = v > tab.e_lo
@@ -745,10 +746,10 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
         v *= 0.5  # 100 dxy + 1/2
         d_mid = np.floor(v)
         edge |= _near_integer(v, d_mid, tab.d_tol)
-        # delta = floor(degrees(atan(g1 / g0)) + 90.5) - 90, clipped to +-89 (a table);
-        # g0 + 0.0 turns -0 into +0 (h_x = 0 exactly: +-90 with the sign of h_y).
+        # delta = floor(degrees(atan(g1 / g0)) + 90.5) - 90, clipped to +-89 (a table).
+        # Near +-90 (h_x = 0, or a rounding residue whose sign decides) the general path
+        # decides, below.
         x = np.take(g0.reshape(-1), mid)
-        x += 0.0
         ang = np.take(g1.reshape(-1), mid)
         ang /= x
         np.arctan(ang, out=ang)
@@ -761,10 +762,9 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
         edge |= ang > 90.0 - _FOLD_TOL
         d_out.reshape(-1)[mid] = d_mid.astype(np.int64)
         delta_out.reshape(-1)[mid] = np.take(tab.delta, k.astype(np.intp), mode="clip")
-        zone_out.reshape(-1)[mid] = ZONE_MID
         if edge.any():
             bad = mid[edge] if not bad.size else np.union1d(bad, mid[edge])
-    cand = _inner_candidates(s, s_min, q, md3, tab, bad, mask)
+    cand = _inner_candidates(s, s_min, q, md3, tab, mask)
     return bad, cand
 
 
@@ -774,17 +774,16 @@ def _near_integer(x, fl, tol):
     return (f < tol) | (f > 1.0 - tol)
 
 
-def _inner_candidates(s, s_min, q, md3, tab, bad, mask):
+def _inner_candidates(s, s_min, q, md3, tab, mask):
     """(flat index, s, q, 3 m.d) of a fast block's pairs that may be inner, or None.
 
     Only pairs with s <= s_inner can have d3 <= r_inner (|g| <= 2): a few per block,
-    decided once per call by :func:`_fast_inner`.
+    decided once per call by :func:`_fast_inner` (pairs that also go to the general path
+    are overwritten by it afterwards).
     """
     if not s_min <= tab.s_inner:
         return None
     cand = np.flatnonzero(np.less_equal(s, tab.s_inner, out=mask))
-    if bad.size:
-        cand = np.setdiff1d(cand, bad, assume_unique=True)
     if not cand.size:
         return None
     return cand, s.reshape(-1)[cand], q.reshape(-1)[cand], md3.reshape(-1)[cand]
