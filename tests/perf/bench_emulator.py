@@ -300,7 +300,12 @@ def main(argv=None) -> int:
         "reader of a plain pipe sees rare ms-scale delays while the writer's log is clean). The "
         "emulator cannot raise that kworker; host settings can (fewer CPU-bound tasks, or an "
         "isolated core for emulator, reader and the unbound-workqueue cpumask). A real "
-        "USB-serial adapter's transmit path has no such worker.\n\n"
+        "USB-serial adapter's transmit path has no such worker. Some runs also show stalls of "
+        "50-100 ms in the emulator's own write log despite SCHED_FIFO, a few seconds apart, "
+        "with or without the synthetic load and with no other real-time task on the host; "
+        "their cause is not established (the VM's vCPU scheduling is suspected: a bare "
+        "SCHED_FIFO sleep-and-spin loop in the same conditions stays within ~4 ms), and when "
+        "they occur they set that run's p99 and max. One run per row: rerun to see the spread.\n\n"
         "As fast as possible (target >= 20,000 epochs/s, zero loss):\n\n" + t2 + "\n\nWhat each effect costs "
         "(render time per epoch, 1024-epoch batches, start-up excluded):\n\n" + t3
     )
