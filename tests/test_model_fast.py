@@ -180,3 +180,20 @@ def test_pairs_a_hair_from_a_boundary_get_the_general_paths_integers():
     fast, general = _compare(rx_p, rx_q, [[0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0, 0.0]])
     assert set(fast.d[: 3 * len(hairs), 0].tolist()) >= {300, 5000, -1, 1234, 1235}
     assert set(fast.delta[3 * len(hairs):, 0].tolist()) == {-30, -31}
+
+
+def test_a_scene_far_from_the_origin_takes_the_general_path_block_by_block(monkeypatch):
+    # Coordinates 1e7 m from the origin, separations up to ~100 m: every pair fails the
+    # cancellation guard, so whole blocks go to the general path; same integers.
+    rng = np.random.default_rng(5)
+    off = 1e7
+    rx_p = rng.uniform(-60, 60, (3000, 3)) + off
+    tx_p = rng.uniform(-20, 20, (4, 3)) + off
+    rx_q, tx_q = rng.normal(size=(3000, 4)), rng.normal(size=(4, 4))
+    for chunk in (64, model.CHUNK_PAIRS):
+        monkeypatch.setattr(model, "CHUNK_PAIRS", chunk)
+        _compare(rx_p, rx_q, tx_p, tx_q)
+    # A mix: most pairs near the origin (fast), one pose far away (general), same block.
+    rx_p = rng.uniform(-60, 60, (3000, 3))
+    rx_p[17] += 1e9
+    _compare(rx_p, rx_q, tx_p - off, tx_q)

@@ -250,6 +250,9 @@ def measure(
             for lo in range(first, last, rows):
                 sl = slice(lo, min(last, lo + rows))
                 bad, cand = _fast_block(rx_p[sl], rx_q[sl], x2, ftx, tab, d[sl], delta[sl], zone[sl], buf)
+                if 4 * bad.size > (sl.stop - sl.start) * m:  # mostly general: the whole block there
+                    run_general(sl.start, sl.stop)
+                    continue
                 if cand is not None:
                     found.append((lo * m + cand[0],) + cand[1:])
                 if bad.size:
@@ -257,16 +260,21 @@ def measure(
             if found:
                 general.append(_fast_inner(found, rx_p, rx_q, ftx, tab, m, d, delta, zone))
             flat = np.concatenate(general) if general else _NO_INDEX
-            if flat.size:
-                ip, it = np.divmod(flat, m)
+            for lo in range(0, flat.size, CHUNK_PAIRS):  # in blocks: all pairs may be here
+                part = flat[lo:lo + CHUNK_PAIRS]
+                ip, it = np.divmod(part, m)
                 out = _general_pairs(rx_p, rx_q, ip, tx_p, tx_m, it, params)
                 for arr, val in zip((d, delta, zone), out):
-                    arr.reshape(-1)[flat] = val
+                    arr.reshape(-1)[part] = val
 
     def run(first: int, last: int) -> None:
         """Poses first..last-1, block by block, with this call's own buffers."""
         if fast:
             return run_fast(first, last)
+        return run_general(first, last)
+
+    def run_general(first: int, last: int) -> None:
+        """``run`` on the general path (the formulation of _measure_chunk)."""
         size = min(last - first, rows)
         scratch = _Scratch(size * m)
         rot = np.empty((3, 3, size))
@@ -705,10 +713,13 @@ def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
     s_min, s_max = s.min(), s.max()
     bad = _NO_INDEX
     if not (pose_ok and s_min > _S_LO and s_max < _S_HI and x2 <= _CANCEL * s_min):
-        ok = (s > _S_LO) & (s < _S_HI) & (rx2[:, None] + tx.p2[None, :] <= _CANCEL * s)
+        scale = np.matmul(pos.T, tx.p2_mat)  # |p_r|^2 + |p_t|^2 (BLAS: no (rows, 1) broadcast)
+        ok = (s > _S_LO) & (s < _S_HI) & (scale <= _CANCEL * s)
         if pose_bad is not None:
             ok &= ~pose_bad[:, None]
         bad = np.flatnonzero(~ok)
+        if 4 * bad.size > size:  # mostly for the general path: the caller runs the block there
+            return bad, None
     a0, a1 = a
     b0, b1 = b
     # G = 3 (m.d) a - s b, scaled by lam (in b and md3), in place of a0, a1.
@@ -836,6 +847,8 @@ class _FastTx:
         mt = np.einsum("km,mk->m", tx_m, tx_p)
         self.m_mat = np.ascontiguousarray(np.vstack([3.0 * lam * tx_m, -3.0 * lam * mt[None, :], np.zeros((1, m))]))
         self.p2 = np.sum(tx_p * tx_p, axis=1)
+        # |p_r|^2 + |p_t|^2 = [p_r, 1, |p_r|^2] . [0, |p_t|^2, 1]
+        self.p2_mat = np.ascontiguousarray(np.vstack([np.zeros((3, m)), self.p2[None, :], np.ones((1, m))]))
         # s = |p_r - p_t|^2 = [p_r, 1, |p_r|^2] . [-2 p_t, |p_t|^2, 1]
         self.s_mat = np.ascontiguousarray(np.vstack([-2.0 * tx_p.T, self.p2[None, :], np.ones((1, m))]))
         self.x2 = _square3(float(np.max(np.abs(tx_p), initial=0.0)))
