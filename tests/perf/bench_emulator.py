@@ -268,7 +268,7 @@ def main(argv=None) -> int:
                          f"{st['max']:.3f} ms", f"{after:.1f}"])
     t1 = markdown_table(
         ["emulator, 20 Hz, default scene, pty", "synthetic load", "interval measured at", "epochs",
-         "p50 |dt - 50 ms|", "p99", "max", "load average after"],
+         "p50 of abs(dt - 50 ms)", "p99", "max", "load average after"],
         rows,
     )
     t2 = markdown_table(
