@@ -13,6 +13,7 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+from pathlib import Path
 
 from firmware_proto.errors import InputError
 
@@ -82,6 +83,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--realtime",
         action="store_true",
         help="real-time epochs: ask for SCHED_FIFO and locked memory where permitted (one stderr line if not)",
+    )
+    p.add_argument(
+        "--timing-log",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="real-time runs: write each epoch's deadline and write() start/end (monotonic s) to FILE at exit",
     )
     p.add_argument(
         "--delay",
@@ -202,6 +210,13 @@ def run(args: argparse.Namespace) -> int:
             scene_clock=pipe.clock,
             fast_batch=pipe.fast_batch,
         )
+        timing = []
+        if args.timing_log is not None:
+            try:  # a bad path is an input error now, not after the run
+                open(args.timing_log, "w").close()
+            except OSError as exc:
+                raise InputError(f"--timing-log: cannot write {args.timing_log}: {exc.strerror}") from None
+            scheduler.on_write = lambda r, k, *times: timing.append((r.port.label, k, *times))
         control = None
         if with_control:
             control = control_runtime.ControlSession(args, pipe, scheduler, stop)
@@ -218,6 +233,8 @@ def run(args: argparse.Namespace) -> int:
                 control.close()
             if status is not None:
                 sys.stderr.write("\r\x1b[K")
+        if args.timing_log is not None:
+            _write_timing_log(args.timing_log, timing)
         # Only after a normal end: an error is then the one line on stderr.
         print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
     finally:
@@ -225,6 +242,14 @@ def run(args: argparse.Namespace) -> int:
             port.close()
         pipe.close_sources()
     return 0
+
+
+def _write_timing_log(path: Path, rows: list[tuple]) -> None:
+    """``--timing-log``: one CSV line per epoch written in real time (monotonic seconds)."""
+    with open(path, "w", encoding="ascii") as f:
+        f.write("stream,epoch,deadline_s,write_start_s,write_end_s\n")
+        for label, k, deadline, t0, t1 in rows:
+            f.write(f"{label},{k},{deadline:.9f},{t0:.9f},{t1:.9f}\n")
 
 
 def _announcer(stream):

@@ -67,7 +67,7 @@ COMMANDS = (
     Command("arva-emulate", EMULATE, ("--frames", "3", "--speed", "0"), (
         Opt("--scene"), Opt("--port"), Opt("--stream"), Opt("--link"), Opt("--frames", "3"),
         Opt("--speed", "0"), Opt("--delay", "0"), Opt("--baud"), Opt("--bytesize"), Opt("--parity"),
-        Opt("--stopbits"), Opt("--clock"), Opt("--control"), Opt("--capture"),
+        Opt("--stopbits"), Opt("--clock"), Opt("--control"), Opt("--capture"), Opt("--timing-log"),
     )),
     Command("cat", (*BENCH, "cat"), ("{cat}",), (
         Opt(None), Opt("--baud"), Opt("--epochs"), Opt("--until-idle", "0.2"),

@@ -124,3 +124,48 @@ def quaternion_matrices(q_unit: ArrayLike) -> NDArray[np.float64]:
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) ``[w, x, y, z]``."""
     qc = np.moveaxis(np.asarray(q_unit, dtype=np.float64), -1, 0)
     return np.moveaxis(rotation_components(qc), (0, 1), (-2, -1))
+
+
+def rotation_unnormalized_components(
+    qc: NDArray[np.float64], out: NDArray[np.float64], work: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Rotation matrices (3, 3, n) of q / |q| for finite component-major quaternions ``qc`` (4, n).
+
+    Without normalising q first: with k = 2 / |q|^2 the entries are 1 - k (yy + zz),
+    k (xy - wz), ... (the products scaled once by k). ``work`` is (12, n) scratch; ``out``
+    (3, c, n), c <= 3, receives the first c columns and may be a transposed view. Returns
+    |q|^2 (n,), a row of ``work``: the caller checks its range, since |q|^2 may under- or
+    overflow for components beyond about 1e+-150 (then use
+    :func:`unit_quaternion_components`). The same matrices as :func:`rotation_components`
+    of the normalised quaternion to a few ulps (the batch model's per-pose work).
+    """
+    sq, n2, k, kq, dg = work[0:4], work[4], work[5], work[6:9], work[9:12]
+    np.multiply(qc, qc, out=sq)
+    np.add(sq[0:2], sq[2:4], out=sq[0:2])
+    np.add(sq[0], sq[1], out=n2)  # |q|^2
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        np.divide(2.0, n2, out=k)
+        np.multiply(qc[1:], k, out=kq)  # k x, k y, k z
+        np.multiply(kq, qc[1:], out=dg)  # k xx, k yy, k zz
+        xx, yy, zz = dg
+        np.multiply(kq[0:2], qc[2:4], out=sq[0:2])  # k xy, k yz (the squares are spent)
+        np.multiply(kq[0], qc[3], out=sq[2])  # k xz
+        xy, yz, xz = sq[0], sq[1], sq[2]
+        kq *= qc[0]  # k wx, k wy, k wz, in place: the last use of k x, k y, k z
+        wx, wy, wz = kq
+        m = out  # column by column: out may hold only the first columns
+        np.add(yy, zz, out=m[0, 0])
+        np.subtract(1.0, m[0, 0], out=m[0, 0])
+        np.add(xy, wz, out=m[1, 0])
+        np.subtract(xz, wy, out=m[2, 0])
+        if out.shape[1] > 1:
+            np.subtract(xy, wz, out=m[0, 1])
+            np.add(xx, zz, out=m[1, 1])
+            np.subtract(1.0, m[1, 1], out=m[1, 1])
+            np.add(yz, wx, out=m[2, 1])
+        if out.shape[1] > 2:
+            np.add(xz, wy, out=m[0, 2])
+            np.subtract(yz, wx, out=m[1, 2])
+            np.add(xx, yy, out=m[2, 2])
+            np.subtract(1.0, m[2, 2], out=m[2, 2])
+    return n2

@@ -107,6 +107,7 @@ class EpochScheduler:
         stop_event: threading.Event | None = None,
         scene_clock: SceneClock | None = None,
         fast_batch: int | None = None,
+        on_write: Callable[[Route, int, float, float, float], None] | None = None,
     ) -> None:
         if not routes:
             raise ValueError("nothing to schedule")
@@ -117,6 +118,9 @@ class EpochScheduler:
         self.status = status
         self.scene_clock = scene_clock if scene_clock is not None else SceneClock()
         self.fast_batch = fast_batch
+        #: Real clock only: called after each epoch's write with (route, epoch k, deadline,
+        #: write start, write end), clock seconds (``--timing-log``); None costs nothing.
+        self.on_write = on_write
         # An Event rather than a flag so a signal handler installed before the scheduler
         # exists (while ports are being opened) can already request the stop.
         self._stop_event = stop_event if stop_event is not None else threading.Event()
@@ -199,13 +203,18 @@ class EpochScheduler:
                 next_status += 0.5
 
     def _run_real_time(self) -> None:
-        start = self.clock()
-        due = lambda r: start + r.next_k / (r.stream.rate_hz * self.speed)  # noqa: E731
         heap = []
         with self.lock:
-            for i, r in enumerate(self.routes):
+            # Render every first epoch before the clock starts: the first render is the
+            # slowest (cold caches, first use of the model's buffers), and epoch 0 is due
+            # at the start, so rendering it after would make it late by that much.
+            for r in self.routes:
                 if not r.done:
                     r.pending = r.stream.render(r.next_k, 1)
+            start = self.clock()
+            due = lambda r: start + r.next_k / (r.stream.rate_hz * self.speed)  # noqa: E731
+            for i, r in enumerate(self.routes):
+                if not r.done:
                     heapq.heappush(heap, (due(r), i))
         next_status = start + 0.5
         while heap and not self._stop:
@@ -221,7 +230,12 @@ class EpochScheduler:
             heapq.heappop(heap)
             r = self.routes[i]
             with self.lock:
-                self._write(r, r.pending)
+                if self.on_write is None:
+                    self._write(r, r.pending)
+                else:
+                    t0 = self.clock()
+                    self._write(r, r.pending)
+                    self.on_write(r, r.next_k, deadline, t0, self.clock())
                 r.next_k += 1
                 r.pending = None
                 if not r.done:

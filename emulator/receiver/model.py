@@ -36,6 +36,7 @@ may overflow to inf; its reciprocal is then 0 and nothing ever computes inf * 0.
 from __future__ import annotations
 
 import math
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -47,6 +48,7 @@ from firmware_proto.errors import InputError, PoseError
 from emulator.frames.rotation import (
     normalize_components_inplace,
     rotation_components,
+    rotation_unnormalized_components,
     unit_quaternion_components,
     x_axis_components,
 )
@@ -231,8 +233,48 @@ def measure(
     # by an exact power of two (decided per chunk, as before, see _measure_chunk).
     any_big = max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE
 
+    fast = noise is None and fld is None and not moving_tx and _FastTables.applies(params)
+    if fast:
+        tab = _tables(params)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates: those pairs go general
+            ftx = _FastTx(tx_p, tx_m, tab.lam)
+        x2 = _square3(_max_abs(rx_p)) + ftx.x2  # bounds |p_r|^2 + |p_t|^2 of every pair
+
+    def run_fast(first: int, last: int) -> None:
+        """Like ``run`` on the fast path; pairs it leaves out take the general path."""
+        buf = _fast_buffers(min(last - first, rows), m)
+        # Inner-zone candidates and pairs for the general path, of every block (flat
+        # indices into the (N, M) outputs): decided once at the end, not per block.
+        found, general = [], []
+        with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+            for lo in range(first, last, rows):
+                sl = slice(lo, min(last, lo + rows))
+                bad, cand = _fast_block(rx_p[sl], rx_q[sl], x2, ftx, tab, d[sl], delta[sl], zone[sl], buf)
+                if 4 * bad.size > (sl.stop - sl.start) * m:  # mostly general: the whole block there
+                    run_general(sl.start, sl.stop)
+                    continue
+                if cand is not None:
+                    found.append((lo * m + cand[0],) + cand[1:])
+                if bad.size:
+                    general.append(lo * m + bad)
+            if found:
+                general.append(_fast_inner(found, rx_p, rx_q, ftx, tab, m, d, delta, zone))
+            flat = np.concatenate(general) if general else _NO_INDEX
+            for lo in range(0, flat.size, CHUNK_PAIRS):  # in blocks: all pairs may be here
+                part = flat[lo:lo + CHUNK_PAIRS]
+                ip, it = np.divmod(part, m)
+                out = _general_pairs(rx_p, rx_q, ip, tx_p, tx_m, it, params)
+                for arr, val in zip((d, delta, zone), out):
+                    arr.reshape(-1)[part] = val
+
     def run(first: int, last: int) -> None:
         """Poses first..last-1, block by block, with this call's own buffers."""
+        if fast:
+            return run_fast(first, last)
+        return run_general(first, last)
+
+    def run_general(first: int, last: int) -> None:
+        """``run`` on the general path (the formulation of _measure_chunk)."""
         size = min(last - first, rows)
         scratch = _Scratch(size * m)
         rot = np.empty((3, 3, size))
@@ -290,6 +332,38 @@ def measure(
             for job in [pool.submit(run, lo, min(n, lo + step)) for lo in range(0, n, step)]:
                 job.result()  # re-raises a worker's error (e.g. a PoseError)
     return Measurement(d, delta, zone, fld)
+
+
+def _general_pairs(rx_p, rx_q, ip, tx_p, tx_m, it, params):
+    """(d, delta, zone) of the pairs (rx ip[k], tx it[k]) on the general path (1-D)."""
+    k = ip.size
+    qc = np.ascontiguousarray(rx_q[ip].T)
+    if normalize_components_inplace(qc, np.empty_like(qc)) is not None:
+        unit_quaternion_components(rx_q, "receiver.orientation")  # as for the whole array
+    rr = rotation_components(qc)
+    row = lambda a: a.reshape(1, k)  # noqa: E731
+    rx = tuple(row(rx_p[ip, c]) for c in range(3))
+    tx = tuple(row(tx_p[it, c]) for c in range(3))
+    big = max(_max_abs(np.stack(rx)), _max_abs(np.stack(tx))) > _HUGE
+    out = (np.empty((1, k), np.int64), np.empty((1, k), np.int64), np.empty((1, k), np.int8))
+    with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
+        _measure_chunk(rx, tuple(tuple(row(rr[i, j]) for j in range(3)) for i in range(3)), tx,
+                       tuple(row(tx_m[c, it]) for c in range(3)), 0.25 if big else 1.0, params, None,
+                       *out, None, _Scratch(k).view((1, k)))
+    return tuple(o.reshape(-1) for o in out)
+
+
+_TABLES: dict = {}
+
+
+def _tables(params: ModelParams) -> "_FastTables":
+    """The fast path's tables for ``params`` (cached: a few hundred KB, built once)."""
+    tab = _TABLES.get(params)
+    if tab is None:
+        if len(_TABLES) > 16:
+            _TABLES.clear()
+        tab = _TABLES[params] = _FastTables(params)
+    return tab
 
 
 def _max_abs(a: NDArray[np.float64]) -> float:
@@ -530,6 +604,289 @@ def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
         dist_scale,
         field_scale,
     )
+
+
+# ---------------------------------------------------------------------------------------
+# Fast path (issue 20): ideal receiver, 3 antennas, static transmitters, no field.
+#
+# Same model, fewer numpy passes. With d = p_r - p_t, s = |d|^2 and a, b the receiver-frame
+# d and dipole axis (a = R_r^T d, b = R_r^T m), the receiver-frame field direction scaled
+# by s is G = 3 (m.d) a - s b (= s g: no sqrt, no division per component), and
+#
+#     (200 dxy)^6 = s^5 / (lam^2 (G_x^2 + G_y^2)),   lam = (200 c)^-3,  c = distance_scale
+#
+# (lam is folded into b and m.d, so the scaled G costs nothing extra). a_x, a_y, b_x, b_y,
+# 3 m.d and s = |p_r|^2 - 2 p_r.p_t + |p_t|^2 are bilinear in per-pose and
+# per-transmitter values: one small BLAS product each (K = 4 or 5) instead of five numpy
+# passes. The zone test is on (200 dxy)^6 against (200 r_outer)^6, so sqrt, cbrt and atan
+# run only for the mid-zone pairs (gathered); d = floor((200 dxy + 1) / 2) and delta =
+# floor(degrees(atan(G_y / G_x)) + 90.5) - 90 (clipped, a table). Inner pairs are rare and
+# found from s alone (|g| <= 2). Rounding and zone tests thus happen on different but
+# equivalent expressions, good to ~1e-11 (relative); a pair within 1e-8 of a zone or
+# rounding boundary (or 1e-6 degrees of atan's fold at +-90) is handed to the general
+# path, so the integers are the general path's for every pair
+# (tests/test_model_fast.py: millions of random pairs, hairs from each boundary).
+#
+# Pairs where this formulation could lose accuracy go to the general path, pair by pair
+# (so the result of a pair never depends on its block): s outside [1e-50, 1e50] (r = 0,
+# r below 1e-25 m or above 1e25 m, huge coordinates), coordinates large against the
+# separation (|p_r|^2 + |p_t|^2 > 1e5 s: the expanded s and a = R^T p_r - R^T p_t lose
+# more than ~1e-11 to cancellation), and receiver quaternions whose |q|^2 leaves
+# [1e-16, 1e290].
+# ---------------------------------------------------------------------------------------
+
+_S_LO, _S_HI = 1e-50, 1e50
+_CANCEL = 1e5
+_Q2_LO, _Q2_HI = 1e-16, 1e290
+_RAD2DEG = 180.0 / math.pi
+#: Pairs this close to a boundary take the general path (the fast path's own error is
+#: ~1e-11 relative): relative on (200 dxy)^6 and 200 d3, absolute in degrees; near +-90
+#: degrees the sign of a rounding residue of h_x decides delta's sign.
+_EDGE = 1e-8
+_DEG_TOL = 1e-7
+_FOLD_TOL = 1e-6
+
+
+class _FastTables:
+    """Constants and the delta table of the fast path for one ModelParams."""
+
+    def __init__(self, params: ModelParams) -> None:
+        c = params.distance_scale
+        self.lam = (200.0 * c) ** -3.0
+        self.e_mid = (200.0 * params.r_outer) ** 6
+        self.e_lo, self.e_hi = self.e_mid * (1.0 - _EDGE), self.e_mid * (1.0 + _EDGE)
+        self.d_tol = _EDGE * (100.0 * max(params.r_outer, params.r_inner) + 1.0)  # cm
+        self.v_inner = 200.0 * params.r_inner
+        # Without noise |g| <= 2 (to rounding): d3 <= r_inner needs s <= this.
+        self.s_inner = (params.r_inner * _CBRT2_MARGIN / c) ** 2
+        k = np.arange(181)  # floor(degrees + 90.5) -> delta
+        self.delta = np.clip(k - 90, -MAX_DELTA_DEG, MAX_DELTA_DEG).astype(np.int64)
+
+    @staticmethod
+    def applies(params: ModelParams) -> bool:
+        c = params.distance_scale
+        return params.antennas == 3 and 1e-6 < c < 1e6 and params.r_inner < 1e6 and params.r_outer < 1e6
+
+
+def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
+    """Poses rx_p (rows, 3), rx_q (rows, 4) against the static transmitters of ``tx``.
+
+    ``x2`` bounds |p_r|^2 + |p_t|^2 for every pair of the block. Outputs (rows, M)
+    contiguous. Returns the flat indices of the pairs left to the general path (usually
+    empty), whose outputs the caller overwrites.
+    """
+    rows = rx_p.shape[0]
+    m = tx.count
+    qc = buf.qc[:, :rows]
+    np.copyto(qc, rx_q.T)
+    # Pose features, feature-major: lay[i] = [R_0i, R_1i, R_2i, (R^T p_r)_i] (4, rows) and
+    # pos = [p_r, 1, |p_r|^2] (5, rows); the products below read them transposed (BLAS).
+    lay = buf.lay[:, :, :rows]
+    pos = buf.pos[:, :rows]
+    np.copyto(pos[:3], rx_p.T)
+    t = buf.prow[:rows]
+    rx2 = pos[4]
+    np.multiply(pos[0], pos[0], out=rx2)
+    for k in (1, 2):
+        np.multiply(pos[k], pos[k], out=t)
+        rx2 += t
+    # Columns 0 and 1 of R (x and y antennas); column 2 only for inner candidates.
+    n2 = rotation_unnormalized_components(qc, lay[:2, :3].transpose(1, 0, 2), buf.pose_work(rows))
+    pose_ok = n2.min() > _Q2_LO and n2.max() < _Q2_HI
+    pose_bad = None if pose_ok else ~((n2 > _Q2_LO) & (n2 < _Q2_HI))  # before n2's row is reused
+    for i in range(2):  # (R^T p_r)_i
+        col = lay[i, 3]
+        np.multiply(lay[i, 0], pos[0], out=col)
+        np.multiply(lay[i, 1], pos[1], out=t)
+        col += t
+        np.multiply(lay[i, 2], pos[2], out=t)
+        col += t
+    size = rows * m
+    a = buf.a[:, :size].reshape(2, rows, m)
+    b = buf.b[:, :size].reshape(2, rows, m)
+    md3, s, t = (buf.f[i, :size].reshape(rows, m) for i in range(3))
+    feats = lay[:2].transpose(0, 2, 1)
+    np.matmul(feats, tx.a_mat, out=a)
+    np.matmul(feats, tx.b_mat, out=b)
+    np.matmul(pos.T, tx.m_mat, out=md3)
+    np.matmul(pos.T, tx.s_mat, out=s)  # |p_r|^2 - 2 p_r.p_t + |p_t|^2 (see _CANCEL)
+    s_min, s_max = s.min(), s.max()
+    bad = _NO_INDEX
+    if not (pose_ok and s_min > _S_LO and s_max < _S_HI and x2 <= _CANCEL * s_min):
+        scale = np.matmul(pos.T, tx.p2_mat)  # |p_r|^2 + |p_t|^2 (BLAS: no (rows, 1) broadcast)
+        ok = (s > _S_LO) & (s < _S_HI) & (scale <= _CANCEL * s)
+        if pose_bad is not None:
+            ok &= ~pose_bad[:, None]
+        bad = np.flatnonzero(~ok)
+        if 4 * bad.size > size:  # mostly for the general path: the caller runs the block there
+            return bad, None
+    a0, a1 = a
+    b0, b1 = b
+    # G = 3 (m.d) a - s b, scaled by lam (in b and md3), in place of a0, a1.
+    g0, g1 = a0, a1
+    g0 *= md3
+    np.multiply(s, b0, out=t)
+    g0 -= t
+    g1 *= md3
+    np.multiply(s, b1, out=t)
+    g1 -= t
+    q = b0
+    np.multiply(g0, g0, out=q)
+    np.multiply(g1, g1, out=t)
+    q += t
+    e = b1  # (200 dxy)^6 = s^5 / q; q = 0: inf (outer); never nan (s^5 > 0)
+    np.multiply(s, s, out=e)
+    e *= e
+    e *= s
+    e /= q
+    # Mid zone: (200 dxy)^6 <= (200 r_outer)^6; only those pairs need d and delta. Pairs
+    # within EDGE of a zone or rounding boundary (or of atan's fold at +-90) go to the
+    # general path, so the integers are the general path's everywhere.
+    mask = buf.mask[:size].reshape(rows, m)
+    np.less_equal(e, tab.e_hi, out=mask)
+    mid = np.flatnonzero(mask)
+    d_out.fill(-1)
+    delta_out.fill(-1)
+    np.subtract(ZONE_OUTER, mask.view(np.int8), out=zone_out)  # mid (1) or outer (2)
+    if mid.size:
+        v = np.take(e.reshape(-1), mid)
+        edge = v > tab.e_lo
+        np.sqrt(v, out=v)
+        np.cbrt(v, out=v)  # 200 dxy
+        v += 1.0
+        v *= 0.5  # 100 dxy + 1/2
+        d_mid = np.floor(v)
+        edge |= _near_integer(v, d_mid, tab.d_tol)
+        # delta = floor(degrees(atan(g1 / g0)) + 90.5) - 90, clipped to +-89 (a table).
+        # Near +-90 (h_x = 0, or a rounding residue whose sign decides) the general path
+        # decides, below.
+        x = np.take(g0.reshape(-1), mid)
+        ang = np.take(g1.reshape(-1), mid)
+        ang /= x
+        np.arctan(ang, out=ang)
+        ang *= _RAD2DEG
+        ang += 90.5
+        k = np.floor(ang)
+        edge |= _near_integer(ang, k, _DEG_TOL)
+        ang -= 90.5
+        np.abs(ang, out=ang)
+        edge |= ang > 90.0 - _FOLD_TOL
+        d_out.reshape(-1)[mid] = d_mid.astype(np.int64)
+        delta_out.reshape(-1)[mid] = np.take(tab.delta, k.astype(np.intp), mode="clip")
+        if edge.any():
+            bad = mid[edge] if not bad.size else np.union1d(bad, mid[edge])
+    cand = _inner_candidates(s, s_min, q, md3, tab, mask)
+    return bad, cand
+
+
+def _near_integer(x, fl, tol):
+    """x within ``tol`` of an integer, given fl = floor(x)."""
+    f = x - fl
+    return (f < tol) | (f > 1.0 - tol)
+
+
+def _inner_candidates(s, s_min, q, md3, tab, mask):
+    """(flat index, s, q, 3 m.d) of a fast block's pairs that may be inner, or None.
+
+    Only pairs with s <= s_inner can have d3 <= r_inner (|g| <= 2): a few per block,
+    decided once per call by :func:`_fast_inner` (pairs that also go to the general path
+    are overwritten by it afterwards).
+    """
+    if not s_min <= tab.s_inner:
+        return None
+    cand = np.flatnonzero(np.less_equal(s, tab.s_inner, out=mask))
+    if not cand.size:
+        return None
+    return cand, s.reshape(-1)[cand], q.reshape(-1)[cand], md3.reshape(-1)[cand]
+
+
+def _fast_inner(found, rx_p, rx_q, tx, tab, m, d, delta, zone):
+    """Write the inner-zone pairs among the candidates ``found`` (one list per call);
+    return the flat indices of those left to the general path.
+
+    For them 200 d3 = (s^5 / (q + G_z^2))^(1/6), G_z = 3 (m.d) a_z - s b_z (scaled like G),
+    with the z column of R from the same unnormalised-quaternion formulas.
+    """
+    cand, s, q, md3 = (np.concatenate(parts) for parts in zip(*found))
+    ip, it = np.divmod(cand, m)
+    qc = np.ascontiguousarray(rx_q[ip].T)
+    rot = np.empty((3, 3, ip.size))
+    rotation_unnormalized_components(qc, rot, np.empty((12, ip.size)))
+    rz = rot[:, 2]  # R_k2: the z antenna's axis in the world
+    a2 = (rz * (rx_p[ip] - tx.p[it]).T).sum(axis=0)
+    bz = (rz * tx.b_mat[:3, it]).sum(axis=0)
+    gz = md3 * a2 - s * bz
+    v3 = np.cbrt(np.sqrt(s * s * s * s * s / (q + gz * gz)))  # 200 d3
+    w = (v3 + 1.0) * 0.5  # 100 d3 + 1/2
+    fl = np.floor(w)
+    edge = (np.abs(v3 - tab.v_inner) <= _EDGE * tab.v_inner) | _near_integer(w, fl, tab.d_tol)
+    keep = (v3 <= tab.v_inner) & ~edge
+    idx = cand[keep]
+    d.reshape(-1)[idx] = fl[keep].astype(np.int64)
+    delta.reshape(-1)[idx] = 0
+    zone.reshape(-1)[idx] = ZONE_INNER
+    return cand[edge]  # near the inner boundary or a rounding point: the general path decides
+
+
+def _square3(x: float) -> float:
+    """3 x^2 (an upper bound of |p|^2 for coordinates up to x), inf instead of overflowing."""
+    return 3.0 * x * x if x < 1e150 else math.inf
+
+
+class _FastTx:
+    """Per-transmitter matrices of the fast path (static transmitters (M, 3), axes (3, M))."""
+
+    def __init__(self, tx_p, tx_m, lam: float) -> None:
+        self.count = m = tx_p.shape[0]
+        self.p = tx_p
+        # a_i = [R_0i, R_1i, R_2i, (R^T p_r)_i] . [-p_t, 1]
+        self.a_mat = np.ascontiguousarray(np.vstack([-tx_p.T, np.ones((1, m))]))
+        # b_i = lam [R_0i, R_1i, R_2i, .] . [m, 0]
+        self.b_mat = np.ascontiguousarray(np.vstack([lam * tx_m, np.zeros((1, m))]))
+        # 3 lam m.(p_r - p_t) = [p_r, 1, |p_r|^2] . [3 lam m, -3 lam m.p_t, 0]
+        mt = np.einsum("km,mk->m", tx_m, tx_p)
+        self.m_mat = np.ascontiguousarray(np.vstack([3.0 * lam * tx_m, -3.0 * lam * mt[None, :], np.zeros((1, m))]))
+        self.p2 = np.sum(tx_p * tx_p, axis=1)
+        # |p_r|^2 + |p_t|^2 = [p_r, 1, |p_r|^2] . [0, |p_t|^2, 1]
+        self.p2_mat = np.ascontiguousarray(np.vstack([np.zeros((3, m)), self.p2[None, :], np.ones((1, m))]))
+        # s = |p_r - p_t|^2 = [p_r, 1, |p_r|^2] . [-2 p_t, |p_t|^2, 1]
+        self.s_mat = np.ascontiguousarray(np.vstack([-2.0 * tx_p.T, self.p2[None, :], np.ones((1, m))]))
+        self.x2 = _square3(float(np.max(np.abs(tx_p), initial=0.0)))
+
+
+_LOCAL = threading.local()
+
+
+def _fast_buffers(rows: int, m: int) -> "_FastBuffers":
+    """This thread's fast-path scratch, reused across calls (a few MB, touched once)."""
+    buf = getattr(_LOCAL, "fast", None)
+    if buf is None or buf.rows < rows or buf.size < rows * m:
+        buf = _LOCAL.fast = _FastBuffers(max(rows, 1), m)
+    return buf
+
+
+class _FastBuffers:
+    """Scratch of the fast path for blocks of up to ``rows`` poses x ``m`` transmitters."""
+
+    def __init__(self, rows: int, m: int) -> None:
+        size = rows * m
+        self.rows, self.size = rows, size
+        self.qc = np.empty((4, rows))
+        # The per-pose work (12 rows) shares the pair buffers (used only after it) when they fit.
+        self.qwork = None if 3 * size >= 12 * rows else np.empty((12, rows))
+        self.lay = np.empty((2, 4, rows))
+        self.prow = np.empty(rows)
+        self.pos = np.ones((5, rows))
+        self.a = np.empty((2, size))
+        self.b = np.empty((2, size))
+        self.f = np.empty((3, size))
+        self.mask = np.empty(size, dtype=bool)
+
+    def pose_work(self, rows: int) -> NDArray[np.float64]:
+        """(12, rows) scratch for the rotations (overwritten by the block's products)."""
+        if self.qwork is not None:
+            return self.qwork[:, :rows]
+        return self.f.reshape(-1)[: 12 * rows].reshape(12, rows)
 
 
 @dataclass
