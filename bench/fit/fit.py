@@ -836,7 +836,12 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
         se_live = res.steps[live] / 0.3 / math.sqrt(scale)
     steps = res.steps.copy()
     steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
-    theta, fval, h_live, it, ok_r = _newton_fixed(_Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=res.hess * scale)
+    # With two live parameters the Hessian by differences costs two evaluations more than
+    # the gradient and saves a step or two; with more, the scaled subsample's is cheaper.
+    hess0 = None if live.size <= 2 else res.hess * scale
+    theta, fval, h_live, it, ok_r = _newton_fixed(
+        _Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=hess0
+    )
     hess = np.zeros_like(res.hess)
     hess[np.ix_(live, live)] = h_live
     res.theta, res.hess, res.f, res.steps = theta, hess, fval, steps
