@@ -605,6 +605,22 @@ def _convex(res: "_Newton") -> bool:
     return bool(np.all(np.isfinite(w)) and np.all(w > 0))
 
 
+def _still_held(like: Likelihood, base: Params, free, theta, h, prev: "_Newton") -> bool:
+    """Whether every parameter ``prev`` held at a bound still has its gradient pointing
+    out there (on ``like``, at ``theta``): quasi-Newton keeps them held, so a flat
+    pose-error sigma the first pass pinned to its floor must be free to leave it (Newton
+    re-checks the active set at each iteration). Two evaluations per held parameter."""
+    held = prev.active
+    if not held.any():
+        return True
+    f = _Objective(like, base, free)
+    lo, hi = _box(free)
+    g_held, _ = _gradient(lambda th_h: f(_merge(theta, held, th_h)), theta[held], h[held])
+    g = np.zeros(len(free))
+    g[held] = g_held
+    return bool(np.all(_active(theta, g, lo, hi)[held]))
+
+
 def _quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "_Newton") -> "_Newton":
     """Quasi-Newton (:func:`_newton_fixed`) on ``like`` from ``prev``'s Hessian and bounds."""
     held = prev.active.copy()
@@ -634,14 +650,15 @@ def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol
     search = tol > DECREMENT_TOL
     if warm is not None and search and _convex(warm):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
-        return like, _quasi(like, base, free, theta, options, h, tol, warm)
+        if _still_held(like, base, free, theta, warm.steps if h is None else h, warm):
+            return like, _quasi(like, base, free, theta, options, h, tol, warm)
     iters = 0
     res = None
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
         settled = _pass > 0 or warm is not None
-        if settled and search and res is not None and _convex(res):
+        if settled and search and res is not None and _convex(res) and _still_held(like, base, free, theta, h, res):
             res = _quasi(like, base, free, theta, options, h, tol, res)
             res.iterations += iters
             return like, res
