@@ -31,8 +31,8 @@ from _report import machine, markdown_table, write_section  # noqa: E402
 import bench.fit.special as special  # noqa: E402
 from fit_campaign import emulate_campaign  # noqa: E402
 from bench.fit.csvio import read_csv  # noqa: E402
-from bench.fit.fit import FitOptions, fit_table, usable  # noqa: E402
-from bench.fit.likelihood import BLOCK_ROWS, Likelihood, Params, _log_eps, rows_from_table  # noqa: E402
+from bench.fit.fit import FitOptions, block_rows, fit_table, usable  # noqa: E402
+from bench.fit.likelihood import Likelihood, Params, _log_eps, rows_from_table  # noqa: E402
 from emulator.receiver.model import ModelParams  # noqa: E402
 
 TRUTH = (1.542, 80.0)
@@ -186,7 +186,7 @@ def eval_cost(table, res, rows_limit=None) -> float:
         rows = rows.take(np.sort(np.random.default_rng(0).choice(rows.k.shape[0], rows_limit, replace=False)), track=False)
     like = Likelihood(rows)
     like.choose_regimes(res.params)
-    like.block = BLOCK_ROWS  # as the fit evaluates all rows (one thread here: CPU time)
+    like.block = block_rows(rows)  # as the fit evaluates all rows (one thread here: CPU time)
     best = float("inf")
     for _ in range(3):
         c0 = time.process_time()
