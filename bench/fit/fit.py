@@ -899,6 +899,15 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
         hess[held, held] = 1.0  # placeholder, as in _newton
     res.theta, res.hess, res.f, res.steps, res.active = theta, hess, fval, steps, held
     res.iterations += it
+    if not ok_r:
+        # Quasi-Newton stalls where the likelihood is not convex (a flat pose-error sigma
+        # leaving its floor: BFGS skips the updates); Newton with the Hessian at each step
+        # (and its active set) finishes the job, at 21 evaluations a step for 4 parameters.
+        again = _newton(_Objective(full, base, free), theta, free, options.max_iter, steps, FULL_TOL)
+        res.iterations += again.iterations
+        if again.ok:
+            res.theta, res.hess, res.f, res.steps, res.active = again.theta, again.hess, again.f, again.steps, again.active
+            ok_r = True
     res.full_evals = full.n_evals
     if not ok_r:
         res.ok, res.why = False, "no convergence of the full-data refinement"
