@@ -528,18 +528,25 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
     return _Newton(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
 
 
-def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0=None, final_hessian=True):
+def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0=None, final_hessian=True, probe=False):
     """Quasi-Newton on ``f`` from a good start: the Hessian by differences (steps ``h``) at
     the start, then steps with it, corrected by BFGS updates from the gradient changes
     (the curvature of a pose-error sigma changes over a few standard errors), until the
     decrement is below ``tol``; then the Hessian by differences at the point
     reached (its axis points are the last gradient's: with a memoising ``f`` only the
-    diagonal pairs cost). The ``held`` parameters (at a bound) stay where they are.
+    diagonal pairs cost). The ``held`` parameters (at a bound) stay where they are; with
+    ``probe``, a pose-error sigma stepping toward its lower bound, where the likelihood
+    flattens, is tried at the bound once (as :func:`_newton` does) and held there if f is
+    no worse: otherwise it creeps down the valley in ever shorter steps (4 of 50 4-hour
+    fits ran out of iterations so).
     ``hess0``: start from this Hessian (all parameters) instead; ``final_hessian`` False:
     return the BFGS one (a search's, whose result is only a start).
-    Returns (theta, f, Hessian of the live parameters, iterations, converged)."""
+    Returns (theta, f, Hessian of the live parameters, iterations, converged, held)."""
     lo, hi = _box(free)
     cap = _caps(free)
+    held = held.copy()
+    probe_lo = np.array([probe and n in MAY_VANISH for n in free])
+    probed = np.zeros(len(free), bool)
     live = np.flatnonzero(~held)
     point = {"theta": theta}
     sub = lambda th_l: f(_merge(point["theta"], ~held, th_l))  # noqa: E731
@@ -560,6 +567,23 @@ def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0
         step = np.zeros(len(free))
         step[live] = stepf
         step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        took = False
+        for i in np.flatnonzero(probe_lo & ~held & ~probed & (step < 0) & (theta > lo)):
+            probed[i] = True
+            trial = theta.copy()
+            trial[i] = lo[i]
+            f1 = f(trial)
+            if f1 < f0 + 1e-6:
+                keep = [k for k, j in enumerate(live) if j != i]
+                theta, f0, took = trial, f1, True
+                point["theta"] = theta
+                held[i] = True
+                live = np.flatnonzero(~held)
+                hq, hl = hq[np.ix_(keep, keep)], hl[np.ix_(keep, keep)]
+        if took:
+            moved = True
+            g, _ = _gradient(sub, theta[live], h[live], f0)
+            continue
         trial, f1 = _line_search(f, theta, step, f0, lo, hi, double=False)
         if trial is None:
             ok = True
@@ -576,10 +600,10 @@ def _newton_fixed(f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0
         if ys > 1e-12 * max(shs, 1e-300) and shs > 0:
             hq = hq + np.outer(y, y) / ys - np.outer(hs, hs) / shs
     if not final_hessian:
-        return theta, f0, hq, it, ok
+        return theta, f0, hq, it, ok, held
     if moved:
         _g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
-    return theta, f0, hl, it, ok
+    return theta, f0, hl, it, ok, held
 
 
 # -- the likelihood as an objective ----------------------------------------------------------
@@ -605,11 +629,27 @@ def _convex(res: "_Newton") -> bool:
     return bool(np.all(np.isfinite(w)) and np.all(w > 0))
 
 
+def _still_held(like: Likelihood, base: Params, free, theta, h, prev: "_Newton") -> bool:
+    """Whether every parameter ``prev`` held at a bound still has its gradient pointing
+    out there (on ``like``, at ``theta``): quasi-Newton keeps them held, so a flat
+    pose-error sigma the first pass pinned to its floor must be free to leave it (Newton
+    re-checks the active set at each iteration). Two evaluations per held parameter."""
+    held = prev.active
+    if not held.any():
+        return True
+    f = _Objective(like, base, free)
+    lo, hi = _box(free)
+    g_held, _ = _gradient(lambda th_h: f(_merge(theta, held, th_h)), theta[held], h[held])
+    g = np.zeros(len(free))
+    g[held] = g_held
+    return bool(np.all(_active(theta, g, lo, hi)[held]))
+
+
 def _quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "_Newton") -> "_Newton":
     """Quasi-Newton (:func:`_newton_fixed`) on ``like`` from ``prev``'s Hessian and bounds."""
     held = prev.active.copy()
     h = prev.steps if h is None else h
-    theta_n, fval, hq, it, ok = _newton_fixed(
+    theta_n, fval, hq, it, ok, held = _newton_fixed(
         _Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess
     )
     hess = np.zeros((len(free), len(free)))
@@ -634,14 +674,15 @@ def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol
     search = tol > DECREMENT_TOL
     if warm is not None and search and _convex(warm):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
-        return like, _quasi(like, base, free, theta, options, h, tol, warm)
+        if _still_held(like, base, free, theta, warm.steps if h is None else h, warm):
+            return like, _quasi(like, base, free, theta, options, h, tol, warm)
     iters = 0
     res = None
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
         settled = _pass > 0 or warm is not None
-        if settled and search and res is not None and _convex(res):
+        if settled and search and res is not None and _convex(res) and _still_held(like, base, free, theta, h, res):
             res = _quasi(like, base, free, theta, options, h, tol, res)
             res.iterations += iters
             return like, res
@@ -812,6 +853,15 @@ def _core(
     return like, res, n_evals
 
 
+def block_rows(rows: Rows) -> int:
+    """Rows per block for evaluating all ``rows`` (:data:`likelihood.BLOCK_ROWS`). With pose
+    error the near-kink rule's temporaries want cache-sized blocks; with exact poses an
+    evaluation is many small numpy calls and two threads gain only on halves (1e5 rows:
+    47 -> 33 ms wall with a core free; in blocks of 1e4: nothing)."""
+    n = rows.k.shape[0]
+    return BLOCK_ROWS if rows.moments is not None else max(BLOCK_ROWS, -(-n // 2))
+
+
 def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], res: "_Newton"):
     """From the subsample's estimate, Newton on all rows: the Hessian by differences on all
     rows there (a subsample's, scaled, is too noisy for the standard errors: a few rows
@@ -827,7 +877,7 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
     full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
     full.remember = 4 * len(free) + 8
     if options.likelihood is Likelihood:  # (the benchmark's alternatives draw per-row noise)
-        full.block, full.threads = BLOCK_ROWS, STENCIL_THREADS
+        full.block, full.threads = block_rows(rows), STENCIL_THREADS
     # Differences of 0.3 standard errors of all rows, from the scaled subsample Hessian.
     live = np.flatnonzero(~res.active)
     try:
@@ -836,11 +886,28 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
         se_live = res.steps[live] / 0.3 / math.sqrt(scale)
     steps = res.steps.copy()
     steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
-    theta, fval, h_live, it, ok_r = _newton_fixed(_Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=res.hess * scale)
+    # With two live parameters the Hessian by differences costs two evaluations more than
+    # the gradient and saves a step or two; with more, the scaled subsample's is cheaper.
+    hess0 = None if live.size <= 2 else res.hess * scale
+    theta, fval, h_live, it, ok_r, held = _newton_fixed(
+        _Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=hess0, probe=True
+    )
+    live = np.flatnonzero(~held)
     hess = np.zeros_like(res.hess)
     hess[np.ix_(live, live)] = h_live
-    res.theta, res.hess, res.f, res.steps = theta, hess, fval, steps
+    if held.any():
+        hess[held, held] = 1.0  # placeholder, as in _newton
+    res.theta, res.hess, res.f, res.steps, res.active = theta, hess, fval, steps, held
     res.iterations += it
+    if not ok_r:
+        # Quasi-Newton stalls where the likelihood is not convex (a flat pose-error sigma
+        # leaving its floor: BFGS skips the updates); Newton with the Hessian at each step
+        # (and its active set) finishes the job, at 21 evaluations a step for 4 parameters.
+        again = _newton(_Objective(full, base, free), theta, free, options.max_iter, steps, FULL_TOL)
+        res.iterations += again.iterations
+        if again.ok:
+            res.theta, res.hess, res.f, res.steps, res.active = again.theta, again.hess, again.f, again.steps, again.active
+            ok_r = True
     res.full_evals = full.n_evals
     if not ok_r:
         res.ok, res.why = False, "no convergence of the full-data refinement"

@@ -322,8 +322,12 @@ class Likelihood:
                 parts.append(part)
             self._blocks = (reg.exact, reg.narrow, parts)
         parts = self._blocks[2]
-        if self.threads > 1 and threading.current_thread() is threading.main_thread():
-            return np.concatenate(list(_rows_pool().map(lambda part: part.prob(p), parts)))
+        if self.threads > 1 and threading.current_thread() is threading.main_thread() and len(parts) > 1:
+            # two tasks of consecutive blocks (one task per block hands the GIL over too often)
+            half = (len(parts) + 1) // 2
+            run = lambda group: [part.prob(p) for part in group]  # noqa: E731
+            first, second = _rows_pool().map(run, (parts[:half], parts[half:]))
+            return np.concatenate(first + second)
         return np.concatenate([part.prob(p) for part in parts])
 
     # -- the model ------------------------------------------------------------------
