@@ -101,15 +101,17 @@ def main(argv=None) -> int:
     p.add_argument("variants")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--summary-only", action="store_true")
+    p.add_argument("--out", type=Path, default=OUT, help="the JSON-lines file to append to and summarise (one per code revision)")
     a = p.parse_args(argv)
+    out = a.out
     if not a.summary_only:
-        OUT.parent.mkdir(exist_ok=True)
+        out.parent.mkdir(exist_ok=True)
         jobs = [(a.minutes, a.gps_h, s, a.sigmas == "known", v) for s in range(a.seeds) for v in a.variants.split(",")]
-        with ProcessPoolExecutor(a.workers) as pool, OUT.open("a") as f:
+        with ProcessPoolExecutor(a.workers) as pool, out.open("a") as f:
             for row in pool.map(one, *zip(*jobs)):
                 f.write(json.dumps(row) + "\n")
                 f.flush()
-    rows = [json.loads(line) for line in OUT.read_text().splitlines() if line.strip()] if OUT.exists() else []
+    rows = [json.loads(line) for line in out.read_text().splitlines() if line.strip()] if out.exists() else []
     print(summary(rows))
     return 0
 
