@@ -223,7 +223,8 @@ def measure(
     if fast:
         # The fast path writes d and delta of the mid (and inner) pairs only: the rest are
         # -1, filled here in one pass over the whole (fresh) array rather than block by
-        # block (measured: ~3 ns/pair less, the first touch of the pages streams better).
+        # block (in-process A/B on 1e6 poses x 4 tx: 1-3 ns/pair less; the first touch of
+        # the fresh pages streams better in one pass).
         d = np.full((n, m), -1, dtype=np.int64)
         delta = np.full((n, m), -1, dtype=np.int64)
     else:
