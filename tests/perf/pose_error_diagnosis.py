@@ -1,7 +1,14 @@
 """Why kappa_eq intervals under pose error cover what they cover (issue 15): cheap checks.
 
-Usage: python tests/perf/pose_error_diagnosis.py MINUTES GPS_H SEEDS {known,free} VARIANTS [--workers 2]
+Usage: python tests/perf/pose_error_diagnosis.py MINUTES GPS_H SEEDS {known,free} VARIANTS
+           [--errors gm|white|gpsonly|attonly|gpswhite|hwhite|attwhite] [--workers 2] [--out FILE]
    e.g. python tests/perf/pose_error_diagnosis.py 30 1.0 24 known plain,nocommon_v
+        python tests/perf/pose_error_diagnosis.py 240 1.0 50 known plain,iidmeat,maxsd=0.05 --errors white --workers 1
+
+``--errors`` picks the pose error drawn (:data:`ERRORS`; ``known`` fits give the fit the
+sigmas of exactly that error). Besides the variants below, :func:`_patch` lists the
+switches of single fit stages (maxsd=X, iidmeat, lagfrac=F, notweedie, noshrink) and
+``fixwalk=W`` (one walk, many pose-error draws); parts combine with ``+``.
 
 Campaigns as in accuracy_pose_error.py (seeds 9000 + s, Gauss-Markov GPS error GPS_H /
 1.5 GPS_H, tau 30 s, 2 deg attitude error), fitted with the sigmas given (``known``) or
@@ -38,8 +45,7 @@ ERRORS = {  # error model name -> PoseError keywords for GPS_H = h
     "gpsonly": lambda h: dict(gps_h=h, gps_v=1.5 * h, gps_tau=30.0),
     "attonly": lambda h: dict(attitude_deg=2.0, attitude_tau=30.0),
     "gpswhite": lambda h: dict(gps_h=h, gps_v=1.5 * h),
-    "hwhite": lambda h: dict(gps_h=h),
-    "vwhite": lambda h: dict(gps_v=1.5 * h),
+    "hwhite": lambda h: dict(gps_h=h, gps_v=0.01 * h),  # (gps_ratio 0 divides by zero in fit_table)
     "attwhite": lambda h: dict(attitude_deg=2.0),
 }
 _ORIGINAL = {}
@@ -49,7 +55,8 @@ def _patch(variant: str) -> None:
     """Switch one stage of the fit for a variant (this process only; the shipped code is
     unchanged): ``maxsd=X`` keeps rows with pose-error spread <= X (pose_error.MAX_SD is
     0.15); ``iidmeat``: the sandwich meat from per-second score sums without the
-    Newey-West lags (right for white pose error); ``notweedie``: no horizontal Tweedie
+    Newey-West lags (right for white pose error); ``lagfrac=F``: Newey-West (Bartlett)
+    with the bandwidth F T, T the seconds logged; ``notweedie``: no horizontal Tweedie
     shift (the vertical shrinkage stays); ``noshrink``: no vertical shrinkage; ``fixwalk=W``
     (in :func:`one`): the walk and EMI of seed W for every seed, only the pose error drawn
     from the seed (the spread given the walk, and each walk's own bias). Parts join with +."""
@@ -70,6 +77,19 @@ def _patch(variant: str) -> None:
                 return x.T @ x, 0.0
 
             fitmod.time_block_meat = iid
+        elif part.startswith("lagfrac="):  # Newey-West bandwidth L = F T instead of the plug-in
+            frac = float(part.split("=")[1])
+
+            def fixed_lag(scores, t, frac=frac):
+                sec = np.floor(t - t.min()).astype(np.int64)
+                x = np.stack([np.bincount(sec, weights=scores[:, j]) for j in range(scores.shape[1])], axis=1)
+                x -= x.mean(axis=0)
+                big_l = int(frac * x.shape[0])
+                cs = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(np.concatenate([x, np.zeros((big_l, x.shape[1]))]), axis=0)])
+                windows = cs[1:] - np.concatenate([np.zeros((big_l, x.shape[1])), cs[: x.shape[0]]])
+                return windows.T @ windows / (big_l + 1.0), float(big_l)
+
+            fitmod.time_block_meat = fixed_lag
         elif part == "notweedie":
             fitmod.posterior_positions = lambda rx, tx, sh, sv: _ORIGINAL["posterior_positions"](rx, tx, 0.0, sv)
         elif part == "noshrink":
@@ -97,7 +117,10 @@ def one(minutes: float, h: float, seed: int, known: bool, variant: str, errors: 
     elif variant == "nocommon_all":
         table.rx_pos = table.rx_pos - mean
     if known:
-        opts = FitOptions(free=("kappa_eq", "r_en"), base=Params(gps_sigma=h, attitude_sigma=math.radians(2.0)))
+        # the sigmas of the error drawn (none where the error model has none)
+        ratio = pe.gps_v / pe.gps_h if pe.gps_h > 0 else 1.5
+        base = Params(gps_sigma=pe.gps_h, gps_ratio=ratio, attitude_sigma=math.radians(pe.attitude_deg))
+        opts = FitOptions(free=("kappa_eq", "r_en"), base=base)
     else:
         opts = FitOptions(free=("kappa_eq", "r_en", "gps_sigma", "attitude_sigma"))
     c0 = time.process_time()
