@@ -133,13 +133,15 @@ def emulate_campaign(
     tx_id: int = 1,
     n_rows: int | None = None,
     pose_error: PoseError = PoseError(),
+    error_seed: int | None = None,
 ) -> Table:
     """The normative table of a campaign of ``minutes`` at ``rate_hz`` (or ``n_rows``).
 
     The transmitter is buried at (0, 0, -depth) with a random tilt; everything random
     (tilt, bearings, holds, wobble, EMI) comes from ``seed``; ``pose_error`` makes the
     logged receiver poses differ from the true ones (its draws come after all others, so
-    the true walk and the readings do not depend on it).
+    the true walk and the readings do not depend on it); ``error_seed``, when given, seeds
+    the pose error instead (the same walk and readings with another pose error).
     """
     n = int(round(minutes * 60.0 * rate_hz)) if n_rows is None else int(n_rows)
 
@@ -154,7 +156,7 @@ def emulate_campaign(
     noise = NoiseEffect(seed).draw(n, 1)
     meas = measure(rx_p, rx_q, tx_p[None], tx_q[None], params, noise=noise)
     if not pose_error.exact:
-        err_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(11,)))
+        err_rng = np.random.default_rng(np.random.SeedSequence(seed if error_seed is None else error_seed, spawn_key=(11,)))
         rx_p, rx_q = logged_poses(t, rx_p, rx_q, lambda times: draws(times)[1], pose_error, err_rng)
     d = meas.d[:, 0]
     delta = meas.delta[:, 0]

@@ -1,7 +1,14 @@
 """Why kappa_eq intervals under pose error cover what they cover (issue 15): cheap checks.
 
-Usage: python tests/perf/pose_error_diagnosis.py MINUTES GPS_H SEEDS {known,free} VARIANTS [--workers 2]
+Usage: python tests/perf/pose_error_diagnosis.py MINUTES GPS_H SEEDS {known,free} VARIANTS
+           [--errors gm|white|gpsonly|attonly|gpswhite|hwhite|attwhite] [--workers 2] [--out FILE]
    e.g. python tests/perf/pose_error_diagnosis.py 30 1.0 24 known plain,nocommon_v
+        python tests/perf/pose_error_diagnosis.py 240 1.0 50 known plain,iidmeat,maxsd=0.05 --errors white --workers 1
+
+``--errors`` picks the pose error drawn (:data:`ERRORS`; ``known`` fits give the fit the
+sigmas of exactly that error). Besides the variants below, :func:`_patch` lists the
+switches of single fit stages (maxsd=X, iidmeat, lagfrac=F, notweedie, noshrink) and
+``fixwalk=W`` (one walk, many pose-error draws); parts combine with ``+``.
 
 Campaigns as in accuracy_pose_error.py (seeds 9000 + s, Gauss-Markov GPS error GPS_H /
 1.5 GPS_H, tau 30 s, 2 deg attitude error), fitted with the sigmas given (``known``) or
@@ -32,28 +39,93 @@ OUT = HERE / "out" / "pose_error_diagnosis.jsonl"
 TRUTH = {"kappa_eq": 1.542, "r_en": 80.0}
 
 
-def one(minutes: float, h: float, seed: int, known: bool, variant: str) -> dict:
+ERRORS = {  # error model name -> PoseError keywords for GPS_H = h
+    "gm": lambda h: dict(gps_h=h, gps_v=1.5 * h, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0),
+    "white": lambda h: dict(gps_h=h, gps_v=1.5 * h, attitude_deg=2.0),
+    "gpsonly": lambda h: dict(gps_h=h, gps_v=1.5 * h, gps_tau=30.0),
+    "attonly": lambda h: dict(attitude_deg=2.0, attitude_tau=30.0),
+    "gpswhite": lambda h: dict(gps_h=h, gps_v=1.5 * h),
+    "hwhite": lambda h: dict(gps_h=h, gps_v=0.01 * h),  # (gps_ratio 0 divides by zero in fit_table)
+    "attwhite": lambda h: dict(attitude_deg=2.0),
+}
+_ORIGINAL = {}
+
+
+def _patch(variant: str) -> None:
+    """Switch one stage of the fit for a variant (this process only; the shipped code is
+    unchanged): ``maxsd=X`` keeps rows with pose-error spread <= X (pose_error.MAX_SD is
+    0.15); ``iidmeat``: the sandwich meat from per-second score sums without the
+    Newey-West lags (right for white pose error); ``lagfrac=F``: Newey-West (Bartlett)
+    with the bandwidth F T, T the seconds logged; ``notweedie``: no horizontal Tweedie
+    shift (the vertical shrinkage stays); ``noshrink``: no vertical shrinkage; ``fixwalk=W``
+    (in :func:`one`): the walk and EMI of seed W for every seed, only the pose error drawn
+    from the seed (the spread given the walk, and each walk's own bias). Parts join with +."""
+    import bench.fit.fit as fitmod
+
+    for name in ("MAX_SD", "time_block_meat", "posterior_positions"):
+        _ORIGINAL.setdefault(name, getattr(fitmod, name))
+        setattr(fitmod, name, _ORIGINAL[name])
+    for part in variant.split("+"):
+        if part.startswith("maxsd="):
+            fitmod.MAX_SD = float(part.split("=")[1])
+        elif part == "iidmeat":
+
+            def iid(scores, t):
+                sec = np.floor(t - t.min()).astype(np.int64)
+                x = np.stack([np.bincount(sec, weights=scores[:, j]) for j in range(scores.shape[1])], axis=1)
+                x -= x.mean(axis=0)
+                return x.T @ x, 0.0
+
+            fitmod.time_block_meat = iid
+        elif part.startswith("lagfrac="):  # Newey-West bandwidth L = F T instead of the plug-in
+            frac = float(part.split("=")[1])
+
+            def fixed_lag(scores, t, frac=frac):
+                sec = np.floor(t - t.min()).astype(np.int64)
+                x = np.stack([np.bincount(sec, weights=scores[:, j]) for j in range(scores.shape[1])], axis=1)
+                x -= x.mean(axis=0)
+                big_l = int(frac * x.shape[0])
+                cs = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(np.concatenate([x, np.zeros((big_l, x.shape[1]))]), axis=0)])
+                windows = cs[1:] - np.concatenate([np.zeros((big_l, x.shape[1])), cs[: x.shape[0]]])
+                return windows.T @ windows / (big_l + 1.0), float(big_l)
+
+            fitmod.time_block_meat = fixed_lag
+        elif part == "notweedie":
+            fitmod.posterior_positions = lambda rx, tx, sh, sv: _ORIGINAL["posterior_positions"](rx, tx, 0.0, sv)
+        elif part == "noshrink":
+            fitmod.posterior_positions = lambda rx, tx, sh, sv: _ORIGINAL["posterior_positions"](rx, tx, sh, 0.0)
+
+
+def one(minutes: float, h: float, seed: int, known: bool, variant: str, errors: str = "gm") -> dict:
     from fit_campaign import PoseError, emulate_campaign
 
     from bench.fit.fit import FitOptions, fit_table
     from bench.fit.likelihood import Params
     from emulator.receiver.model import ModelParams
 
-    pe = PoseError(gps_h=h, gps_v=1.5 * h, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0)
-    table = emulate_campaign(minutes, ModelParams(**TRUTH), seed=9000 + seed, pose_error=pe)
-    true = emulate_campaign(minutes, ModelParams(**TRUTH), seed=9000 + seed)
+    _patch(variant)
+    pe = PoseError(**ERRORS[errors](h))
+    walk_seed, error_seed = 9000 + seed, None
+    for part in variant.split("+"):
+        if part.startswith("fixwalk="):  # one walk (and EMI) for every seed: only the pose error varies
+            walk_seed, error_seed = 9000 + int(part.split("=")[1]), 100000 + seed
+    table = emulate_campaign(minutes, ModelParams(**TRUTH), seed=walk_seed, pose_error=pe, error_seed=error_seed)
+    true = emulate_campaign(minutes, ModelParams(**TRUTH), seed=walk_seed)
     mean = (table.rx_pos - true.rx_pos).mean(axis=0)
     if variant == "nocommon_v":
         table.rx_pos = table.rx_pos - np.array([0.0, 0.0, mean[2]])
     elif variant == "nocommon_all":
         table.rx_pos = table.rx_pos - mean
     if known:
-        opts = FitOptions(free=("kappa_eq", "r_en"), base=Params(gps_sigma=h, attitude_sigma=math.radians(2.0)))
+        # the sigmas of the error drawn (none where the error model has none)
+        ratio = pe.gps_v / pe.gps_h if pe.gps_h > 0 else 1.5
+        base = Params(gps_sigma=pe.gps_h, gps_ratio=ratio, attitude_sigma=math.radians(pe.attitude_deg))
+        opts = FitOptions(free=("kappa_eq", "r_en"), base=base)
     else:
         opts = FitOptions(free=("kappa_eq", "r_en", "gps_sigma", "attitude_sigma"))
     c0 = time.process_time()
     res = fit_table(table, opts)
-    out = {"minutes": minutes, "h": h, "seed": seed, "known": known, "variant": variant, "conv": res.converged,
+    out = {"minutes": minutes, "h": h, "seed": seed, "known": known, "variant": variant, "errors": errors, "conv": res.converged,
            "cpu": time.process_time() - c0, "mean_err": mean.tolist(), "lag": res.hac_lag,
            "floor": [n.split(" ")[0] for n in res.notes if "at its lower bound" in n]}  # fmt: skip
     for k in ("gps_sigma", "attitude_sigma", *TRUTH):
@@ -65,18 +137,22 @@ def one(minutes: float, h: float, seed: int, known: bool, variant: str) -> dict:
 
 def summary(rows: list[dict]) -> str:
     lines = []
-    keys = sorted({(r["minutes"], r["h"], r["known"], r["variant"]) for r in rows})
+    def key_of(r):
+        return (r["minutes"], r["h"], r["known"], r.get("errors", "gm"), r["variant"])
+
+    keys = sorted({key_of(r) for r in rows})
     for key in keys:
-        rs = [r for r in rows if (r["minutes"], r["h"], r["known"], r["variant"]) == key and r["conv"] and r["kappa_eq_se"]]
+        rs = [r for r in rows if key_of(r) == key and r["conv"] and r["kappa_eq_se"]]
         if not rs:
             continue
-        text = f"{key[0]:g} min, GPS {key[1]:g} m, sigmas {'given' if key[2] else 'estimated'}, {key[3]}: {len(rs)} seeds"
+        text = (f"{key[0]:g} min, GPS {key[1]:g} m, {key[3]} error, sigmas {'given' if key[2] else 'estimated'}, "
+                f"{key[4]}: {len(rs)} seeds")  # fmt: skip
         for k in TRUTH:
             e = np.array([r[k] / TRUTH[k] - 1 for r in rs])
             se = np.array([r[k + "_se"] / TRUTH[k] for r in rs])
             z = e / se
             text += (f" | {k}: bias {100 * e.mean():+.2f} %, RMS {100 * np.sqrt(np.mean(e**2)):.2f} %, median se "
-                     f"{100 * np.median(se):.2f} %, RMS z {np.sqrt(np.mean(z**2)):.2f}, covers {100 * np.mean(abs(z) <= 1.96):.0f} %")  # fmt: skip
+                     f"{100 * np.median(se):.2f} %, RMS z {np.sqrt(np.mean(z**2)):.2f}, bias z {z.mean():+.2f}, s.d. z {z.std():.2f}, covers {100 * np.mean(abs(z) <= 1.96):.0f} %")  # fmt: skip
         lines.append(text)
     plain = {(r["minutes"], r["h"], r["known"], r["seed"]): r for r in rows if r["variant"] == "plain" and r["conv"]}
     moved = [(r["kappa_eq"] / plain[k]["kappa_eq"] - 1, plain[k]["mean_err"][2], plain[k]["kappa_eq_se"] / plain[k]["kappa_eq"])
@@ -100,13 +176,14 @@ def main(argv=None) -> int:
     p.add_argument("sigmas", choices=("known", "free"))
     p.add_argument("variants")
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--errors", choices=sorted(ERRORS), default="gm", help="the pose error model (default gm: the issue's)")
     p.add_argument("--summary-only", action="store_true")
     p.add_argument("--out", type=Path, default=OUT, help="the JSON-lines file to append to and summarise (one per code revision)")
     a = p.parse_args(argv)
     out = a.out
     if not a.summary_only:
         out.parent.mkdir(exist_ok=True)
-        jobs = [(a.minutes, a.gps_h, s, a.sigmas == "known", v) for s in range(a.seeds) for v in a.variants.split(",")]
+        jobs = [(a.minutes, a.gps_h, s, a.sigmas == "known", v, a.errors) for s in range(a.seeds) for v in a.variants.split(",")]
         with ProcessPoolExecutor(a.workers) as pool, out.open("a") as f:
             for row in pool.map(one, *zip(*jobs)):
                 f.write(json.dumps(row) + "\n")
