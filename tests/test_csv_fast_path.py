@@ -35,7 +35,7 @@ def same(a, b) -> bool:
     for f in dataclasses.fields(a):
         x, y = getattr(a, f.name), getattr(b, f.name)
         if isinstance(x, np.ndarray):
-            if not (np.array_equal(x, y) and x.dtype == y.dtype):
+            if not (x.dtype == y.dtype and np.array_equal(x, y, equal_nan=x.dtype.kind == "f")):  # an empty HDOP is NaN
                 return False
         elif x != y:
             return False
@@ -96,4 +96,30 @@ def test_numeric_files_take_the_fast_path_and_read_the_same(values):
         lines.append(",".join(cells))
     text = "\n".join(lines) + "\n"
     assert csvio._parse_simple(text, "f.csv") is not None
+    assert same(outcome(text), general(text))
+
+
+#: An exported session's table: the normative columns, then the GGA quality columns.
+EXPORT_HEADER = HEADER + ",fix_quality,hdop"
+
+
+def test_exported_files_with_gps_quality_take_the_fast_path():
+    text = EXPORT_HEADER + "\n" + ROW + ",4,0.6\n" + ROW + ",1,1.2\n"
+    fast = csvio._parse_simple(text, "f.csv")
+    assert fast is not None
+    assert fast.fix_quality.tolist() == [4, 1] and fast.fix_quality.dtype == np.int64
+    assert fast.hdop.tolist() == [0.6, 1.2]
+    assert same(fast, general(text))
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    quality=st.lists(
+        st.one_of(st.integers(-2, 10).map(str), st.sampled_from(["", "1.5", "nan", "x", "4.0"])), min_size=1, max_size=4
+    ),
+    hdop=st.lists(st.one_of(floats.map(repr), st.sampled_from(["", "0", "-1", "inf", "nan", "0.9"])), min_size=4, max_size=4),
+)
+def test_gps_quality_columns_same_table_or_same_error_as_the_general_reader(quality, hdop):
+    rows = [f"{ROW},{q},{h}" for q, h in zip(quality, hdop)]
+    text = EXPORT_HEADER + "\n" + "\n".join(rows) + "\n"
     assert same(outcome(text), general(text))

@@ -133,8 +133,6 @@ def _parse_simple(text: str, source: str) -> Table | None:
     header = [h.strip() for h in header_text.split(",")]
     if len(set(header)) != len(header) or any(c not in header for c in COLUMNS):
         return None
-    if any(c in header for c in OPTIONAL_COLUMNS):  # fix_quality / hdop: the general reader checks them
-        return None
     width = len(header)
     lines = body.split("\n")
     commas = width - 1
@@ -160,6 +158,16 @@ def _parse_simple(text: str, source: str) -> Table | None:
                 return None
             values = values.astype(np.int64)
         cols[name] = values
+    for name in OPTIONAL_COLUMNS:  # as _optional_column; an empty HDOP cell never gets here
+        if name in header:
+            values = np.ascontiguousarray(grid[:, header.index(name)])
+            if name == "fix_quality":
+                ok = np.isfinite(values) & (values == np.round(values)) & (values >= 0) & (values <= 8)
+            else:
+                ok = np.isfinite(values) & (values > 0)
+            if not ok.all():
+                return None
+            cols[name] = values.astype(np.int64) if name == "fix_quality" else values
     line_no = np.arange(2, len(lines) + 2, dtype=np.int64)
     table = Table.from_mapping(source, cols, lines=line_no)
     validate(table)
