@@ -208,3 +208,12 @@ def test_estimates_gps_error_from_the_data():
     assert abs(res.estimate["gps_sigma"] - 1.0) < 3 * res.se["gps_sigma"]
     for name, truth in (("kappa_eq", 1.542), ("r_en", 80.0)):
         assert abs(res.estimate[name] - truth) < 1.96 * res.se[name], name
+
+
+@pytest.mark.parametrize("ratio", [0.0, -1.5, math.nan])
+def test_a_library_caller_with_no_vertical_gps_error_ratio_gets_one_clear_error(ratio):
+    """gps_ratio = 0 divided the pose moments by zero inside the fit (the CLI refuses '1,0')."""
+    table = emulate_campaign(3, TRUTH, seed=4)
+    with pytest.raises(FitInputError) as exc:
+        fit_table(table, FitOptions(base=Params(gps_sigma=1.0, gps_ratio=ratio)))
+    assert str(exc.value) == f"fit: {table.source}: gps_ratio (vertical / horizontal GPS error) must be > 0, got {ratio!r}"

@@ -207,6 +207,9 @@ def check_table(table: Table, options: FitOptions) -> Rows:
             f"walk over a range (at least a factor {MIN_SPREAD:g})"
         )
     base = options.base
+    if not (math.isfinite(base.gps_ratio) and base.gps_ratio > 0):
+        # the vertical GPS error is gps_ratio * gps_sigma: 0 would divide the moments by zero
+        raise FitInputError(f"{src}: gps_ratio (vertical / horizontal GPS error) must be > 0, got {base.gps_ratio!r}")
     if "r_outer" not in options.free:
         limit = 100.0 * base.r_outer + 0.5
         over = table.d > limit
