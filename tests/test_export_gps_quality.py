@@ -11,7 +11,7 @@ from bench.cli import main
 from bench.export import COLUMNS, Track, export_rows, write_csv
 from bench.fit.cli import load_input
 from bench.fit.csvio import read_csv
-from bench.fit.table import gps_scale
+from bench.fit.table import Table, gps_scale
 from bench.session import SessionWriter
 from emulator.frames.geodesy import Origin, enu_to_geodetic
 from emulator.truth.nmea import gps_sentences, pashr_sentence
@@ -143,3 +143,16 @@ def test_fit_says_it_used_the_gps_quality():
     table.hdop = np.full(len(table), 0.9)
     notes = fit_table(table, opts).notes
     assert "each row's GPS error follows its logged fix quality and HDOP (gps_sigma is the median row's)" in notes
+
+
+def test_a_session_without_any_gps_fix_scales_nothing():
+    """A fixed, surveyed receiver pose exports quality 0 on every row: that must not mark
+    every row as "no fix" (a factor 1e3, which would drop them all from the fit)."""
+    table = Table.from_mapping(
+        "t.csv",
+        {c: np.zeros(3) for c in COLUMNS} | {"fix_quality": np.zeros(3, dtype=np.int64), "hdop": np.full(3, np.nan)},
+    )
+    assert gps_scale(table) is None
+    table.fix_quality = np.array([0, 1, 1])
+    table.hdop = np.array([np.nan, 1.0, 2.0])
+    assert gps_scale(table).tolist() == [1e3, 1.5 * 1.0 / 2.25, 1.5 * 2.0 / 2.25]

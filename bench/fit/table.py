@@ -133,8 +133,13 @@ def gps_scale(table: Table) -> NDArray[np.float64] | None:
     HDOP (either may be missing), divided by its median; None without both columns.
     The fitted gps_sigma is then the error of a median row. Quality 0 (no fix) rows get
     a factor 1e3: the fit leaves them out (their pose says nothing). A row without an
-    HDOP (NaN: the GGA gave none) takes the median of the others (1 if none has one)."""
+    HDOP (NaN: the GGA gave none) takes the median of the others (1 if none has one).
+    None too when no row has a fix (quality 0 everywhere: a fixed receiver pose)."""
     if table.fix_quality is None and table.hdop is None:
+        return None
+    if table.fix_quality is not None and not np.any(table.fix_quality > 0):
+        # no row has a GPS fix (a fixed, surveyed receiver pose exports quality 0): the
+        # columns say nothing about the rows' relative GPS error, so they scale nothing
         return None
     n = len(table)
     q = np.ones(n, dtype=np.int64) if table.fix_quality is None else table.fix_quality
