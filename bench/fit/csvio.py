@@ -158,14 +158,10 @@ def _parse_simple(text: str, source: str) -> Table | None:
                 return None
             values = values.astype(np.int64)
         cols[name] = values
-    for name in OPTIONAL_COLUMNS:  # as _optional_column; an empty HDOP cell never gets here
+    for name in OPTIONAL_COLUMNS:  # an empty HDOP cell never gets here
         if name in header:
             values = np.ascontiguousarray(grid[:, header.index(name)])
-            if name == "fix_quality":
-                ok = np.isfinite(values) & (values == np.round(values)) & (values >= 0) & (values <= 8)
-            else:
-                ok = np.isfinite(values) & (values > 0)
-            if not ok.all():
+            if _optional_bad(name, values, np.zeros(values.shape, bool)).any():
                 return None
             cols[name] = values.astype(np.int64) if name == "fix_quality" else values
     line_no = np.arange(2, len(lines) + 2, dtype=np.int64)
@@ -185,16 +181,19 @@ def _optional_column(source: str, name: str, cells, line_no) -> np.ndarray:
             values[k] = float(cell.strip()) if "_" not in cell else float("nan")
         except ValueError:
             values[k] = float("nan")
-    if name == "fix_quality":
-        bad = ~np.isfinite(values) | (values != np.round(values)) | (values < 0) | (values > 8)
-        what = "a GGA fix quality 0..8"
-    else:
-        bad = ~(np.isfinite(values) & (values > 0)) & ~empty
-        what = "a finite HDOP > 0"
+    bad = _optional_bad(name, values, empty)
+    what = "a GGA fix quality 0..8" if name == "fix_quality" else "a finite HDOP > 0"
     if bad.any():
         k = int(np.argmax(bad))
         raise FitInputError(f"{source}: line {line_no[k]}: column {name}: not {what}: {cells[k].strip()!r}")
     return values.astype(np.int64) if name == "fix_quality" else values
+
+
+def _optional_bad(name: str, values: np.ndarray, empty: np.ndarray) -> np.ndarray:
+    """The cells of an optional column that break its rule (``empty``: blank cells, NaN)."""
+    if name == "fix_quality":
+        return ~np.isfinite(values) | (values != np.round(values)) | (values < 0) | (values > 8)
+    return ~(np.isfinite(values) & (values > 0)) & ~empty
 
 
 def validate(table: Table) -> None:
