@@ -42,7 +42,7 @@ from .likelihood import (
     to_params,
 )
 from .pose_error import MAX_SD, pose_moments, posterior_positions
-from .table import FitInputError, Table
+from .table import FitInputError, Table, gps_scale
 
 MIN_ROWS = 50
 #: 90 % of rows within this ratio of distances is "no spread".
@@ -972,17 +972,9 @@ def model_rows(table: Table, params: Params) -> Rows:
     """The rows and per-row model the fit used for ``params`` (for the report)."""
     rows = rows_from_table(table)
     if params.gps_sigma > 0 or params.attitude_sigma > 0:
-        rows.gps_scale = gps_scale_of(table)
+        rows.gps_scale = gps_scale(table)
         return eiv_rows(rows, table, _sigma0(params, ()))[0]
     return usable(rows)
-
-
-def gps_scale_of(table: Table) -> NDArray[np.float64] | None:
-    """Per-row factor on gps_sigma from the logged fix quality and HDOP, or None when the
-    table has neither (see :func:`.table.gps_scale`)."""
-    from .table import gps_scale
-
-    return gps_scale(table)
 
 
 def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
@@ -1003,7 +995,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             base = replace(base, gps_sigma=EIV_START[0])
         if "attitude_sigma" in free:
             base = replace(base, attitude_sigma=EIV_START[1])
-        all_rows.gps_scale = gps_scale_of(table)
+        all_rows.gps_scale = gps_scale(table)
     notes: list[str] = []
     if eiv and all_rows.gps_scale is not None:
         varied = float(np.ptp(all_rows.gps_scale[all_rows.gps_scale < 1e3])) if np.any(all_rows.gps_scale < 1e3) else 0.0
