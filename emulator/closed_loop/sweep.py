@@ -51,8 +51,11 @@ from emulator.cli_types import (
 )
 from firmware_proto.errors import InputError, LinkError, MissingExtra
 
+from emulator.closed_loop.batch import run_batch
+from emulator.closed_loop.loop import ClosedLoop
 from emulator.progress import Tracker
 from emulator.progress import progress as progress_bar
+from emulator.scene.reader import parse_scene
 
 #: One row per (strategy, v_max, k_c, burial, transmitter).
 COLUMNS = (
@@ -134,8 +137,6 @@ def burial(config: SweepConfig, i: int) -> list[dict]:
 
 def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: float):
     """The validated closed-loop scene of one run."""
-    from emulator.scene.reader import parse_scene
-
     txs = burial(config, i)
     seed = int(np.random.SeedSequence(config.seed, spawn_key=(i, 1)).generate_state(1)[0])
     xmin, ymin = config.area[:2]
@@ -167,8 +168,6 @@ def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: 
 
 def run_one(config: SweepConfig, strategy: str, v_max: float, k_c: float, i: int) -> tuple[list[dict], float]:
     """Fly one burial with the per-run :class:`ClosedLoop`; its rows and the scene time flown."""
-    from emulator.closed_loop.loop import ClosedLoop
-
     scene, txs = burial_scene(config, i, strategy, v_max, k_c)
     result = ClosedLoop(scene, record=False).run(config.t_max)
     return run_rows(strategy, v_max, k_c, i, txs, result), result.t_end
@@ -178,8 +177,6 @@ def run_batch_rows(config: SweepConfig, tasks: list[tuple[str, float, float, int
     """Fly several runs together (:class:`BatchLoop`; strategies and gains may differ
     within a batch): the rows :func:`run_one` gives for each task, in order, and the
     scene time flown."""
-    from emulator.closed_loop.batch import run_batch
-
     made = [burial_scene(config, i, strategy, v_max, k_c) for strategy, v_max, k_c, i in tasks]
     results = run_batch([scene for scene, _ in made], config.t_max)
     rows: list[dict] = []
