@@ -45,7 +45,7 @@ from scipy.interpolate import CubicSpline
 
 from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
 
-from .pose_error import PoseMoments
+from .pose_error import PoseMoments, signal_error_cdf
 from .special import BIN_W_MAX, epan_gauss_cdf, epan_gauss_interval, smoothed_ball_disk_bin, smoothed_ball_disk_cdf
 from .table import Table
 
@@ -423,7 +423,16 @@ class Likelihood:
             j = idx[s_rows]
             exy = np.exp(_log_eps(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) / 3.0
             pm[s_rows] = epan_gauss_interval(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, _at(sigma, j))
-        if exact.any():
+        if exact.any() and self.rows.moments is not None and (p.gps_sigma > 0.0 or p.attitude_sigma > 0.0):
+            # errors in variables: the pose error moves the signal against fixed EMI (pose_error)
+            j = idx[exact]
+            log_t0 = log_kappa + 3.0 * math.log(p.r_en) - np.log(2.0 * m.fxy[j])
+            s3 = 3.0 * _at(sigma, j)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                log_g = np.log(_gamma(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) - 3.0 * (m.lxy[j] - m.lxy0[j])
+                above_a, above_b = (signal_error_cdf(log_t0 - 3.0 * y, log_g, s3) for y in (a[exact], b[exact]))
+            pm[exact] = np.maximum(above_a - above_b, 0.0)
+        elif exact.any():
             j = idx[exact]
             # log dxy <= y <=> |h_xy| >= kappa / (4 pi e^{3y}); in units of the noise radius
             # b = fxy / (2 pi r_en^3) that threshold is t(y) = kappa r_en^3 / (2 fxy e^{3y}).
