@@ -571,7 +571,8 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) ->
 
     The receiver of BRIEF 3 with ball noise (drawn in the receiver frame: R_r^T w is
     uniform in the ball whenever w is), and the pose error exp(sigma Z) on both distances
-    (``spread``: per-row shift and s.d. of log d instead, the errors-in-variables model's).
+    (``spread``: per-row shift and s.d. of log d instead, the errors-in-variables model's:
+    there the signal is scaled by exp(-3 x shift-and-spread) before the EMI is added).
     With pose_sigma = 0 it returns exactly what :func:`emulator.receiver.model.measure` returns for
     noise points u = R_r^T w (tested).
     """
@@ -581,13 +582,14 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) ->
     qn = np.asarray(p.q, dtype=float) / max(p.q)
     r = np.exp(geo.log_r)
     rho = 2.0 * (r / p.r_en) ** 3  # noise radius / signal scale, h * 4 pi r^3 = g + rho Q u
-    hx = geo.g[0] + rho * qn[0] * u[:, 0]
-    hy = geo.g[1] + rho * qn[1] * u[:, 1]
-    hz = geo.g[2] + rho * qn[2] * u[:, 2] if p.antennas == 3 else np.zeros(n)  # 2 antennas: no h_z
-    if spread is not None:  # errors-in-variables: per-row (shift, s.d.) of log d, from Likelihood.pose_spread
-        jitter = np.exp(spread[0] + spread[1] * rng.standard_normal(n))
-    else:
-        jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if p.pose_sigma > 0 else 1.0
+    sig = 1.0
+    if spread is not None:  # errors-in-variables: per-row (shift, s.d.) of log d, from Likelihood.pose_spread;
+        # the pose error moves the signal, the EMI stays (pose_error.signal_error_cdf)
+        sig = np.exp(-3.0 * (spread[0] + spread[1] * rng.standard_normal(n)))
+    hx = geo.g[0] * sig + rho * qn[0] * u[:, 0]
+    hy = geo.g[1] * sig + rho * qn[1] * u[:, 1]
+    hz = geo.g[2] * sig + rho * qn[2] * u[:, 2] if p.antennas == 3 else np.zeros(n)  # 2 antennas: no h_z
+    jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if (spread is None and p.pose_sigma > 0) else 1.0
     scale = r * np.cbrt(p.kappa_eq) * jitter
     hxy = np.hypot(hx, hy)
     with np.errstate(divide="ignore"):
