@@ -428,10 +428,13 @@ class Likelihood:
             j = idx[exact]
             log_t0 = log_kappa + 3.0 * math.log(p.r_en) - np.log(2.0 * m.fxy[j])
             s3 = 3.0 * _at(sigma, j)
+            be = b[exact]
+            top = np.isfinite(be)  # P(log dxy > inf) = 0: censored rows need one value
             with np.errstate(invalid="ignore", divide="ignore"):
                 log_g = np.log(_gamma(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) - 3.0 * (m.lxy[j] - m.lxy0[j])
-                above_a, above_b = (signal_error_cdf(log_t0 - 3.0 * y, log_g, s3) for y in (a[exact], b[exact]))
-            pm[exact] = np.maximum(above_a - above_b, 0.0)
+                above = signal_error_cdf(log_t0 - 3.0 * a[exact], log_g, s3)
+                above[top] -= signal_error_cdf(log_t0[top] - 3.0 * be[top], log_g[top], _at(s3, top))
+            pm[exact] = np.maximum(above, 0.0)
         elif exact.any():
             j = idx[exact]
             # log dxy <= y <=> |h_xy| >= kappa / (4 pi e^{3y}); in units of the noise radius
