@@ -20,7 +20,8 @@ driver's buffer); what does not fit is dropped and counted, exactly as a device 
 UART is too slow for its epoch rate loses bytes. As fast as possible (``--speed 0``) a
 write may first wait up to the drain wait for the line, like a serial device (see
 :class:`~emulator.output.ports.SerialPort`). Bytes the UART accepted go to the socket at
-once: the baud rate limits how many arrive, not when. A client that stops reading has
+once, from the emulator's own write (a thread sends only what the socket could not take
+at once): the baud rate limits how many arrive, not when. A client that stops reading has
 at most :data:`SOCKET_BACKLOG_BYTES` queued for it; beyond that its bytes are dropped.
 
 Several clients may connect at once: each receives every byte the stream writes from
@@ -256,6 +257,7 @@ class _Client:
         self._data = bytearray()  # stream bytes the UART carried, not yet sent
         self._cond = threading.Condition()
         self._closing = False
+        self._sending = False  # the sender thread is writing bytes taken from the queues
         self.manager = None
         if port.spec.kind == "rfc2217-server":
             self.uart = _ClientUart(port.settings, self._settings_changed, self._purge)
@@ -290,6 +292,11 @@ class _Client:
 
     # --- stream data, from the emulator's thread
     def offer(self, data: bytes) -> None:
+        """Bytes the stream wrote: what the UART carries goes to the socket now, from the
+        caller's thread, when nothing is queued before it and the socket takes it without
+        blocking (the usual case); the rest is queued for the sender thread. Sending here
+        delivers at the epoch's deadline: the kernel wakes the client from this write, and
+        no other thread (at ordinary priority, behind the GIL) has to run first."""
         if self.gone.is_set():
             return
         n = self.line.offer(len(data))
@@ -298,10 +305,16 @@ class _Client:
             chunk = data[:n]
             if self.manager is not None:
                 chunk = chunk.replace(b"\xff", b"\xff\xff")  # Telnet IAC escaping
-            self._data += chunk
             self.bytes_sent += n
             self.bytes_dropped += len(data) - n
-            self._cond.notify()
+            if chunk and not (self._control or self._data or self._sending):
+                try:
+                    chunk = chunk[self.sock.send(chunk, socket.MSG_DONTWAIT) :]
+                except OSError:
+                    pass  # full (BlockingIOError) or gone: the sender thread sends or finds out
+            if chunk:
+                self._data += chunk
+                self._cond.notify()
 
     def _send_loop(self) -> None:
         try:
@@ -314,7 +327,12 @@ class _Client:
                     data = bytes(self._control + self._data)
                     del self._control[:]
                     del self._data[:]
-                self.sock.sendall(data)
+                    self._sending = True  # offer() must not send ahead of these bytes
+                try:
+                    self.sock.sendall(data)
+                finally:
+                    with self._cond:
+                        self._sending = False
         except OSError:
             self._vanish()  # the client is gone (reset, broken pipe)
 
