@@ -242,7 +242,7 @@ class _ClientUart(SerialBase):
         pass
 
 
-class _Client:
+class ServedClient:
     """One connected client: its UART, its outgoing queue and a sender and reader thread."""
 
     def __init__(self, port: ServerPort, sock: socket.socket, addr) -> None:
@@ -412,7 +412,7 @@ class ServerPort(Port):
         scheme = "rfc2217" if spec.kind == "rfc2217-server" else "socket"
         self.path = f"{scheme}://{f'[{host}]' if ':' in host else host}:{port}"
         self.drain_wait = 0.0
-        self._clients: list[_Client] = []
+        self._clients: list[ServedClient] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._left_written = 0  # counts of clients that left
@@ -439,7 +439,7 @@ class ServerPort(Port):
                 return
             sock.settimeout(None)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            client = _Client(self, sock, addr)
+            client = ServedClient(self, sock, addr)
             with self._lock:
                 if self._stop.is_set():
                     sock.close()
@@ -450,7 +450,7 @@ class ServerPort(Port):
             )
             client.start()
 
-    def forget(self, client: _Client) -> None:
+    def forget(self, client: ServedClient) -> None:
         with self._lock:
             if client not in self._clients:
                 return
@@ -493,7 +493,7 @@ class ServerPort(Port):
         self._recount()
 
 
-def _counts(client: _Client) -> str:
+def _counts(client: ServedClient) -> str:
     return f"{client.bytes_sent} bytes sent, {client.bytes_dropped} dropped (line {client.line.settings.describe()})"
 
 
