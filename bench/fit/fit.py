@@ -1128,11 +1128,21 @@ def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, he
     return _Newton(theta, f0, hq, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
 
 
+#: :func:`_optimise_grad` splits the rows of each evaluation in two halves from this many
+#: rows on (a 10,000-row subsample: 9.5 -> ~6 ms wall with a core free).
+SPLIT_ROWS = 4000
+
+
 def _optimise_grad(rows: Rows, base: Params, free, theta, options, notes, tol):
     """:func:`_optimise` on the analytic-gradient route: a pre-pass to 0.5 nats, then Newton
     to ``tol`` with the S/L split re-chosen until the one at the estimate is the one the
-    estimate was found with (a subsample's search: one pass; all rows follow)."""
+    estimate was found with (a subsample's search: one pass; all rows follow). Its
+    evaluations are sequential: from SPLIT_ROWS rows on, each runs its two halves on the
+    stencil threads (same values, bit for bit)."""
     like = Likelihood(rows)
+    n = rows.k.shape[0]
+    if n >= SPLIT_ROWS:
+        like.block, like.threads = -(-n // 2), STENCIL_THREADS
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
     obj = _GradObjective(like, base, free)
     search = tol > DECREMENT_TOL
