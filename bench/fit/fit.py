@@ -4,7 +4,9 @@
 near rows, the pose error from their scatter, a grid over r_en), then runs a projected,
 damped Newton method on the negative log-likelihood with central-difference derivatives
 in the optimiser's scale (log for kappa_eq, lengths and pose_sigma; seconds for
-time_offset).
+time_offset). With exact poses (no errors-in-variables model) the fit of kappa_eq, r_en
+and pose_sigma takes the likelihood's analytic gradient instead (:func:`_newton_grad`:
+one pass per point, the Hessian by central differences of the gradient).
 
 Standard errors come from the observed information, the Hessian at the optimum, with
 difference steps re-set to 0.3 standard errors so they measure the curvature on the
