@@ -142,7 +142,9 @@ def _parse_simple(text: str, source: str) -> Table | None:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # e.g. numpy's "empty input" warning: not simple
             # from bytes: a StringIO of the text costs a fifth of the parse again
-            grid = np.loadtxt(io.BytesIO(body.encode("ascii")), dtype=np.float64, delimiter=",", comments=None, ndmin=2, encoding="latin1")
+            grid = np.loadtxt(
+                io.BytesIO(body.encode("ascii")), dtype=np.float64, delimiter=",", comments=None, ndmin=2, encoding="latin1"
+            )
     except (ValueError, Warning):  # a cell it cannot read, or a line with other columns
         return None
     if grid.shape != (n_lines, width):  # (a blank line would have been skipped)

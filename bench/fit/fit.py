@@ -1002,7 +1002,7 @@ def _se_steps(hl, free, live, fallback):
 
 
 #: :func:`_newton_grad` leaves the outer product for the Hessian by differences after
-#: BHHH_STEPS steps or when a step does not halve the decrement.
+#: BHHH_STEPS steps (or two in a row that do not halve the decrement).
 BHHH_STEPS = 4
 
 
@@ -1018,8 +1018,9 @@ def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, he
     go astray on a likelihood that is not smooth at the scale of a standard error (1200
     rows: 60 ever shorter steps): after BHHH_STEPS steps with the outer product, or two
     steps in a row that did not halve the decrement, the Hessian by central differences
-    of the gradient (:func:`_hessian_fd`, 2p passes) is taken there. Convergence: a decrement g' H^-1 g / 2 below ``tol``; then with ``hessian``
-    "final" the Hessian by differences at the estimate (the likelihood's curvature wavers
+    of the gradient (:func:`_hessian_fd`, 2p passes) is taken there. Convergence: a
+    decrement g' H^-1 g / 2 below ``tol``; then with ``hessian`` "final" the Hessian by
+    differences at the estimate (the likelihood's curvature wavers
     by ~1 % over 0.02 standard errors, rows near the noise edge: taken elsewhere it would
     not be the estimate's); "some": a Hessian by differences taken somewhere on the way
     (BFGS-updated; a subsample's, to start all rows from); "none" (a pre-pass): whatever
