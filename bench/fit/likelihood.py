@@ -327,9 +327,11 @@ class Likelihood:
 
     def has_grad(self, p: Params) -> bool:
         """Whether :meth:`logp_grad` applies: the pose error is the scalar pose_sigma (no
-        errors-in-variables sigmas or height offset) and the rules are this class's own."""
+        errors-in-variables sigmas or height offset, no narrow-bin rows) and the rules are
+        this class's own."""
         mom_free = self.rows.moments is None or (p.gps_sigma == 0.0 and p.attitude_sigma == 0.0 and p.height_offset == 0.0)
-        return mom_free and type(self).mid_prob is Likelihood.mid_prob and p.pose_sigma > 0.0
+        narrow = self.regimes is not None and self.regimes.narrow is not None and bool(self.regimes.narrow.any())
+        return mom_free and not narrow and type(self).mid_prob is Likelihood.mid_prob and p.pose_sigma > 0.0
 
     def logp_grad(self, p: Params) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(log P(d_i), d log P(d_i) / d(log kappa_eq, log r_en, log pose_sigma)) per row,
