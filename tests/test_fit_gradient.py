@@ -15,8 +15,13 @@ Tolerances, and why:
   the likelihood-level check below is the one that bounds what the fit sees.)
 * ``Likelihood.logp_grad``: what matters for the fit is the summed gradient. An error
   of e times its sampling s.d. sqrt(sum s_i^2) moves the estimate by about e standard
-  errors; the brief allows 0.02. Measured on 24 campaign/parameter draws: 0.0054 at most
-  (r_en), 0.0012 (kappa_eq), 0.003 (pose_sigma).
+  errors; the brief allows 0.02. The reference is central differences of the likelihood
+  computed with a finer rule (pieces of 0.5 s.d. near the kinks, 24 nodes): differences
+  of the default rule carry its own node-layout error near the kinks (a row 4 s.d. past
+  the top kink: d C / d log t = 8.16808e-7 analytic, 8.16810e-7 by adaptive quadrature,
+  7.39e-7 by differences of the default rule) and were up to 0.027 s.d. off; against the
+  finer rule the largest error over 31 draws was 0.0092 (pose_sigma), 0.0054 (kappa_eq),
+  0.0046 (r_en).
 * The fit: estimates within 0.02 s.e. of the finite-difference route, standard errors
   within 2 % (the likelihood's curvature in r_en wavers by ~1 % over 0.02 s.e., so two
   Hessians by differences at points that close differ by that much).
@@ -30,6 +35,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import bench.fit.fit as fit_module
+import bench.fit.special as special
 from bench.fit.fit import FitOptions, fit_table, rows_from_table, usable
 from bench.fit.likelihood import Likelihood, Params, from_params, to_params
 from bench.fit.special import ball_disk_cdf, epan_gauss_cdf, epan_gauss_density, smoothed_ball_disk_cdf
@@ -159,11 +165,17 @@ def test_logp_grad_matches_differences_of_the_likelihood(campaigns, which, dk, d
     assert np.array_equal(logp, like.logp(p))  # the same values, bit for bit
     assert like.n_evals == 2
     theta = from_params(p, NAMES)
-    for j, h in enumerate((1e-6, 1e-5, 1e-4)):
-        e = np.zeros(3)
-        e[j] = h
-        fd = (like.logp(to_params(p, NAMES, theta + e)).sum() - like.logp(to_params(p, NAMES, theta - e)).sum()) / (2 * h)
-        assert abs(d[j].sum() - fd) <= 0.02 * math.sqrt(float(np.sum(d[j] ** 2))), NAMES[j]
+    saved = special.PIECE, special.G_NODES
+    special.PIECE, special.G_NODES = 0.5, 24  # the finer rule (module docstring)
+    try:
+        for j, h in enumerate((1e-6, 1e-5, 1e-4)):
+            e = np.zeros(3)
+            e[j] = h
+            up, down = like.logp(to_params(p, NAMES, theta + e)), like.logp(to_params(p, NAMES, theta - e))
+            fd = (up.sum() - down.sum()) / (2 * h)
+            assert abs(d[j].sum() - fd) <= 0.02 * math.sqrt(float(np.sum(d[j] ** 2))), NAMES[j]
+    finally:
+        special.PIECE, special.G_NODES = saved
 
 
 def test_logp_grad_is_for_exact_poses_only(campaigns):
@@ -173,11 +185,24 @@ def test_logp_grad_is_for_exact_poses_only(campaigns):
         like.logp_grad(Params(pose_sigma=0.0))
 
 
+def noisy_poses():
+    """A campaign whose distances carry a 0.3 % relative pose error: pose_sigma is fitted
+    inside its range (three live parameters)."""
+    from bench.fit.likelihood import geometry, simulate
+    from bench.fit.table import Table
+
+    tab = emulate_campaign(20, ModelParams(), seed=4)
+    geo = geometry(tab.rx_pos, tab.rx_quat, tab.tx_pos, tab.tx_quat)
+    d = simulate(geo, Params(pose_sigma=0.003), np.random.default_rng(4))
+    return Table.from_columns("noisy", tab.t, tab.seq, tab.id, d, tab.delta, tab.rx_pos, tab.rx_quat, tab.tx_pos, tab.tx_quat)
+
+
 @pytest.mark.parametrize(
     "table",
     [
         pytest.param(lambda: emulate_campaign(20, ModelParams(), seed=0), id="20min"),
         pytest.param(lambda: emulate_campaign(20, ModelParams(), seed=2, walk=Walk(r_min=30.0, r_max=65.0)), id="30-65m"),
+        pytest.param(noisy_poses, id="pose_sigma-inside"),
     ],
 )
 def test_gradient_route_fit_is_the_difference_route_fit(table, monkeypatch):
@@ -187,8 +212,11 @@ def test_gradient_route_fit_is_the_difference_route_fit(table, monkeypatch):
         m.setattr(fit_module, "_analytic", lambda *a: False)
         old = fit_table(tab)
     assert new.converged and old.converged
-    for name in ("kappa_eq", "r_en"):
+    live = [n for n in NAMES if old.se[n] == old.se[n]]  # pose_sigma at its floor has no s.e.
+    assert "kappa_eq" in live and "r_en" in live
+    for name in live:
         assert abs(new.estimate[name] - old.estimate[name]) <= 0.02 * old.se[name], name
         assert new.se[name] == pytest.approx(old.se[name], rel=0.02), name
-    assert new.estimate["pose_sigma"] == old.estimate["pose_sigma"] == 1e-4  # exact poses: at its floor
+    if "pose_sigma" not in live:  # exact poses: both at its floor
+        assert new.estimate["pose_sigma"] == old.estimate["pose_sigma"] == 1e-4
     assert new.n_evals < old.n_evals / 2
