@@ -970,23 +970,41 @@ def _analytic(rows: Rows, p: Params, free: tuple[str, ...], options: FitOptions)
     )
 
 
-def _hessian_fd(obj: _GradObjective, theta, live, h, lo, hi):
-    """Hessian of the ``live`` parameters by central differences of the analytic gradient
-    (steps ``h``, shortened to stay in the box), symmetrised; the 2p points run on the
-    stencil threads. Like the central differences of f it replaces, it is the curvature
-    averaged over +-h: the likelihood's curvature in r_en wavers by ~1 % over a tenth of
-    a standard error (rows crossing the noise edge), and a one-sided difference followed it
-    (1.7 % on the 1e5-row campaign of tests/perf/bench_fit_read.py)."""
+#: Parameters whose column of the all-rows Hessian :func:`_hessian_fd` takes by a forward
+#: difference (one pass instead of two): with 3e4-1e5 rows kappa_eq's curvature is smooth
+#: (its entry moves by < 1e-5 between steps of 0.1 and 1 s.e.; s.e. unchanged to 1e-4),
+#: unlike r_en's. Not below SUBSAMPLE rows: on 1200 rows it moved kappa_eq's s.e. by 2.3 %.
+ONE_SIDED = ("kappa_eq",)
+
+
+def _hessian_fd(obj: _GradObjective, theta, g0, live, h, lo, hi, one_sided=()):
+    """Hessian of the ``live`` parameters by differences of the analytic gradient (steps
+    ``h``, shortened to stay in the box); the points run on the stencil threads. Central
+    differences, as the differences of f they replace: the curvature averaged over +-h.
+    The likelihood's curvature in r_en wavers by ~1 % over a tenth of a standard error
+    (rows crossing the noise edge), and a one-sided difference followed it (1.7 % on the
+    1e5-row campaign of tests/perf/bench_fit_read.py). The columns of ``one_sided``
+    parameters are forward differences from ``g0``, the gradient at ``theta``, and their
+    off-diagonal entries come from the central columns."""
     hs = np.minimum(h[live], np.maximum(np.minimum(hi[live] - theta[live], theta[live] - lo[live]), 1e-9))
+    one = np.array([obj.free[j] in one_sided for j in live], dtype=bool)
     points = []
     for c, j in enumerate(live):
-        for sgn in (1.0, -1.0):
+        for sgn in (1.0,) if one[c] else (1.0, -1.0):
             th = theta.copy()
             th[j] += sgn * hs[c]
             points.append(th)
-    grads = _evaluate(lambda th: obj.value_grad(th)[1], points)
-    hl = np.stack([(grads[2 * c][live] - grads[2 * c + 1][live]) / (2.0 * hs[c]) for c in range(len(live))], axis=1)
-    return 0.5 * (hl + hl.T)
+    grads = iter(_evaluate(lambda th: obj.value_grad(th)[1], points))
+    cols = []
+    for c in range(len(live)):
+        up = next(grads)[live]
+        cols.append((up - g0[live]) / hs[c] if one[c] else (up - next(grads)[live]) / (2.0 * hs[c]))
+    hl = np.stack(cols, axis=1)
+    out = 0.5 * (hl + hl.T)
+    for a in np.flatnonzero(one):  # the central columns' entries are the better ones
+        for b in np.flatnonzero(~one):
+            out[a, b] = out[b, a] = hl[a, b]
+    return out
 
 
 def _se_steps(hl, free, live, fallback):
@@ -1006,7 +1024,7 @@ def _se_steps(hl, free, live, fallback):
 BHHH_STEPS = 4
 
 
-def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, hessian="final") -> _Newton:
+def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, hessian="final", one_sided=()) -> _Newton:
     """Projected Newton on f with the analytic gradient of each point (one pass each).
 
     Curvature: the outer product of the per-row scores at each point (BHHH; positive
@@ -1026,7 +1044,7 @@ def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, he
     (BFGS-updated; a subsample's, to start all rows from); "none" (a pre-pass): whatever
     curvature was used. Bounds as in :func:`_newton`: a parameter at a bound with its
     gradient pointing out is held, and pose_sigma (r_en) stepping toward a bound where f
-    flattens is tried at the bound."""
+    flattens is tried at the bound. ``one_sided``: see :func:`_hessian_fd`."""
     p = len(free)
     lo, hi = _box(free)
     cap = _caps(free)
@@ -1048,7 +1066,7 @@ def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, he
         nonlocal h, bhhh, exact_at, differenced, n_steps, last_dec
         h = _se_steps(hk, free, keep, h)
         n_steps, last_dec = 0, math.inf
-        hq[np.ix_(keep, keep)] = _hessian_fd(obj, theta, keep, h, lo, hi)
+        hq[np.ix_(keep, keep)] = _hessian_fd(obj, theta, g, keep, h, lo, hi, one_sided)
         bhhh, differenced, exact_at = False, True, (theta.copy(), keep)
         return hq[np.ix_(keep, keep)]
 
@@ -1181,7 +1199,8 @@ def _full_stage_grad(rows: Rows, base: Params, free: tuple[str, ...], options: F
     updates) to FULL_TOL, then the Hessian by central differences of the gradient at the
     estimate. The likelihood's curvature in r_en wavers by ~15 % over one standard error
     (rows near the noise edge), so from ~1 s.e. away two or three steps are needed,
-    whatever the Hessian: 3-4 + 2p passes over all rows. (The outer product of all rows'
+    whatever the Hessian: 3-4 + 2p - 1 passes over all rows (kappa_eq's column of the
+    Hessian one-sided, :data:`ONE_SIDED`). (The outer product of all rows'
     scores, free with the gradient, is no start: with exact poses the model's 0.01 % pose
     error is wider than the data's, and it has half kappa_eq's curvature.)"""
     full = Likelihood(rows)
@@ -1189,7 +1208,7 @@ def _full_stage_grad(rows: Rows, base: Params, free: tuple[str, ...], options: F
     full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
     full.block, full.threads = block_rows(rows), STENCIL_THREADS
     hess0 = None if res.hess is None else res.hess * (rows.k.shape[0] / SUBSAMPLE)
-    again = _newton_grad(_GradObjective(full, base, free), res.theta, free, options.max_iter, FULL_TOL, hess0)
+    again = _newton_grad(_GradObjective(full, base, free), res.theta, free, options.max_iter, FULL_TOL, hess0, one_sided=ONE_SIDED)
     again.iterations += res.iterations
     again.full_evals = full.n_evals
     if not again.ok:
