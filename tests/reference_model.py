@@ -78,3 +78,13 @@ def raw(rx_p, rx_q, tx_p, tx_q=(1, 0, 0, 0), kappa_eq=1.542, s=1.0):
     dxy = (kappa_eq / (4 * math.pi * hxy)) ** (1 / 3)
     delta = math.copysign(90.0, hy) if hx == 0 else math.degrees(math.atan(hy / hx))
     return d3, dxy, delta
+
+
+def delta_near_boundary(delta, eps=1e-6):
+    """True if a raw delta (degrees) is a hair from where two correct float computations
+    may round differently: a half degree, the +-89.5 clamp, or atan's +-90 fold (there a
+    rounding residue of h_x decides the sign, e.g. -89.99999999999999 vs +89.99...)."""
+    if delta is None:
+        return False
+    t = delta - 0.5 if delta >= 0 else delta + 0.5
+    return abs(t - round(t)) < eps or abs(abs(delta) - 89.5) < eps or abs(abs(delta) - 90.0) < eps

@@ -251,7 +251,7 @@ def _near_boundary(rx_p, rx_q, tx_p, tx_q):
         return True
     if math.isfinite(dxy) and (abs(dxy - 50.0) < 1e-7 or half(100 * dxy)):
         return True
-    return delta is not None and (half(delta) or abs(abs(delta) - 89.5) < 1e-6)
+    return ref.delta_near_boundary(delta)
 
 
 def _separated(a, b):

@@ -148,7 +148,7 @@ def _near_boundary(rx_p, rx_q, tx_p, tx_q):
         return True
     if not math.isfinite(dxy) or dxy < 1e-6:
         return True  # h_xy is a rounding residue: zero or not is not determined
-    return delta is not None and (half(delta) or abs(abs(delta) - 89.5) < 1e-6)
+    return ref.delta_near_boundary(delta)
 
 
 def _separated(a, b):

@@ -9,6 +9,7 @@ import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -20,6 +21,7 @@ from bench.session import SessionWriter
 from emulator.output.net_ports import (
     UART_FIFO_BYTES,
     LineSettings,
+    ServedClient,
     ServerPort,
     UartLine,
     is_ephemeral,
@@ -368,3 +370,104 @@ def test_a_baud_rate_out_of_limits_is_refused_like_a_real_port_server():
         "set line 9600 8N1",
         "left: 0 bytes sent, 0 dropped (line 9600 8N1)",
     ]
+
+
+# --- who sends: the emulator's own write, at the deadline --------------------------
+
+
+class FakeSocket:
+    """A client socket that records what is sent, from which thread and how.
+
+    ``accept`` bounds what one non-blocking send() takes (0: a full socket); sendall()
+    takes everything but first waits for ``sendall_go`` (set by default); recv() blocks
+    until ``hang_up`` is set, then reports the client gone."""
+
+    def __init__(self, accept: int = 1 << 20) -> None:
+        self.accept = accept
+        self.sent: list[tuple[str, int, bytes]] = []  # (how, thread id, bytes)
+        self.sendall_go = threading.Event()
+        self.sendall_go.set()
+        self.in_sendall = threading.Event()
+        self.hang_up = threading.Event()
+
+    def send(self, data: bytes, flags: int = 0) -> int:
+        assert flags & socket.MSG_DONTWAIT
+        n = min(len(data), self.accept)
+        if n == 0:
+            raise BlockingIOError
+        self.sent.append(("send", threading.get_ident(), bytes(data[:n])))
+        return n
+
+    def sendall(self, data: bytes) -> None:
+        self.in_sendall.set()
+        assert self.sendall_go.wait(10)
+        self.sent.append(("sendall", threading.get_ident(), bytes(data)))
+
+    def recv(self, _n: int) -> bytes:
+        assert self.hang_up.wait(10)
+        return b""
+
+    def shutdown(self, _how) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def received(self) -> bytes:
+        return b"".join(d for _how, _t, d in self.sent)
+
+
+@pytest.fixture
+def tcp_port():
+    port = ServerPort("arva", parse_server_spec("tcp-server:127.0.0.1:0"))
+    yield port
+    port.close()
+
+
+def _wait_for(cond, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.001)
+
+
+def test_a_served_client_is_sent_the_epoch_from_the_writers_own_thread(tcp_port):
+    sock = FakeSocket()
+    client = ServedClient(tcp_port, sock, ("127.0.0.1", 1))  # threads not started: only offer() can send
+    client.offer(b"$PARVA,0,4,1*00\r\n")
+    client.offer(b"$PARVA,0,4,2*00\r\n")
+    assert sock.sent == [("send", threading.get_ident(), b"$PARVA,0,4,1*00\r\n"),
+                         ("send", threading.get_ident(), b"$PARVA,0,4,2*00\r\n")]
+    assert client.bytes_sent == 34 and client.bytes_dropped == 0
+
+
+def test_what_the_socket_cannot_take_at_once_follows_in_order_from_the_sender(tcp_port):
+    sock = FakeSocket(accept=5)
+    client = ServedClient(tcp_port, sock, ("127.0.0.1", 1))
+    client.offer(b"0123456789")  # 5 bytes sent now, 5 queued
+    client.offer(b"abcdef")  # something is queued: all of it waits behind it
+    assert sock.sent == [("send", threading.get_ident(), b"01234")]
+    client.start()
+    _wait_for(lambda: len(sock.received()) == 16)
+    assert sock.received() == b"0123456789abcdef"
+    assert [how for how, _t, _d in sock.sent] == ["send", "sendall"]
+    assert sock.sent[1][1] != threading.get_ident()
+    sock.hang_up.set()
+    client.close(time.monotonic() + 5)
+
+
+def test_no_byte_overtakes_the_ones_the_sender_is_sending(tcp_port):
+    sock = FakeSocket(accept=0)  # full: the first epoch goes to the sender
+    sock.sendall_go.clear()
+    client = ServedClient(tcp_port, sock, ("127.0.0.1", 1))
+    client.start()
+    client.offer(b"first")
+    assert sock.in_sendall.wait(10)  # the sender holds "first", its queue is empty again
+    sock.accept = 1 << 20  # the socket would take the next epoch now ...
+    client.offer(b"second")  # ... but it must wait for "first"
+    sock.sendall_go.set()
+    _wait_for(lambda: len(sock.received()) == 11)
+    assert sock.received() == b"firstsecond"
+    assert [how for how, _t, _d in sock.sent] == ["sendall", "sendall"]
+    sock.hang_up.set()
+    client.close(time.monotonic() + 5)

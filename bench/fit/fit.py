@@ -4,7 +4,9 @@
 near rows, the pose error from their scatter, a grid over r_en), then runs a projected,
 damped Newton method on the negative log-likelihood with central-difference derivatives
 in the optimiser's scale (log for kappa_eq, lengths and pose_sigma; seconds for
-time_offset).
+time_offset). With exact poses (no errors-in-variables model) the fit of kappa_eq, r_en
+and pose_sigma takes the likelihood's analytic gradient instead (:func:`_newton_grad`:
+one pass per point, the Hessian by central differences of the gradient).
 
 Standard errors come from the observed information, the Hessian at the optimum, with
 difference steps re-set to 0.3 standard errors so they measure the curvature on the
@@ -834,24 +836,41 @@ def _core(
         if "pose_sigma" in free and sub.moments is None:  # else the near scatter is GPS error
             start = replace(start, pose_sigma=pilot_sigma(sub, start.kappa_eq, base.r_inner))
         if "r_en" in free:
-            grid = options.likelihood(sub)
-            best = (math.inf, start.r_en)
-            for r_en in np.geomspace(8.0, 1000.0, 15):
+            eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+            grid_r = np.geomspace(8.0, 1000.0, 15)
+
+            def at(r_en):  # one likelihood per point: the points run on the stencil threads
+                like_r = options.likelihood(sub)
                 trial = replace(start, r_en=float(r_en))
-                grid.choose_regimes(trial, **({} if options.eps_split is None else {"eps_split": options.eps_split}))
-                v = grid.nll(trial)
-                if v < best[0]:
-                    best = (v, float(r_en))
-            n_evals += grid.n_evals
-            start = replace(start, r_en=best[1])
+                like_r.choose_regimes(trial, **eps_kw)
+                return like_r.nll(trial)
+
+            values = np.array(_evaluate(at, list(grid_r)))
+            n_evals += len(values)
+            values = np.where(np.isnan(values), np.inf, values)
+            i = int(np.argmin(values))
+            best_r = float(grid_r[i]) if math.isfinite(values[i]) else start.r_en
+            if _analytic(sub, start, free, options) and 0 < i < len(values) - 1 and np.all(np.isfinite(values[i - 1 : i + 2])):
+                # the vertex of the parabola through the best point and its neighbours (in log
+                # r_en): Newton from the grid's ratio of 1.4 took 5-8 steps more
+                vm, v0, vp = values[i - 1 : i + 2]
+                curv = vp - 2.0 * v0 + vm
+                if curv > 0:
+                    dx = math.log(grid_r[1] / grid_r[0])
+                    best_r *= math.exp(float(np.clip(-0.5 * dx * (vp - vm) / curv, -dx, dx)))
+            start = replace(start, r_en=best_r)
     theta = from_params(start, free)
     if "time_offset" in free and rows.track is not None:
         sub = rows  # the likelihood recomputes the geometry from the track at each offset
     steps = None if prev is None else prev.steps
-    like, res = _optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else DECREMENT_TOL, warm)
+    analytic = _analytic(sub, start, free, options)
+    if analytic:
+        like, res = _optimise_grad(sub, base, free, theta, options, notes, SUB_TOL if big else DECREMENT_TOL)
+    else:
+        like, res = _optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else DECREMENT_TOL, warm)
     n_evals += like.n_evals
     if big and res.ok and full:
-        like, res, extra = _full_stage(rows, base, free, options, notes, res)
+        like, res, extra = (_full_stage_grad if analytic else _full_stage)(rows, base, free, options, notes, res)
         n_evals += extra
     return like, res, n_evals
 
@@ -916,6 +935,286 @@ def _full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpt
         res.ok, res.why = False, "no convergence of the full-data refinement"
     notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then Newton steps and the Hessian on all rows")
     return full, res, full.n_evals
+
+
+# -- analytic gradients (exact poses) ------------------------------------------------------------
+
+
+class _GradObjective(_Objective):
+    """:class:`_Objective` that also gives the gradient and the per-row scores (N, p) of
+    log P from one pass (:meth:`Likelihood.logp_grad`)."""
+
+    def __init__(self, like: Likelihood, base: Params, free: tuple[str, ...]) -> None:
+        super().__init__(like, base, free)
+        self.cols = [Likelihood.GRAD_PARAMS.index(n) for n in free]
+
+    def value_grad(self, theta):
+        logp, d = self.like.logp_grad(to_params(self.base, self.free, theta))
+        scores = d[self.cols].T
+        return -float(np.sum(logp)), -scores.sum(axis=0), scores
+
+
+def _analytic(rows: Rows, p: Params, free: tuple[str, ...], options: FitOptions) -> bool:
+    """Whether the fit of ``free`` takes the analytic-gradient route (:func:`_newton_grad`):
+    exact poses (no errors-in-variables model) and parameters among
+    :data:`Likelihood.GRAD_PARAMS`; the others keep central differences. So does a fit of
+    r_outer: its likelihood-ratio interval is taken at the first pass's estimate (with
+    the initial r_outer), whose optimum is rugged in r_en; the gradient route found a
+    lower one on the test campaign, and the interval came out 13 % narrower."""
+    return (
+        options.likelihood is Likelihood
+        and rows.moments is None
+        and "r_outer" not in options.free
+        and all(n in Likelihood.GRAD_PARAMS for n in free)
+        and Likelihood(rows).has_grad(p)
+    )
+
+
+#: Parameters whose column of the all-rows Hessian :func:`_hessian_fd` takes by a forward
+#: difference (one pass instead of two): with 3e4-1e5 rows kappa_eq's curvature is smooth
+#: (its entry moves by < 1e-5 between steps of 0.1 and 1 s.e.; s.e. unchanged to 1e-4),
+#: unlike r_en's. Not below SUBSAMPLE rows: on 1200 rows it moved kappa_eq's s.e. by 2.3 %.
+ONE_SIDED = ("kappa_eq",)
+
+
+def _hessian_fd(obj: _GradObjective, theta, g0, live, h, lo, hi, one_sided=()):
+    """Hessian of the ``live`` parameters by differences of the analytic gradient (steps
+    ``h``, shortened to stay in the box); the points run on the stencil threads. Central
+    differences, as the differences of f they replace: the curvature averaged over +-h.
+    The likelihood's curvature in r_en wavers by ~1 % over a tenth of a standard error
+    (rows crossing the noise edge), and a one-sided difference followed it (1.7 % on the
+    1e5-row campaign of tests/perf/bench_fit_read.py). The columns of ``one_sided``
+    parameters are forward differences from ``g0``, the gradient at ``theta``, and their
+    off-diagonal entries come from the central columns."""
+    hs = np.minimum(h[live], np.maximum(np.minimum(hi[live] - theta[live], theta[live] - lo[live]), 1e-9))
+    one = np.array([obj.free[j] in one_sided for j in live], dtype=bool)
+    points = []
+    for c, j in enumerate(live):
+        for sgn in (1.0,) if one[c] else (1.0, -1.0):
+            th = theta.copy()
+            th[j] += sgn * hs[c]
+            points.append(th)
+    grads = iter(_evaluate(lambda th: obj.value_grad(th)[1], points))
+    cols = []
+    for c in range(len(live)):
+        up = next(grads)[live]
+        cols.append((up - g0[live]) / hs[c] if one[c] else (up - next(grads)[live]) / (2.0 * hs[c]))
+    hl = np.stack(cols, axis=1)
+    out = 0.5 * (hl + hl.T)
+    for a in np.flatnonzero(one):  # the central columns' entries are the better ones
+        for b in np.flatnonzero(~one):
+            out[a, b] = out[b, a] = hl[a, b]
+    return out
+
+
+def _se_steps(hl, free, live, fallback):
+    """Difference steps of 0.3 standard errors from a live-parameter Hessian."""
+    steps = fallback.copy()
+    try:
+        se = np.sqrt(np.maximum(np.diag(np.linalg.inv(hl)), 1e-18))
+    except np.linalg.LinAlgError:
+        return steps
+    top = np.where(np.isin(np.array(free)[live], LINEAR), 0.5, 0.05)
+    steps[live] = np.clip(0.3 * se, 1e-7, top)
+    return np.where(np.isfinite(steps), steps, fallback)
+
+
+#: :func:`_newton_grad` leaves the outer product for the Hessian by differences after
+#: BHHH_STEPS steps (or two in a row that do not halve the decrement).
+BHHH_STEPS = 4
+
+
+def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, hessian="final", one_sided=()) -> _Newton:
+    """Projected Newton on f with the analytic gradient of each point (one pass each).
+
+    Curvature: the outer product of the per-row scores at each point (BHHH; positive
+    definite, and the Hessian's expectation at the optimum of a well-specified model) or
+    ``hess0`` (a previous Hessian: the scaled one of a subsample), corrected by BFGS
+    updates from the gradient changes of each step. The outer product alone can stall (a
+    misspecified model, e.g. the wrong r_outer; or exact poses, whose 0.01 % model pose
+    error is wider than the data's: it has half kappa_eq's curvature there), and BFGS can
+    go astray on a likelihood that is not smooth at the scale of a standard error (1200
+    rows: 60 ever shorter steps): after BHHH_STEPS steps with the outer product, or two
+    steps in a row that did not halve the decrement, the Hessian by central differences
+    of the gradient (:func:`_hessian_fd`, 2p passes) is taken there. Convergence: a
+    decrement g' H^-1 g / 2 below ``tol``; then with ``hessian`` "final" the Hessian by
+    differences at the estimate (the likelihood's curvature wavers
+    by ~1 % over 0.02 standard errors, rows near the noise edge: taken elsewhere it would
+    not be the estimate's); "some": a Hessian by differences taken somewhere on the way
+    (BFGS-updated; a subsample's, to start all rows from); "none" (a pre-pass): whatever
+    curvature was used. Bounds as in :func:`_newton`: a parameter at a bound with its
+    gradient pointing out is held, and pose_sigma (r_en) stepping toward a bound where f
+    flattens is tried at the bound. ``one_sided``: see :func:`_hessian_fd`."""
+    p = len(free)
+    lo, hi = _box(free)
+    cap = _caps(free)
+    h = _initial_steps(free)
+    probe_lo = np.array([n in MAY_VANISH for n in free])
+    probe_hi = np.array([n == "r_en" for n in free])
+    theta = np.clip(theta, lo, hi)
+    f0, g, scores = obj.value_grad(theta)
+    none = np.zeros(p, bool)
+    if not math.isfinite(f0):
+        return _Newton(theta, f0, None, none, h, 0, False, "the likelihood is zero at the starting point")
+    hq = np.eye(p) if hess0 is None else hess0.copy()
+    bhhh = hess0 is None  # the outer product at each point, until a Hessian is differenced
+    n_steps, last_dec = 0, math.inf  # steps since the curvature was last renewed
+    exact_at = None  # (theta, live parameters) where hq was differenced
+    differenced = hess0 is not None and hessian != "final"
+
+    def difference(theta, keep, hk):
+        nonlocal h, bhhh, exact_at, differenced, n_steps, last_dec
+        h = _se_steps(hk, free, keep, h)
+        n_steps, last_dec = 0, math.inf
+        hq[np.ix_(keep, keep)] = _hessian_fd(obj, theta, g, keep, h, lo, hi, one_sided)
+        bhhh, differenced, exact_at = False, True, (theta.copy(), keep)
+        return hq[np.ix_(keep, keep)]
+
+    it = 0
+    for it in range(1, max_iter + 1):
+        if not (math.isfinite(f0) and np.all(np.isfinite(g))):
+            return _Newton(theta, f0, hq, none, h, it, False, "the likelihood is not finite next to the estimate")
+        active = _active(theta, g, lo, hi)
+        keep = np.flatnonzero(~active)
+        if keep.size == 0:
+            return _Newton(theta, f0, np.eye(p), active, h, it, True, "converged")
+        if bhhh:
+            hq[np.ix_(keep, keep)] = scores[:, keep].T @ scores[:, keep]
+        hk = hq[np.ix_(keep, keep)]
+        stepf, _mod = _solve(hk, g[keep])
+        if stepf is None:
+            return _Newton(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
+        decrement = -0.5 * float(g[keep] @ stepf)
+        slow = n_steps >= 2 and decrement > 0.5 * last_dec
+        stalled = decrement >= tol and ((bhhh and n_steps >= BHHH_STEPS) or slow)
+        here = exact_at is not None and np.array_equal(exact_at[0], theta) and np.array_equal(exact_at[1], keep)
+        want = (hessian == "final" and not here) or (hessian == "some" and not differenced)
+        if stalled or (decrement < tol and want):
+            hk = difference(theta, keep, hk)
+            stepf, _mod = _solve(hk, g[keep])
+            if stepf is None:
+                return _Newton(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
+            decrement = -0.5 * float(g[keep] @ stepf)
+        n_steps += 1
+        last_dec = decrement
+        if decrement < tol:
+            return _Newton(theta, f0, hq if differenced else None, active, h, it, True, "converged")
+        step = np.zeros(p)
+        step[keep] = stepf
+        # A parameter heading for a bound where the likelihood flattens (pose_sigma with
+        # exact poses; r_en with no noise in the data): try the bound itself.
+        toward_lo = probe_lo & (step < 0) & (theta > lo)
+        toward_hi = probe_hi & (step > 0) & ((np.abs(step) >= cap) | (theta > math.log(300.0))) & (theta < hi)
+        probed = False
+        for i in np.flatnonzero(toward_lo | toward_hi):
+            trial = theta.copy()
+            trial[i] = lo[i] if toward_lo[i] else hi[i]
+            r = obj.value_grad(trial)
+            if r[0] < f0 or (toward_lo[i] and r[0] < f0 + 1e-6):
+                theta, (f0, g, scores), probed = trial, r, True
+        if probed:
+            n_steps, last_dec = 0, math.inf
+            continue
+        flat = probe_lo & (np.abs(step) > cap)
+        if flat.any() and not flat.all():
+            step[flat] = np.sign(step[flat]) * cap[flat]
+        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        accepted = None
+        for _half in range(12):
+            trial = np.clip(theta + step, lo, hi)
+            r = obj.value_grad(trial)
+            if r[0] < f0:
+                accepted = (trial, r)
+                break
+            step = step * 0.5
+        if accepted is None:
+            if exact_at is not None and decrement < 1e-3:
+                return _Newton(theta, f0, hq, active, h, it, True, "converged")
+            return _Newton(theta, f0, hq, active, h, it, False, "no step decreases the negative log-likelihood")
+        trial, (f1, g1, s1) = accepted
+        d0, d1 = float(g @ (trial - theta)), float(g1 @ (trial - theta))
+        if d0 < 0 < d1 and d1 > -0.5 * d0:
+            # far past the minimum along the step (the curvature underestimated, as the outer
+            # product does on the steep side of r_en): the secant of the slope there
+            alt = np.clip(theta + (trial - theta) * (d0 / (d0 - d1)), lo, hi)
+            r = obj.value_grad(alt)
+            if r[0] < f1:
+                trial, (f1, g1, s1) = alt, r
+        s_l, y = (trial - theta)[keep], (g1 - g)[keep]  # BFGS on the live block
+        ys, hs_ = float(y @ s_l), hk @ s_l
+        shs = float(s_l @ hs_)
+        if not bhhh and ys > 1e-12 * max(shs, 1e-300) and shs > 0:
+            hq[np.ix_(keep, keep)] = hk + np.outer(y, y) / ys - np.outer(hs_, hs_) / shs
+        theta, f0, g, scores = trial, f1, g1, s1
+    return _Newton(theta, f0, hq, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
+
+
+#: :func:`_optimise_grad` splits the rows of each evaluation in two halves from this many
+#: rows on (a 10,000-row subsample: 9.5 -> ~6 ms wall with a core free).
+SPLIT_ROWS = 4000
+
+
+def _optimise_grad(rows: Rows, base: Params, free, theta, options, notes, tol):
+    """:func:`_optimise` on the analytic-gradient route: a pre-pass to 0.5 nats, then Newton
+    to ``tol`` with the S/L split re-chosen until the one at the estimate is the one the
+    estimate was found with (a subsample's search: one pass; all rows follow). Its
+    evaluations are sequential: from SPLIT_ROWS rows on, each runs its two halves on the
+    stencil threads (same values, bit for bit)."""
+    like = Likelihood(rows)
+    n = rows.k.shape[0]
+    if n >= SPLIT_ROWS:
+        like.block, like.threads = -(-n // 2), STENCIL_THREADS
+    eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    obj = _GradObjective(like, base, free)
+    search = tol > DECREMENT_TOL
+    iters = 0
+    res = None
+    hess0 = None
+    for _pass in range(4):
+        like.choose_regimes(to_params(base, free, theta), **eps_kw)
+        split = like.regimes.exact.copy()
+        settled = _pass > 0
+        # the pre-pass's Hessian, if it differenced one, starts the next pass; a subsample's
+        # search needs one only to start all rows from
+        hessian = ("some" if search else "final") if settled else "none"
+        res = _newton_grad(obj, theta, free, options.max_iter, tol if settled else 0.5, hess0, hessian)
+        hess0 = res.hess
+        iters += res.iterations
+        theta = res.theta
+        if not res.ok or (settled and search):
+            break
+        changed = int(np.sum(like.choose_regimes(to_params(base, free, theta), **eps_kw).exact != split))
+        if changed == 0 and settled:
+            like.regimes.exact = split
+            break
+        if changed and settled:
+            notes.append(f"{changed} rows changed likelihood regime at the estimate; refitted")
+    res.iterations = iters
+    return like, res
+
+
+def _full_stage_grad(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], res: "_Newton"):
+    """:func:`_full_stage` on the analytic-gradient route: from the subsample's estimate,
+    Newton steps on all rows from the subsample's Hessian scaled by n / SUBSAMPLE (with BFGS
+    updates) to FULL_TOL, then the Hessian by central differences of the gradient at the
+    estimate. The likelihood's curvature in r_en wavers by ~15 % over one standard error
+    (rows near the noise edge), so from ~1 s.e. away two or three steps are needed,
+    whatever the Hessian: 3-4 + 2p - 1 passes over all rows (kappa_eq's column of the
+    Hessian one-sided, :data:`ONE_SIDED`). (The outer product of all rows'
+    scores, free with the gradient, is no start: with exact poses the model's 0.01 % pose
+    error is wider than the data's, and it has half kappa_eq's curvature.)"""
+    full = Likelihood(rows)
+    eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
+    full.block, full.threads = block_rows(rows), STENCIL_THREADS
+    hess0 = None if res.hess is None else res.hess * (rows.k.shape[0] / SUBSAMPLE)
+    again = _newton_grad(_GradObjective(full, base, free), res.theta, free, options.max_iter, FULL_TOL, hess0, one_sided=ONE_SIDED)
+    again.iterations += res.iterations
+    again.full_evals = full.n_evals
+    if not again.ok:
+        again.why = "no convergence of the full-data refinement"
+    notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then Newton steps and the Hessian on all rows")
+    return full, again, full.n_evals
 
 
 def _fit_r_outer(like: Likelihood, params: Params, rows: Rows) -> tuple[float, float, float]:

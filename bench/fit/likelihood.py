@@ -30,6 +30,15 @@ during an optimisation so the objective stays smooth):
 The inner zone always uses S on |h| (EMI is 1e-4 of the signal at 3 m). Every
 probability is mixed with a gross-error floor: P' = (1 - 1e-6) P + 1e-6 / (100 r_outer + 2).
 Only kappa_eq / s is identifiable: the fit reports kappa_eq for s = 1.
+
+Analytic first derivatives (:meth:`Likelihood.logp_grad`) of every row's log P in
+(log kappa_eq, log r_en, log pose_sigma) come from the same pass, for exact poses (no
+errors-in-variables sigmas): kappa_eq moves every log distance by 1/3 of its log; r_en
+scales the EMI spread e of the S rule as r_en^-3 and both the threshold t and gamma of the
+L rule as r_en^3; pose_sigma is the s.d. s of the Gaussian part. With f = dF/du the
+density of the S rule's CDF F(u; e, s), Gaussian integration by parts gives
+dF/dlog r_en = 3 (u f + s^2 f') and dF/dlog s = s^2 f'; the L rule differentiates
+:func:`special.ball_disk_cdf` under its integral.
 """
 
 from __future__ import annotations
@@ -46,7 +55,14 @@ from scipy.interpolate import CubicSpline
 from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
 
 from .pose_error import PoseMoments, signal_error_cdf
-from .special import BIN_W_MAX, epan_gauss_cdf, epan_gauss_interval, smoothed_ball_disk_bin, smoothed_ball_disk_cdf
+from .special import (
+    BIN_W_MAX,
+    epan_gauss_cdf,
+    epan_gauss_density,
+    epan_gauss_interval,
+    smoothed_ball_disk_bin,
+    smoothed_ball_disk_cdf,
+)
 from .table import Table
 
 GROSS_ERROR = 1e-6
@@ -306,10 +322,41 @@ class Likelihood:
     def nll(self, p: Params) -> float:
         return -float(np.sum(self.logp(p)))
 
+    #: The parameters :meth:`logp_grad` differentiates by, in the optimiser's (log) scale.
+    GRAD_PARAMS = ("kappa_eq", "r_en", "pose_sigma")
+
+    def has_grad(self, p: Params) -> bool:
+        """Whether :meth:`logp_grad` applies: the pose error is the scalar pose_sigma (no
+        errors-in-variables sigmas or height offset, no narrow-bin rows) and the rules are
+        this class's own."""
+        mom_free = self.rows.moments is None or (p.gps_sigma == 0.0 and p.attitude_sigma == 0.0 and p.height_offset == 0.0)
+        narrow = self.regimes is not None and self.regimes.narrow is not None and bool(self.regimes.narrow.any())
+        return mom_free and not narrow and type(self).mid_prob is Likelihood.mid_prob and p.pose_sigma > 0.0
+
+    def logp_grad(self, p: Params) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(log P(d_i), d log P(d_i) / d(log kappa_eq, log r_en, log pose_sigma)) per row,
+        the second of shape (3, N), from one pass (see the module docstring; needs
+        :meth:`has_grad`). Counts as one evaluation."""
+        if not self.has_grad(p):
+            raise ValueError("analytic derivatives need exact poses (pose_sigma > 0, no errors-in-variables sigmas)")
+        with self._count:
+            self.n_evals += 1
+        prob, dprob = self._prob_blocks(p, True) if self._split() else self.prob(p, grad=True)
+        n_out = 100.0 * p.r_outer + 2.0
+        mixed = (1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out
+        out = np.log(mixed)
+        if self.remember:
+            key = (p, None if self.regimes is None else id(self.regimes.exact))
+            with self._count:
+                while len(self._memo) >= self.remember:
+                    self._memo.pop(next(iter(self._memo)))
+                self._memo[key] = (None if self.regimes is None else self.regimes.exact, out)
+        return out, dprob * ((1.0 - GROSS_ERROR) / mixed)
+
     def _split(self) -> bool:
         return self.block > 0 and self.regimes is not None and self.k.shape[0] >= 2 * self.block
 
-    def _prob_blocks(self, p: Params) -> NDArray[np.float64]:
+    def _prob_blocks(self, p: Params, grad: bool = False):
         """:meth:`prob` block by block (see BLOCK_ROWS)."""
         reg = self.regimes
         if self._blocks is None or self._blocks[0] is not reg.exact or self._blocks[1] is not reg.narrow:
@@ -325,10 +372,14 @@ class Likelihood:
         if self.threads > 1 and threading.current_thread() is threading.main_thread() and len(parts) > 1:
             # two tasks of consecutive blocks (one task per block hands the GIL over too often)
             half = (len(parts) + 1) // 2
-            run = lambda group: [part.prob(p) for part in group]  # noqa: E731
+            run = lambda group: [part.prob(p, grad) for part in group]  # noqa: E731
             first, second = _rows_pool().map(run, (parts[:half], parts[half:]))
-            return np.concatenate(first + second)
-        return np.concatenate([part.prob(p) for part in parts])
+            done = first + second
+        else:
+            done = [part.prob(p, grad) for part in parts]
+        if grad:
+            return np.concatenate([v for v, _d in done]), np.concatenate([d for _v, d in done], axis=1)
+        return np.concatenate(done)
 
     # -- the model ------------------------------------------------------------------
     def pose_spread(self, p: Params, l3, lxy, sel=None):
@@ -356,7 +407,9 @@ class Likelihood:
         s2 = p.pose_sigma * p.pose_sigma
         return np.sqrt(s2 + vxy), np.sqrt(s2 + v3), l3 + m3, lxy + mxy
 
-    def prob(self, p: Params) -> NDArray[np.float64]:
+    def prob(self, p: Params, grad: bool = False):
+        """P(d_i) per row; with ``grad`` (exact poses, :meth:`has_grad`) also its
+        derivatives in (log kappa_eq, log r_en, log pose_sigma), shape (3, N)."""
         if self.regimes is None:
             self.choose_regimes(p)
         geo = self._geo(p)
@@ -382,17 +435,22 @@ class Likelihood:
             lo = np.log((kk - 0.5) / 100.0)  # -inf for k = 0 (and nan for k = -1, unused)
             hi = np.log((kk + 0.5) / 100.0)
         prob = np.zeros(n)
+        dprob = np.zeros((3, n)) if grad else None
 
         # Inner part: rows whose bin reaches below r_inner.
         inner = (~self.censored) & (lo <= log_in)
         if inner.any():
             i = inner
-            prob[i] += epan_gauss_interval(lo[i] - l3[i], np.minimum(hi[i], log_in) - l3[i], e3[i], _at(sig3, i))
+            lo_u, hi_u = lo[i] - l3[i], np.minimum(hi[i], log_in) - l3[i]
+            p_in = epan_gauss_interval(lo_u, hi_u, e3[i], _at(sig3, i))
+            prob[i] += p_in
+            if grad:
+                dprob[:, i] += _interval_grad(lo_u, hi_u, e3[i], sig3, p_in)
 
         # Mid part and censoring: P(inner) first, then the distribution of log dxy.
         mid = (self.censored | (hi > log_in)) & ~(lo >= log_out)
         if not mid.any():
-            return prob
+            return (prob, dprob) if grad else prob
         idx = np.flatnonzero(mid)
         # P(inner) is exactly 0 to double precision unless d3 is within e3 + 9 sigma of r_inner.
         p_not_inner = np.ones(idx.shape[0])
@@ -404,27 +462,40 @@ class Likelihood:
         cens = self.censored[idx]
         a = np.where(cens, log_out, np.maximum(lo[idx], log_in))  # P(a < log dxy <= b)
         b = np.where(cens, np.inf, np.minimum(hi[idx], log_out))
-        pm = self.mid_prob(idx, a, b, _Mid(geo, log_gxy, lxy, fxy, lk, sigma, p, lxy0))
+        m = _Mid(geo, log_gxy, lxy, fxy, lk, sigma, p, lxy0)
+        if not grad:
+            prob[idx] += p_not_inner * self.mid_prob(idx, a, b, m)
+            return prob
+        pm, dpm = self.mid_prob(idx, a, b, m, grad=True)
         prob[idx] += p_not_inner * pm
-        return prob
+        d_pni = np.zeros((3, idx.shape[0]))
+        if maybe.any():
+            d_pni[:, maybe] = -_cdf_grad(gap[maybe], -1.0 / 3.0, e3[idx][maybe], sig3)
+        dprob[:, idx] += d_pni * pm + p_not_inner * dpm
+        return prob, dprob
 
-    def mid_prob(self, idx, a, b, m: "_Mid") -> NDArray[np.float64]:
+    def mid_prob(self, idx, a, b, m: "_Mid", grad: bool = False):
         """P(a < log dxy <= b) for rows ``idx`` (bounds may be +-inf): S rows in closed
-        form, L rows from the exact |h_xy| distribution. Subclasses replace this to try
-        other approximations (tests/perf/bench_fit.py)."""
+        form, L rows from the exact |h_xy| distribution (with ``grad``: and its
+        derivatives, as :meth:`prob`). Subclasses replace this to try other
+        approximations (tests/perf/bench_fit.py)."""
         p, sigma = m.params, m.sigma
         log_r = m.geo.log_r
         # the exact rule works in log |h_xy| = log kappa - 3 log dxy: shift the threshold
         log_kappa = m.log_kappa
         pm = np.zeros(idx.shape[0])
+        dpm = np.zeros((3, idx.shape[0])) if grad else None
         exact = self.regimes.exact[idx]
         s_rows = ~exact
         if s_rows.any():
             j = idx[s_rows]
             exy = np.exp(_log_eps(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) / 3.0
             pm[s_rows] = epan_gauss_interval(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, _at(sigma, j))
+            if grad:
+                dpm[:, s_rows] = _interval_grad(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, sigma, pm[s_rows])
         if exact.any() and self.rows.moments is not None and (p.gps_sigma > 0.0 or p.attitude_sigma > 0.0):
-            # errors in variables: the pose error moves the signal against fixed EMI (pose_error)
+            # errors in variables (no analytic gradient: has_grad): the pose error moves the
+            # signal against fixed EMI (pose_error.signal_error_cdf)
             j = idx[exact]
             log_t0 = log_kappa + 3.0 * math.log(p.r_en) - np.log(2.0 * m.fxy[j])
             s3 = 3.0 * _at(sigma, j)
@@ -450,12 +521,20 @@ class Likelihood:
                 sn = _at(sj, nar)
                 pe[nar] = smoothed_ball_disk_bin(log_t0[nar] - 1.5 * (ae[nar] + be[nar]), 3.0 * (be[nar] - ae[nar]), gamma[nar], 3.0 * sn)
             wide = ~nar
-            if wide.any():
+            if wide.any() and grad:  # (nar is empty: exact poses)
+                ca, cb = _cdf_at(log_t0, ae, gamma, sj, True), _cdf_above(log_t0, be, gamma, sj, True)
+                diff = ca[0] - cb[0]
+                pe = np.maximum(diff, 0.0)
+                d_lt, d_lg, d_s3 = (ca[i] - cb[i] for i in (1, 2, 3))
+                # log t0 = log kappa + 3 log r_en + ..., log gamma = 3 log r_en + ..., s3 = 3 sigma
+                dpe = np.stack([d_lt, 3.0 * (d_lt + d_lg), (3.0 * sj) * d_s3])
+                dpm[:, exact] = np.where(diff > 0.0, dpe, 0.0)
+            elif wide.any():
                 sw = _at(sj, wide)
                 lw, gw = log_t0[wide], gamma[wide]
-                pe[wide] = np.maximum(_cdf_at(lw, ae[wide], gw, sw) - _cdf_at(lw, be[wide], gw, sw), 0.0)
+                pe[wide] = np.maximum(_cdf_at(lw, ae[wide], gw, sw) - _cdf_above(lw, be[wide], gw, sw), 0.0)
             pm[exact] = pe
-        return pm
+        return (pm, dpm) if grad else pm
 
     # -- diagnostics ------------------------------------------------------------------
     def prob_below(self, p: Params) -> NDArray[np.float64]:
@@ -553,14 +632,59 @@ def _gamma(log_r, log_gxy, fxy, r_en):
         return np.minimum(np.exp(-_log_eps(log_r, log_gxy, fxy, r_en)), 1e300)
 
 
-def _cdf_at(log_t0, y, gamma, sigma):
-    """P(|h_xy| < rho(y)) = P(log dxy > y) with the pose error: G(t(y)), t = e^{log_t0 - 3y}."""
+def _cdf_grad(w, dw_dx, e, s) -> NDArray[np.float64]:
+    """Derivatives of F(w; e, s) (:func:`special.epan_gauss_cdf`, s a scalar) in (log kappa,
+    log r_en, log s), w moving by ``dw_dx`` per unit log kappa, e as r_en^-3 (module
+    docstring); 0 at w = +-inf. Shape (3, len(w))."""
+    f, df = epan_gauss_density(w, e, s)
+    fin = np.isfinite(w)
+    ww = np.where(fin, w, 0.0)
+    s2df = (s * s) * df
+    return np.stack([f * dw_dx, 3.0 * (ww * f + s2df), s2df])
+
+
+def _interval_grad(a, b, e, s, value) -> NDArray[np.float64]:
+    """Derivatives of :func:`special.epan_gauss_interval` (a, b = bound - l, l moving by
+    1/3 per unit log kappa; ``value`` its result, 0 where it was clipped), taken from the
+    same tails it takes the values from."""
+    a, b, e = np.broadcast_arrays(*(np.asarray(v, float) for v in (a, b, e)))
+    upper = (a + b) > 0
+    sgn = np.where(upper, -1.0, 1.0)
+    lo = np.where(upper, -b, a)
+    hi = np.where(upper, -a, b)
+    dx = sgn * (-1.0 / 3.0)  # d(sgn (bound - l)) / dlog kappa
+    d = _cdf_grad(hi, dx, e, s) - _cdf_grad(lo, dx, e, s)
+    return np.where(value > 0.0, d, 0.0)
+
+
+def _cdf_at(log_t0, y, gamma, sigma, grad=False):
+    """P(|h_xy| < rho(y)) = P(log dxy > y) with the pose error: G(t(y)), t = e^{log_t0 - 3y}
+    (with ``grad``: and its derivatives in log t, log gamma and 3 sigma)."""
     with np.errstate(invalid="ignore"):
         lt = log_t0 - 3.0 * y
     lt = np.where(np.isnan(lt), -np.inf, lt)  # y = +inf: threshold 0
     # G = 1 beyond gamma + 1, and the pose error reaches 8 s.d. (3 sigma each) past it.
     lt = np.clip(lt, -745.0, np.log(gamma + 2.0) + 30.0 * sigma)
-    return smoothed_ball_disk_cdf(lt, gamma, 3.0 * sigma)
+    return smoothed_ball_disk_cdf(lt, gamma, 3.0 * sigma, grad=grad)
+
+
+def _cdf_above(log_t0, y, gamma, sigma, grad=False):
+    """:func:`_cdf_at` at the upper bound ``y`` of a bin: +inf for the censored rows, where it
+    is 0 (threshold 0, G = 0 exactly), so only the finite bounds are evaluated."""
+    fin = np.isfinite(y)
+    if fin.all():
+        return _cdf_at(log_t0, y, gamma, sigma, grad)
+    sub = np.flatnonzero(fin)
+    sig = sigma if np.ndim(sigma) == 0 else sigma[sub]
+    part = _cdf_at(log_t0[sub], y[sub], gamma[sub], sig, grad)
+    if not grad:
+        out = np.zeros(y.shape)
+        out[sub] = part
+        return out
+    out = [np.zeros(y.shape) for _ in part]
+    for o, v in zip(out, part):
+        o[sub] = v
+    return out
 
 
 def rows_from_table(table: Table, with_track: bool = False) -> Rows:

@@ -103,6 +103,50 @@ def epan_gauss_interval(a, b, e, s) -> NDArray[np.float64]:
     return np.maximum(epan_gauss_cdf(hi, e, s) - epan_gauss_cdf(lo, e, s), 0.0)
 
 
+def epan_gauss_density(u, e, s) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(f, f') = the first two u-derivatives of :func:`epan_gauss_cdf` (e > 0, s > 0 a
+    scalar or one per element; 0 at u = +-inf), for the likelihood's analytic derivatives.
+
+    f = (3 / 4e) E[1 - x^2; z1 < Z < z2] and f' = -(3 / 2e^2) E[x; z1 < Z < z2], x = (u - sZ)/e
+    (the end-point terms vanish or cancel), in the same partial moments as the CDF; below
+    e/s = SERIES_BELOW the u-derivatives of the CDF's series (h = e/s, z = u/s):
+    s f = [1 + (h^2/10) He2 + (h^4/280) He4] phi(z), s^2 f' = -[He1 + (h^2/10) He3 + (h^4/280) He5] phi(z).
+    The derivatives in e and s follow from these (Gaussian integration by parts):
+    dF/de = -(u f + s^2 f')/e and dF/ds = s f'.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    e = np.broadcast_to(np.asarray(e, dtype=np.float64), u.shape)
+    ss = np.broadcast_to(np.asarray(s, dtype=np.float64), u.shape)
+    f = np.zeros(u.shape)
+    df = np.zeros(u.shape)
+    finite = np.isfinite(u)
+    h = e / ss
+    series = finite & (h < SERIES_BELOW)
+    if series.any():
+        sc = ss[series]
+        z = u[series] / sc
+        hh = h[series] ** 2
+        z2 = z * z
+        p = _phi(z)
+        c2, c4 = 0.1 * hh, hh * hh / 280.0
+        f[series] = (1.0 + c2 * (z2 - 1.0) + c4 * ((z2 - 6.0) * z2 + 3.0)) * p / sc
+        df[series] = -z * (1.0 + c2 * (z2 - 3.0) + c4 * ((z2 - 10.0) * z2 + 15.0)) * p / (sc * sc)
+    full = finite & ~series
+    if full.any():
+        uu, ee, sc = u[full], e[full], ss[full]
+        z1 = (uu - ee) / sc
+        z2 = (uu + ee) / sc
+        alpha = uu / ee
+        beta = -sc / ee
+        p1, p2 = _phi(z1), _phi(z2)
+        m0 = ndtr(z2) - ndtr(z1)
+        m1 = p1 - p2
+        m2 = m0 + z1 * p1 - z2 * p2
+        f[full] = (0.75 / ee) * ((1.0 - alpha * alpha) * m0 - 2.0 * alpha * beta * m1 - beta * beta * m2)
+        df[full] = (-1.5 / (ee * ee)) * (alpha * m0 + beta * m1)
+    return f, df
+
+
 _X8, _W8 = np.polynomial.legendre.leggauss(8)
 
 
@@ -122,7 +166,7 @@ _NODES = {8: _nodes(8)}
 G_NODES = 8
 
 
-def ball_disk_cdf(t, gamma, nodes: int | None = None) -> NDArray[np.float64]:
+def ball_disk_cdf(t, gamma, nodes: int | None = None, grad: bool = False):
     """P(|gamma e_x + n| <= t), n the projection of a uniform unit-3-ball point on a plane.
 
     In polar coordinates about the noise centre (radius tau), the circle of radius tau
@@ -131,6 +175,16 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None) -> NDArray[np.float64]:
     2 arccos((tau^2 + gamma^2 - t^2) / (2 gamma tau)). The inside part integrates in
     closed form, 1 - (1 - a^2)^(3/2); the partial band a < tau < c is integrated with
     tau = a + (c - a)(1 - cos theta)/2, which makes the square-root ends smooth.
+
+    With ``grad``: (G, t dG/dt, gamma dG/dgamma). Differentiating under the integral (the
+    end-point terms cancel or vanish), with Q = (tau^2 - |t - gamma|^2)((t + gamma)^2 - tau^2),
+
+        t dG/dt = (3/pi) int 2 t^2 tau sqrt(1 - tau^2) / sqrt(Q) dtau,
+        gamma dG/dgamma = -(3/pi) int tau sqrt(1 - tau^2) (t^2 + gamma^2 - tau^2) / sqrt(Q) dtau,
+
+    over the same band and nodes (the substitution turns the 1/sqrt ends of Q into smooth
+    integrands). These are the exact derivatives of G by the same rule, not the derivatives
+    of the 8-node value: they differ by the rule's error, a smooth function of (t, gamma).
     """
     nodes = G_NODES if nodes is None else nodes
     t = np.asarray(t, dtype=np.float64)
@@ -149,11 +203,20 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None) -> NDArray[np.float64]:
     # elements have none (G is 0 or 1 there), so gather the others first.
     band = np.flatnonzero(width > 0.0)
     if band.size == 0:
-        return np.clip(out, 0.0, 1.0)
+        out = np.clip(out, 0.0, 1.0)
+        return (out, np.zeros(out.shape), np.zeros(out.shape)) if grad else out
     whole = band.size == width.size
     if not whole:
         gamma = np.broadcast_to(gamma, width.shape)
         t, gamma, a, width = (np.ravel(v)[band] for v in (t, gamma, a, width))
+    if grad:
+        cp = t + gamma
+        over = cp - np.minimum(cp, 1.0)  # (t + gamma) - c: the top of the band below t + gamma
+        s1 = np.zeros(t.shape)
+        sg = np.zeros(t.shape)
+        t2g2 = t * t + gamma * gamma
+        b1 = np.empty(t.shape)
+        b2 = np.empty(t.shape)
     k = gamma * gamma - t * t
     two_g = 2.0 * gamma
     acc = np.zeros(t.shape)
@@ -175,6 +238,24 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None) -> NDArray[np.float64]:
         np.maximum(sq, 0.0, out=sq)
         np.sqrt(sq, out=sq)
         sq *= tau
+        if grad:  # r = tau sqrt(1 - tau^2) w / sqrt(Q), Q's factors without cancellation
+            np.multiply(width, f, out=b1)  # tau - a
+            np.add(tau, a, out=b2)
+            b1 *= b2
+            np.multiply(width, 1.0 - f, out=b2)  # (t + gamma) - tau
+            b2 += over
+            b1 *= b2
+            np.add(cp, tau, out=b2)
+            b1 *= b2
+            np.maximum(b1, 1e-300, out=b1)
+            np.sqrt(b1, out=b1)
+            np.divide(sq, b1, out=b1)
+            b1 *= w
+            s1 += b1
+            np.multiply(tau, tau, out=b2)
+            np.subtract(t2g2, b2, out=b2)
+            b2 *= b1
+            sg += b2
         sq *= z
         sq *= w
         acc += sq
@@ -183,7 +264,16 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None) -> NDArray[np.float64]:
         out += acc
     else:
         out.ravel()[band] += acc  # out is a fresh contiguous array: ravel() is a view
-    return np.clip(out, 0.0, 1.0)
+    out = np.clip(out, 0.0, 1.0)
+    if not grad:
+        return out
+    if whole:
+        return out, 2.0 * t * t * width * s1, -width * sg
+    d_t = np.zeros(out.shape)
+    d_g = np.zeros(out.shape)
+    d_t.ravel()[band] = 2.0 * t * t * width * s1
+    d_g.ravel()[band] = -width * sg
+    return out, d_t, d_g
 
 
 #: Rows within this many standard deviations of a kink of ball_disk_cdf get the
@@ -202,7 +292,7 @@ GH2_BELOW = 0.01
 _XP, _WP = np.polynomial.legendre.leggauss(6)
 
 
-def smoothed_ball_disk_cdf(log_t, gamma, s3) -> NDArray[np.float64]:
+def smoothed_ball_disk_cdf(log_t, gamma, s3, grad: bool = False):
     """E[G(t exp(s3 Z); gamma)], Z standard normal: :func:`ball_disk_cdf` seen through a
     log-normal error of the threshold (the pose error, s3 = 3 sigma in log |h|; a scalar
     or one per row).
@@ -218,10 +308,18 @@ def smoothed_ball_disk_cdf(log_t, gamma, s3) -> NDArray[np.float64]:
     nodes each. The pose error usually dwarfs the support of G (a few s.d.), so most
     rows need one or two pieces. What lies beyond +-Z_SPAN (< 1e-15) is left out: the
     likelihood's gross-error floor (~2e-10) is far above it.
+
+    With ``grad``: (C, dC/dlog t, dC/dlog gamma, dC/ds3), each rule applied to
+    :func:`ball_disk_cdf`'s derivatives (dC/ds3 = E[Z dG/dlog t]); the piecewise rule's
+    moving ends add nothing (G = 0 at z1 when gamma > 1, G = 1 at z2 against the
+    1 - Phi(z2) term), and the blend's weight contributes its own derivative.
     """
     log_t = np.asarray(log_t, dtype=np.float64)
     gamma = np.asarray(gamma, dtype=np.float64)
     if np.ndim(s3) == 0 and not s3 > 0:
+        if grad:
+            g0, d_t, d_g = ball_disk_cdf(np.exp(np.minimum(log_t, 700.0)), gamma, grad=True)
+            return g0, d_t, d_g, np.zeros(g0.shape)
         return ball_disk_cdf(np.exp(np.minimum(log_t, 700.0)), gamma)
     s3 = np.broadcast_to(np.asarray(s3, dtype=np.float64), log_t.shape)
     with np.errstate(divide="ignore"):
@@ -229,6 +327,7 @@ def smoothed_ball_disk_cdf(log_t, gamma, s3) -> NDArray[np.float64]:
         z2 = (np.log(gamma + 1.0) - log_t) / s3
     zmin = np.minimum(np.abs(z1), np.abs(z2))
     out = np.empty(log_t.shape)
+    d = np.zeros((3,) + log_t.shape) if grad else None  # d/dlog t, d/dlog gamma, d/ds3
     # Away from the kinks G is smooth: the 3-point Gauss-Hermite rule (exact for
     # polynomials of degree 5 in z) is accurate to (s3 / spread)^6. One call for all nodes.
     # When s3 is under GH2_BELOW of the distance between the kinks (exact poses: 3e-4
@@ -240,24 +339,47 @@ def smoothed_ball_disk_cdf(log_t, gamma, s3) -> NDArray[np.float64]:
         if rows.size:
             lt, g, sc = log_t[rows], gamma[rows], s3[rows]
             nodes = np.minimum(lt[:, None] + sc[:, None] * xs, 700.0)
-            out[rows] = ball_disk_cdf(np.exp(nodes), np.broadcast_to(g[:, None], nodes.shape)) @ ws
+            if grad:
+                gv, d_t, d_g = ball_disk_cdf(np.exp(nodes), np.broadcast_to(g[:, None], nodes.shape), grad=True)
+                out[rows] = gv @ ws
+                d[0, rows], d[1, rows], d[2, rows] = d_t @ ws, d_g @ ws, d_t @ (xs * ws)
+            else:
+                out[rows] = ball_disk_cdf(np.exp(nodes), np.broadcast_to(g[:, None], nodes.shape)) @ ws
     near = np.flatnonzero(zmin < Z_KINK + Z_BLEND)
     if not near.size:
-        return out
-    acc = _piecewise(log_t[near], gamma[near], s3[near], z1[near], z2[near])
+        return (out, *d) if grad else out
+    acc = _piecewise(log_t[near], gamma[near], s3[near], z1[near], z2[near], grad=grad)
     # Between Z_KINK and Z_KINK + Z_BLEND the two rules are blended with a C2 smooth step,
     # so the likelihood has no jump where a row changes rule (they differ by ~1e-7).
     x = np.clip((zmin[near] - Z_KINK) / Z_BLEND, 0.0, 1.0)
     w = x * x * x * (10.0 - 15.0 * x + 6.0 * x * x)
     gh = np.where(w > 0.0, out[near], 0.0)  # out[near] is set only where w > 0
+    if not grad:
+        out[near] = np.clip(w * gh + (1.0 - w) * acc, 0.0, 1.0)
+        return out
+    acc, acc_d = acc
     out[near] = np.clip(w * gh + (1.0 - w) * acc, 0.0, 1.0)
-    return out
+    # d zmin: z1, z2 = (log|gamma -+ 1| - log t) / s3
+    zn1, zn2, gn, sn = z1[near], z2[near], gamma[near], s3[near]
+    first = np.abs(zn1) <= np.abs(zn2)
+    zm = np.where(first, zn1, zn2)
+    sign = np.sign(zm) / sn
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dlg = np.where(first, gn / (gn - 1.0), gn / (gn + 1.0))
+    dw = (30.0 / Z_BLEND) * (x * (1.0 - x)) ** 2 * (gh - acc)
+    dz = (-sign, sign * dlg, -sign * zm)
+    for i in range(3):
+        dgh = np.where(w > 0.0, d[i, near], 0.0)
+        blend = np.where(dw != 0.0, dw * dz[i], 0.0)
+        d[i, near] = w * dgh + (1.0 - w) * acc_d[i] + blend
+    return (out, *d)
 
 
-def _piecewise(lt, g, s3, z1, z2, w=None) -> NDArray[np.float64]:
+def _piecewise(lt, g, s3, z1, z2, w=None, grad=False):
     """E[G(exp(lt + s3 Z); g)] by integrating only where 0 < G < 1 (see
     :func:`smoothed_ball_disk_cdf`); all arguments one per row. With ``w``:
-    E[G(...) (w He1 + w^3/24 He3 + w^5/1920 He5)(Z)] instead (:func:`smoothed_ball_disk_bin`)."""
+    E[G(...) (w He1 + w^3/24 He3 + w^5/1920 He5)(Z)] instead (:func:`smoothed_ball_disk_bin`).
+    With ``grad`` (and no ``w``): (value, its derivatives in log t, log gamma and s3)."""
     lo = np.where(g > 1.0, np.clip(z1, -Z_SPAN, Z_SPAN), -Z_SPAN)  # G = 0 below z1 if g > 1
     hi = np.maximum(np.clip(z2, -Z_SPAN, Z_SPAN), lo)  # G = 1 above z2
     mid = np.clip(z1, lo, hi)  # the other kink (inside only when g < 1)
@@ -281,8 +403,15 @@ def _piecewise(lt, g, s3, z1, z2, w=None) -> NDArray[np.float64]:
         wz *= wr * z + (wr**3 / 24.0) * (z2_ - 3.0) * z + (wr**5 / 1920.0) * ((z2_ - 10.0) * z2_ + 15.0) * z
     with np.errstate(over="ignore"):
         tz = np.exp(np.minimum(lt[row][:, None] + s3[row][:, None] * z, 700.0))
-    gz = ball_disk_cdf(tz, np.broadcast_to(g[row][:, None], tz.shape))
+    if grad:
+        gz, g_t, g_g = ball_disk_cdf(tz, np.broadcast_to(g[row][:, None], tz.shape), grad=True)
+    else:
+        gz = ball_disk_cdf(tz, np.broadcast_to(g[row][:, None], tz.shape))
     acc = np.bincount(row, weights=np.einsum("ij,ij->i", wz, gz), minlength=lt.shape[0])
+    if grad:
+        n = lt.shape[0]
+        d = [np.bincount(row, weights=np.einsum("ij,ij->i", wz, v), minlength=n) for v in (g_t, g_g, z * g_t)]
+        return acc + ndtr(-np.maximum(z2, -40.0)), d
     if w is None:
         return acc + ndtr(-np.maximum(z2, -40.0))  # G = 1 above z2
     zt = np.clip(z2, -40.0, 40.0)

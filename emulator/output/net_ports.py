@@ -20,7 +20,8 @@ driver's buffer); what does not fit is dropped and counted, exactly as a device 
 UART is too slow for its epoch rate loses bytes. As fast as possible (``--speed 0``) a
 write may first wait up to the drain wait for the line, like a serial device (see
 :class:`~emulator.output.ports.SerialPort`). Bytes the UART accepted go to the socket at
-once: the baud rate limits how many arrive, not when. A client that stops reading has
+once, from the emulator's own write (a thread sends only what the socket could not take
+at once): the baud rate limits how many arrive, not when. A client that stops reading has
 at most :data:`SOCKET_BACKLOG_BYTES` queued for it; beyond that its bytes are dropped.
 
 Several clients may connect at once: each receives every byte the stream writes from
@@ -241,7 +242,7 @@ class _ClientUart(SerialBase):
         pass
 
 
-class _Client:
+class ServedClient:
     """One connected client: its UART, its outgoing queue and a sender and reader thread."""
 
     def __init__(self, port: ServerPort, sock: socket.socket, addr) -> None:
@@ -256,6 +257,7 @@ class _Client:
         self._data = bytearray()  # stream bytes the UART carried, not yet sent
         self._cond = threading.Condition()
         self._closing = False
+        self._sending = False  # the sender thread is writing bytes taken from the queues
         self.manager = None
         if port.spec.kind == "rfc2217-server":
             self.uart = _ClientUart(port.settings, self._settings_changed, self._purge)
@@ -290,6 +292,11 @@ class _Client:
 
     # --- stream data, from the emulator's thread
     def offer(self, data: bytes) -> None:
+        """Bytes the stream wrote: what the UART carries goes to the socket now, from the
+        caller's thread, when nothing is queued before it and the socket takes it without
+        blocking (the usual case); the rest is queued for the sender thread. Sending here
+        delivers at the epoch's deadline: the kernel wakes the client from this write, and
+        no other thread (at ordinary priority, behind the GIL) has to run first."""
         if self.gone.is_set():
             return
         n = self.line.offer(len(data))
@@ -298,10 +305,16 @@ class _Client:
             chunk = data[:n]
             if self.manager is not None:
                 chunk = chunk.replace(b"\xff", b"\xff\xff")  # Telnet IAC escaping
-            self._data += chunk
             self.bytes_sent += n
             self.bytes_dropped += len(data) - n
-            self._cond.notify()
+            if chunk and not (self._control or self._data or self._sending):
+                try:
+                    chunk = chunk[self.sock.send(chunk, socket.MSG_DONTWAIT) :]
+                except OSError:
+                    pass  # full (BlockingIOError) or gone: the sender thread sends or finds out
+            if chunk:
+                self._data += chunk
+                self._cond.notify()
 
     def _send_loop(self) -> None:
         try:
@@ -314,7 +327,12 @@ class _Client:
                     data = bytes(self._control + self._data)
                     del self._control[:]
                     del self._data[:]
-                self.sock.sendall(data)
+                    self._sending = True  # offer() must not send ahead of these bytes
+                try:
+                    self.sock.sendall(data)
+                finally:
+                    with self._cond:
+                        self._sending = False
         except OSError:
             self._vanish()  # the client is gone (reset, broken pipe)
 
@@ -394,7 +412,7 @@ class ServerPort(Port):
         scheme = "rfc2217" if spec.kind == "rfc2217-server" else "socket"
         self.path = f"{scheme}://{f'[{host}]' if ':' in host else host}:{port}"
         self.drain_wait = 0.0
-        self._clients: list[_Client] = []
+        self._clients: list[ServedClient] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._left_written = 0  # counts of clients that left
@@ -421,7 +439,7 @@ class ServerPort(Port):
                 return
             sock.settimeout(None)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            client = _Client(self, sock, addr)
+            client = ServedClient(self, sock, addr)
             with self._lock:
                 if self._stop.is_set():
                     sock.close()
@@ -432,7 +450,7 @@ class ServerPort(Port):
             )
             client.start()
 
-    def forget(self, client: _Client) -> None:
+    def forget(self, client: ServedClient) -> None:
         with self._lock:
             if client not in self._clients:
                 return
@@ -475,7 +493,7 @@ class ServerPort(Port):
         self._recount()
 
 
-def _counts(client: _Client) -> str:
+def _counts(client: ServedClient) -> str:
     return f"{client.bytes_sent} bytes sent, {client.bytes_dropped} dropped (line {client.line.settings.describe()})"
 
 

@@ -8,7 +8,10 @@ waits on a page fault. Both need privileges (root, CAP_SYS_NICE / CAP_IPC_LOCK, 
 rtprio / memlock limit); where refused the emulator runs as before and says so in one
 stderr line. Linux's RT throttling (sched_rt_runtime_us) still caps a real-time task
 below 100 % of a core, and the scheduler sleeps between epochs, so this never starves
-the host.
+the host. No guest priority helps against a hypervisor's steal time (a vCPU taken away,
+up to ~100 ms at a time on the VM this was measured on), and a pty's bytes reach their
+reader through an ordinary-priority kernel worker: see docs/emulator.md, "Sub-millisecond
+timing at the device under test".
 """
 
 from __future__ import annotations

@@ -2,13 +2,21 @@
 
 1. Real-time precision: 20 Hz epochs for ``--seconds`` (20 s: 400 epochs) per row, under a
    synthetic load this script creates (``--load`` busy processes at normal priority, 2 by
-   default: "a loaded 2-core host" made reproducible); p50/p99/max of |arrival interval -
-   50 ms| of the first sentence of every epoch, taken at two places:
-   * at a pty reader (pyserial, what a device under test sees): includes the kernel's pty
-     flip-buffer work, which runs in an ordinary-priority kworker (events_unbound);
-   * at a pipe reader (``--port -``, reader SCHED_FIFO): a pipe wakes its reader inside the
-     emulator's write() call, so this is the emulator's own write timing (+ ~10 us).
-   One pty row runs without the synthetic load, for reference.
+   default: "a loaded 2-core host" made reproducible); p50/p99/max of |interval - 50 ms|
+   between consecutive epochs, taken at two places: the emulator's own write() start
+   (``--timing-log``) and the arrival of the epoch's first sentence at a reader, on each
+   transport a device under test can use:
+   * pty (``--port pty``, read by pyserial): the kernel hands the bytes to the reader from a
+     kworker of the events_unbound workqueue at ordinary priority;
+   * TCP on loopback (``--port tcp-server:127.0.0.1:0``, read by a socket client): the
+     kernel delivers in the writer's own system call;
+   * pipe (``--port -``, the emulator's stdout read directly): likewise.
+   The machine's limit for the same paths: ``rt_pair.c`` (compiled here with cc), a bare C
+   writer (SCHED_FIFO, sleep + spin to the same deadlines, the same bytes per epoch) and a
+   bare C reader (SCHED_FIFO) of a pty and of a loopback TCP connection, no emulator.
+   Every row also gives the host's steal time during the run (/proc/stat: time the
+   hypervisor did not run a vCPU of this VM that wanted to run) and the p99 over the
+   intervals with no steal reported within 20 ms of them (a separate sampler process).
 2. As fast as possible with a reader keeping up: epochs/s, and every epoch received.
 3. What each effect costs: time per epoch of the ideal scene and with one effect on.
 """
@@ -17,6 +25,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -44,6 +54,16 @@ def scene_file(tmp: Path, text: str, name: str = "scene.toml") -> str:
     return str(path)
 
 
+def _ordinary_priority() -> None:
+    """In a child before exec: SCHED_OTHER at nice 0 (not a SCHED_FIFO reader's class or an
+    inherited `nice`), where permitted."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        os.setpriority(os.PRIO_PROCESS, 0, 0)
+    except OSError:
+        pass
+
+
 class SyntheticLoad:
     """``count`` busy-looping processes at normal priority (nice 0) while in the block.
 
@@ -57,14 +77,8 @@ class SyntheticLoad:
         self.procs: list[subprocess.Popen] = []
 
     def __enter__(self) -> "SyntheticLoad":
-        def normal_priority() -> None:
-            try:
-                os.setpriority(os.PRIO_PROCESS, 0, 0)  # undo an inherited `nice` where permitted
-            except OSError:
-                pass
-
         for _ in range(self.count):
-            self.procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=normal_priority))
+            self.procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=_ordinary_priority))
         time.sleep(0.5)  # let them start spinning
         return self
 
@@ -76,15 +90,37 @@ class SyntheticLoad:
         self.procs.clear()
 
 
-def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False) -> dict:
-    """``realtime``: the emulator runs with --realtime and this reader asks for SCHED_FIFO
-    too (restored after), so the measurement is not the reader's own wake-up latency."""
+def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, transport: str = "pty") -> dict:
+    """One real-time run of the emulator to a reader on ``transport``:
+
+    * ``pty``: ``--port pty``, read by pyserial (what most devices under test open);
+    * ``tcp``: ``--port tcp-server:127.0.0.1:0`` (emulator/output/net_ports.py), read by a
+      socket client (``recv``, the kernel path pyserial's ``socket://`` uses);
+    * ``pipe``: ``--port -``, the emulator's stdout read directly.
+
+    ``realtime``: the emulator runs with --realtime and this reader asks for SCHED_FIFO
+    too (restored after), so the measurement is not the reader's own wake-up latency.
+    Host steal time (/proc/stat) during the run is returned with the intervals."""
     scene = scene_file(tmp, DEFAULT.replace("rate_hz = 1.0", f"rate_hz = {rate_hz}"))
     frames = int(rate_hz * seconds)
     extra = ("--realtime",) if realtime else ()
     log = tmp / "timing.csv"
-    emu = EmulatorProcess("--scene", scene, "--port", "pty", "--frames", str(frames), "--delay", "1",
-                          "--timing-log", str(log), *extra)
+    args = ("--scene", scene, "--frames", str(frames), "--delay", "1", "--timing-log", str(log), *extra)
+    emu = proc = None
+    if transport == "pipe":
+        proc = subprocess.Popen([sys.executable, "-m", "emulator.cli", "--port", "-", *args],
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        read = lambda: os.read(proc.stdout.fileno(), 65536)  # noqa: E731
+    elif transport == "tcp":
+        emu = EmulatorProcess("--port", "tcp-server:127.0.0.1:0", *args)
+        host, port = emu.ports["arva"].removeprefix("socket://").rsplit(":", 1)
+        sock = socket.create_connection((host, int(port)), timeout=5)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        read = lambda: sock.recv(65536)  # noqa: E731
+    else:
+        emu = EmulatorProcess("--port", "pty", *args)
+        ser = serial.Serial(emu.ports["arva"], timeout=2)
+        read = lambda: ser.read(max(ser.in_waiting, 1))  # noqa: E731
     arrivals = []
     policy = os.sched_getscheduler(0), os.sched_getparam(0)
     reader_rt = False
@@ -95,33 +131,136 @@ def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False) ->
         except OSError:
             pass
     try:
-        with serial.Serial(emu.ports["arva"], timeout=2) as ser:
+        with StealWatch() as steal:
             # Read whatever has arrived, timestamp it at once; an epoch's arrival is
             # the chunk that carries its first sentence (slot 1 of 4).
             while len(arrivals) < frames:
                 try:
-                    chunk = ser.read(max(ser.in_waiting, 1))
+                    chunk = read()
                 except (OSError, serial.SerialException):
-                    break  # the emulator finished and closed the pty
+                    break  # the emulator finished and closed the port
                 if not chunk:
                     break
                 now = time.monotonic()
                 arrivals.extend([now] * chunk.count(b",4,1,"))
-        emu.wait(timeout=30)  # writes the timing log at exit
+        if proc is not None:
+            proc.wait(timeout=30)
+        else:
+            emu.wait(timeout=30)  # writes the timing log at exit
     finally:
         if reader_rt:
             os.sched_setscheduler(0, *policy)
-        emu.kill()
+        if proc is not None:
+            proc.kill()
+            proc.wait()
+        else:
+            if transport == "tcp":
+                sock.close()
+            else:
+                ser.close()
+            emu.kill()
     writes = np.loadtxt(log, delimiter=",", skiprows=1, usecols=(3, 4), ndmin=2)
-    return {"reader_rt": reader_rt, "reader": _interval_stats(arrivals, rate_hz),
-            "write": _interval_stats(writes[:, 0], rate_hz), "write_max_ms": float(np.max(writes[:, 1] - writes[:, 0]) * 1e3)}
+    return {"reader_rt": reader_rt, "steal_ms": steal.total_ms,
+            "reader": _interval_stats(arrivals, rate_hz, steal.events),
+            "write": _interval_stats(writes[:, 0], rate_hz, steal.events)}
 
 
-def _interval_stats(times, rate_hz: float) -> dict:
-    """p50 / p99 / max of |interval - 1/rate| in ms over consecutive epochs."""
-    dev_ms = np.abs(np.diff(np.asarray(times)) - 1.0 / rate_hz) * 1000.0
-    return {"epochs": len(times), "p50": float(np.percentile(dev_ms, 50)),
-            "p99": float(np.percentile(dev_ms, 99)), "max": float(dev_ms.max())}
+#: A steal event within this many seconds of an interval's ends marks the interval
+#: (steal is accounted at the next tick after the vCPU runs again, and sampled every 5 ms).
+STEAL_MARGIN = 0.02
+
+_STEAL_WATCHER = """
+import os, sys, time
+tick = 1.0 / os.sysconf("SC_CLK_TCK")
+def steal():
+    with open("/proc/stat") as f:
+        return [int(l.split()[8]) for l in f if l.startswith("cpu") and l[3] != " "]
+prev = steal()
+while True:
+    time.sleep(0.005)
+    now = steal()
+    gained = sum(now) - sum(prev)
+    if gained > 0:
+        print(f"{time.monotonic():.6f} {gained * tick * 1000.0:.0f}", flush=True)
+    prev = now
+"""
+
+
+class StealWatch:
+    """Host steal time reported while in the block, as (monotonic time, ms) events.
+
+    A separate process samples /proc/stat every 5 ms (a thread here would share the
+    reader's GIL): steal is time the hypervisor did not run a vCPU of this VM that wanted
+    to run; nothing inside the VM runs on that vCPU meanwhile, whatever its priority.
+    Where /proc/stat has no steal column the list stays empty."""
+
+    def __enter__(self) -> "StealWatch":
+        self.events: list[tuple[float, float]] = []
+        self._proc = subprocess.Popen([sys.executable, "-c", _STEAL_WATCHER], stdout=subprocess.PIPE,
+                                      stderr=subprocess.DEVNULL, text=True, preexec_fn=_ordinary_priority)
+        time.sleep(0.05)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._proc.kill()
+        out, _ = self._proc.communicate(timeout=10)
+        for line in out.splitlines():
+            t, ms = line.split()
+            self.events.append((float(t), float(ms)))
+
+    @property
+    def total_ms(self) -> float:
+        return sum(ms for _t, ms in self.events)
+
+
+def _interval_stats(times, rate_hz: float, steal: list[tuple[float, float]] = ()) -> dict:
+    """p50 / p99 / max of |interval - 1/rate| in ms over consecutive epochs, and the p99
+    over the intervals with no steal event within STEAL_MARGIN of either end."""
+    t = np.asarray(times, dtype=float)
+    dev_ms = np.abs(np.diff(t) - 1.0 / rate_hz) * 1000.0
+    ev = np.array([e for e, _ms in steal])
+    clean = np.ones(len(dev_ms), bool)
+    for e in ev:
+        clean &= ~((t[:-1] - STEAL_MARGIN <= e) & (e <= t[1:] + STEAL_MARGIN))
+    kept = dev_ms[clean]
+    return {"epochs": len(t), "p50": float(np.percentile(dev_ms, 50)),
+            "p99": float(np.percentile(dev_ms, 99)), "max": float(dev_ms.max()),
+            "p99_clean": float(np.percentile(kept, 99)) if len(kept) else float("nan"), "clean": int(clean.sum()),
+            "intervals": len(dev_ms)}
+
+
+def epoch_bytes(rate_hz: float) -> int:
+    """Bytes of one epoch of the default scene's receiver stream (what the emulator writes)."""
+    from emulator.pipeline import scene_streams
+    from emulator.scene.reader import loads_scene
+
+    scene = loads_scene(DEFAULT.replace("rate_hz = 1.0", f"rate_hz = {rate_hz}"), "default")
+    return len(scene_streams(scene)[0].render(0, 1))
+
+
+def build_rt_pair() -> tuple[Path | None, str]:
+    """(executable, note): tests/perf/rt_pair.c compiled now, or (None, why not)."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        return None, "no C compiler found: machine-limit rows skipped"
+    exe = Path(tempfile.mkdtemp(prefix="arva-bench-")) / "rt_pair"
+    cmd = [cc, "-O2", "-D_GNU_SOURCE", "-pthread", str(HERE / "rt_pair.c"), "-o", str(exe), "-lutil"]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0:
+        return None, f"rt_pair.c did not compile ({done.stderr.strip().splitlines()[-1:]}): machine-limit rows skipped"
+    return exe, ""
+
+
+def bare_pair(exe: Path, transport: str, rate_hz: float, seconds: float, nbytes: int) -> dict:
+    """The machine's limit: rt_pair's bare C writer and reader on ``transport``."""
+    frames = int(rate_hz * seconds)
+    with StealWatch() as steal:
+        done = subprocess.run([str(exe), transport, str(frames), str(nbytes), str(round(1e6 / rate_hz)),
+                               str(RT_PRIORITY)], capture_output=True, text=True, timeout=seconds + 30, check=True)
+    d = np.loadtxt(done.stdout.splitlines(), ndmin=2)
+    return {"reader_rt": "fifo=1" in done.stderr, "steal_ms": steal.total_ms,
+            "write": _interval_stats(d[:, 1], rate_hz, steal.events),
+            "reader": _interval_stats(d[:, 3], rate_hz, steal.events)}
 
 
 def fast_with_reader(tmp: Path, frames: int) -> dict:
@@ -248,29 +387,67 @@ def main(argv=None) -> int:
     ap.add_argument("--load", type=int, default=2, help="busy processes at normal priority during the loaded rows")
     ap.add_argument("--frames", type=int, default=200_000)
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--realtime-only", action="store_true", help="only the real-time table; implies --no-write")
     args = ap.parse_args(argv)
-    runs = []
+    rate = 20.0
+    exe, c_note = build_rt_pair()
+    nbytes = epoch_bytes(rate)
+    loaded = f"{args.load} busy processes"
+    runs = []  # (what, load, transport, result, load average after)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         load0 = os.getloadavg()[0]
-        runs.append(("`--realtime`", "none added", jitter(tmp, 20.0, args.seconds, realtime=True), os.getloadavg()[0]))
+        runs.append(("emulator `--realtime`", "none added", "pty", jitter(tmp, rate, args.seconds, True), os.getloadavg()[0]))
         with SyntheticLoad(args.load):
-            for label, rt in (("plain", False), ("`--realtime`", True)):
-                runs.append((label, f"{args.load} busy processes", jitter(tmp, 20.0, args.seconds, realtime=rt),
-                             os.getloadavg()[0]))
-        f = fast_with_reader(tmp, args.frames)
-        costs = effect_costs(50_000)
+            plan = [("emulator, plain", "pty", lambda: jitter(tmp, rate, args.seconds, False)),
+                    ("emulator `--realtime`", "pty", lambda: jitter(tmp, rate, args.seconds, True))]
+            if exe is not None:
+                plan.append(("**bare C pair** (machine limit)", "pty", lambda: bare_pair(exe, "pty", rate, args.seconds, nbytes)))
+            plan.append(("emulator `--realtime`", "tcp", lambda: jitter(tmp, rate, args.seconds, True, "tcp")))
+            if exe is not None:
+                plan.append(("**bare C pair** (machine limit)", "tcp", lambda: bare_pair(exe, "tcp", rate, args.seconds, nbytes)))
+            plan.append(("emulator `--realtime`", "pipe", lambda: jitter(tmp, rate, args.seconds, True, "pipe")))
+            for what, transport, run in plan:
+                runs.append((what, loaded, transport, run(), os.getloadavg()[0]))
+        if args.realtime_only:
+            f, costs = None, []
+        else:
+            f = fast_with_reader(tmp, args.frames)
+            costs = effect_costs(50_000)
+    readers = {"pty": "pty reader (pyserial)", "tcp": "socket reader (recv)", "pipe": "pipe reader (read)"}
     rows = []
-    for label, load, x, after in runs:
-        reader = "pty reader (pyserial), " + ("SCHED_FIFO" if x["reader_rt"] else "normal priority")
-        for where, st in (("emulator's write() (`--timing-log`)", x["write"]), (reader, x["reader"])):
-            rows.append([label, load, where, st["epochs"], f"{st['p50']:.3f} ms", f"{st['p99']:.3f} ms",
-                         f"{st['max']:.3f} ms", f"{after:.1f}"])
+    for what, load, transport, x, after in runs:
+        bare = what.startswith("**bare")
+        reader = ("C reader" if bare else readers[transport]) + (", SCHED_FIFO" if x["reader_rt"] else ", normal priority")
+        writer = "C writer's write()" if bare else "emulator's write() (`--timing-log`)"
+        for where, st in ((writer, x["write"]), (reader, x["reader"])):
+            rows.append([what, {"pty": "pty", "tcp": "TCP loopback", "pipe": "pipe"}[transport], load, where,
+                         st["epochs"], f"{st['p50']:.3f} ms", f"**{st['p99']:.3f} ms**", f"{st['max']:.3f} ms",
+                         f"{st['p99_clean']:.3f} ms ({st['clean']}/{st['intervals']})", f"{x['steal_ms']:.0f} ms",
+                         f"{after:.1f}"])
     t1 = markdown_table(
-        ["emulator, 20 Hz, default scene, pty", "synthetic load", "interval measured at", "epochs",
-         "p50 of abs(dt - 50 ms)", "p99", "max", "load average after"],
+        ["writer, 20 Hz", "path", "synthetic load", "interval measured at", "epochs", "p50 of abs(dt - 50 ms)",
+         "p99", "max", "p99 of intervals without host steal (kept/all)", "host steal during run", "load average after"],
         rows,
     )
+    if c_note:
+        t1 += f"\n\n({c_note}.)"
+    by = {(w.startswith("**bare"), w.endswith("plain"), t, l == "none added"): x for w, l, t, x, _a in runs}
+
+    def p99(key, where="reader"):
+        x = by.get(key)
+        return "n/a" if x is None else f"{x[where]['p99']:.2f} ms (without steal {x[where]['p99_clean']:.2f} ms)"
+
+    findings = (
+        f"This run, loaded rows, p99 at the reader: emulator on a pty {p99((False, False, 'pty', False))}, "
+        f"the bare C pair on a pty {p99((True, False, 'pty', False))}; emulator over TCP "
+        f"{p99((False, False, 'tcp', False))}, bare C pair over TCP {p99((True, False, 'tcp', False))}; "
+        f"emulator to a pipe {p99((False, False, 'pipe', False))}. The emulator's own write() p99 under "
+        f"load: {p99((False, False, 'pty', False), 'write')}."
+    )
+    if args.realtime_only:
+        print(f"load average {load0:.1f} at the start\n" + t1 + "\n\n" + findings)
+        return 0
     t2 = markdown_table(
         ["run", "epochs/s", "all epochs received, in order", "emulator summary"],
         [[f"--speed 0 --frames {args.frames} to a pty, reader keeping up", f"{f['epochs_per_s']:,.0f}",
@@ -289,23 +466,34 @@ def main(argv=None) -> int:
         f"host, issue 20). Load: this script's {args.load} busy processes at normal priority on top of "
         f"whatever else ran (load average {load0:.1f} at the start). Each row is one run of "
         f"{args.seconds:g} s:\n\n" + t1 + "\n\n"
-        "Where the error comes from. Each run gives two rows: the emulator's own timing (the "
-        "start of each epoch's write() on the pty master, logged by `--timing-log`: sleep to 1 ms "
-        "before the deadline, then spin; `--realtime`: SCHED_FIFO + mlockall, "
-        "emulator/output/realtime.py), and the arrival at a reader of the pty (what a device "
-        "under test sees). Between the two, the kernel pushes the bytes through the pty's flip "
-        "buffer in a kworker of the events_unbound workqueue, at ordinary priority: with every "
-        "core busy it waits for a CFS time slice (milliseconds), whatever the emulator's "
-        "priority, and the reader's own wake-up adds to it (on this 2-vCPU VM even a SCHED_FIFO "
-        "reader of a plain pipe sees rare ms-scale delays while the writer's log is clean). The "
-        "emulator cannot raise that kworker; host settings can (fewer CPU-bound tasks, or an "
-        "isolated core for emulator, reader and the unbound-workqueue cpumask). A real "
-        "USB-serial adapter's transmit path has no such worker. Some runs also show stalls of "
-        "50-100 ms in the emulator's own write log despite SCHED_FIFO, a few seconds apart, "
-        "with or without the synthetic load and with no other real-time task on the host; "
-        "their cause is not established (the VM's vCPU scheduling is suspected: a bare "
-        "SCHED_FIFO sleep-and-spin loop in the same conditions stays within ~4 ms), and when "
-        "they occur they set that run's p99 and max. One run per row: rerun to see the spread.\n\n"
+        "Where the error comes from (each point read off the rows above). Every run gives two "
+        "rows: the writer's own timing (the start of each epoch's write(): for the emulator, "
+        "logged by `--timing-log`; sleep to 1 ms before the deadline, then spin; `--realtime`: "
+        "SCHED_FIFO + mlockall, emulator/output/realtime.py) and the arrival at a reader (what "
+        "a device under test sees).\n\n"
+        "1. The writer. With `--realtime` the busy processes do not delay the emulator's "
+        "write() (SCHED_FIFO preempts them when its sleep ends); plain, it waits behind them for "
+        "a fair-scheduler slice (the plain rows).\n"
+        "2. The path to the reader. A pty hands the bytes to its reader from a kworker of the "
+        "events_unbound workqueue, which runs at ordinary priority: with both cores busy the "
+        "reader's wake-up waits for that kworker's slice, whatever the writer's and the "
+        "reader's priorities. The bare C pair on a pty (no emulator, no Python) shows the same "
+        "milliseconds: that is the machine's limit for a pty under this load, and the emulator "
+        "is at it. Loopback TCP and a pipe wake the reader from within the writer's own system "
+        "call, with no kworker in the path: over TCP and to a pipe what is left is the wake-up "
+        "of a SCHED_FIFO reader, for the bare C pair and the emulator alike. So `--port "
+        "tcp-server:127.0.0.1:0` (pyserial `socket://`) is the way to sub-millisecond timing at "
+        "a device under test on a loaded host (docs/emulator.md, Timing); the emulator sends to "
+        "a TCP client from its own write() at the deadline.\n"
+        "3. The host. This machine is a VM: its hypervisor takes a vCPU away for up to ~100 ms "
+        "at a time (steal time, /proc/stat, reported per row). Meanwhile nothing in the VM runs "
+        "on that vCPU whatever its priority, so the writer, the emulator and the bare C loop "
+        "alike, is late by that much: these are the 50-100 ms stalls earlier runs found in the "
+        "emulator's own write log. They set p99 whenever a 20 s run has more than one or two; "
+        "the column \"without host steal\" drops the intervals with steal reported within "
+        "20 ms of them, the max column keeps them. On bare metal or dedicated cores there is "
+        "no steal.\n\n" + findings + " One run per row, on a host shared with other jobs: "
+        "rerun to see the spread.\n\n"
         "As fast as possible (target >= 20,000 epochs/s, zero loss):\n\n" + t2 + "\n\nWhat each effect costs "
         "(render time per epoch, 1024-epoch batches, start-up excluded):\n\n" + t3
     )
