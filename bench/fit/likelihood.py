@@ -54,7 +54,7 @@ from scipy.interpolate import CubicSpline
 
 from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
 
-from .pose_error import PoseMoments
+from .pose_error import PoseMoments, signal_error_cdf
 from .special import (
     BIN_W_MAX,
     epan_gauss_cdf,
@@ -493,7 +493,20 @@ class Likelihood:
             pm[s_rows] = epan_gauss_interval(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, _at(sigma, j))
             if grad:
                 dpm[:, s_rows] = _interval_grad(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, sigma, pm[s_rows])
-        if exact.any():
+        if exact.any() and self.rows.moments is not None and (p.gps_sigma > 0.0 or p.attitude_sigma > 0.0):
+            # errors in variables (no analytic gradient: has_grad): the pose error moves the
+            # signal against fixed EMI (pose_error.signal_error_cdf)
+            j = idx[exact]
+            log_t0 = log_kappa + 3.0 * math.log(p.r_en) - np.log(2.0 * m.fxy[j])
+            s3 = 3.0 * _at(sigma, j)
+            be = b[exact]
+            top = np.isfinite(be)  # P(log dxy > inf) = 0: censored rows need one value
+            with np.errstate(invalid="ignore", divide="ignore"):
+                log_g = np.log(_gamma(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) - 3.0 * (m.lxy[j] - m.lxy0[j])
+                above = signal_error_cdf(log_t0 - 3.0 * a[exact], log_g, s3)
+                above[top] -= signal_error_cdf(log_t0[top] - 3.0 * be[top], log_g[top], _at(s3, top))
+            pm[exact] = np.maximum(above, 0.0)
+        elif exact.any():
             j = idx[exact]
             # log dxy <= y <=> |h_xy| >= kappa / (4 pi e^{3y}); in units of the noise radius
             # b = fxy / (2 pi r_en^3) that threshold is t(y) = kappa r_en^3 / (2 fxy e^{3y}).
@@ -685,7 +698,8 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) ->
 
     The receiver of BRIEF 3 with ball noise (drawn in the receiver frame: R_r^T w is
     uniform in the ball whenever w is), and the pose error exp(sigma Z) on both distances
-    (``spread``: per-row shift and s.d. of log d instead, the errors-in-variables model's).
+    (``spread``: per-row shift and s.d. of log d instead, the errors-in-variables model's:
+    there the signal is scaled by exp(-3 x shift-and-spread) before the EMI is added).
     With pose_sigma = 0 it returns exactly what :func:`emulator.receiver.model.measure` returns for
     noise points u = R_r^T w (tested).
     """
@@ -695,13 +709,14 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) ->
     qn = np.asarray(p.q, dtype=float) / max(p.q)
     r = np.exp(geo.log_r)
     rho = 2.0 * (r / p.r_en) ** 3  # noise radius / signal scale, h * 4 pi r^3 = g + rho Q u
-    hx = geo.g[0] + rho * qn[0] * u[:, 0]
-    hy = geo.g[1] + rho * qn[1] * u[:, 1]
-    hz = geo.g[2] + rho * qn[2] * u[:, 2] if p.antennas == 3 else np.zeros(n)  # 2 antennas: no h_z
-    if spread is not None:  # errors-in-variables: per-row (shift, s.d.) of log d, from Likelihood.pose_spread
-        jitter = np.exp(spread[0] + spread[1] * rng.standard_normal(n))
-    else:
-        jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if p.pose_sigma > 0 else 1.0
+    sig = 1.0
+    if spread is not None:  # errors-in-variables: per-row (shift, s.d.) of log d, from Likelihood.pose_spread;
+        # the pose error moves the signal, the EMI stays (pose_error.signal_error_cdf)
+        sig = np.exp(-3.0 * (spread[0] + spread[1] * rng.standard_normal(n)))
+    hx = geo.g[0] * sig + rho * qn[0] * u[:, 0]
+    hy = geo.g[1] * sig + rho * qn[1] * u[:, 1]
+    hz = geo.g[2] * sig + rho * qn[2] * u[:, 2] if p.antennas == 3 else np.zeros(n)  # 2 antennas: no h_z
+    jitter = np.exp(p.pose_sigma * rng.standard_normal(n)) if (spread is None and p.pose_sigma > 0) else 1.0
     scale = r * np.cbrt(p.kappa_eq) * jitter
     hxy = np.hypot(hx, hy)
     with np.errstate(divide="ignore"):

@@ -38,8 +38,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import ndtr
 
 from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
+
+from .special import PIECE, Z_BLEND, Z_KINK, Z_SPAN, ball_disk_cdf
 
 SQRT3 = math.sqrt(3.0)
 #: Rows whose predicted log-distance spread from the pose error (at the linearisation
@@ -195,3 +198,93 @@ def pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0: tuple[float, float, f
             arr[:, bad] = fill
     dz_xy, dz_3 = (np.where(np.isfinite(v) & ~bad, v, 0.0) for v in dz)
     return PoseMoments(m_xy, v_xy, m_3, v_3, (float(sh), float(sv), float(sa)), dz_xy, dz_3)
+
+
+# -- the far rows: pose error moves the signal, not the EMI ---------------------------
+#
+# In the exact (L) rule of the likelihood |h_xy| = |c_xy + n|: the EMI ball n has a fixed
+# field radius b (set by r_en), the signal c_xy = g_xy / (4 pi r^3) comes from the true
+# pose. With a_xy = log r - log |g_xy| / 3 off by Delta (the pose error's effect, mean m,
+# s.d. sigma), |c_xy| is e^{-3 Delta} times the modelled one and the noise stays put:
+#
+#     P(log dxy > y) = E[G(t(y); gamma e^{-3 Delta})],  G(t; gamma) = P(|gamma e_x + n| < t)
+#
+# (t, gamma in units of b). Treating Delta as a log-normal factor on d after the EMI
+# (the relative ``pose_sigma`` model) would scale the noise with the signal instead: then
+# a row whose true distance is longer than logged looks exactly as noisy as one that is
+# shorter, the spread the pose error adds is mistaken for less EMI, and r_en came out
+# +0.7 % high (4-hour campaigns, 1 m GPS error; measured, docs/calibration.md section 2).
+
+_GH3_X = np.array([-SQRT3, 0.0, SQRT3])
+_GH3_W = np.array([1.0, 4.0, 1.0]) / 6.0
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(6)
+_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+
+
+def signal_error_cdf(log_t, log_gamma, s3) -> NDArray[np.float64]:
+    """E[G(t; gamma e^{-s3 Z})], Z standard normal: P(log dxy > y) for threshold
+    t = e^{log_t} (noise radii) when the pose error scales the signal (all one per row;
+    s3 = 3 sigma > 0; ``log_gamma`` includes -3 m, the pose error's mean effect).
+
+    As a function of Z, G = 0 below za (gamma' > t + 1), has its other kink at zb
+    (gamma' = |t - 1|) and is 1 above it when t > 1 (for t < 1 it tends smoothly to
+    G(t; 0)). Rows with both kinks at least ``Z_KINK`` s.d. away take the 3-point
+    Gauss-Hermite rule; the others are integrated only where G is neither 0 nor 1, in
+    pieces of at most ``PIECE`` s.d. split at the kinks (6 Gauss-Legendre nodes each),
+    blended into the 3-point value over ``Z_BLEND`` s.d. (the scheme of
+    :func:`special.smoothed_ball_disk_cdf`, which puts the same error on the threshold)."""
+    log_t = np.asarray(log_t, dtype=np.float64)
+    log_gamma = np.broadcast_to(np.asarray(log_gamma, dtype=np.float64), log_t.shape)
+    s3 = np.broadcast_to(np.asarray(s3, dtype=np.float64), log_t.shape)
+    # G = 1 once t exceeds the largest gamma' + 1 reached within Z_SPAN s.d.
+    top = np.logaddexp(np.minimum(log_gamma + Z_SPAN * s3, 700.0), 0.0) + 1.0
+    log_t = np.clip(np.where(np.isnan(log_t), -np.inf, log_t), -745.0, top)
+    t = np.exp(log_t)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        za = (log_gamma - np.log1p(t)) / s3
+        zb = (log_gamma - np.log(np.abs(t - 1.0))) / s3
+    za = np.where(np.isnan(za), -np.inf, za)
+    zb = np.where(np.isnan(zb), -np.inf, zb)
+    zmin = np.minimum(np.abs(za), np.abs(zb))
+    out = np.empty(log_t.shape)
+    far = np.flatnonzero(zmin >= Z_KINK)
+    if far.size:
+        with np.errstate(over="ignore"):
+            gam = np.exp(np.minimum(log_gamma[far, None] - s3[far, None] * _GH3_X, 700.0))
+        out[far] = ball_disk_cdf(np.broadcast_to(t[far, None], gam.shape), gam) @ _GH3_W
+    near = np.flatnonzero(zmin < Z_KINK + Z_BLEND)
+    if not near.size:
+        return out
+    acc = _pieces(t[near], log_gamma[near], s3[near], za[near], zb[near])
+    x = np.clip((zmin[near] - Z_KINK) / Z_BLEND, 0.0, 1.0)
+    w = x * x * x * (10.0 - 15.0 * x + 6.0 * x * x)
+    gh = np.where(w > 0.0, out[near], 0.0)
+    out[near] = np.clip(w * gh + (1.0 - w) * acc, 0.0, 1.0)
+    return out
+
+
+def _pieces(t, lg, s3, za, zb) -> NDArray[np.float64]:
+    """The piecewise integral of :func:`signal_error_cdf` (one value per row)."""
+    above = t > 1.0  # G = 1 above zb
+    lo = np.clip(za, -Z_SPAN, Z_SPAN)
+    hi = np.where(above, np.maximum(np.clip(zb, -Z_SPAN, Z_SPAN), lo), Z_SPAN)
+    mid = np.clip(zb, lo, hi)
+    ka = np.ceil((mid - lo) / PIECE).astype(np.int64)
+    kb = np.ceil((hi - mid) / PIECE).astype(np.int64)
+    kt = ka + kb
+    row = np.repeat(np.arange(t.shape[0]), kt)
+    j = np.arange(row.shape[0]) - np.repeat(np.cumsum(kt) - kt, kt)
+    ka_r, kb_r = ka[row], kb[row]
+    in_a = j < ka_r
+    wa = (mid - lo)[row] / np.maximum(ka_r, 1)
+    wb = (hi - mid)[row] / np.maximum(kb_r, 1)
+    width = np.where(in_a, wa, wb)
+    left = np.where(in_a, lo[row] + j * wa, mid[row] + (j - ka_r) * wb)
+    half = 0.5 * width
+    z = (left + half)[:, None] + half[:, None] * _GL_X
+    wz = (half[:, None] * _GL_W) * (_INV_SQRT_2PI * np.exp(-0.5 * z * z))
+    with np.errstate(over="ignore"):
+        gam = np.exp(np.minimum(lg[row][:, None] - s3[row][:, None] * z, 700.0))
+    gz = ball_disk_cdf(np.broadcast_to(t[row][:, None], gam.shape), gam)
+    acc = np.bincount(row, weights=np.einsum("ij,ij->i", wz, gz), minlength=t.shape[0])
+    return acc + np.where(above, ndtr(-np.maximum(zb, -40.0)), 0.0)
