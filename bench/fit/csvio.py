@@ -144,13 +144,14 @@ def _parse_simple(data: bytes | str, source: str) -> Table | None:
     end = len(data) - 1 if data.endswith(b"\n") else len(data)
     if data.find(b"_", start) >= 0:  # float() would accept 1_000; the reader rejects it
         return None
-    if start == 0 or start >= end or data.find(b"\n\n", start - 1, end) >= 0:  # no body, or a blank line
+    # no body, or a blank line anywhere after the header (np.loadtxt would skip it; with
+    # none, its rows are the file's lines: a line of spaces is a line of other width)
+    if start == 0 or start >= end or data.find(b"\n\n", start - 1) >= 0:
         return None
     header = [h.strip() for h in data[: start - 1].decode("ascii").split(",")]
     if len(set(header)) != len(header) or any(c not in header for c in COLUMNS):
         return None
     width = len(header)
-    n_lines = data.count(b"\n", start, end) + 1
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # e.g. numpy's "empty input" warning: not simple
@@ -160,8 +161,9 @@ def _parse_simple(data: bytes | str, source: str) -> Table | None:
             )
     except (ValueError, Warning):  # a cell it cannot read, or a line with other columns
         return None
-    if grid.shape != (n_lines, width):  # (a blank line would have been skipped)
+    if grid.shape[1] != width:
         return None
+    n_lines = grid.shape[0]
     cols: dict[str, np.ndarray] = {}
     for name in COLUMNS:
         values = np.ascontiguousarray(grid[:, header.index(name)])
