@@ -8,6 +8,7 @@ come in any order; extra columns are ignored; blank lines are skipped. Integer c
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
 import warnings
@@ -40,6 +41,11 @@ def read_csv(path: str | Path, source: str | None = None) -> Table:
 def parse_csv(raw: bytes | str, source: str = "<csv>") -> Table:
     """Parse CSV bytes or text; see the module docstring for the rules."""
     if isinstance(raw, bytes):
+        data = raw[len(codecs.BOM_UTF8) :] if raw.startswith(codecs.BOM_UTF8) else raw
+        if data.isascii():  # (then it is UTF-8 text whose bytes are its characters)
+            fast = _parse_simple(data, source)
+            if fast is not None:
+                return fast
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as exc:
@@ -50,9 +56,10 @@ def parse_csv(raw: bytes | str, source: str = "<csv>") -> Table:
         text = text[1:]
     if "\x00" in text:
         raise FitInputError(f"{source}: line {text[: text.index(chr(0))].count(chr(10)) + 1}: NUL byte")
-    fast = _parse_simple(text, source)
-    if fast is not None:
-        return fast
+    if not isinstance(raw, bytes):
+        fast = _parse_simple(text, source)
+        if fast is not None:
+            return fast
     lines = text.splitlines()
     try:
         records = [(i + 1, row) for i, row in enumerate(csv.reader(lines, strict=True)) if row and any(row)]
@@ -106,49 +113,57 @@ def parse_csv(raw: bytes | str, source: str = "<csv>") -> Table:
     return table
 
 
-#: Characters that make a file "not simple": quoting, and line breaks other than LF/CRLF
-#: that str.splitlines() would honour.
-_NOT_SIMPLE = ('"', "\r", "\x0b", "\x0c", "\x1c", "\x1d", "\x1e", "\x85", "\u2028", "\u2029")
+#: Bytes that make an ASCII file "not simple": NUL, quoting, and line breaks other than
+#: LF/CRLF that str.splitlines() would honour (the others, U+0085, U+2028 and U+2029, are
+#: not ASCII: such a file never takes the fast path).
+_NOT_SIMPLE = (b"\x00", b'"', b"\r", b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e")
 
 
-def _parse_simple(text: str, source: str) -> Table | None:
-    """One-pass parse of a plain CSV (no quotes, no blank lines, every cell a number).
+def _parse_simple(data: bytes | str, source: str) -> Table | None:
+    """One-pass parse of a plain ASCII CSV (no quotes, no blank lines, every cell a number).
 
     numpy's C parser (``np.loadtxt``: cells converted as ``float`` does, and a line
-    with another number of columns refused) reads every cell at once. Returns None whenever the file is not that
-    simple or any check fails, so that the general reader below handles the file and
-    words any error exactly as before; on success the Table is the same.
+    with another number of columns refused) reads every cell at once, from the bytes
+    (every check here is a bytes search: no decoding to str and back). Returns None
+    whenever the file is not that simple or any check fails, so that the general reader
+    handles the file and words any error exactly as before; on success the Table is the
+    same. ``data``: ASCII bytes or text, without a byte-order mark.
     """
-    if text.endswith("\r\n"):
-        text = text[:-2] + "\n"
-    text = text.replace("\r\n", "\n") if "\r\n" in text else text
-    if any(c in text for c in _NOT_SIMPLE):
+    if isinstance(data, str):
+        if not data.isascii():
+            return None
+        data = data.encode("ascii")
+    if b"\r" in data:
+        if data.endswith(b"\r\n"):
+            data = data[:-2] + b"\n"
+        data = data.replace(b"\r\n", b"\n")
+    if any(c in data for c in _NOT_SIMPLE):
         return None
-    header_text, _, body = text.partition("\n")
-    if "_" in body:  # float() would accept 1_000; the reader rejects it
+    # the body is data[start:end] (without its final newline), searched in place: no copy
+    start = data.find(b"\n") + 1
+    end = len(data) - 1 if data.endswith(b"\n") else len(data)
+    if data.find(b"_", start) >= 0:  # float() would accept 1_000; the reader rejects it
         return None
-    if body.endswith("\n"):
-        body = body[:-1]
-    if not body or body.startswith("\n") or "\n\n" in body:
+    # no body, or a blank line anywhere after the header (np.loadtxt would skip it; with
+    # none, its rows are the file's lines: a line of spaces is a line of other width)
+    if start == 0 or start >= end or data.find(b"\n\n", start - 1) >= 0:
         return None
-    header = [h.strip() for h in header_text.split(",")]
+    header = [h.strip() for h in data[: start - 1].decode("ascii").split(",")]
     if len(set(header)) != len(header) or any(c not in header for c in COLUMNS):
         return None
     width = len(header)
-    if not body.isascii():  # (then its bytes are its characters, and no Unicode space hides)
-        return None
-    n_lines = body.count("\n") + 1
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # e.g. numpy's "empty input" warning: not simple
             # from bytes: a StringIO of the text costs a fifth of the parse again
             grid = np.loadtxt(
-                io.BytesIO(body.encode("ascii")), dtype=np.float64, delimiter=",", comments=None, ndmin=2, encoding="latin1"
+                io.BytesIO(data), dtype=np.float64, delimiter=",", comments=None, ndmin=2, encoding="latin1", skiprows=1
             )
     except (ValueError, Warning):  # a cell it cannot read, or a line with other columns
         return None
-    if grid.shape != (n_lines, width):  # (a blank line would have been skipped)
+    if grid.shape[1] != width:
         return None
+    n_lines = grid.shape[0]
     cols: dict[str, np.ndarray] = {}
     for name in COLUMNS:
         values = np.ascontiguousarray(grid[:, header.index(name)])

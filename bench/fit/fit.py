@@ -1024,7 +1024,9 @@ def _se_steps(hl, free, live, fallback):
 BHHH_STEPS = 4
 
 
-def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, hessian="final", one_sided=()) -> _Newton:
+def _newton_grad(
+    obj: _GradObjective, theta, free, max_iter, tol, hess0=None, hessian="final", one_sided=(), finish=None
+) -> _Newton:
     """Projected Newton on f with the analytic gradient of each point (one pass each).
 
     Curvature: the outer product of the per-row scores at each point (BHHH; positive
@@ -1044,7 +1046,11 @@ def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, he
     (BFGS-updated; a subsample's, to start all rows from); "none" (a pre-pass): whatever
     curvature was used. Bounds as in :func:`_newton`: a parameter at a bound with its
     gradient pointing out is held, and pose_sigma (r_en) stepping toward a bound where f
-    flattens is tried at the bound. ``one_sided``: see :func:`_hessian_fd`."""
+    flattens is tried at the bound. ``one_sided``: see :func:`_hessian_fd`. ``finish`` (with
+    "final"; a decrement above ``tol``): below it, the Hessian by differences is taken
+    where the search stands and one Newton step with it ends the search, unevaluated (its
+    f is the quadratic model's: f0 - decrement); if that decrement is still above
+    ``finish`` the search goes on as usual."""
     p = len(free)
     lo, hi = _box(free)
     cap = _caps(free)
@@ -1089,12 +1095,18 @@ def _newton_grad(obj: _GradObjective, theta, free, max_iter, tol, hess0=None, he
         stalled = decrement >= tol and ((bhhh and n_steps >= BHHH_STEPS) or slow)
         here = exact_at is not None and np.array_equal(exact_at[0], theta) and np.array_equal(exact_at[1], keep)
         want = (hessian == "final" and not here) or (hessian == "some" and not differenced)
-        if stalled or (decrement < tol and want):
+        finishing = finish is not None and hessian == "final" and decrement < finish and not here
+        if stalled or (decrement < tol and want) or finishing:
             hk = difference(theta, keep, hk)
             stepf, _mod = _solve(hk, g[keep])
             if stepf is None:
                 return _Newton(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
             decrement = -0.5 * float(g[keep] @ stepf)
+            if finishing and decrement < finish:
+                end = theta.copy()
+                end[keep] += stepf
+                if np.all((end >= lo) & (end <= hi)):
+                    return _Newton(end, f0 - decrement, hq, active, h, it, True, "converged")
         n_steps += 1
         last_dec = decrement
         if decrement < tol:
@@ -1193,14 +1205,20 @@ def _optimise_grad(rows: Rows, base: Params, free, theta, options, notes, tol):
     return like, res
 
 
+#: :func:`_full_stage_grad` ends its search on all rows with one Newton step from where the
+#: decrement falls below this (~0.045 s.e. from the estimate) with the Hessian by
+#: differences taken there, unevaluated: one pass over all rows fewer.
+FINISH_TOL = 1e-3
+
+
 def _full_stage_grad(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], res: "_Newton"):
     """:func:`_full_stage` on the analytic-gradient route: from the subsample's estimate,
     Newton steps on all rows from the subsample's Hessian scaled by n / SUBSAMPLE (with BFGS
-    updates) to FULL_TOL, then the Hessian by central differences of the gradient at the
-    estimate. The likelihood's curvature in r_en wavers by ~15 % over one standard error
-    (rows near the noise edge), so from ~1 s.e. away two or three steps are needed,
-    whatever the Hessian: 3-4 + 2p - 1 passes over all rows (kappa_eq's column of the
-    Hessian one-sided, :data:`ONE_SIDED`). (The outer product of all rows'
+    updates) to FINISH_TOL, then the Hessian by central differences of the gradient there
+    and one Newton step with it (not evaluated). The likelihood's curvature in r_en wavers
+    by ~15 % over one standard error (rows near the noise edge), so from ~1 s.e. away one
+    to three steps are needed, whatever the Hessian: 2-4 + 2p - 1 passes over all rows
+    (kappa_eq's column of the Hessian one-sided, :data:`ONE_SIDED`). (The outer product of all rows'
     scores, free with the gradient, is no start: with exact poses the model's 0.01 % pose
     error is wider than the data's, and it has half kappa_eq's curvature.)"""
     full = Likelihood(rows)
@@ -1208,7 +1226,9 @@ def _full_stage_grad(rows: Rows, base: Params, free: tuple[str, ...], options: F
     full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
     full.block, full.threads = block_rows(rows), STENCIL_THREADS
     hess0 = None if res.hess is None else res.hess * (rows.k.shape[0] / SUBSAMPLE)
-    again = _newton_grad(_GradObjective(full, base, free), res.theta, free, options.max_iter, FULL_TOL, hess0, one_sided=ONE_SIDED)
+    again = _newton_grad(
+        _GradObjective(full, base, free), res.theta, free, options.max_iter, FULL_TOL, hess0, one_sided=ONE_SIDED, finish=FINISH_TOL
+    )
     again.iterations += res.iterations
     again.full_evals = full.n_evals
     if not again.ok:

@@ -308,8 +308,9 @@ r_en = 80 m, exact poses). `fit` is `bench.fit.fit_table`, CSV parsing excluded:
 the analytic gradient of log P (each pass gives log P and its first derivatives in
 kappa_eq, r_en and pose_sigma; curvature from the outer product of the per-row scores,
 then the Hessian by central differences of the gradient, 2p passes), then on all rows
-BFGS steps from the subsample's Hessian to a decrement of 1e-4 nats and the Hessian by
-differences of the gradient at the estimate (central; forward in kappa_eq). CPU times count all threads (two
+BFGS steps from the subsample's Hessian to a decrement of 1e-3 nats, the Hessian by
+differences of the gradient there (central; forward in kappa_eq) and one Newton step with
+it, not evaluated. CPU times count all threads (two
 evaluate each stencil's points, and the two halves of a pass), the wall time shows the
 load. The passes column is the machine limit of this design: their count times the CPU
 cost of one pass of each kind at the estimate (a gradient pass costs ~1.7 value passes:
