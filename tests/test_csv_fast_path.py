@@ -50,7 +50,7 @@ floats = st.floats(allow_nan=False, allow_infinity=False, min_value=-1e6, max_va
 cells = st.one_of(
     floats.map(repr),
     st.integers(-5, 70000).map(str),
-    st.sampled_from(["nan", "inf", "-inf", "1_0", "", " 7 ", "x", "1e400", "12.5", "-0", '"3"', "0x10", "1.5e"]),
+    st.sampled_from(["nan", "inf", "-inf", "1_0", "", " 7 ", "x", "1e400", "12.5", "-0", '"3"', "0x10", "1.5e", "7\x1f", "\t8", "9\x1c"]),
 )
 
 
@@ -80,6 +80,8 @@ def test_same_table_or_same_error_as_the_general_reader(rows, keep, crlf, blank)
         HEADER + "\n" + ROW.replace("1905", "1905.5") + "\n",  # integer column not integral
         HEADER + "\n" + ROW.replace("20.0", "2e9") + "\n",  # coordinate beyond the limit
         HEADER.replace("rx_x", "rx_x,rx_x") + "\n" + ROW + ",1\n",  # duplicate column
+        HEADER + "\n" + ROW.replace("20.0", "20.0\x1f") + "\n",  # float() strips U+001F; numpy's array() does not
+        HEADER + "\n" + ROW.replace("20.0", "20.0\x1f") + '\n"' + ROW.replace(",", '","') + '"\n',  # the same, general route
     ],
 )
 def test_edge_files(text):
