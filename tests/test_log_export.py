@@ -106,10 +106,13 @@ def test_log_then_export_matches_the_scene(tmp_path):
     # Poses are interpolated on the logger's clock at each epoch's arrival. At 5x real
     # time the receiver walks 2.5 m and turns 9 deg per wall second, so each millisecond
     # of scheduling between the streams is 2.5 mm and 0.009 deg; GPS quantisation is
-    # 0.2 mm. A loaded 2-core machine delays the receiver's reads against the GPS's by
-    # ~15-20 ms (three reader threads share the GIL): ~5 mm, one read up to ~100 ms.
+    # 0.2 mm. The streams of one epoch do not arrive together: each is paced at its line's
+    # baud rate (115200: a 75-byte sentence takes 6.5 ms) and written in turn. Measured on
+    # this test's session (2026-12-01, 2-core Xeon, idle): RMC 1-3.6 ms before the ARVA
+    # epoch, GGA 3.3-7.9 ms and attitude 4.9-9.4 ms after it, so 8-16 mm median error.
+    # The bound allows 10 ms (25 mm); a pose one epoch off would be 0.5 m off.
     err = np.linalg.norm(rx - truth_pos, axis=1)
-    assert np.median(err) < 0.01 and err.max() < 0.25, (np.median(err), err.max())
+    assert np.median(err) < 0.025 and err.max() < 0.25, (np.median(err), err.max())
     q = np.c_[cols["rx_qw"], cols["rx_qx"], cols["rx_qy"], cols["rx_qz"]]
     assert np.all(np.abs(np.sum(q * truth_q, axis=1)) > np.cos(np.radians(1.0) / 2))
     np.testing.assert_allclose(np.c_[cols["tx_x"], cols["tx_y"], cols["tx_z"]], [[0, 0, -1]] * N, atol=1e-6)
