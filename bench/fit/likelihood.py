@@ -56,7 +56,6 @@ from emulator.frames.rotation import rotation_components, unit_quaternion_compon
 
 from .pose_error import BIN_W_MAX as SIGNAL_BIN_W_MAX, PoseMoments, signal_error_bin, signal_error_cdf
 from .special import (
-    BIN_W_MAX,
     epan_gauss_cdf,
     epan_gauss_density,
     epan_gauss_interval,
@@ -236,8 +235,8 @@ class Regimes:
 
     exact: NDArray[np.bool_]
     eps_split: float = EPS_SPLIT
-    #: exact rows whose bin is narrow against the pose error (special.BIN_W_MAX): one
-    #: series evaluation of P instead of two CDFs (:func:`special.smoothed_ball_disk_bin`)
+    #: exact rows whose bin is narrow against the pose error (pose_error.BIN_W_MAX): one
+    #: density at the bin's middle instead of two CDFs (:func:`pose_error.signal_error_bin`)
     narrow: NDArray[np.bool_] | None = None
 
 
