@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from bench.fit.csvio import parse_csv
 from bench.fit.fit import FitOptions, fit_table, time_block_meat
 from bench.fit.likelihood import Params
-from bench.fit.pose_error import pose_moments, posterior_positions, signal_error_cdf
+from bench.fit.pose_error import BIN_W_MAX, pose_moments, posterior_positions, signal_error_bin, signal_error_cdf
 from bench.fit.special import ball_disk_cdf, smoothed_ball_disk_cdf
 from bench.fit.table import FitInputError, gps_scale
 from emulator.receiver.model import ModelParams
@@ -185,6 +185,30 @@ def test_signal_error_cdf_matches_fine_quadrature(log_t, log_gamma, s3):
     assert got[1] == pytest.approx(ref, abs=1e-5)
     assert 0.0 <= got[0] <= got[1] <= got[2] <= 1.0
 
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.floats(-1.0, 3.0),  # log t at the bin's middle
+    st.floats(-4.0, 3.0),  # log gamma
+    st.floats(0.01, 0.3),  # 3 sigma
+    st.floats(1e-3, 1.0),  # bin width / s3, as a fraction of BIN_W_MAX
+)
+def test_signal_error_bin_matches_the_difference_of_fine_cdfs(log_t, log_gamma, s3, frac):
+    """A bin narrow against the pose error (delta <= BIN_W_MAX s3 min(1, gamma); the
+    fit's 1 cm bins are ~0.01 s3): one density at its middle against the fine-quadrature
+    difference of the two edges' CDFs (same node rule for G; 2e-4 of P, or 1e-6 of delta
+    where P is in a far tail)."""
+    delta = frac * BIN_W_MAX * s3 * min(1.0, math.exp(log_gamma))
+    z = np.linspace(-10.0, 10.0, 40001)
+    w = np.exp(-0.5 * z * z) * (z[1] - z[0]) / math.sqrt(2.0 * math.pi)
+    gam = np.exp(log_gamma - s3 * z)
+    hi = ball_disk_cdf(np.full(z.shape, math.exp(log_t + 0.5 * delta)), gam)
+    lo = ball_disk_cdf(np.full(z.shape, math.exp(log_t - 0.5 * delta)), gam)
+    ref = float((hi - lo) @ w)
+    got = signal_error_bin(np.array([log_t]), np.array([delta]), np.array([log_gamma]), s3)[0]
+    assert got >= 0.0
+    assert abs(got - ref) <= 2e-4 * ref + 1e-6 * delta
 
 def test_pose_error_moves_the_signal_not_the_emi():
     """P(log dxy > y) for a far row (noise radius 0.4 of the signal, pose error 4 % of

@@ -54,9 +54,8 @@ from scipy.interpolate import CubicSpline
 
 from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
 
-from .pose_error import PoseMoments, signal_error_cdf
+from .pose_error import BIN_W_MAX as SIGNAL_BIN_W_MAX, PoseMoments, signal_error_bin, signal_error_cdf
 from .special import (
-    BIN_W_MAX,
     epan_gauss_cdf,
     epan_gauss_density,
     epan_gauss_interval,
@@ -236,8 +235,8 @@ class Regimes:
 
     exact: NDArray[np.bool_]
     eps_split: float = EPS_SPLIT
-    #: exact rows whose bin is narrow against the pose error (special.BIN_W_MAX): one
-    #: series evaluation of P instead of two CDFs (:func:`special.smoothed_ball_disk_bin`)
+    #: exact rows whose bin is narrow against the pose error (pose_error.BIN_W_MAX): one
+    #: density at the bin's middle instead of two CDFs (:func:`pose_error.signal_error_bin`)
     narrow: NDArray[np.bool_] | None = None
 
 
@@ -290,7 +289,9 @@ class Likelihood:
         if self.rows.moments is not None and (p.gps_sigma > 0.0 or p.attitude_sigma > 0.0):
             sigma = self.pose_spread(p, 0.0, 0.0)[0]
             kk = np.maximum(self.k, 1).astype(np.float64)
-            narrow = exact & (self.k >= 1) & (np.log((kk + 0.5) / (kk - 0.5)) < BIN_W_MAX * sigma)
+            # (the errors-in-variables branch of mid_prob: pose_error.signal_error_bin)
+            scale = sigma * np.minimum(_gamma(geo.log_r, log_gxy, fxy, p.r_en), 1.0)
+            narrow = exact & (self.k >= 1) & (np.log((kk + 0.5) / (kk - 0.5)) < SIGNAL_BIN_W_MAX * scale)
         self.regimes = Regimes(exact, eps_split, narrow)
         self._memo.clear()
         return self.regimes
@@ -499,13 +500,22 @@ class Likelihood:
             j = idx[exact]
             log_t0 = log_kappa + 3.0 * math.log(p.r_en) - np.log(2.0 * m.fxy[j])
             s3 = 3.0 * _at(sigma, j)
-            be = b[exact]
-            top = np.isfinite(be)  # P(log dxy > inf) = 0: censored rows need one value
+            ae, be = a[exact], b[exact]
+            nar = self.regimes.narrow
+            nar = np.zeros(j.shape, bool) if nar is None else nar[j]
+            top = np.isfinite(be) & ~nar  # P(log dxy > inf) = 0: censored rows need one value
+            wide = ~nar
+            pe = np.empty(j.shape)
             with np.errstate(invalid="ignore", divide="ignore"):
                 log_g = np.log(_gamma(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) - 3.0 * (m.lxy[j] - m.lxy0[j])
-                above = signal_error_cdf(log_t0 - 3.0 * a[exact], log_g, s3)
-                above[top] -= signal_error_cdf(log_t0[top] - 3.0 * be[top], log_g[top], _at(s3, top))
-            pm[exact] = np.maximum(above, 0.0)
+                if nar.any():  # one density at the bin's middle instead of two CDFs
+                    pe[nar] = signal_error_bin(log_t0[nar] - 1.5 * (ae[nar] + be[nar]), 3.0 * (be[nar] - ae[nar]), log_g[nar], _at(s3, nar))
+                if wide.any():
+                    above = signal_error_cdf(log_t0[wide] - 3.0 * ae[wide], log_g[wide], _at(s3, wide))
+                    tw = top[wide]
+                    above[tw] -= signal_error_cdf(log_t0[top] - 3.0 * be[top], log_g[top], _at(s3, top))
+                    pe[wide] = np.maximum(above, 0.0)
+            pm[exact] = pe
         elif exact.any():
             j = idx[exact]
             # log dxy <= y <=> |h_xy| >= kappa / (4 pi e^{3y}); in units of the noise radius
