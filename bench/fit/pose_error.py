@@ -42,7 +42,7 @@ from scipy.special import ndtr
 
 from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
 
-from .special import PIECE, Z_BLEND, Z_KINK, Z_SPAN, ball_disk_cdf
+from .special import Z_BLEND, Z_KINK, Z_SPAN, ball_disk_cdf, normal_pieces
 
 SQRT3 = math.sqrt(3.0)
 #: Rows whose predicted log-distance spread from the pose error (at the linearisation
@@ -217,8 +217,6 @@ def pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0: tuple[float, float, f
 
 _GH3_X = np.array([-SQRT3, 0.0, SQRT3])
 _GH3_W = np.array([1.0, 4.0, 1.0]) / 6.0
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(6)
-_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
 def signal_error_cdf(log_t, log_gamma, s3) -> NDArray[np.float64]:
@@ -230,7 +228,7 @@ def signal_error_cdf(log_t, log_gamma, s3) -> NDArray[np.float64]:
     (gamma' = |t - 1|) and is 1 above it when t > 1 (for t < 1 it tends smoothly to
     G(t; 0)). Rows with both kinks at least ``Z_KINK`` s.d. away take the 3-point
     Gauss-Hermite rule; the others are integrated only where G is neither 0 nor 1, in
-    pieces of at most ``PIECE`` s.d. split at the kinks (6 Gauss-Legendre nodes each),
+    pieces of at most ``special.PIECE`` s.d. split at the kinks (:func:`special.normal_pieces`),
     blended into the 3-point value over ``Z_BLEND`` s.d. (the scheme of
     :func:`special.smoothed_ball_disk_cdf`, which puts the same error on the threshold)."""
     return _signal_rule(log_t, log_gamma, s3, False)
@@ -304,20 +302,7 @@ def _pieces(t, lg, s3, za, zb, density: bool = False) -> NDArray[np.float64]:
     lo = np.clip(za, -Z_SPAN, Z_SPAN)
     hi = np.where(above, np.maximum(np.clip(zb, -Z_SPAN, Z_SPAN), lo), Z_SPAN)
     mid = np.clip(zb, lo, hi)
-    ka = np.ceil((mid - lo) / PIECE).astype(np.int64)
-    kb = np.ceil((hi - mid) / PIECE).astype(np.int64)
-    kt = ka + kb
-    row = np.repeat(np.arange(t.shape[0]), kt)
-    j = np.arange(row.shape[0]) - np.repeat(np.cumsum(kt) - kt, kt)
-    ka_r, kb_r = ka[row], kb[row]
-    in_a = j < ka_r
-    wa = (mid - lo)[row] / np.maximum(ka_r, 1)
-    wb = (hi - mid)[row] / np.maximum(kb_r, 1)
-    width = np.where(in_a, wa, wb)
-    left = np.where(in_a, lo[row] + j * wa, mid[row] + (j - ka_r) * wb)
-    half = 0.5 * width
-    z = (left + half)[:, None] + half[:, None] * _GL_X
-    wz = (half[:, None] * _GL_W) * (_INV_SQRT_2PI * np.exp(-0.5 * z * z))
+    row, z, wz = normal_pieces(lo, mid, hi)
     with np.errstate(over="ignore"):
         gam = np.exp(np.minimum(lg[row][:, None] - s3[row][:, None] * z, 700.0))
     gz = _g(np.broadcast_to(t[row][:, None], gam.shape), gam, density)

@@ -419,18 +419,15 @@ def smoothed_ball_disk_cdf(log_t, gamma, s3, grad: bool = False):
     return (out, *d)
 
 
-def _piecewise(lt, g, s3, z1, z2, w=None, grad=False):
-    """E[G(exp(lt + s3 Z); g)] by integrating only where 0 < G < 1 (see
-    :func:`smoothed_ball_disk_cdf`); all arguments one per row. With ``w``:
-    E[G(...) (w He1 + w^3/24 He3 + w^5/1920 He5)(Z)] instead (:func:`smoothed_ball_disk_bin`).
-    With ``grad`` (and no ``w``): (value, its derivatives in log t, log gamma and s3)."""
-    lo = np.where(g > 1.0, np.clip(z1, -Z_SPAN, Z_SPAN), -Z_SPAN)  # G = 0 below z1 if g > 1
-    hi = np.maximum(np.clip(z2, -Z_SPAN, Z_SPAN), lo)  # G = 1 above z2
-    mid = np.clip(z1, lo, hi)  # the other kink (inside only when g < 1)
+def normal_pieces(lo, mid, hi):
+    """Nodes for E[f(Z); lo < Z < hi], Z standard normal, one interval per row split at
+    ``mid`` (a kink of f) into pieces of at most :data:`PIECE` s.d., 6 Gauss-Legendre
+    nodes each: (row, z, wz), the piece's row and its nodes and weights (pieces, 6), so
+    that ``bincount(row, weights=(wz * f(z)).sum(1))`` is the expectation per row."""
     ka = np.ceil((mid - lo) / PIECE).astype(np.int64)
     kb = np.ceil((hi - mid) / PIECE).astype(np.int64)
     kt = ka + kb
-    row = np.repeat(np.arange(lt.shape[0]), kt)
+    row = np.repeat(np.arange(lo.shape[0]), kt)
     j = np.arange(row.shape[0]) - np.repeat(np.cumsum(kt) - kt, kt)  # piece number within its row
     ka_r, kb_r = ka[row], kb[row]
     in_a = j < ka_r
@@ -441,6 +438,18 @@ def _piecewise(lt, g, s3, z1, z2, w=None, grad=False):
     half = 0.5 * width
     z = (left + half)[:, None] + half[:, None] * _XP  # (pieces, 6)
     wz = (half[:, None] * _WP) * (_INV_SQRT_2PI * np.exp(-0.5 * z * z))
+    return row, z, wz
+
+
+def _piecewise(lt, g, s3, z1, z2, w=None, grad=False):
+    """E[G(exp(lt + s3 Z); g)] by integrating only where 0 < G < 1 (see
+    :func:`smoothed_ball_disk_cdf`); all arguments one per row. With ``w``:
+    E[G(...) (w He1 + w^3/24 He3 + w^5/1920 He5)(Z)] instead (:func:`smoothed_ball_disk_bin`).
+    With ``grad`` (and no ``w``): (value, its derivatives in log t, log gamma and s3)."""
+    lo = np.where(g > 1.0, np.clip(z1, -Z_SPAN, Z_SPAN), -Z_SPAN)  # G = 0 below z1 if g > 1
+    hi = np.maximum(np.clip(z2, -Z_SPAN, Z_SPAN), lo)  # G = 1 above z2
+    mid = np.clip(z1, lo, hi)  # the other kink (inside only when g < 1)
+    row, z, wz = normal_pieces(lo, mid, hi)
     if w is not None:
         wr = w[row][:, None]
         z2_ = z * z
