@@ -245,20 +245,8 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None, grad: bool = False, densit
         np.maximum(sq, 0.0, out=sq)
         np.sqrt(sq, out=sq)
         sq *= tau
-        if grad:  # r = tau sqrt(1 - tau^2) w / sqrt(Q), Q's factors without cancellation
-            np.multiply(width, f, out=b1)  # tau - a
-            np.add(tau, a, out=b2)
-            b1 *= b2
-            np.multiply(width, 1.0 - f, out=b2)  # (t + gamma) - tau
-            b2 += over
-            b1 *= b2
-            np.add(cp, tau, out=b2)
-            b1 *= b2
-            np.maximum(b1, 1e-300, out=b1)
-            np.sqrt(b1, out=b1)
-            np.divide(sq, b1, out=b1)
-            b1 *= w
-            s1 += b1
+        if grad:
+            s1 += _density_node(tau, a, width, f, w, over, cp, sq, b1, b2)
             np.multiply(tau, tau, out=b2)
             np.subtract(t2g2, b2, out=b2)
             b2 *= b1
@@ -284,6 +272,25 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None, grad: bool = False, densit
 
 
 
+def _density_node(tau, a, width, f, w, over, cp, sq, b1, b2):
+    """One node's term of t dG/dt (the ``grad`` loop's first sum), in ``b1``: w tau
+    sqrt(1 - tau^2) / sqrt(Q) with ``sq`` = tau sqrt(1 - tau^2) and Q's factors formed
+    without cancellation (tau - a = width f, (t + gamma) - tau = width (1 - f) + over)."""
+    np.multiply(width, f, out=b1)  # tau - a
+    np.add(tau, a, out=b2)
+    b1 *= b2
+    np.multiply(width, 1.0 - f, out=b2)  # (t + gamma) - tau
+    b2 += over
+    b1 *= b2
+    np.add(cp, tau, out=b2)
+    b1 *= b2
+    np.maximum(b1, 1e-300, out=b1)
+    np.sqrt(b1, out=b1)
+    np.divide(sq, b1, out=b1)
+    b1 *= w
+    return b1
+
+
 def _band_density(t, gamma, a, width, frac, weight, band, whole, shape):
     """t dG/dt of :func:`ball_disk_cdf` on its band elements (the ``grad`` loop's first sum)."""
     cp = t + gamma
@@ -294,25 +301,14 @@ def _band_density(t, gamma, a, width, frac, weight, band, whole, shape):
     b1 = np.empty(t.shape)
     b2 = np.empty(t.shape)
     for f, w in zip(frac, weight):
-        np.multiply(width, f, out=b1)  # tau - a
-        np.add(b1, a, out=tau)
+        np.multiply(width, f, out=tau)
+        tau += a
         np.multiply(tau, tau, out=sq)
         np.subtract(1.0, sq, out=sq)
         np.maximum(sq, 0.0, out=sq)
         np.sqrt(sq, out=sq)
         sq *= tau
-        np.add(tau, a, out=b2)
-        b1 *= b2
-        np.multiply(width, 1.0 - f, out=b2)  # (t + gamma) - tau
-        b2 += over
-        b1 *= b2
-        np.add(cp, tau, out=b2)
-        b1 *= b2
-        np.maximum(b1, 1e-300, out=b1)
-        np.sqrt(b1, out=b1)
-        np.divide(sq, b1, out=b1)
-        b1 *= w
-        s1 += b1
+        s1 += _density_node(tau, a, width, f, w, over, cp, sq, b1, b2)
     d_t = 2.0 * t * t * width * s1
     if whole:
         return d_t.reshape(shape)
