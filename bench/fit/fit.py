@@ -696,14 +696,23 @@ def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol
         theta, h = res.theta, res.steps
         if not res.ok or (settled and search):
             break
-        changed = int(np.sum(like.choose_regimes(to_params(base, free, theta), **eps_kw).exact != split))
-        if changed == 0 and settled:
-            like.regimes.exact = split
+        if _regimes_settled(like, to_params(base, free, theta), eps_kw, split, settled, notes):
             break
-        if changed and settled:
-            notes.append(f"{changed} rows changed likelihood regime at the estimate; refitted")
     res.iterations = iters
     return like, res
+
+
+def _regimes_settled(like: Likelihood, p: Params, eps_kw: dict, split, settled: bool, notes: list[str]) -> bool:
+    """After a pass of the regime loop: the regimes chosen again at ``p``. True when the
+    loop ends (a settled pass and no row changed: the pass's own split is kept); a row
+    that changed after a settled pass is noted and the loop refits."""
+    changed = int(np.sum(like.choose_regimes(p, **eps_kw).exact != split))
+    if changed == 0 and settled:
+        like.regimes.exact = split
+        return True
+    if changed and settled:
+        notes.append(f"{changed} rows changed likelihood regime at the estimate; refitted")
+    return False
 
 
 # -- Fisher information, for comparison ------------------------------------------------------
@@ -1195,12 +1204,8 @@ def _optimise_grad(rows: Rows, base: Params, free, theta, options, notes, tol):
         theta = res.theta
         if not res.ok or (settled and search):
             break
-        changed = int(np.sum(like.choose_regimes(to_params(base, free, theta), **eps_kw).exact != split))
-        if changed == 0 and settled:
-            like.regimes.exact = split
+        if _regimes_settled(like, to_params(base, free, theta), eps_kw, split, settled, notes):
             break
-        if changed and settled:
-            notes.append(f"{changed} rows changed likelihood regime at the estimate; refitted")
     res.iterations = iters
     return like, res
 
