@@ -1409,16 +1409,18 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             sub_cov = model_cov
             if options.covariance == "hac" and eiv and like.rows.t is not None:
                 scores = _scores(like, base, newton_free, theta_n, res.steps, live=keep)
+                height = None if "height_offset" in newton_free else common_height_rows(table, sigma0)
                 floor = [i for i in np.flatnonzero(active) if newton_free[i] in ("gps_sigma", "attitude_sigma")
                          and theta_n[i] <= lo_n[i] + 1e-6]  # fmt: skip
                 widened = None
                 if floor:
-                    widened = boundary_nuisance_cov(like, base, newton_free, theta_n, res.steps, keep, floor, hk, scores)
+                    widened = boundary_nuisance_cov(like, base, newton_free, theta_n, res.steps, keep, floor, hk, scores, height)
                 if widened is not None:
                     model_cov, sub_cov, hac_lag = widened
                     nuisance_floor = [newton_free[i] for i in floor]
                 else:
-                    meat, hac_lag = time_block_meat(scores, like.rows.t)
+                    slope = None if height is None else score_height_slope(like, base, newton_free, theta_n, res.steps, keep)
+                    meat, hac_lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
                     sub_cov = model_cov @ meat @ model_cov
             for a_, i in enumerate(keep):
                 name = newton_free[i]
@@ -1502,7 +1504,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
     )
 
 
-def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, scores_keep):
+def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, scores_keep, height=None):
     """The sandwich covariance of the ``keep`` parameters when pose-error sigmas (indices
     ``floor``) sit at their lower bound: their variances v = sigma^2 join as nuisance
     parameters instead of being held fixed.
@@ -1517,11 +1519,12 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     v at the floor upwards; second-order forward rules), the time-block meat is taken
     over all of them, and the ``keep`` block of A^-1 B A^-1 is returned with the
     inverse-Hessian block and the Newey-West lag, or None when the likelihood is not
-    curved upwards in v (then the caller holds the sigmas as before).
+    curved upwards in v (then the caller holds the sigmas as before). ``height``
+    (:func:`common_height_rows`) adds the common height's influence to the meat.
     """
     keep = list(keep)
     m = len(floor)
-    logp = lambda th: like.logp(to_params(base, free, th))  # noqa: E731
+    logp = lambda th, b=base: like.logp(to_params(b, free, th))  # noqa: E731
     v0 = np.exp(2.0 * theta[floor])
 
     def at(th, dv):  # theta with the floor sigmas at sqrt(v0 + dv)
@@ -1565,11 +1568,67 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     # Per-row scores in v at the floor: (-3 l(0) + 4 l(d) - l(2d)) / 2d.
     s_v = np.stack([(-3.0 * l00 + 4.0 * one[a] - two[a]) / (2.0 * delta[a]) for a in range(m)], axis=1)
     scores = np.concatenate([scores_keep, s_v], axis=1)
+    slope = None
+    if height is not None:  # d/d(height) of the summed scores: the kept columns, then the v columns
+        def s_v_sum(b):
+            l0, l1, l2 = logp(theta, b), [logp(at(theta, delta * np.eye(m)[a]), b) for a in range(m)], [logp(at(theta, 2.0 * delta * np.eye(m)[a]), b) for a in range(m)]
+            return np.array([float(np.sum(-3.0 * l0 + 4.0 * l1[a] - l2[a])) / (2.0 * delta[a]) for a in range(m)])
+
+        up, down = (replace(base, height_offset=base.height_offset + s * HEIGHT_STEP) for s in (1.0, -1.0))
+        slope = np.concatenate([score_height_slope(like, base, free, theta, h, keep), (s_v_sum(up) - s_v_sum(down)) / (2.0 * HEIGHT_STEP)])
     inv = np.linalg.inv(big)
-    meat, lag = time_block_meat(scores, like.rows.t)
+    meat, lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
     cov = inv @ meat @ inv
     k = len(keep)
     return inv[:k, :k], cov[:k, :k], lag
+
+
+#: The step in the common receiver height for :func:`score_height_slope` (m).
+HEIGHT_STEP = 0.05
+
+
+def common_height_rows(table: Table, sigma0) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """Each logged row's share in the common height the fit placed the rows at, or None.
+
+    :func:`pose_error.posterior_positions` moves each logged height z_i to
+    m + k (z_i - m), m the mean logged height of all N rows of the table, so (1 - k)
+    times the campaign mean of the vertical GPS error is in every row's height. With a
+    flat walk k is ~0: the per-row vertical errors leave the scores, and what is left is
+    common to all rows, which the time-block meat cannot see (it moves the estimate, not
+    the scores). As for any two-step estimator (Newey and McFadden 1994, section 6) the
+    first step's influence joins the scores: with the fit's scores S(theta, h), h a
+    common height offset, the estimate moves by A^-1 (dS/dh) (1 - k) (m - E m), and
+    (1 - k) (m - E m) is the sum over rows of w_i = (1 - k) (z_i - m) / N, a series
+    correlated in time like the GPS error itself. Returns (w, t) per table row (t the
+    receiver time) for :func:`with_common_height`; None when no vertical error is
+    modelled or k = 1 (the heights are kept as logged)."""
+    if sigma0[1] <= 0.0:
+        return None
+    post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
+    keep = 1.0 - post.v_factor**2
+    if keep <= 0.0:
+        return None
+    z = np.asarray(table.rx_pos, dtype=np.float64)[:, 2]
+    return keep * (z - z.mean()) / z.shape[0], np.asarray(table.t, dtype=np.float64)
+
+
+def score_height_slope(like: Likelihood, base: Params, free, theta, h, cols) -> NDArray[np.float64]:
+    """d/dh of the summed scores (columns ``cols``), h a common offset of every receiver
+    height (``Params.height_offset``, linearised), by central differences of
+    :data:`HEIGHT_STEP`."""
+    up, down = (replace(base, height_offset=base.height_offset + s * HEIGHT_STEP) for s in (1.0, -1.0))
+    return (_scores(like, up, free, theta, h, live=cols).sum(axis=0) - _scores(like, down, free, theta, h, live=cols).sum(axis=0)) / (
+        2.0 * HEIGHT_STEP
+    )
+
+
+def with_common_height(scores, t, height, slope):
+    """The scores and times for :func:`time_block_meat`, with the common height's influence
+    rows w_i (dS/dh) appended when ``height`` (:func:`common_height_rows`) is given."""
+    if height is None or slope is None:
+        return scores, t
+    w, t_rows = height
+    return np.concatenate([scores, np.outer(w, slope)]), np.concatenate([np.asarray(t, dtype=np.float64), t_rows])
 
 
 #: |correlation| of r_en with a pose-error sigma above which the two are not told apart.
