@@ -1448,7 +1448,8 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
                 # at the last gradient's point (its per-row log P are memoised) when the
                 # estimate is an unevaluated Newton step from there (_full_stage, < 0.08
                 # standard errors): the meat is centred (kappa_eq's and r_en's s.e. moved
-                # by < 0.2 % on the 1e5-row pose-error benchmark's campaigns)
+                # by < 0.2 % on the 1e5-row pose-error benchmark's campaigns); so are the
+                # differences of boundary_nuisance_cov (its points at theta +- h: memoised)
                 at = res.evaluated
                 at = at if at is not None and np.array_equal(at[active], theta_n[active]) else theta_n
                 scores = _scores(like, base, newton_free, at, res.steps, live=keep)
@@ -1456,7 +1457,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
                          and theta_n[i] <= lo_n[i] + 1e-6]  # fmt: skip
                 widened = None
                 if floor:
-                    widened = boundary_nuisance_cov(like, base, newton_free, theta_n, res.steps, keep, floor, hk, scores)
+                    widened = boundary_nuisance_cov(like, base, newton_free, at, res.steps, keep, floor, hk, scores)
                 if widened is not None:
                     model_cov, sub_cov, hac_lag = widened
                     nuisance_floor = [newton_free[i] for i in floor]
