@@ -263,7 +263,7 @@ def main(argv=None) -> int:
         f"Measured: batch/C = {ratio} (CPU time), batch/Python = {rate['batch'][1] / py:,.0f}, "
         f"emulate = {emu_cpu:,.0f} epochs per CPU second ({emu_wall:,.0f} per wall second under this load). "
         f"Of the emulator's {args.frames / emu_cpu:.2f} s of CPU, {start_cpu:.2f} s is starting Python "
-        "and importing its modules (numpy, scipy): the process's floor, whatever the epochs cost; "
+        "and importing its modules (numpy and ours; not scipy, whose spatial package alone took ~0.3 s): the process's floor, whatever the epochs cost; "
         f"the epochs themselves run at {args.frames / max(args.frames / emu_cpu - start_cpu, 1e-9):,.0f} per CPU second."
     )
     print(targets)
