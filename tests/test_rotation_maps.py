@@ -71,6 +71,20 @@ def test_small_angles_use_the_series_exactly_like_scipy():
         np.testing.assert_allclose(quaternion_rotvecs(q), v, rtol=0, atol=TOL)
 
 
+def test_half_turns_take_scipys_sign():
+    """w = 0: +pi or -pi about the axis; scipy's choice (first non-zero component of q
+    positive) decides which way paper_walk.toml's 180-degree turns go."""
+    c = 0.7071067811865476
+    for q in ([0.0, 0.0, 0.0, -1.0], [0.0, 0.0, 0.0, 1.0], [0.0, -c, c, 0.0], [0.0, 0.0, -1.0, 0.0],
+              [-0.0, 0.6, 0.0, -0.8]):
+        np.testing.assert_array_equal(quaternion_rotvecs(np.asarray(q)), _scipy(q).as_rotvec())
+    # the paper walk's turn at t = 80 s: yaw +90 -> -90 degrees, through +180 about z as before
+    traj = Trajectory(np.array([80.0, 90.0]), np.zeros((2, 3)), np.array([[c, 0, 0, c], [c, 0, 0, -c]]))
+    _, q = traj.at([85.0])
+    want = Slerp([80.0, 90.0], _scipy([[c, 0, 0, c], [c, 0, 0, -c]]))([85.0]).as_quat(scalar_first=True)
+    np.testing.assert_allclose(q, want, rtol=0, atol=TOL)
+
+
 def test_conjugate_undoes_the_rotation():
     q = _unit([0.3, -0.2, 0.9, 0.1])
     np.testing.assert_allclose(quaternion_products(quaternion_conjugates(q), q), [1.0, 0.0, 0.0, 0.0], atol=TOL)
@@ -93,9 +107,12 @@ def test_waypoints_are_hit_and_held():
     q0, q1 = _unit([1, 0, 0, 1]), _unit([1, 0, 0, -1])  # +90 and -90 degrees of yaw
     traj = Trajectory(np.array([10.0, 20.0]), np.zeros((2, 3)), np.stack([q0, q1]))
     _, q = traj.at([0.0, 10.0, 15.0, 20.0, 99.0])
+    q = q * np.sign(q @ np.array([0.0, 0.0, 0.0, 1.0]))[:, None]  # q and -q: the same rotation
+    q0, q1 = q0 * np.sign(q0[3]), q1 * np.sign(q1[3])
     np.testing.assert_allclose(q[[0, 1]], [q0, q0], atol=TOL)
     np.testing.assert_allclose(q[[3, 4]], [q1, q1], atol=TOL)
-    np.testing.assert_allclose(q[2], [1.0, 0.0, 0.0, 0.0], atol=TOL)  # halfway: no yaw
+    # halfway through this half turn (+180 degrees about z, scipy's sign): yaw 180 degrees
+    np.testing.assert_allclose(q[2], [0.0, 0.0, 0.0, 1.0], atol=TOL)
 
 
 def test_the_emulator_imports_no_scipy():

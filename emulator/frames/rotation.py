@@ -209,9 +209,15 @@ def rotvec_quaternions(v: ArrayLike) -> NDArray[np.float64]:
 
 def quaternion_rotvecs(q_unit: ArrayLike) -> NDArray[np.float64]:
     """Rotation vectors (..., 3), angle in [0, pi], of unit quaternions (..., 4): the
-    logarithm map (q and -q give the same vector)."""
+    logarithm map (q and -q give the same vector).
+
+    A half turn (w = 0) has two vectors, +pi and -pi about the axis: as scipy does, the
+    sign of q is taken so that its first non-zero component is positive (so a waypoint
+    path turning by exactly 180 degrees turns the same way as it did through scipy)."""
     q = np.asarray(q_unit, dtype=np.float64)
-    q = np.where(q[..., :1] < 0.0, -q, q)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    flip = (w < 0.0) | ((w == 0.0) & ((x < 0.0) | ((x == 0.0) & ((y < 0.0) | ((y == 0.0) & (z < 0.0))))))
+    q = np.where(flip[..., None], -q, q)
     v = q[..., 1:]
     angle = 2.0 * np.arctan2(np.sqrt(np.sum(v * v, axis=-1, keepdims=True)), q[..., :1])
     small = angle <= _SMALL_ANGLE
