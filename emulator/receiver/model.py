@@ -187,7 +187,7 @@ def as_positions(p: ArrayLike, field_name: str) -> NDArray[np.float64]:
     p = np.asarray(p, dtype=np.float64)
     if p.shape[-1:] != (3,):
         raise PoseError(field_name, f"a position has 3 components [x, y, z], got shape {p.shape}")
-    if not np.all(np.isfinite(p)):
+    if not _all_finite(p):
         raise PoseError(field_name, "position has a non-finite component")
     return p
 
@@ -257,7 +257,13 @@ def measure(
     rows = max(1, CHUNK_PAIRS // m)
     # Coordinates beyond ~1e307 could overflow a difference: a chunk holding any is scaled
     # by an exact power of two (decided per chunk, as before, see _measure_chunk).
-    any_big = max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE
+    # (Only the general path needs it, so it is found when first asked for.)
+    big: list[bool] = []
+
+    def any_big() -> bool:
+        if not big:
+            big.append(max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE)
+        return big[0]
 
     if compiled:
         tab = _tables(params)
@@ -348,7 +354,7 @@ def measure(
                     tx_x, tx_y, tx_z = (txv(tx_p[:, k]) for k in range(3))
                     mx, my, mz = (txv(tx_m[k]) for k in range(3))
                 f = 1.0
-                if any_big:
+                if any_big():
                     big = max(np.max(np.abs(rx_p[sl]), initial=0.0),
                               np.max(np.abs(tx_p[sl] if moving_tx else tx_p), initial=0.0)) > _HUGE
                     f = 0.25 if big else 1.0
@@ -421,10 +427,19 @@ def _max_abs(a: NDArray[np.float64]) -> float:
     return max(float(a.max(initial=0.0)), -float(a.min(initial=0.0)))
 
 
+def _all_finite(a: NDArray[np.float64]) -> bool:
+    """No NaN or infinity in ``a``: its sum is finite (one pass, no temporary), or every
+    element is (the sum of finite values may overflow)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if math.isfinite(np.sum(a)):
+            return True
+    return bool(np.all(np.isfinite(a)))
+
+
 def _quaternions(q: ArrayLike, field: str) -> NDArray[np.float64]:
     """float64 quaternions (N, 4) with shape and finiteness checked (norms: per chunk)."""
     q = np.asarray(q, dtype=np.float64)
-    if q.shape[-1:] != (4,) or not np.all(np.isfinite(q)):
+    if q.shape[-1:] != (4,) or not _all_finite(q):
         unit_quaternion_components(q, field)  # raises the PoseError naming the field
     return q
 
