@@ -79,6 +79,8 @@ _HUGE = 2.0**1020  # ~1.1e307
 #: give the same integers (every pair either path leaves undecided takes the general path).
 KERNEL = os.environ.get("ARVA_MODEL_KERNEL", "auto")
 KERNELS = ("auto", "compiled", "numpy")
+#: Whether the compiled kernel was built (and imported) in this installation.
+KERNEL_BUILT = _model_kernel is not None
 
 
 @dataclass(frozen=True)
