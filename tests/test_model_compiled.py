@@ -247,3 +247,13 @@ def test_the_kernel_checks_its_buffers():
         k.fast_pairs(p, q, tx, tab.kernel_consts, d, delta, zone[:1])
     with pytest.raises(TypeError):  # read-only output
         k.fast_pairs(p, q, tx, tab.kernel_consts, d, delta, np.broadcast_to(np.int8(0), (2, 1)))
+
+
+@needs_kernel
+def test_strided_fortran_and_big_endian_inputs(monkeypatch):
+    rng = np.random.default_rng(9)
+    rx_p = np.asfortranarray(rng.uniform(-60, 60, (4000, 3)))[::2]  # strided, Fortran order
+    rx_q = rng.normal(size=(4000, 8))[::2, ::2]  # (2000, 4), both axes strided
+    tx_p = PAPER_TX.astype(">f8")
+    got = _all_three(monkeypatch, rx_p, rx_q, tx_p, [I] * 4)
+    _same(got, _run("compiled", monkeypatch, np.ascontiguousarray(rx_p), np.ascontiguousarray(rx_q), PAPER_TX, [I] * 4))
