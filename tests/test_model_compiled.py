@@ -257,3 +257,9 @@ def test_strided_fortran_and_big_endian_inputs(monkeypatch):
     tx_p = PAPER_TX.astype(">f8")
     got = _all_three(monkeypatch, rx_p, rx_q, tx_p, [I] * 4)
     _same(got, _run("compiled", monkeypatch, np.ascontiguousarray(rx_p), np.ascontiguousarray(rx_q), PAPER_TX, [I] * 4))
+
+
+def test_the_switch_is_checked_on_the_general_path_too(monkeypatch):
+    monkeypatch.setattr(model, "KERNEL", "Compiled")
+    with pytest.raises(InputError, match=r"^ARVA_MODEL_KERNEL: must be one of auto, compiled, numpy, got 'Compiled'$"):
+        measure([[1.0, 2.0, 3.0]], [I], [[0.0, 0.0, 0.0]], [I], want_field=True)

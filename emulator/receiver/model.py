@@ -235,7 +235,7 @@ def measure(
         tx_m = np.broadcast_to(tx_m if tx_m.ndim == 3 else tx_m[:, None, :], (3, n, m))
     fld = np.empty((n, m, 3)) if want_field else None
     fast = noise is None and fld is None and not moving_tx and _FastTables.applies(params)
-    compiled = fast and _compiled_kernel()
+    compiled = _compiled_kernel() and fast  # the switch is checked on every call
     if compiled:  # the kernel writes every pair's d, delta and zone
         d = np.empty((n, m), dtype=np.int64)
         delta = np.empty((n, m), dtype=np.int64)
