@@ -17,7 +17,7 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 # The optional C kernel of the model (setup.py): a changed source is rebuilt by reinstalling.
-BUILD_INPUTS := pyproject.toml setup.py emulator/receiver/_model_kernel.c
+BUILD_INPUTS := pyproject.toml setup.py emulator/receiver/model_kernel.c
 
 # The runtime set only. Rebuilt when pyproject.toml, setup.py or the C kernel changes.
 $(RUN_STAMP): $(BUILD_INPUTS) | $(BIN)/python
@@ -42,4 +42,4 @@ bench: $(DEV_STAMP)
 	@for f in tests/perf/bench_*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info emulator/receiver/_model_kernel*.so
+	rm -rf $(VENV) build *.egg-info emulator/receiver/model_kernel*.so

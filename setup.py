@@ -1,7 +1,7 @@
 """Build of the one optional C extension; everything else is declared in pyproject.toml.
 
-emulator.receiver._model_kernel is the batch model's fast path as one compiled loop
-(emulator/receiver/_model_kernel.c, docs/model.md). It is optional: without a C compiler
+emulator.receiver.model_kernel is the batch model's fast path as one compiled loop
+(emulator/receiver/model_kernel.c, docs/model.md). It is optional: without a C compiler
 the build skips it and the numpy fast path runs. Plain C99 and CPython's buffer protocol,
 so it needs no numpy headers. No -ffast-math and no FMA contraction: the kernel's
 rounding must be the plain IEEE operations its margins were derived for.
@@ -16,8 +16,8 @@ FLAGS = [] if sys.platform == "win32" else ["-O3", "-std=c99", "-ffp-contract=of
 setup(
     ext_modules=[
         Extension(
-            "emulator.receiver._model_kernel",
-            ["emulator/receiver/_model_kernel.c"],
+            "emulator.receiver.model_kernel",
+            ["emulator/receiver/model_kernel.c"],
             extra_compile_args=FLAGS,
             optional=True,
         )

@@ -1,4 +1,4 @@
-"""The compiled fast-path kernel (emulator/receiver/_model_kernel.c) against the numpy one.
+"""The compiled fast-path kernel (emulator/receiver/model_kernel.c) against the numpy one.
 
 ``model.KERNEL`` (from ARVA_MODEL_KERNEL) picks the implementation of the fast path. Both
 leave every pair within their margins of a zone, rounding or fold boundary to the general
@@ -23,7 +23,7 @@ from emulator.receiver import model
 from emulator.receiver.model import ModelParams, measure
 from firmware_proto.errors import InputError, PoseError
 
-needs_kernel = pytest.mark.skipif(model._model_kernel is None, reason="the C kernel is not built (no compiler)")
+needs_kernel = pytest.mark.skipif(model.model_kernel is None, reason="the C kernel is not built (no compiler)")
 PAPER_TX = np.array([[20, 5, 0], [10, 0, 1], [20, -20, -1], [-6, 5, 0]], dtype=float)
 I = (1.0, 0.0, 0.0, 0.0)
 
@@ -60,12 +60,12 @@ def test_kernel_is_built_where_a_compiler_is():
     # failed build would leave every other test here skipped.
     if shutil.which("cc") is None and shutil.which("gcc") is None:
         pytest.skip("no C compiler on this host: the numpy fast path is the one in use")
-    assert model._model_kernel is not None, "emulator.receiver._model_kernel is not built: run pip install -e ."
+    assert model.model_kernel is not None, "emulator.receiver.model_kernel is not built: run pip install -e ."
 
 
 def test_auto_prefers_the_compiled_kernel_and_unknown_names_are_errors(monkeypatch):
     monkeypatch.setattr(model, "KERNEL", "auto")
-    assert model._compiled_kernel() is (model._model_kernel is not None)
+    assert model._compiled_kernel() is (model.model_kernel is not None)
     monkeypatch.setattr(model, "KERNEL", "numpy")
     assert model._compiled_kernel() is False
     monkeypatch.setattr(model, "KERNEL", "fortran")
@@ -74,7 +74,7 @@ def test_auto_prefers_the_compiled_kernel_and_unknown_names_are_errors(monkeypat
 
 
 def test_asking_for_the_compiled_kernel_when_it_is_not_built_is_an_input_error(monkeypatch):
-    monkeypatch.setattr(model, "_model_kernel", None)
+    monkeypatch.setattr(model, "model_kernel", None)
     monkeypatch.setattr(model, "KERNEL", "compiled")
     with pytest.raises(InputError, match=r"^ARVA_MODEL_KERNEL=compiled: the extension .* is not built"):
         measure([[1.0, 2.0, 3.0]], [I], [[0.0, 0.0, 0.0]], [I])
@@ -135,7 +135,7 @@ def test_pairs_a_hair_from_each_boundary(monkeypatch):
     tab = model._tables(ModelParams())
     tx = model._kernel_tx(np.zeros((1, 3)), x_axis_components(unit_quaternion_components([I])), tab.lam)
     d, delta, zone = np.empty((len(rx_p), 1), np.int64), np.empty((len(rx_p), 1), np.int64), np.empty((len(rx_p), 1), np.int8)
-    count = model._model_kernel.fast_pairs(np.ascontiguousarray(rx_p), np.ascontiguousarray(rx_q), tx,
+    count = model.model_kernel.fast_pairs(np.ascontiguousarray(rx_p), np.ascontiguousarray(rx_q), tx,
                                             tab.kernel_consts, d, delta, zone)
     assert count == int((zone < 0).sum()) and 100 < count < len(rx_p) - 40
 
@@ -237,11 +237,11 @@ def test_bad_positions_and_transmitter_quaternions_raise_the_same_errors(monkeyp
 
 @needs_kernel
 def test_the_kernel_checks_its_buffers():
-    k = model._model_kernel
+    k = model.model_kernel
     tab = model._tables(ModelParams())
     p, q, tx = np.zeros((2, 3)), np.tile(I, (2, 1)), np.zeros((1, 10))
     d, delta, zone = np.empty((2, 1), np.int64), np.empty((2, 1), np.int64), np.empty((2, 1), np.int8)
-    with pytest.raises(ValueError, match=r"^_model_kernel.fast_pairs: rx_q has 32 bytes, expected 64$"):
+    with pytest.raises(ValueError, match=r"^model_kernel.fast_pairs: rx_q has 32 bytes, expected 64$"):
         k.fast_pairs(p, q[:1], tx, tab.kernel_consts, d, delta, zone)
     with pytest.raises(ValueError, match=r"zone has 1 bytes, expected 2$"):
         k.fast_pairs(p, q, tx, tab.kernel_consts, d, delta, zone[:1])

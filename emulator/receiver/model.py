@@ -55,9 +55,9 @@ from emulator.frames.rotation import (
 )
 
 try:  # the fast path as one compiled loop (setup.py builds it when a C compiler is present)
-    from emulator.receiver import _model_kernel
+    from emulator.receiver import model_kernel
 except ImportError:  # not built: the numpy fast path runs
-    _model_kernel = None
+    model_kernel = None
 
 ZONE_INNER, ZONE_MID, ZONE_OUTER = 0, 1, 2
 ZONE_NAMES = ("inner", "mid", "outer")
@@ -73,14 +73,14 @@ FIELD_SATURATION = float(np.finfo(np.float64).max)
 CHUNK_PAIRS = 1 << 15
 _HUGE = 2.0**1020  # ~1.1e307
 #: Which implementation runs the fast path (ideal 3-antenna receiver, static transmitters,
-#: no field): "compiled" (emulator/receiver/_model_kernel.c, an optional extension built
+#: no field): "compiled" (emulator/receiver/model_kernel.c, an optional extension built
 #: by ``pip install``), "numpy" (the numpy passes of _fast_block) or "auto" (compiled when
 #: built, else numpy). Set from the environment variable ARVA_MODEL_KERNEL at import; both
 #: give the same integers (every pair either path leaves undecided takes the general path).
 KERNEL = os.environ.get("ARVA_MODEL_KERNEL", "auto")
 KERNELS = ("auto", "compiled", "numpy")
 #: Whether the compiled kernel was built (and imported) in this installation.
-KERNEL_BUILT = _model_kernel is not None
+KERNEL_BUILT = model_kernel is not None
 
 
 @dataclass(frozen=True)
@@ -283,7 +283,7 @@ def measure(
         general = []
         for lo in range(first, last, rows):
             hi = min(last, lo + rows)
-            count = _model_kernel.fast_pairs(rx_pc[lo:hi], rx_qc[lo:hi], ktx, tab.kernel_consts,
+            count = model_kernel.fast_pairs(rx_pc[lo:hi], rx_qc[lo:hi], ktx, tab.kernel_consts,
                                              d[lo:hi], delta[lo:hi], zone[lo:hi])
             if 4 * count > (hi - lo) * m:  # mostly general: the whole block there
                 run_general(lo, hi)
@@ -734,7 +734,7 @@ class _FastTables:
         self.s_inner = (params.r_inner * _CBRT2_MARGIN / c) ** 2
         k = np.arange(181)  # floor(degrees + 90.5) -> delta
         self.delta = np.clip(k - 90, -MAX_DELTA_DEG, MAX_DELTA_DEG).astype(np.int64)
-        # The compiled kernel's constants, in the order _model_kernel.fast_pairs takes them.
+        # The compiled kernel's constants, in the order model_kernel.fast_pairs takes them.
         self.kernel_consts = (self.e_lo, self.e_hi, self.d_tol, _DEG_TOL, _FOLD_TOL, _S_LO, _S_HI,
                               _CANCEL, _Q2_LO, _Q2_HI, self.s_inner, self.v_inner, _EDGE)
 
@@ -934,10 +934,10 @@ def _compiled_kernel() -> bool:
     if KERNEL == "numpy":
         return False
     if KERNEL == "auto":
-        return _model_kernel is not None
+        return model_kernel is not None
     if KERNEL == "compiled":
-        if _model_kernel is None:
-            raise InputError("ARVA_MODEL_KERNEL=compiled: the extension emulator.receiver._model_kernel "
+        if model_kernel is None:
+            raise InputError("ARVA_MODEL_KERNEL=compiled: the extension emulator.receiver.model_kernel "
                              "is not built (reinstall with a C compiler: pip install -e .)")
         return True
     raise InputError(f"ARVA_MODEL_KERNEL: must be one of {', '.join(KERNELS)}, got {KERNEL!r}")

@@ -1,6 +1,6 @@
 /* The batch model's fast path (emulator/receiver/model.py, "Fast path") as one fused C loop.
  *
- * Optional extension module emulator.receiver._model_kernel, built by setup.py when a C
+ * Optional extension module emulator.receiver.model_kernel, built by setup.py when a C
  * compiler is present (-O3 -ffp-contract=off, no -ffast-math). Without it the numpy fast
  * path runs; ARVA_MODEL_KERNEL=numpy|compiled chooses (see model.py, KERNEL).
  *
@@ -230,7 +230,7 @@ static Py_ssize_t kernel(Py_ssize_t n, Py_ssize_t m, const double *restrict rx_p
 
 static int check_len(Py_buffer *b, Py_ssize_t count, Py_ssize_t itemsize, const char *name) {
     if (b->len != count * itemsize) {
-        PyErr_Format(PyExc_ValueError, "_model_kernel.fast_pairs: %s has %zd bytes, expected %zd",
+        PyErr_Format(PyExc_ValueError, "model_kernel.fast_pairs: %s has %zd bytes, expected %zd",
                      name, b->len, count * itemsize);
         return 0;
     }
@@ -281,9 +281,9 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "_model_kernel",
-    "The batch model's fast path as one compiled loop (see emulator/receiver/_model_kernel.c).",
+    PyModuleDef_HEAD_INIT, "model_kernel",
+    "The batch model's fast path as one compiled loop (see emulator/receiver/model_kernel.c).",
     -1, methods, NULL, NULL, NULL, NULL,
 };
 
-PyMODINIT_FUNC PyInit__model_kernel(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit_model_kernel(void) { return PyModule_Create(&module); }
