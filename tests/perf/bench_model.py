@@ -329,7 +329,7 @@ def main(argv=None) -> int:
         "pair about 45 multiplies and adds and one division (d = p_r - p_t, a_x, a_y, b_x, b_y, 3 m.d, "
         "s, G, |G_xy|^2, s^5 / |G_xy|^2) in a branch-free loop the compiler vectorises (SSE2, 2 doubles: "
         "the portable baseline), then the zone and margin tests; per mid-zone pair, in a loop of "
-        "their own, scalar libm sqrt, cbrt and atan (the numpy row runs AVX-512 ufuncs for those); "
+        "their own, scalar libm sqrt, cbrt and atan (the numpy row runs SIMD ufuncs for those); "
         "per pose the rotation's two columns from the unnormalised quaternion. What stays "
         "numpy in that row: the input checks (one sum per array), the fresh (N, M) outputs and the few "
         "pairs left to the general path (within 1e-8 of a boundary, inner-zone edges, r ~ 0). "
