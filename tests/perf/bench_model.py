@@ -100,6 +100,31 @@ def with_kernel(kernel: str, fn):
     return run
 
 
+def libm_costs(size: int = 1 << 14) -> dict[str, float] | None:
+    """CPU ns per call of scalar libm sqrt, cbrt and atan(y / x) as the compiled kernel calls
+    them for mid-zone pairs (tests/perf/libm_cost.c, the kernel's flags), or None without cc."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        return None
+    lib = Path(tempfile.mkdtemp(prefix="arva-bench-")) / "libm_cost.so"
+    subprocess.run([cc, "-O3", "-std=c99", "-ffp-contract=off", "-fPIC", "-shared", str(HERE / "libm_cost.c"),
+                    "-o", str(lib), "-lm"], check=True)
+    so = ctypes.CDLL(str(lib))
+    dp = ctypes.POINTER(ctypes.c_double)
+    so.libm_pass.argtypes = [ctypes.c_int64, dp, dp, dp, ctypes.c_int]
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(1.0, 1e4, size), rng.normal(size=size)  # 100 dxy ~ 1..5000 cm: e^(1/2) in this range
+    out = np.empty(size)
+    ptr = lambda a: a.ctypes.data_as(dp)  # noqa: E731
+    reps = 50
+    costs = {}
+    for which, name in enumerate(("sqrt", "cbrt", "atan")):
+        best = best_of(lambda: [so.libm_pass(size, ptr(x), ptr(y), ptr(out), which) for _ in range(reps)], 5,
+                       clock=time.thread_time)
+        costs[name] = best / reps / size * 1e9
+    return costs
+
+
 def side_by_side(rx_p, rx_q, tx_q, rounds: int) -> dict:
     """Best CPU and wall seconds of the batches (compiled, numpy; 2 threads) and of the C
     loop, alternating."""
@@ -311,6 +336,7 @@ def main(argv=None) -> int:
         f"the epochs themselves run at {args.frames / max(args.frames / emu_cpu - start_cpu, 1e-9):,.0f} per CPU second."
     )
     print(targets)
+    libm = libm_costs()
     floor, floor_ns = floor_table(best["numpy"][0] / pairs * 1e9, sbs["mid"])
     print(floor)
     half = (f" 2x needs {best['C'][0] / pairs * 1e9 / 2:.1f} ns per pair (half the C loop's "
@@ -330,7 +356,15 @@ def main(argv=None) -> int:
         "s, G, |G_xy|^2, s^5 / |G_xy|^2) in a branch-free loop the compiler vectorises (SSE2, 2 doubles: "
         "the portable baseline), then the zone and margin tests; per mid-zone pair, in a loop of "
         "their own, scalar libm sqrt, cbrt and atan (the numpy row runs SIMD ufuncs for those); "
-        "per pose the rotation's two columns from the unnormalised quaternion. What stays "
+        "per pose the rotation's two columns from the unnormalised quaternion. "
+        + ("" if libm is None or "compiled" not in best else
+           f"Those libm calls cost {libm['sqrt']:.1f} + {libm['cbrt']:.1f} + {libm['atan']:.1f} ns "
+           f"(sqrt, cbrt, atan with its division; tests/perf/libm_cost.c, same run): "
+           f"{sbs['mid']:.0%} x {sum(libm.values()):.1f} = {sbs['mid'] * sum(libm.values()):.1f} ns of the "
+           f"compiled batch's {best['compiled'][0] / pairs * 1e9:.1f} ns per pair at least (a tight loop of "
+           "independent calls; amid the kernel's other work they overlap less), the part only faster "
+           "(vectorised) cube roots and arctangents could cut. ")
+        + "What stays "
         "numpy in that row: the input checks (one sum per array), the fresh (N, M) outputs and the few "
         "pairs left to the general path (within 1e-8 of a boundary, inner-zone edges, r ~ 0). "
         "The C loop (tests/perf/model_loop.c) is the general formulation: scalar libm sqrt and cbrt for "
