@@ -260,12 +260,12 @@ def measure(
     # Coordinates beyond ~1e307 could overflow a difference: a chunk holding any is scaled
     # by an exact power of two (decided per chunk, as before, see _measure_chunk).
     # (Only the general path needs it, so it is found when first asked for.)
-    big: list[bool] = []
+    big_seen: list[bool] = []
 
     def any_big() -> bool:
-        if not big:
-            big.append(max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE)
-        return big[0]
+        if not big_seen:
+            big_seen.append(max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE)
+        return big_seen[0]
 
     if compiled:
         tab = _tables(params)
@@ -700,6 +700,10 @@ def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
 # separation (|p_r|^2 + |p_t|^2 > 1e5 s: the expanded s and a = R^T p_r - R^T p_t lose
 # more than ~1e-11 to cancellation), and receiver quaternions whose |q|^2 leaves
 # [1e-16, 1e290].
+#
+# The same formulation, pair by pair with the same margins, is compiled in model_kernel.c
+# (an optional extension; KERNEL / ARVA_MODEL_KERNEL choose): it runs by default when built,
+# and leaves the pairs this path would hand to the general path undecided (zone -1).
 #
 # Fusing these passes with numexpr was measured and dropped (issue 20, 2026-12-01, in-process
 # A/B, CPU time, numexpr 2.14.2 on one thread): its PyPI wheel runs scalar loops over
