@@ -4,8 +4,9 @@ docs/performance.md (section ``fit_read``).
 Usage: python tests/perf/bench_fit_read.py [--rows N] [--rounds R] [--no-write]
 
 An emulated campaign (``tests/fit_campaign.py``, kappa_eq = 1.542, r_en = 80 m, exact poses)
-written as the normative CSV, then: ``read_csv`` (its one-pass numeric route, and the
-general csv-module route it falls back to), and ``fit_table`` on the table read. Times
+written as the normative CSV, then: ``read_csv`` (its one-pass numeric route, with pyarrow's
+CSV reader when installed and with np.loadtxt, and the general csv-module route it falls
+back to), and ``fit_table`` on the table read. Times
 are best of R, on CPU time (the process's, all threads) and on the wall clock: on a host
 shared with other jobs the wall clock measures the load as much as the code.
 """
@@ -49,6 +50,13 @@ def timed(fn, rounds: int):
     return result, best_cpu, best_wall
 
 
+def numpy_read(path: Path):
+    """The one-pass route with numpy's parser (as without pyarrow installed)."""
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(csvio, "_arrow_columns", lambda _data, _width: None)
+        return csvio.read_csv(path)
+
+
 def general_read(path: Path):
     with pytest.MonkeyPatch.context() as m:
         m.setattr(csvio, "_parse_simple", lambda _text, _source: None)
@@ -67,20 +75,28 @@ def main(argv=None) -> int:
         emulate_campaign(0, ModelParams(kappa_eq=1.542, r_en=80.0), seed=1000, n_rows=args.rows).write_csv(path)
         size_mb = path.stat().st_size / 1e6
         table, read_cpu, read_wall = timed(lambda: csvio.read_csv(path), args.rounds)
+        _, np_cpu, np_wall = timed(lambda: numpy_read(path), args.rounds)
         _, gen_cpu, gen_wall = timed(lambda: general_read(path), args.rounds)
         res, fit_cpu, fit_wall = timed(lambda: fit_table(table), args.rounds)
         _res, n_val, n_gsub, n_gall = counted_fit(table)
         c_val, c_gsub = eval_cost(table, res, SUBSAMPLE), eval_cost(table, res, SUBSAMPLE, grad=True)
         c_gall = eval_cost(table, res, grad=True)
-        # The read's floor: numpy's C number parser alone over the same cells.
-        body = path.read_bytes().partition(b"\n")[2]
-        _, parse_cpu, _ = timed(
-            lambda: np.loadtxt(io.BytesIO(body), dtype=np.float64, delimiter=",", comments=None, encoding="latin1"), args.rounds
+        # The read's floor: the C number parser it uses alone over the same cells (pyarrow's
+        # CSV reader when installed, else numpy's).
+        raw = path.read_bytes()
+        arrow = csvio._arrow_columns(raw, raw.partition(b"\n")[0].count(b",") + 1) is not None
+        body = raw.partition(b"\n")[2]
+        parse = (
+            (lambda: csvio._arrow_columns(raw, raw.partition(b"\n")[0].count(b",") + 1))
+            if arrow
+            else (lambda: np.loadtxt(io.BytesIO(body), dtype=np.float64, delimiter=",", comments=None, encoding="latin1"))
         )
+        _, parse_cpu, _ = timed(parse, args.rounds)
     load1 = os.getloadavg()[0]
     limit = n_val * c_val + n_gsub * c_gsub + n_gall * c_gall
     rows = [
-        [f"`read_csv`, one-pass numeric route ({size_mb:.0f} MB)", f"{read_cpu:.2f} s", f"{read_wall:.2f} s"],
+        [f"`read_csv`, one-pass numeric route ({size_mb:.0f} MB{', pyarrow' if arrow else ''})", f"{read_cpu:.2f} s", f"{read_wall:.2f} s"],
+        ["`read_csv`, one-pass route with `np.loadtxt` (no pyarrow)", f"{np_cpu:.2f} s", f"{np_wall:.2f} s"],
         ["`read_csv`, general csv-module route (before issue 20)", f"{gen_cpu:.2f} s", f"{gen_wall:.2f} s"],
         ["`fit_table`, exact poses", f"{fit_cpu:.2f} s", f"{fit_wall:.2f} s"],
         ["**read + fit**", f"**{read_cpu + fit_cpu:.2f} s**", f"**{read_wall + fit_wall:.2f} s**"],
@@ -103,8 +119,14 @@ def main(argv=None) -> int:
         "decrement of 1e-3 nats (the curvature in r_en wavers by ~15 % over one standard error, so the "
         "subsample's estimate, ~2 standard errors away, takes 1-3 steps); the Hessian is taken there, and one "
         "Newton step with it, not evaluated, ends the fit. "
-        "The read is numpy's C parser over every cell (`np.loadtxt` from bytes) "
-        f"plus the checks; that parser alone takes {parse_cpu:.2f} s of CPU here, the floor of "
+        + (
+            "The read is pyarrow's C CSV reader over every cell (the `parquet` extra; without it numpy's "
+            "slower `np.loadtxt` from bytes) "
+            if arrow
+            else "The read is numpy's C parser over every cell (`np.loadtxt` from bytes; with pyarrow installed, "
+            "its faster CSV reader) "
+        )
+        + f"plus the checks; that parser alone takes {parse_cpu:.2f} s of CPU here, the floor of "
         f"this route ({parse_cpu / read_cpu:.0%} of the read)."
     )
     print(body)
