@@ -277,6 +277,7 @@ class Likelihood:
         self.block = 0
         self.threads = 1
         self._blocks: tuple | None = None
+        self._fixed_memo: tuple | None = None  # (geometry, q, k, arrays) of :meth:`_fixed`
 
     def choose_regimes(self, p: Params, eps_split: float = EPS_SPLIT) -> Regimes:
         geo = self._geo(p)
@@ -417,11 +418,7 @@ class Likelihood:
         k = self.k
         n = k.shape[0]
         log_r = geo.log_r
-        gx, gy, gz = geo.g
-        with np.errstate(divide="ignore"):
-            log_gxy = np.log(np.hypot(gx, gy))
-            log_g3 = 0.5 * np.log(gx * gx + gy * gy + gz * gz)
-        fxy, f3 = _qfactors(geo.g, p.q)
+        log_gxy, log_g3, fxy, f3, lo, hi = self._fixed(geo, p.q)
         lk = math.log(p.kappa_eq)
         l3 = log_r + (lk - log_g3) / 3.0  # log d3 without noise
         lxy = log_r + (lk - log_gxy) / 3.0  # log dxy without noise (inf if g_xy = 0)
@@ -431,10 +428,6 @@ class Likelihood:
         log_in = math.log(p.r_inner)
         log_out = math.log(p.r_outer)
 
-        kk = k.astype(np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lo = np.log((kk - 0.5) / 100.0)  # -inf for k = 0 (and nan for k = -1, unused)
-            hi = np.log((kk + 0.5) / 100.0)
         prob = np.zeros(n)
         dprob = np.zeros((3, n)) if grad else None
 
@@ -474,6 +467,27 @@ class Likelihood:
             d_pni[:, maybe] = -_cdf_grad(gap[maybe], -1.0 / 3.0, e3[idx][maybe], sig3)
         dprob[:, idx] += d_pni * pm + p_not_inner * dpm
         return prob, dprob
+
+    def _fixed(self, geo: Geometry, q):
+        """(log |g_xy|, log |g|, fxy, f3, lo, hi) of every row: what :meth:`prob` needs that
+        no fitted parameter moves (lo, hi: the log bounds of each row's bin, m); kept for
+        the rows' own geometry (every evaluation without a time offset) and ``q``."""
+        memo = self._fixed_memo
+        if memo is not None and memo[0] is geo and memo[1] == q and memo[2] is self.k:
+            return memo[3]
+        gx, gy, gz = geo.g
+        with np.errstate(divide="ignore"):
+            log_gxy = np.log(np.hypot(gx, gy))
+            log_g3 = 0.5 * np.log(gx * gx + gy * gy + gz * gz)
+        fxy, f3 = _qfactors(geo.g, q)
+        kk = self.k.astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lo = np.log((kk - 0.5) / 100.0)  # -inf for k = 0 (and nan for k = -1, unused)
+            hi = np.log((kk + 0.5) / 100.0)
+        out = (log_gxy, log_g3, fxy, f3, lo, hi)
+        if geo is self.rows.geo:
+            self._fixed_memo = (geo, q, self.k, out)
+        return out
 
     def mid_prob(self, idx, a, b, m: "_Mid", grad: bool = False):
         """P(a < log dxy <= b) for rows ``idx`` (bounds may be +-inf): S rows in closed
