@@ -464,10 +464,10 @@ class Likelihood:
             return prob
         pm, dpm = self.mid_prob(idx, a, b, m, grad=True)
         prob[idx] += p_not_inner * pm
-        d_pni = np.zeros((3, idx.shape[0]))
-        if maybe.any():
-            d_pni[:, maybe] = -_cdf_grad(gap[maybe], -1.0 / 3.0, e3[idx][maybe], sig3)
-        dprob[:, idx] += d_pni * pm + p_not_inner * dpm
+        if maybe.any():  # elsewhere P(not inner) is 1 and its derivatives 0
+            d_pni = -_cdf_grad(gap[maybe], -1.0 / 3.0, e3[idx][maybe], sig3)
+            dpm[:, maybe] = d_pni * pm[maybe] + p_not_inner[maybe] * dpm[:, maybe]
+        dprob[:, idx] += dpm
         return prob, dprob
 
     def _fixed(self, geo: Geometry, q):
