@@ -60,7 +60,10 @@ def parser(request):
 
 def test_fast_path_is_taken_on_a_plain_file(parser):
     text = HEADER + "\n" + ROW + "\n"
-    assert csvio._parse_simple(text, "f.csv") is not None
+    fast = csvio._parse_simple(text, "f.csv")
+    assert fast is not None
+    arrays = [v for v in vars(fast).values() if isinstance(v, np.ndarray)]
+    assert len(arrays) == 10 and all(v.flags.writeable for v in arrays)  # as the general reader's
     assert (csvio._arrow_columns(text.encode(), len(COLUMNS)) is not None) == (parser == "arrow")
 
 

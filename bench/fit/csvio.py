@@ -228,7 +228,10 @@ def _arrow_columns(data: bytes, width: int) -> list[np.ndarray] | None:
         return None
     if table.num_columns != width or table.num_rows == 0:
         return None
-    return [np.ascontiguousarray(table.column(j).to_numpy()) for j in range(width)]
+    # (one chunk converts without a copy, to a read-only view of Arrow's buffer: copy it, so
+    # the Table's arrays are writable, as the other routes' are)
+    cols = [table.column(j).to_numpy() for j in range(width)]
+    return [c if c.flags.writeable and c.flags.c_contiguous else np.array(c) for c in cols]
 
 
 def _optional_column(source: str, name: str, cells, line_no) -> np.ndarray:
