@@ -111,6 +111,8 @@ def main(argv=None) -> int:
         ["`fit_table`, exact poses, one thread", f"{one_cpu:.2f} s", f"{one_wall:.2f} s"],
         ["**read + fit**", f"**{read_cpu + fit_cpu:.2f} s**", f"**{read_wall + fit_wall:.2f} s**"],
     ]
+    if arrow:  # what an installation without the parquet extra gets
+        rows.append(["read with `np.loadtxt` (no pyarrow) + fit", f"{np_cpu + fit_cpu:.2f} s", f"{np_wall + fit_wall:.2f} s"])
     table_md = markdown_table([f"{args.rows:,} rows", "CPU (best of " f"{args.rounds})", "wall"], rows)
     est = res.estimate
     body = (
