@@ -886,9 +886,8 @@ def _core(
                 like_r.choose_regimes(trial, **eps_kw)
                 return like_r.nll(trial)
 
-            values = np.array(_evaluate(at, list(grid_r)))
-            n_evals += len(values)
-            values = np.where(np.isnan(values), np.inf, values)
+            values, n_grid = _grid_values(at, grid_r)
+            n_evals += n_grid
             i = int(np.argmin(values))
             best_r = float(grid_r[i]) if math.isfinite(values[i]) else start.r_en
             if _analytic(sub, start, free, options) and 0 < i < len(values) - 1 and np.all(np.isfinite(values[i - 1 : i + 2])):
@@ -914,6 +913,22 @@ def _core(
         like, res, extra = (_full_stage_grad if analytic else _full_stage)(rows, base, free, options, notes, res)
         n_evals += extra
     return like, res, n_evals
+
+
+def _grid_values(f, grid) -> tuple[NDArray[np.float64], int]:
+    """f on the ``grid`` where the pilot needs it (NaN counts as +inf), and how many
+    points that took: every other point, then the two neighbours of the best of those;
+    +inf at the points not evaluated. Where f is unimodal on the grid (the likelihood in
+    r_en is) its best point and that point's neighbours are among them: the same pilot
+    as from every point, with 10 evaluations of 15."""
+    values = np.full(len(grid), np.inf)
+    coarse = list(range(0, len(grid), 2))
+    values[coarse] = _evaluate(f, [grid[i] for i in coarse])
+    values = np.where(np.isnan(values), np.inf, values)
+    best = coarse[int(np.argmin(values[coarse]))]
+    fine = [i for i in (best - 1, best + 1) if 0 <= i < len(grid)]
+    values[fine] = _evaluate(f, [grid[i] for i in fine])
+    return np.where(np.isnan(values), np.inf, values), len(coarse) + len(fine)
 
 
 def block_rows(rows: Rows) -> int:
