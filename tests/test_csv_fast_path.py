@@ -42,8 +42,29 @@ def same(a, b) -> bool:
     return True
 
 
-def test_fast_path_is_taken_on_a_plain_file():
-    assert csvio._parse_simple(HEADER + "\n" + ROW + "\n", "f.csv") is not None
+@pytest.fixture(scope="module", autouse=True, params=["arrow", "numpy"])
+def parser(request):
+    """Every test runs with each C parser of the fast path: pyarrow's CSV reader (when
+    installed) and np.loadtxt (without pyarrow)."""
+    if request.param == "arrow":
+        pytest.importorskip("pyarrow")
+        yield request.param
+        return
+    saved = csvio._arrow_columns
+    csvio._arrow_columns = lambda _data, _width: None
+    try:
+        yield request.param
+    finally:
+        csvio._arrow_columns = saved
+
+
+def test_fast_path_is_taken_on_a_plain_file(parser):
+    text = HEADER + "\n" + ROW + "\n"
+    fast = csvio._parse_simple(text, "f.csv")
+    assert fast is not None
+    arrays = [v for v in vars(fast).values() if isinstance(v, np.ndarray)]
+    assert len(arrays) == 10 and all(v.flags.writeable for v in arrays)  # as the general reader's
+    assert (csvio._arrow_columns(text.encode(), len(COLUMNS)) is not None) == (parser == "arrow")
 
 
 floats = st.floats(allow_nan=False, allow_infinity=False, min_value=-1e6, max_value=1e6)
@@ -52,6 +73,24 @@ cells = st.one_of(
     st.integers(-5, 70000).map(str),
     st.sampled_from(["nan", "inf", "-inf", "1_0", "", " 7 ", "x", "1e400", "12.5", "-0", '"3"', "0x10", "1.5e", "7\x1f", "\t8", "9\x1c"]),
 )
+
+
+number_like = st.text(alphabet="0123456789.+-eE \tnaif", max_size=8)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.one_of(floats.map(repr), number_like), min_size=3, max_size=3), st.integers(1, 3))
+def test_arrow_reads_a_cell_as_float_does_or_refuses_it(cells, n_lines):
+    """pyarrow's number parser accepts a subset of what float() accepts, with the same bits."""
+    pytest.importorskip("pyarrow")
+    data = ("a,b,c\n" + (",".join(cells) + "\n") * n_lines).encode()
+    got = csvio._arrow_columns(data, 3)
+    if got is None:
+        return
+    for cell, col in zip(cells, got):
+        assert col.shape == (n_lines,) and col.dtype == np.float64
+        want = np.float64(float(cell))  # raises if Arrow accepted what float() does not
+        assert all(v.tobytes() == want.tobytes() or (v != v and want != want) for v in col)
 
 
 @settings(max_examples=150, deadline=None)

@@ -277,6 +277,7 @@ class Likelihood:
         self.block = 0
         self.threads = 1
         self._blocks: tuple | None = None
+        self._fixed_memo: tuple | None = None  # (geometry, q, k, arrays) of :meth:`_fixed`
 
     def choose_regimes(self, p: Params, eps_split: float = EPS_SPLIT) -> Regimes:
         geo = self._geo(p)
@@ -417,11 +418,7 @@ class Likelihood:
         k = self.k
         n = k.shape[0]
         log_r = geo.log_r
-        gx, gy, gz = geo.g
-        with np.errstate(divide="ignore"):
-            log_gxy = np.log(np.hypot(gx, gy))
-            log_g3 = 0.5 * np.log(gx * gx + gy * gy + gz * gz)
-        fxy, f3 = _qfactors(geo.g, p.q)
+        log_gxy, log_g3, fxy, f3, lo, hi = self._fixed(geo, p.q)
         lk = math.log(p.kappa_eq)
         l3 = log_r + (lk - log_g3) / 3.0  # log d3 without noise
         lxy = log_r + (lk - log_gxy) / 3.0  # log dxy without noise (inf if g_xy = 0)
@@ -431,10 +428,6 @@ class Likelihood:
         log_in = math.log(p.r_inner)
         log_out = math.log(p.r_outer)
 
-        kk = k.astype(np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lo = np.log((kk - 0.5) / 100.0)  # -inf for k = 0 (and nan for k = -1, unused)
-            hi = np.log((kk + 0.5) / 100.0)
         prob = np.zeros(n)
         dprob = np.zeros((3, n)) if grad else None
 
@@ -443,10 +436,12 @@ class Likelihood:
         if inner.any():
             i = inner
             lo_u, hi_u = lo[i] - l3[i], np.minimum(hi[i], log_in) - l3[i]
-            p_in = epan_gauss_interval(lo_u, hi_u, e3[i], _at(sig3, i))
-            prob[i] += p_in
             if grad:
-                dprob[:, i] += _interval_grad(lo_u, hi_u, e3[i], sig3, p_in)
+                p_in, d_in = _interval_value_grad(lo_u, hi_u, e3[i], sig3)
+                dprob[:, i] += d_in
+            else:
+                p_in = epan_gauss_interval(lo_u, hi_u, e3[i], _at(sig3, i))
+            prob[i] += p_in
 
         # Mid part and censoring: P(inner) first, then the distribution of log dxy.
         mid = (self.censored | (hi > log_in)) & ~(lo >= log_out)
@@ -469,11 +464,32 @@ class Likelihood:
             return prob
         pm, dpm = self.mid_prob(idx, a, b, m, grad=True)
         prob[idx] += p_not_inner * pm
-        d_pni = np.zeros((3, idx.shape[0]))
-        if maybe.any():
-            d_pni[:, maybe] = -_cdf_grad(gap[maybe], -1.0 / 3.0, e3[idx][maybe], sig3)
-        dprob[:, idx] += d_pni * pm + p_not_inner * dpm
+        if maybe.any():  # elsewhere P(not inner) is 1 and its derivatives 0
+            d_pni = -_cdf_grad(gap[maybe], -1.0 / 3.0, e3[idx][maybe], sig3)
+            dpm[:, maybe] = d_pni * pm[maybe] + p_not_inner[maybe] * dpm[:, maybe]
+        dprob[:, idx] += dpm
         return prob, dprob
+
+    def _fixed(self, geo: Geometry, q):
+        """(log |g_xy|, log |g|, fxy, f3, lo, hi) of every row: what :meth:`prob` needs that
+        no fitted parameter moves (lo, hi: the log bounds of each row's bin, m); kept for
+        the rows' own geometry (every evaluation without a time offset) and ``q``."""
+        memo = self._fixed_memo
+        if memo is not None and memo[0] is geo and memo[1] == q and memo[2] is self.k:
+            return memo[3]
+        gx, gy, gz = geo.g
+        with np.errstate(divide="ignore"):
+            log_gxy = np.log(np.hypot(gx, gy))
+            log_g3 = 0.5 * np.log(gx * gx + gy * gy + gz * gz)
+        fxy, f3 = _qfactors(geo.g, q)
+        kk = self.k.astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lo = np.log((kk - 0.5) / 100.0)  # -inf for k = 0 (and nan for k = -1, unused)
+            hi = np.log((kk + 0.5) / 100.0)
+        out = (log_gxy, log_g3, fxy, f3, lo, hi)
+        if geo is self.rows.geo:
+            self._fixed_memo = (geo, q, self.k, out)
+        return out
 
     def mid_prob(self, idx, a, b, m: "_Mid", grad: bool = False):
         """P(a < log dxy <= b) for rows ``idx`` (bounds may be +-inf): S rows in closed
@@ -491,9 +507,10 @@ class Likelihood:
         if s_rows.any():
             j = idx[s_rows]
             exy = np.exp(_log_eps(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) / 3.0
-            pm[s_rows] = epan_gauss_interval(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, _at(sigma, j))
             if grad:
-                dpm[:, s_rows] = _interval_grad(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, sigma, pm[s_rows])
+                pm[s_rows], dpm[:, s_rows] = _interval_value_grad(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, sigma)
+            else:
+                pm[s_rows] = epan_gauss_interval(a[s_rows] - m.lxy[j], b[s_rows] - m.lxy[j], exy, _at(sigma, j))
         if exact.any() and self.rows.moments is not None and (p.gps_sigma > 0.0 or p.attitude_sigma > 0.0):
             # errors in variables (no analytic gradient: has_grad): the pose error moves the
             # signal against fixed EMI (pose_error.signal_error_cdf)
@@ -646,25 +663,32 @@ def _cdf_grad(w, dw_dx, e, s) -> NDArray[np.float64]:
     """Derivatives of F(w; e, s) (:func:`special.epan_gauss_cdf`, s a scalar) in (log kappa,
     log r_en, log s), w moving by ``dw_dx`` per unit log kappa, e as r_en^-3 (module
     docstring); 0 at w = +-inf. Shape (3, len(w))."""
-    f, df = epan_gauss_density(w, e, s)
+    return _cdf_grad_of(w, dw_dx, s, *epan_gauss_density(w, e, s))
+
+
+def _cdf_grad_of(w, dw_dx, s, f, df) -> NDArray[np.float64]:
+    """:func:`_cdf_grad` from F's u-derivatives (f, f') at w."""
     fin = np.isfinite(w)
     ww = np.where(fin, w, 0.0)
     s2df = (s * s) * df
     return np.stack([f * dw_dx, 3.0 * (ww * f + s2df), s2df])
 
 
-def _interval_grad(a, b, e, s, value) -> NDArray[np.float64]:
-    """Derivatives of :func:`special.epan_gauss_interval` (a, b = bound - l, l moving by
-    1/3 per unit log kappa; ``value`` its result, 0 where it was clipped), taken from the
-    same tails it takes the values from."""
+def _interval_value_grad(a, b, e, s):
+    """:func:`special.epan_gauss_interval` (a, b = bound - l, l moving by 1/3 per unit log
+    kappa; s a scalar) and its derivatives (:func:`_cdf_grad`; 0 where the value was
+    clipped), taken from the same tails it takes the values from; each bound's CDF and
+    density from the same partial moments (the value is epan_gauss_interval's, bit for bit)."""
     a, b, e = np.broadcast_arrays(*(np.asarray(v, float) for v in (a, b, e)))
     upper = (a + b) > 0
-    sgn = np.where(upper, -1.0, 1.0)
     lo = np.where(upper, -b, a)
     hi = np.where(upper, -a, b)
-    dx = sgn * (-1.0 / 3.0)  # d(sgn (bound - l)) / dlog kappa
-    d = _cdf_grad(hi, dx, e, s) - _cdf_grad(lo, dx, e, s)
-    return np.where(value > 0.0, d, 0.0)
+    dx = np.where(upper, -1.0, 1.0) * (-1.0 / 3.0)  # d(sgn (bound - l)) / dlog kappa
+    c_hi, *fd_hi = epan_gauss_cdf(hi, e, s, density=True)
+    c_lo, *fd_lo = epan_gauss_cdf(lo, e, s, density=True)
+    value = np.maximum(c_hi - c_lo, 0.0)
+    d = _cdf_grad_of(hi, dx, s, *fd_hi) - _cdf_grad_of(lo, dx, s, *fd_lo)
+    return value, np.where(value > 0.0, d, 0.0)
 
 
 def _cdf_at(log_t0, y, gamma, sigma, grad=False):

@@ -7,7 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation, Slerp
+
+from emulator.frames.rotation import (
+    normalize_quaternions,
+    quaternion_conjugates,
+    quaternion_products,
+    quaternion_rotvecs,
+    rotvec_quaternions,
+)
 
 IDENTITY = (1.0, 0.0, 0.0, 0.0)
 
@@ -44,7 +51,12 @@ class Trajectory:
         # np.interp holds the end values outside [t0, tK], as a held pose should.
         pos = np.stack([np.interp(t, self.times, self.positions[:, i]) for i in range(3)], axis=1)
         clipped = np.clip(t, self.times[0], self.times[-1])
-        quat = self._slerp(clipped).as_quat(scalar_first=True)
+        # Slerp: the waypoint before t turned by the fraction of its segment's rotation.
+        starts, rotvecs = self._segments
+        i = np.searchsorted(self.times, clipped, side="left") - 1
+        i[i < 0] = 0  # t at the first waypoint: the start of the first segment
+        frac = (clipped - self.times[i]) / (self.times[i + 1] - self.times[i])
+        quat = quaternion_products(starts[i], rotvec_quaternions(rotvecs[i] * frac[:, None]))
         return pos, quat
 
     def velocity(self, t: ArrayLike) -> NDArray[np.float64]:
@@ -63,11 +75,13 @@ class Trajectory:
         return out
 
     @property
-    def _slerp(self) -> Slerp:
-        # Built lazily and cached: Slerp precomputes the relative rotations once.
-        cached = self.__dict__.get("_slerp_cache")
+    def _segments(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(unit waypoint quaternions (K, 4), each segment's rotation vector (K-1, 3) in its
+        start's body frame), built once and cached."""
+        cached = self.__dict__.get("_segments_cache")
         if cached is None:
-            rotations = Rotation.from_quat(self.orientations, scalar_first=True)
-            cached = Slerp(self.times, rotations)
-            object.__setattr__(self, "_slerp_cache", cached)
+            unit = normalize_quaternions(self.orientations, "trajectory.orientation")
+            rel = quaternion_products(quaternion_conjugates(unit[:-1]), unit[1:])
+            cached = (unit, quaternion_rotvecs(rel))
+            object.__setattr__(self, "_segments_cache", cached)
         return cached

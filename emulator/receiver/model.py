@@ -36,6 +36,7 @@ may overflow to inf; its reciprocal is then 0 and nothing ever computes inf * 0.
 from __future__ import annotations
 
 import math
+import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -53,6 +54,11 @@ from emulator.frames.rotation import (
     x_axis_components,
 )
 
+try:  # the fast path as one compiled loop (setup.py builds it when a C compiler is present)
+    from emulator.receiver import model_kernel
+except ImportError:  # not built: the numpy fast path runs
+    model_kernel = None
+
 ZONE_INNER, ZONE_MID, ZONE_OUTER = 0, 1, 2
 ZONE_NAMES = ("inner", "mid", "outer")
 #: Receiver classes the model knows: antennas used for the distance (2: horizontal pair).
@@ -66,6 +72,15 @@ FIELD_SATURATION = float(np.finfo(np.float64).max)
 #: overhead than they win in cache hits (tests/perf/bench_model.py, docs/performance.md).
 CHUNK_PAIRS = 1 << 15
 _HUGE = 2.0**1020  # ~1.1e307
+#: Which implementation runs the fast path (ideal 3-antenna receiver, static transmitters,
+#: no field): "compiled" (emulator/receiver/model_kernel.c, an optional extension built
+#: by ``pip install``), "numpy" (the numpy passes of _fast_block) or "auto" (compiled when
+#: built, else numpy). Set from the environment variable ARVA_MODEL_KERNEL at import; both
+#: give the same integers (every pair either path leaves undecided takes the general path).
+KERNEL = os.environ.get("ARVA_MODEL_KERNEL", "auto")
+KERNELS = ("auto", "compiled", "numpy")
+#: Whether the compiled kernel was built (and imported) in this installation.
+KERNEL_BUILT = model_kernel is not None
 
 
 @dataclass(frozen=True)
@@ -174,7 +189,7 @@ def as_positions(p: ArrayLike, field_name: str) -> NDArray[np.float64]:
     p = np.asarray(p, dtype=np.float64)
     if p.shape[-1:] != (3,):
         raise PoseError(field_name, f"a position has 3 components [x, y, z], got shape {p.shape}")
-    if not np.all(np.isfinite(p)):
+    if not _all_finite(p):
         raise PoseError(field_name, "position has a non-finite component")
     return p
 
@@ -220,7 +235,11 @@ def measure(
         tx_m = np.broadcast_to(tx_m if tx_m.ndim == 3 else tx_m[:, None, :], (3, n, m))
     fld = np.empty((n, m, 3)) if want_field else None
     fast = noise is None and fld is None and not moving_tx and _FastTables.applies(params)
-    if fast:
+    compiled = _compiled_kernel() and fast  # the switch is checked on every call
+    if compiled:  # the kernel writes every pair's d, delta and zone
+        d = np.empty((n, m), dtype=np.int64)
+        delta = np.empty((n, m), dtype=np.int64)
+    elif fast:
         # The fast path writes d and delta of the mid (and inner) pairs only: the rest are
         # -1, filled here in one pass over the whole (fresh) array rather than block by
         # block (in-process A/B on 1e6 poses x 4 tx: 1-3 ns/pair less; the first touch of
@@ -240,13 +259,37 @@ def measure(
     rows = max(1, CHUNK_PAIRS // m)
     # Coordinates beyond ~1e307 could overflow a difference: a chunk holding any is scaled
     # by an exact power of two (decided per chunk, as before, see _measure_chunk).
-    any_big = max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE
+    # (Only the general path needs it, so it is found when first asked for.)
+    big_seen: list[bool] = []
 
-    if fast:
+    def any_big() -> bool:
+        if not big_seen:
+            big_seen.append(max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE)
+        return big_seen[0]
+
+    if compiled:
+        tab = _tables(params)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates: those pairs go general
+            ktx = _kernel_tx(tx_p, tx_m, tab.lam)
+        rx_pc, rx_qc = np.ascontiguousarray(rx_p), np.ascontiguousarray(rx_q)
+    elif fast:
         tab = _tables(params)
         with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates: those pairs go general
             ftx = _FastTx(tx_p, tx_m, tab.lam)
         x2 = _square3(_max_abs(rx_p)) + ftx.x2  # bounds |p_r|^2 + |p_t|^2 of every pair
+
+    def run_compiled(first: int, last: int) -> None:
+        """Like ``run_fast``, each block in one call of the compiled kernel (no GIL held)."""
+        general = []
+        for lo in range(first, last, rows):
+            hi = min(last, lo + rows)
+            count = model_kernel.fast_pairs(rx_pc[lo:hi], rx_qc[lo:hi], ktx, tab.kernel_consts,
+                                             d[lo:hi], delta[lo:hi], zone[lo:hi])
+            if 4 * count > (hi - lo) * m:  # mostly general: the whole block there
+                run_general(lo, hi)
+            elif count:
+                general.append(lo * m + np.flatnonzero(zone[lo:hi].reshape(-1) < 0))
+        run_general_pairs(general)
 
     def run_fast(first: int, last: int) -> None:
         """Like ``run`` on the fast path; pairs it leaves out take the general path."""
@@ -267,7 +310,12 @@ def measure(
                     general.append(lo * m + bad)
             if found:
                 general.append(_fast_inner(found, rx_p, rx_q, ftx, tab, m, d, delta, zone))
-            flat = np.concatenate(general) if general else _NO_INDEX
+        run_general_pairs(general)
+
+    def run_general_pairs(general: list) -> None:
+        """The pairs a fast path left undecided (lists of flat indices) on the general path."""
+        flat = np.concatenate(general) if general else _NO_INDEX
+        with np.errstate(over="ignore", divide="ignore", under="ignore", invalid="ignore"):
             for lo in range(0, flat.size, CHUNK_PAIRS):  # in blocks: all pairs may be here
                 part = flat[lo:lo + CHUNK_PAIRS]
                 ip, it = np.divmod(part, m)
@@ -277,6 +325,8 @@ def measure(
 
     def run(first: int, last: int) -> None:
         """Poses first..last-1, block by block, with this call's own buffers."""
+        if compiled:
+            return run_compiled(first, last)
         if fast:
             return run_fast(first, last)
         return run_general(first, last)
@@ -306,7 +356,7 @@ def measure(
                     tx_x, tx_y, tx_z = (txv(tx_p[:, k]) for k in range(3))
                     mx, my, mz = (txv(tx_m[k]) for k in range(3))
                 f = 1.0
-                if any_big:
+                if any_big():
                     big = max(np.max(np.abs(rx_p[sl]), initial=0.0),
                               np.max(np.abs(tx_p[sl] if moving_tx else tx_p), initial=0.0)) > _HUGE
                     f = 0.25 if big else 1.0
@@ -379,10 +429,19 @@ def _max_abs(a: NDArray[np.float64]) -> float:
     return max(float(a.max(initial=0.0)), -float(a.min(initial=0.0)))
 
 
+def _all_finite(a: NDArray[np.float64]) -> bool:
+    """No NaN or infinity in ``a``: its sum is finite (one pass, no temporary), or every
+    element is (the sum of finite values may overflow)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if math.isfinite(np.sum(a)):
+            return True
+    return bool(np.all(np.isfinite(a)))
+
+
 def _quaternions(q: ArrayLike, field: str) -> NDArray[np.float64]:
     """float64 quaternions (N, 4) with shape and finiteness checked (norms: per chunk)."""
     q = np.asarray(q, dtype=np.float64)
-    if q.shape[-1:] != (4,) or not np.all(np.isfinite(q)):
+    if q.shape[-1:] != (4,) or not _all_finite(q):
         unit_quaternion_components(q, field)  # raises the PoseError naming the field
     return q
 
@@ -642,6 +701,10 @@ def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
 # more than ~1e-11 to cancellation), and receiver quaternions whose |q|^2 leaves
 # [1e-16, 1e290].
 #
+# The same formulation, pair by pair with the same margins, is compiled in model_kernel.c
+# (an optional extension; KERNEL / ARVA_MODEL_KERNEL choose): it runs by default when built,
+# and leaves the pairs this path would hand to the general path undecided (zone -1).
+#
 # Fusing these passes with numexpr was measured and dropped (issue 20, 2026-12-01, in-process
 # A/B, CPU time, numexpr 2.14.2 on one thread): its PyPI wheel runs scalar loops over
 # strided operands while numpy's passes here are AVX-512, so on blocks held in L2 the fused
@@ -675,6 +738,9 @@ class _FastTables:
         self.s_inner = (params.r_inner * _CBRT2_MARGIN / c) ** 2
         k = np.arange(181)  # floor(degrees + 90.5) -> delta
         self.delta = np.clip(k - 90, -MAX_DELTA_DEG, MAX_DELTA_DEG).astype(np.int64)
+        # The compiled kernel's constants, in the order model_kernel.fast_pairs takes them.
+        self.kernel_consts = (self.e_lo, self.e_hi, self.d_tol, _DEG_TOL, _FOLD_TOL, _S_LO, _S_HI,
+                              _CANCEL, _Q2_LO, _Q2_HI, self.s_inner, self.v_inner, _EDGE)
 
     @staticmethod
     def applies(params: ModelParams) -> bool:
@@ -865,6 +931,26 @@ class _FastTx:
         # s = |p_r - p_t|^2 = [p_r, 1, |p_r|^2] . [-2 p_t, |p_t|^2, 1]
         self.s_mat = np.ascontiguousarray(np.vstack([-2.0 * tx_p.T, self.p2[None, :], np.ones((1, m))]))
         self.x2 = _square3(float(np.max(np.abs(tx_p), initial=0.0)))
+
+
+def _compiled_kernel() -> bool:
+    """Whether the fast path runs the compiled kernel (KERNEL; see its comment)."""
+    if KERNEL == "numpy":
+        return False
+    if KERNEL == "auto":
+        return model_kernel is not None
+    if KERNEL == "compiled":
+        if model_kernel is None:
+            raise InputError("ARVA_MODEL_KERNEL=compiled: the extension emulator.receiver.model_kernel "
+                             "is not built (reinstall with a C compiler: pip install -e .)")
+        return True
+    raise InputError(f"ARVA_MODEL_KERNEL: must be one of {', '.join(KERNELS)}, got {KERNEL!r}")
+
+
+def _kernel_tx(tx_p, tx_m, lam: float) -> NDArray[np.float64]:
+    """The compiled kernel's transmitter table (M, 10): p_t, lam m, 3 lam m, |p_t|^2."""
+    return np.ascontiguousarray(np.hstack([tx_p, lam * tx_m.T, (3.0 * lam) * tx_m.T,
+                                           np.sum(tx_p * tx_p, axis=1)[:, None]]))
 
 
 _LOCAL = threading.local()

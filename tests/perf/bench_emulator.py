@@ -13,7 +13,9 @@
    * pipe (``--port -``, the emulator's stdout read directly): likewise.
    The machine's limit for the same paths: ``rt_pair.c`` (compiled here with cc), a bare C
    writer (SCHED_FIFO, sleep + spin to the same deadlines, the same bytes per epoch) and a
-   bare C reader (SCHED_FIFO) of a pty and of a loopback TCP connection, no emulator.
+   bare C reader (SCHED_FIFO) of a pty and of a loopback TCP connection, no emulator. And
+   the emulator with that bare C reader on each transport (``rt_pair read``): the reader's
+   Python wake-up out of the figure, so what is above the bare pair is the emulator's.
    Every row also gives the host's steal time during the run (/proc/stat: time the
    hypervisor did not run a vCPU of this VM that wanted to run) and the p99 over the
    intervals with no steal reported within 20 ms of them (a separate sampler process).
@@ -90,7 +92,8 @@ class SyntheticLoad:
         self.procs.clear()
 
 
-def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, transport: str = "pty") -> dict:
+def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, transport: str = "pty",
+           c_reader: Path | None = None) -> dict:
     """One real-time run of the emulator to a reader on ``transport``:
 
     * ``pty``: ``--port pty``, read by pyserial (what most devices under test open);
@@ -100,6 +103,9 @@ def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, tr
 
     ``realtime``: the emulator runs with --realtime and this reader asks for SCHED_FIFO
     too (restored after), so the measurement is not the reader's own wake-up latency.
+    ``c_reader``: the reader is rt_pair's bare C reader (``rt_pair read``, SCHED_FIFO)
+    instead of this Python process, so what is left above the bare C pair is the
+    emulator's own share.
     Host steal time (/proc/stat) during the run is returned with the intervals."""
     scene = scene_file(tmp, DEFAULT.replace("rate_hz = 1.0", f"rate_hz = {rate_hz}"))
     frames = int(rate_hz * seconds)
@@ -107,6 +113,8 @@ def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, tr
     log = tmp / "timing.csv"
     args = ("--scene", scene, "--frames", str(frames), "--delay", "1", "--timing-log", str(log), *extra)
     emu = proc = None
+    if c_reader is not None:
+        return _jitter_c_reader(c_reader, args, frames, rate_hz, seconds, log, transport)
     if transport == "pipe":
         proc = subprocess.Popen([sys.executable, "-m", "emulator.cli", "--port", "-", *args],
                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
@@ -142,7 +150,7 @@ def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, tr
                 if not chunk:
                     break
                 now = time.monotonic()
-                arrivals.extend([now] * chunk.count(b",4,1,"))
+                arrivals.extend([now] * chunk.count(FIRST_SENTENCE.encode()))
         if proc is not None:
             proc.wait(timeout=30)
         else:
@@ -164,6 +172,43 @@ def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, tr
             "reader": _interval_stats(arrivals, rate_hz, steal.events),
             "write": _interval_stats(writes[:, 0], rate_hz, steal.events)}
 
+
+def _jitter_c_reader(exe: Path, args: tuple, frames: int, rate_hz: float, seconds: float, log: Path,
+                     transport: str) -> dict:
+    """``jitter`` with rt_pair's C reader on the emulator's output."""
+    tail = (FIRST_SENTENCE, str(frames), str(RT_PRIORITY))
+    emu = proc = None
+    try:
+        with StealWatch() as steal:
+            if transport == "pipe":
+                proc = subprocess.Popen([sys.executable, "-m", "emulator.cli", "--port", "-", *args],
+                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+                done = subprocess.run([str(exe), "read", "-", *tail], stdin=proc.stdout, capture_output=True,
+                                      text=True, timeout=seconds + 30, check=True)
+                proc.wait(timeout=30)
+            else:
+                port = "tcp-server:127.0.0.1:0" if transport == "tcp" else "pty"
+                emu = EmulatorProcess("--port", port, *args)
+                src = emu.ports["arva"]
+                src = "tcp:" + src.removeprefix("socket://") if transport == "tcp" else src
+                done = subprocess.run([str(exe), "read", src, *tail], capture_output=True, text=True,
+                                      timeout=seconds + 30, check=True)
+                emu.wait(timeout=30)  # writes the timing log at exit
+    finally:
+        if proc is not None:
+            proc.kill()
+            proc.wait()
+        if emu is not None:
+            emu.kill()
+    arrivals = np.loadtxt(done.stdout.splitlines(), ndmin=2)[:, 1]
+    writes = np.loadtxt(log, delimiter=",", skiprows=1, usecols=(3, 4), ndmin=2)
+    return {"reader_rt": "fifo=1" in done.stderr, "steal_ms": steal.total_ms,
+            "reader": _interval_stats(arrivals, rate_hz, steal.events),
+            "write": _interval_stats(writes[:, 0], rate_hz, steal.events)}
+
+
+#: The bytes that start an epoch's first sentence ($PARVA slot 1 of 4): its arrival.
+FIRST_SENTENCE = ",4,1,"
 
 #: A steal event within this many seconds of an interval's ends marks the interval
 #: (steal is accounted at the next tick after the vCPU runs again, and sampled every 5 ms).
@@ -407,6 +452,10 @@ def main(argv=None) -> int:
             if exe is not None:
                 plan.append(("**bare C pair** (machine limit)", "tcp", lambda: bare_pair(exe, "tcp", rate, args.seconds, nbytes)))
             plan.append(("emulator `--realtime`", "pipe", lambda: jitter(tmp, rate, args.seconds, True, "pipe")))
+            if exe is not None:  # the emulator's own share: the bare C reader on its output
+                for transport in ("pty", "tcp", "pipe"):
+                    plan.append(("emulator `--realtime`, **C reader**", transport,
+                                 lambda t=transport: jitter(tmp, rate, args.seconds, True, t, c_reader=exe)))
             for what, transport, run in plan:
                 runs.append((what, loaded, transport, run(), os.getloadavg()[0]))
         if args.realtime_only:
@@ -418,7 +467,8 @@ def main(argv=None) -> int:
     rows = []
     for what, load, transport, x, after in runs:
         bare = what.startswith("**bare")
-        reader = ("C reader" if bare else readers[transport]) + (", SCHED_FIFO" if x["reader_rt"] else ", normal priority")
+        c_read = bare or what.endswith("**C reader**")
+        reader = ("C reader" if c_read else readers[transport]) + (", SCHED_FIFO" if x["reader_rt"] else ", normal priority")
         writer = "C writer's write()" if bare else "emulator's write() (`--timing-log`)"
         for where, st in ((writer, x["write"]), (reader, x["reader"])):
             rows.append([what, {"pty": "pty", "tcp": "TCP loopback", "pipe": "pipe"}[transport], load, where,
@@ -432,22 +482,33 @@ def main(argv=None) -> int:
     )
     if c_note:
         t1 += f"\n\n({c_note}.)"
-    by = {(w.startswith("**bare"), w.endswith("plain"), t, l == "none added"): x for w, l, t, x, _a in runs}
+    by = {(w.startswith("**bare"), w.endswith("plain"), t, l == "none added"): x for w, l, t, x, _a in runs
+          if not w.endswith("**C reader**")}
+    by_c = {t: x for w, _l, t, x, _a in runs if w.endswith("**C reader**")}
 
     def p99(key, where="reader"):
         x = by.get(key)
         return "n/a" if x is None else f"{x[where]['p99']:.2f} ms (without steal {x[where]['p99_clean']:.2f} ms)"
 
     def gap(transport):
-        """How the emulator's loaded reader p99 (without steal) compares with the bare C pair's."""
-        emu, bare = by.get((False, False, transport, False)), by.get((True, False, transport, False))
-        if emu is None or bare is None:
+        """How the emulator's loaded reader p99 (without steal) compares with the bare C pair's,
+        with this script's Python reader and with the C reader."""
+        bare = by.get((True, False, transport, False))
+        if bare is None:
             return "not measured in this run"
-        e, c = emu["reader"]["p99_clean"], bare["reader"]["p99_clean"]
-        if e <= 1.25 * c + 0.05:
-            return f"the emulator is at the machine's limit ({e:.2f} vs {c:.2f} ms)"
-        return (f"the emulator's reader saw {e - c:.2f} ms more than the bare C pair's ({e:.2f} vs {c:.2f} ms): "
-                "its Python reader's wake-up and the emulator's Python write path add to the kernel's share")
+        c = bare["reader"]["p99_clean"]
+        said = []
+        for emu, reader in ((by.get((False, False, transport, False)), "its Python reader"),
+                            (by_c.get(transport), "the C reader")):
+            if emu is None:
+                continue
+            e = emu["reader"]["p99_clean"]
+            if e <= 1.25 * c + 0.05:
+                said.append(f"with {reader} the emulator is at the machine's limit ({e:.2f} vs {c:.2f} ms)")
+            else:
+                said.append(f"with {reader} the emulator's reader saw {e - c:.2f} ms more than the bare C "
+                            f"pair's ({e:.2f} vs {c:.2f} ms)")
+        return "; ".join(said) or "not measured in this run"
 
     findings = (
         f"This run, loaded rows, p99 at the reader: emulator on a pty {p99((False, False, 'pty', False))}, "
@@ -456,6 +517,15 @@ def main(argv=None) -> int:
         f"emulator to a pipe {p99((False, False, 'pipe', False))}. The emulator's own write() p99 under "
         f"load: {p99((False, False, 'pty', False), 'write')}."
     )
+    if by_c:
+        def c_p99(t):
+            x = by_c.get(t)
+            return "n/a" if x is None else f"{x['reader']['p99']:.2f} ms (without steal {x['reader']['p99_clean']:.2f} ms)"
+        findings += (
+            " With the bare C reader on the emulator's output instead of this script's Python reader (what "
+            f"a device under test written in C sees: the emulator's own share): pty {c_p99('pty')}, TCP "
+            f"{c_p99('tcp')}, pipe {c_p99('pipe')}."
+        )
     if args.realtime_only:
         print(f"load average {load0:.1f} at the start\n" + t1 + "\n\n" + findings)
         return 0

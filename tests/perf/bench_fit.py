@@ -274,8 +274,9 @@ the 4 parameters: 21 evaluations per Hessian) run on a {SUBSAMPLE:,}-row subsamp
 up to three passes that re-linearise the pose-error moments at the estimated sigmas (the
 later ones by quasi-Newton steps from the previous pass's Hessian); all rows are
 evaluated only in the last pass: BFGS steps from the subsample's Hessian scaled to all
-rows, to a decrement of 1e-4 nats, then the Hessian by differences on all rows at the
-estimate (the sandwich's scores reuse the last gradient's per-row values). The code
+rows until the decrement is below 3e-3 nats (0.08 standard errors), then the Hessian by
+differences on all rows there and one Newton step with it, not evaluated, to the estimate
+(the sandwich's scores reuse that last gradient's per-row values). The code
 before this design (every pass on all rows, gradient steps, the 60-node rule near the
 kinks) took 629 evaluations and 1298 s here under a load of ~20. The evaluations column
 is the machine limit of this design: their count times the CPU cost of one evaluation

@@ -4,8 +4,9 @@ docs/performance.md (section ``fit_read``).
 Usage: python tests/perf/bench_fit_read.py [--rows N] [--rounds R] [--no-write]
 
 An emulated campaign (``tests/fit_campaign.py``, kappa_eq = 1.542, r_en = 80 m, exact poses)
-written as the normative CSV, then: ``read_csv`` (its one-pass numeric route, and the
-general csv-module route it falls back to), and ``fit_table`` on the table read. Times
+written as the normative CSV, then: ``read_csv`` (its one-pass numeric route, with pyarrow's
+CSV reader when installed and with np.loadtxt, and the general csv-module route it falls
+back to), and ``fit_table`` on the table read. Times
 are best of R, on CPU time (the process's, all threads) and on the wall clock: on a host
 shared with other jobs the wall clock measures the load as much as the code.
 """
@@ -33,7 +34,8 @@ from _report import markdown_table, write_section  # noqa: E402
 from bench.fit import csvio  # noqa: E402
 from bench_fit import counted_fit, eval_cost  # noqa: E402
 from fit_campaign import emulate_campaign  # noqa: E402
-from bench.fit.fit import SUBSAMPLE, fit_table  # noqa: E402
+from bench.fit import fit as fit_module  # noqa: E402
+from bench.fit.fit import STENCIL_THREADS, SUBSAMPLE, fit_table  # noqa: E402
 from emulator.receiver.model import ModelParams  # noqa: E402
 
 
@@ -47,6 +49,20 @@ def timed(fn, rounds: int):
         best_cpu = min(best_cpu, time.process_time() - c0)
         best_wall = min(best_wall, time.perf_counter() - w0)
     return result, best_cpu, best_wall
+
+
+def one_thread_fit(table):
+    """fit_table with everything on the calling thread (no stencil or row threads)."""
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(fit_module, "STENCIL_THREADS", 1)
+        return fit_table(table)
+
+
+def numpy_read(path: Path):
+    """The one-pass route with numpy's parser (as without pyarrow installed)."""
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(csvio, "_arrow_columns", lambda _data, _width: None)
+        return csvio.read_csv(path)
 
 
 def general_read(path: Path):
@@ -67,24 +83,36 @@ def main(argv=None) -> int:
         emulate_campaign(0, ModelParams(kappa_eq=1.542, r_en=80.0), seed=1000, n_rows=args.rows).write_csv(path)
         size_mb = path.stat().st_size / 1e6
         table, read_cpu, read_wall = timed(lambda: csvio.read_csv(path), args.rounds)
+        _, np_cpu, np_wall = timed(lambda: numpy_read(path), args.rounds)
         _, gen_cpu, gen_wall = timed(lambda: general_read(path), args.rounds)
         res, fit_cpu, fit_wall = timed(lambda: fit_table(table), args.rounds)
+        _, one_cpu, one_wall = timed(lambda: one_thread_fit(table), args.rounds)
         _res, n_val, n_gsub, n_gall = counted_fit(table)
         c_val, c_gsub = eval_cost(table, res, SUBSAMPLE), eval_cost(table, res, SUBSAMPLE, grad=True)
         c_gall = eval_cost(table, res, grad=True)
-        # The read's floor: numpy's C number parser alone over the same cells.
-        body = path.read_bytes().partition(b"\n")[2]
-        _, parse_cpu, _ = timed(
-            lambda: np.loadtxt(io.BytesIO(body), dtype=np.float64, delimiter=",", comments=None, encoding="latin1"), args.rounds
+        # The read's floor: the C number parser it uses alone over the same cells (pyarrow's
+        # CSV reader when installed, else numpy's).
+        raw = path.read_bytes()
+        arrow = csvio._arrow_columns(raw, raw.partition(b"\n")[0].count(b",") + 1) is not None
+        body = raw.partition(b"\n")[2]
+        parse = (
+            (lambda: csvio._arrow_columns(raw, raw.partition(b"\n")[0].count(b",") + 1))
+            if arrow
+            else (lambda: np.loadtxt(io.BytesIO(body), dtype=np.float64, delimiter=",", comments=None, encoding="latin1"))
         )
+        _, parse_cpu, _ = timed(parse, args.rounds)
     load1 = os.getloadavg()[0]
     limit = n_val * c_val + n_gsub * c_gsub + n_gall * c_gall
     rows = [
-        [f"`read_csv`, one-pass numeric route ({size_mb:.0f} MB)", f"{read_cpu:.2f} s", f"{read_wall:.2f} s"],
+        [f"`read_csv`, one-pass numeric route ({size_mb:.0f} MB{', pyarrow' if arrow else ''})", f"{read_cpu:.2f} s", f"{read_wall:.2f} s"],
+        ["`read_csv`, one-pass route with `np.loadtxt` (no pyarrow)", f"{np_cpu:.2f} s", f"{np_wall:.2f} s"],
         ["`read_csv`, general csv-module route (before issue 20)", f"{gen_cpu:.2f} s", f"{gen_wall:.2f} s"],
-        ["`fit_table`, exact poses", f"{fit_cpu:.2f} s", f"{fit_wall:.2f} s"],
+        [f"`fit_table`, exact poses ({STENCIL_THREADS} threads)", f"{fit_cpu:.2f} s", f"{fit_wall:.2f} s"],
+        ["`fit_table`, exact poses, one thread", f"{one_cpu:.2f} s", f"{one_wall:.2f} s"],
         ["**read + fit**", f"**{read_cpu + fit_cpu:.2f} s**", f"**{read_wall + fit_wall:.2f} s**"],
     ]
+    if arrow:  # what an installation without the parquet extra gets
+        rows.append(["read with `np.loadtxt` (no pyarrow) + fit", f"{np_cpu + fit_cpu:.2f} s", f"{np_wall + fit_wall:.2f} s"])
     table_md = markdown_table([f"{args.rows:,} rows", "CPU (best of " f"{args.rounds})", "wall"], rows)
     est = res.estimate
     body = (
@@ -92,7 +120,9 @@ def main(argv=None) -> int:
         f"them and the wall clock shows it). Target (issue 20): read + fit <= 1 s. Estimates: kappa_eq = "
         f"{est['kappa_eq']:.5f}, r_en = {est['r_en']:.2f} m. The fit's CPU time counts all its threads "
         "(two evaluate the points of each Hessian's stencil and of the pilot's grid, and a single pass runs "
-        "its two halves on two threads: with a second core free the wall time is below the CPU time). "
+        "its two halves on two threads: with a second core free the wall time is below the CPU time; the "
+        "one-thread row is the same fit with `STENCIL_THREADS = 1`, the same estimates, to show what the threads "
+        "buy on the day's machine). "
         "Its machine limit is its likelihood passes times their CPU cost at the estimate: "
         f"{n_val} value passes of the pilot's r_en grid on the {SUBSAMPLE:,}-row subsample x {1e3 * c_val:.1f} ms "
         f"+ {n_gsub} gradient passes there (log P and its derivatives in kappa_eq, r_en, pose_sigma in one pass) "
@@ -103,8 +133,14 @@ def main(argv=None) -> int:
         "decrement of 1e-3 nats (the curvature in r_en wavers by ~15 % over one standard error, so the "
         "subsample's estimate, ~2 standard errors away, takes 1-3 steps); the Hessian is taken there, and one "
         "Newton step with it, not evaluated, ends the fit. "
-        "The read is numpy's C parser over every cell (`np.loadtxt` from bytes) "
-        f"plus the checks; that parser alone takes {parse_cpu:.2f} s of CPU here, the floor of "
+        + (
+            "The read is pyarrow's C CSV reader over every cell (the `parquet` extra; without it numpy's "
+            "slower `np.loadtxt` from bytes) "
+            if arrow
+            else "The read is numpy's C parser over every cell (`np.loadtxt` from bytes; with pyarrow installed, "
+            "its faster CSV reader) "
+        )
+        + f"plus the checks; that parser alone takes {parse_cpu:.2f} s of CPU here, the floor of "
         f"this route ({parse_cpu / read_cpu:.0%} of the read)."
     )
     print(body)

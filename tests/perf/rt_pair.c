@@ -13,6 +13,15 @@
  * PRIORITY when PRIORITY > 0 and it is permitted (else as they are), memory locked
  * where permitted. Prints "rt_pair: fifo=0|1" on stderr, then one line per epoch on
  * stdout: k write_start_s write_end_s arrival_s writer_cpu.
+ *
+ *   rt_pair read SOURCE MARKER EPOCHS PRIORITY
+ *
+ * The bare reader alone, of another writer (the emulator): SOURCE is a pty's path (set
+ * to raw mode), tcp:HOST:PORT (a loopback client, TCP_NODELAY) or - (standard input, a
+ * pipe). It blocks in read(), timestamps each chunk as it returns, and an epoch arrives
+ * with the chunk that completes its MARKER (the first sentence's ",4,1,"). SCHED_FIFO and
+ * locked memory as above. Prints "rt_pair: fifo=0|1" on stderr, then "k arrival_s" per
+ * epoch on stdout; stops after EPOCHS markers or at end of input.
  */
 #define _GNU_SOURCE
 #include <arpa/inet.h>
@@ -71,9 +80,62 @@ static void die(const char *what) {
     exit(1);
 }
 
+static int read_only(const char *src, const char *marker, int count) {
+    int fd;
+    if (!strcmp(src, "-")) {
+        fd = 0;
+    } else if (!strncmp(src, "tcp:", 4)) {
+        char host[256];
+        const char *colon = strrchr(src + 4, ':');
+        if (colon == NULL || colon - (src + 4) >= (long)sizeof host) die("tcp:HOST:PORT");
+        memcpy(host, src + 4, colon - (src + 4));
+        host[colon - (src + 4)] = 0;
+        struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons(atoi(colon + 1))};
+        int one = 1;
+        if (inet_pton(AF_INET, host, &a.sin_addr) != 1) die("inet_pton");
+        fd = socket(AF_INET, SOCK_STREAM, 0);
+        if (connect(fd, (struct sockaddr *)&a, sizeof a) < 0) die("connect");
+        setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+    } else {
+        struct termios tio;
+        fd = open(src, O_RDWR | O_NOCTTY);
+        if (fd < 0) die("open");
+        tcgetattr(fd, &tio);
+        cfmakeraw(&tio);
+        tcsetattr(fd, TCSANOW, &tio);
+    }
+    mlockall(MCL_CURRENT | MCL_FUTURE);
+    fprintf(stderr, "rt_pair: fifo=%d\n", fifo());
+    double *at = calloc(count, sizeof *at);
+    size_t mlen = strlen(marker), keep = 0;
+    static char buf[65536 + 64];
+    int seen = 0;
+    while (seen < count) {
+        ssize_t n = read(fd, buf + keep, 65536);
+        if (n <= 0) {
+            if (n < 0 && errno == EINTR) continue;
+            break;
+        }
+        double t = now();
+        size_t len = keep + (size_t)n;
+        /* the kept tail (mlen - 1 bytes) cannot hold a whole marker: every match is new */
+        for (size_t i = 0; i + mlen <= len && seen < count; i++)
+            if (!memcmp(buf + i, marker, mlen)) at[seen++] = t;
+        keep = len < mlen - 1 ? len : mlen - 1;
+        memmove(buf, buf + len - keep, keep);
+    }
+    for (int k = 0; k < seen; k++) printf("%d %.9f\n", k, at[k]);
+    return 0;
+}
+
 int main(int argc, char **argv) {
+    if (argc == 6 && !strcmp(argv[1], "read")) {
+        prio = atoi(argv[5]);
+        return read_only(argv[2], argv[3], atoi(argv[4]));
+    }
     if (argc != 6) {
-        fprintf(stderr, "usage: rt_pair pty|pipe|tcp EPOCHS BYTES PERIOD_US PRIORITY\n");
+        fprintf(stderr, "usage: rt_pair pty|pipe|tcp EPOCHS BYTES PERIOD_US PRIORITY\n"
+                        "       rt_pair read PTY|tcp:HOST:PORT|- MARKER EPOCHS PRIORITY\n");
         return 2;
     }
     const char *mode = argv[1];
