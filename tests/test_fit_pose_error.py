@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.fit.csvio import parse_csv
-from bench.fit.fit import FitOptions, fit_table, time_block_meat
+import bench.fit.fit as fit_module
+from bench.fit.fit import FitOptions, common_height_rows, fit_table, time_block_meat, with_common_height
 from bench.fit.likelihood import Params
 from bench.fit.pose_error import BIN_W_MAX, pose_moments, posterior_positions, signal_error_bin, signal_error_cdf
 from bench.fit.special import ball_disk_cdf, smoothed_ball_disk_cdf
@@ -254,6 +255,79 @@ def test_recovery_within_the_targets_on_a_4_hour_campaign():
     assert res.se["kappa_eq"] > 1.5 * res.se_model["kappa_eq"]  # correlated errors: wider than the Hessian says
     # and not widened without need: +-1.96 se is about +-1.2 % after 4 hours (seed 0: 0.62 % s.e.)
     assert res.se["kappa_eq"] < 0.0075 * 1.542
+
+
+def test_common_height_rows_are_each_rows_share_in_the_shrunk_mean():
+    """A flat walk (true heights all 1 m) logged with 1.5 m vertical error: the fit puts
+    every row at m + k (z - m); the common height's influence rows are (1 - k)(z - m) / N
+    with k = max(var z - 1.5^2, 0) / var z, and they sum to zero (the sample mean's
+    deviation is what the meat measures)."""
+    pe = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0)
+    table = emulate_campaign(20, TRUTH, seed=3, pose_error=pe)
+    z = table.rx_pos[:, 2]
+    k = max(float(np.var(z)) - 1.5**2, 0.0) / float(np.var(z))
+    w, t = common_height_rows(table, (1.0, 1.5, 0.01))
+    np.testing.assert_allclose(w, (1.0 - k) * (z - z.mean()) / z.shape[0], rtol=1e-12, atol=1e-18)
+    assert abs(w.sum()) < 1e-15 and np.array_equal(t, table.t)
+    assert common_height_rows(table, (1.0, 0.0, 0.01)) is None  # no vertical error modelled
+    scores = np.ones((4, 2))
+    both, tt = with_common_height(scores, np.arange(4.0), (np.array([1.0, -1.0]), np.array([0.0, 1.0])), np.array([2.0, 3.0]))
+    assert both.tolist() == [[1, 1]] * 4 + [[2, 3], [-2, -3]] and tt.tolist() == [0, 1, 2, 3, 0, 1]
+    assert with_common_height(scores, np.arange(4.0), None, None)[0] is scores
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_common_height_influence_predicts_how_the_fit_moves(seed, monkeypatch):
+    """The covariance's linearised influence of the common height, A^-1 dS/dh (kappa_eq
+    alone free, so A^-1 = se_model^2 on the log scale), matches how far log kappa_eq
+    actually moves when every logged height is raised by +-0.1 m (60-minute campaigns
+    with the issue's correlated pose error, sigmas given): within 10 % and the same sign
+    (measured 0.96-1.01). A wrong sign or a missing (1 - k) factor fails here."""
+    seen = {}
+    slope_of = fit_module.score_height_slope
+
+    def spy(*args, **kw):
+        seen["slope"] = slope_of(*args, **kw)
+        return seen["slope"]
+
+    monkeypatch.setattr(fit_module, "score_height_slope", spy)
+    base = Params(gps_sigma=1.0, gps_ratio=1.5, attitude_sigma=math.radians(2.0), r_en=80.0)
+    opts = FitOptions(free=("kappa_eq",), base=base)
+    table = emulate_campaign(60, TRUTH, seed=seed, pose_error=TARGET_ERROR)
+    res = fit_table(table, opts)
+    assert res.converged
+    predicted = (res.se_model["kappa_eq"] / res.estimate["kappa_eq"]) ** 2 * seen["slope"][0]
+    moved = []
+    for dz in (-0.1, 0.1):
+        shifted = emulate_campaign(60, TRUTH, seed=seed, pose_error=TARGET_ERROR)
+        shifted.rx_pos = shifted.rx_pos + np.array([0.0, 0.0, dz])
+        moved.append(math.log(fit_table(shifted, opts).estimate["kappa_eq"]))
+    actual = (moved[1] - moved[0]) / 0.2
+    assert actual < -0.005  # raising the receiver lowers kappa_eq by ~1-1.7 % per metre here
+    assert predicted / actual == pytest.approx(1.0, abs=0.1)
+
+
+def test_common_height_slope_from_a_row_subsample_is_close(monkeypatch):
+    """Above HEIGHT_ROWS rows the slope dS/dh is summed over a seeded subsample and scaled
+    up: on a 60-minute campaign (sigmas given, kappa_eq and r_en free) a 1500-row sample
+    of the 3600 gives kappa_eq's component within 15 % of the all-rows value, and the
+    same value every time (seeded)."""
+    seen = {}
+    slope_of = fit_module.score_height_slope
+
+    def spy(*args, **kw):
+        seen["args"] = args
+        return slope_of(*args, **kw)
+
+    monkeypatch.setattr(fit_module, "score_height_slope", spy)
+    base = Params(gps_sigma=1.0, gps_ratio=1.5, attitude_sigma=math.radians(2.0))
+    fit_table(emulate_campaign(60, TRUTH, seed=0, pose_error=TARGET_ERROR), FitOptions(free=("kappa_eq", "r_en"), base=base))
+    full = slope_of(*seen["args"])
+    monkeypatch.setattr(fit_module, "HEIGHT_ROWS", 1500)
+    sampled = slope_of(*seen["args"])
+    assert sampled[0] == pytest.approx(full[0], rel=0.15)
+    assert np.array_equal(sampled, slope_of(*seen["args"]))
+    assert not np.array_equal(sampled, full)  # the subsample was used
 
 
 def test_without_the_pose_error_model_r_en_is_far_off():

@@ -38,6 +38,7 @@ from .likelihood import (
     Geometry,
     Likelihood,
     Params,
+    Regimes,
     Rows,
     from_params,
     geometry,
@@ -1470,16 +1471,18 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
                 at = res.evaluated
                 at = at if at is not None and np.array_equal(at[active], theta_n[active]) else theta_n
                 scores = _scores(like, base, newton_free, at, res.steps, live=keep)
+                height = None if "height_offset" in newton_free else common_height_rows(table, sigma0)
                 floor = [i for i in np.flatnonzero(active) if newton_free[i] in ("gps_sigma", "attitude_sigma")
                          and theta_n[i] <= lo_n[i] + 1e-6]  # fmt: skip
                 widened = None
                 if floor:
-                    widened = boundary_nuisance_cov(like, base, newton_free, at, res.steps, keep, floor, hk, scores)
+                    widened = boundary_nuisance_cov(like, base, newton_free, at, res.steps, keep, floor, hk, scores, height)
                 if widened is not None:
                     model_cov, sub_cov, hac_lag = widened
                     nuisance_floor = [newton_free[i] for i in floor]
                 else:
-                    meat, hac_lag = time_block_meat(scores, like.rows.t)
+                    slope = None if height is None else score_height_slope(like, base, newton_free, at, res.steps, keep, scores)
+                    meat, hac_lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
                     sub_cov = model_cov @ meat @ model_cov
             for a_, i in enumerate(keep):
                 name = newton_free[i]
@@ -1563,7 +1566,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
     )
 
 
-def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, scores_keep):
+def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, scores_keep, height=None):
     """The sandwich covariance of the ``keep`` parameters when pose-error sigmas (indices
     ``floor``) sit at their lower bound: their variances v = sigma^2 join as nuisance
     parameters instead of being held fixed.
@@ -1578,11 +1581,12 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     v at the floor upwards; second-order forward rules), the time-block meat is taken
     over all of them, and the ``keep`` block of A^-1 B A^-1 is returned with the
     inverse-Hessian block and the Newey-West lag, or None when the likelihood is not
-    curved upwards in v (then the caller holds the sigmas as before).
+    curved upwards in v (then the caller holds the sigmas as before). ``height``
+    (:func:`common_height_rows`) adds the common height's influence to the meat.
     """
     keep = list(keep)
     m = len(floor)
-    logp = lambda th: like.logp(to_params(base, free, th))  # noqa: E731
+    logp = lambda th, b=base: like.logp(to_params(b, free, th))  # noqa: E731
     v0 = np.exp(2.0 * theta[floor])
 
     def at(th, dv):  # theta with the floor sigmas at sqrt(v0 + dv)
@@ -1626,11 +1630,87 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     # Per-row scores in v at the floor: (-3 l(0) + 4 l(d) - l(2d)) / 2d.
     s_v = np.stack([(-3.0 * l00 + 4.0 * one[a] - two[a]) / (2.0 * delta[a]) for a in range(m)], axis=1)
     scores = np.concatenate([scores_keep, s_v], axis=1)
+    slope = None
+    if height is not None:  # d/d(height) of the summed scores: the kept columns, then the v columns
+        sub, idx, scale = _height_sample(like)
+        up = replace(base, height_offset=base.height_offset + HEIGHT_STEP)
+        sub_logp = lambda th: sub.logp(to_params(up, free, th))  # noqa: E731
+        l0, l1, l2 = sub_logp(theta), [sub_logp(at(theta, delta * np.eye(m)[a])) for a in range(m)], [sub_logp(at(theta, 2.0 * delta * np.eye(m)[a])) for a in range(m)]
+        s_v_up = np.array([float(np.sum(-3.0 * l0 + 4.0 * l1[a] - l2[a])) / (2.0 * delta[a]) for a in range(m)])
+        slope = np.concatenate([score_height_slope(like, base, free, theta, h, keep, scores_keep), scale * (s_v_up - s_v[idx].sum(axis=0)) / HEIGHT_STEP])
     inv = np.linalg.inv(big)
-    meat, lag = time_block_meat(scores, like.rows.t)
+    meat, lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
     cov = inv @ meat @ inv
     k = len(keep)
     return inv[:k, :k], cov[:k, :k], lag
+
+
+#: The step in the common receiver height for :func:`score_height_slope` (m).
+HEIGHT_STEP = 0.02
+
+
+def common_height_rows(table: Table, sigma0) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """Each logged row's share in the common height the fit placed the rows at, or None.
+
+    :func:`pose_error.posterior_positions` moves each logged height z_i to
+    m + k (z_i - m), m the mean logged height of all N rows of the table, so (1 - k)
+    times the campaign mean of the vertical GPS error is in every row's height. With a
+    flat walk k is ~0: the per-row vertical errors leave the scores, and what is left is
+    common to all rows, which the time-block meat cannot see (it moves the estimate, not
+    the scores). As for any two-step estimator (Newey and McFadden 1994, section 6) the
+    first step's influence joins the scores: with the fit's scores S(theta, h), h a
+    common height offset, the estimate moves by A^-1 (dS/dh) (1 - k) (m - E m), and
+    (1 - k) (m - E m) is the sum over rows of w_i = (1 - k) (z_i - m) / N, a series
+    correlated in time like the GPS error itself. Returns (w, t) per table row (t the
+    receiver time) for :func:`with_common_height`; None when no vertical error is
+    modelled or k = 1 (the heights are kept as logged)."""
+    if sigma0[1] <= 0.0:
+        return None
+    post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
+    keep = 1.0 - post.v_factor**2
+    if keep <= 0.0:
+        return None
+    z = np.asarray(table.rx_pos, dtype=np.float64)[:, 2]
+    return keep * (z - z.mean()) / z.shape[0], np.asarray(table.t, dtype=np.float64)
+
+
+#: Above this many rows the common height's slope is summed over a fixed random
+#: subsample of them, scaled up (it only sizes a term of a few % of the meat; two
+#: likelihood evaluations per parameter on 1e5 rows cost ~1 s).
+HEIGHT_ROWS = 10_000
+
+
+def _height_sample(like: Likelihood):
+    """(likelihood, row index, scale) for the slope: all rows, or :data:`HEIGHT_ROWS` of
+    them (seeded, sorted) with their frozen regimes, and N / n."""
+    n = like.k.shape[0]
+    if n <= HEIGHT_ROWS:
+        return like, slice(None), 1.0
+    idx = np.sort(np.random.default_rng(np.random.SeedSequence(n, spawn_key=(0x4E,))).choice(n, HEIGHT_ROWS, replace=False))
+    reg = like.regimes
+    if reg is not None:
+        reg = Regimes(reg.exact[idx], reg.eps_split, None if reg.narrow is None else reg.narrow[idx])
+    return Likelihood(like.rows.take(idx), reg), idx, n / HEIGHT_ROWS
+
+
+def score_height_slope(like: Likelihood, base: Params, free, theta, h, cols, scores) -> NDArray[np.float64]:
+    """d/dh of the summed scores (columns ``cols``; ``scores`` their per-row values at
+    h = 0), h a common offset of every receiver height (``Params.height_offset``,
+    linearised), by a forward difference of :data:`HEIGHT_STEP` (two likelihood
+    evaluations per column, on at most :data:`HEIGHT_ROWS` rows: the fit's last step,
+    so kept cheap)."""
+    sub, idx, scale = _height_sample(like)
+    up = replace(base, height_offset=base.height_offset + HEIGHT_STEP)
+    return scale * (_scores(sub, up, free, theta, h, live=cols).sum(axis=0) - np.sum(scores[idx], axis=0)) / HEIGHT_STEP
+
+
+def with_common_height(scores, t, height, slope):
+    """The scores and times for :func:`time_block_meat`, with the common height's influence
+    rows w_i (dS/dh) appended when ``height`` (:func:`common_height_rows`) is given."""
+    if height is None or slope is None:
+        return scores, t
+    w, t_rows = height
+    return np.concatenate([scores, np.outer(w, slope)]), np.concatenate([np.asarray(t, dtype=np.float64), t_rows])
 
 
 #: |correlation| of r_en with a pose-error sigma above which the two are not told apart.

@@ -175,6 +175,7 @@ def main(argv=None) -> int:
     p.add_argument("seeds", type=int)
     p.add_argument("sigmas", choices=("known", "free"))
     p.add_argument("variants")
+    p.add_argument("--first", type=int, default=0, help="the first seed (seeds FIRST .. FIRST + SEEDS - 1; default 0)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--errors", choices=sorted(ERRORS), default="gm", help="the pose error model (default gm: the issue's)")
     p.add_argument("--summary-only", action="store_true")
@@ -183,7 +184,7 @@ def main(argv=None) -> int:
     out = a.out
     if not a.summary_only:
         out.parent.mkdir(exist_ok=True)
-        jobs = [(a.minutes, a.gps_h, s, a.sigmas == "known", v, a.errors) for s in range(a.seeds) for v in a.variants.split(",")]
+        jobs = [(a.minutes, a.gps_h, s, a.sigmas == "known", v, a.errors) for s in range(a.first, a.first + a.seeds) for v in a.variants.split(",")]
         with ProcessPoolExecutor(a.workers) as pool, out.open("a") as f:
             for row in pool.map(one, *zip(*jobs)):
                 f.write(json.dumps(row) + "\n")
