@@ -76,10 +76,10 @@ def run_emulator(tmp_path, frames, effects="", link=None, speed=SPEED, **kw):
 @pytest.mark.timeout(90)
 def test_log_then_export_matches_the_scene(tmp_path):
     N = 40
-    emu, scene_path = run_emulator(tmp_path, N, speed=5.0)
+    emu, scene_path = run_emulator(tmp_path, N, speed=2.5)
     out = tmp_path / "session"
     try:
-        logger = start_logger(emu.ports, out, duration=11.0)
+        logger = start_logger(emu.ports, out, duration=19.0)
         assert emu.proc.wait(timeout=60) == 0
         _, err = logger.communicate(timeout=60)
         assert logger.returncode == 0, err
@@ -103,14 +103,15 @@ def test_log_then_export_matches_the_scene(tmp_path):
     assert result.rows == N and not result.dropped
     truth_pos, truth_q = scene.receiver.trajectory.at(cols["seq"].astype(float))
     rx = np.c_[cols["rx_x"], cols["rx_y"], cols["rx_z"]]
-    # Poses are interpolated on the logger's clock at each epoch's arrival. At 5x real
-    # time the receiver walks 2.5 m and turns 9 deg per wall second, so each millisecond
-    # of scheduling between the streams is 2.5 mm and 0.009 deg; GPS quantisation is
+    # Poses are interpolated on the logger's clock at each epoch's arrival. At 2.5x real
+    # time the receiver walks 1.25 m and turns 4.5 deg per wall second, so each millisecond
+    # of scheduling between the streams is 1.25 mm and 0.0045 deg; GPS quantisation is
     # 0.2 mm. The streams of one epoch do not arrive together: each is paced at its line's
     # baud rate (115200: a 75-byte sentence takes 6.5 ms) and written in turn. Measured on
     # this test's session (2026-12-01, 2-core Xeon, idle): RMC 1-3.6 ms before the ARVA
-    # epoch, GGA 3.3-7.9 ms and attitude 4.9-9.4 ms after it, so 8-16 mm median error.
-    # The bound allows 10 ms (25 mm); a pose one epoch off would be 0.5 m off.
+    # epoch, GGA 3.3-7.9 ms and attitude 4.9-9.4 ms after it; in a full-suite run on a host
+    # with poor timing (2026-12-02) the median at 5x real time was 27 mm, ~11 ms. The bound
+    # allows 20 ms (25 mm); a pose one epoch off would be 0.5 m off.
     err = np.linalg.norm(rx - truth_pos, axis=1)
     assert np.median(err) < 0.025 and err.max() < 0.25, (np.median(err), err.max())
     q = np.c_[cols["rx_qw"], cols["rx_qx"], cols["rx_qy"], cols["rx_qz"]]
