@@ -1586,7 +1586,7 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     """
     keep = list(keep)
     m = len(floor)
-    logp = lambda th, b=base: like.logp(to_params(b, free, th))  # noqa: E731
+    logp = lambda th: like.logp(to_params(base, free, th))  # noqa: E731
     v0 = np.exp(2.0 * theta[floor])
 
     def at(th, dv):  # theta with the floor sigmas at sqrt(v0 + dv)
@@ -1632,12 +1632,14 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     scores = np.concatenate([scores_keep, s_v], axis=1)
     slope = None
     if height is not None:  # d/d(height) of the summed scores: the kept columns, then the v columns
-        sub, idx, scale = _height_sample(like)
+        sample = sub, idx, scale = _height_sample(like)
         up = replace(base, height_offset=base.height_offset + HEIGHT_STEP)
         sub_logp = lambda th: sub.logp(to_params(up, free, th))  # noqa: E731
-        l0, l1, l2 = sub_logp(theta), [sub_logp(at(theta, delta * np.eye(m)[a])) for a in range(m)], [sub_logp(at(theta, 2.0 * delta * np.eye(m)[a])) for a in range(m)]
+        steps = [delta * np.eye(m)[a] for a in range(m)]
+        l0, l1, l2 = sub_logp(theta), [sub_logp(at(theta, d)) for d in steps], [sub_logp(at(theta, 2.0 * d)) for d in steps]
         s_v_up = np.array([float(np.sum(-3.0 * l0 + 4.0 * l1[a] - l2[a])) / (2.0 * delta[a]) for a in range(m)])
-        slope = np.concatenate([score_height_slope(like, base, free, theta, h, keep, scores_keep), scale * (s_v_up - s_v[idx].sum(axis=0)) / HEIGHT_STEP])
+        slope = np.concatenate([score_height_slope(like, base, free, theta, h, keep, scores_keep, sample),
+                                scale * (s_v_up - s_v[idx].sum(axis=0)) / HEIGHT_STEP])
     inv = np.linalg.inv(big)
     meat, lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
     cov = inv @ meat @ inv
@@ -1693,13 +1695,13 @@ def _height_sample(like: Likelihood):
     return Likelihood(like.rows.take(idx), reg), idx, n / HEIGHT_ROWS
 
 
-def score_height_slope(like: Likelihood, base: Params, free, theta, h, cols, scores) -> NDArray[np.float64]:
+def score_height_slope(like: Likelihood, base: Params, free, theta, h, cols, scores, sample=None) -> NDArray[np.float64]:
     """d/dh of the summed scores (columns ``cols``; ``scores`` their per-row values at
     h = 0), h a common offset of every receiver height (``Params.height_offset``,
     linearised), by a forward difference of :data:`HEIGHT_STEP` (two likelihood
     evaluations per column, on at most :data:`HEIGHT_ROWS` rows: the fit's last step,
-    so kept cheap)."""
-    sub, idx, scale = _height_sample(like)
+    so kept cheap). ``sample``: :func:`_height_sample`'s result, when the caller has it."""
+    sub, idx, scale = _height_sample(like) if sample is None else sample
     up = replace(base, height_offset=base.height_offset + HEIGHT_STEP)
     return scale * (_scores(sub, up, free, theta, h, live=cols).sum(axis=0) - np.sum(scores[idx], axis=0)) / HEIGHT_STEP
 
