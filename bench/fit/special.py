@@ -229,13 +229,8 @@ def ball_disk_cdf(t, gamma, nodes: int | None = None, grad: bool = False, densit
     out = np.clip(out, 0.0, 1.0)
     if not grad:
         return out
-    if whole:
-        return out, d_tb.reshape(shape), d_gb.reshape(shape)
-    d_t = np.zeros(out.shape)
-    d_g = np.zeros(out.shape)
-    d_t.ravel()[band] = d_tb
-    d_g.ravel()[band] = d_gb
-    return out, d_t, d_g
+    full = shape if whole else out.shape
+    return out, _unband(d_tb, band, whole, full), _unband(d_gb, band, whole, full)
 
 
 #: The band loops of :func:`ball_disk_cdf` run over this many elements at a time: their
@@ -267,19 +262,14 @@ def _band_chunk(t, gamma, a, width, frac, weight, grad):
     sq = np.empty(t.shape)
     den = np.empty(t.shape)
     for f, w in zip(frac, weight):
-        np.multiply(width, f, out=tau)
-        tau += a
-        np.multiply(tau, tau, out=sq)
+        _node_tau(width, f, a, tau, sq)
         np.add(sq, k, out=z)
         np.multiply(two_g, tau, out=den)
         np.maximum(den, 1e-300, out=den)  # only where the band has zero width
         np.divide(z, den, out=z)
         np.clip(z, -1.0, 1.0, out=z)
         np.arccos(z, out=z)
-        np.subtract(1.0, sq, out=sq)
-        np.maximum(sq, 0.0, out=sq)
-        np.sqrt(sq, out=sq)
-        sq *= tau
+        _tau_chord(tau, sq)
         if grad:
             s1 += _density_node(tau, a, width, f, w, over, cp, sq, b1, b2)
             np.multiply(tau, tau, out=b2)
@@ -293,6 +283,21 @@ def _band_chunk(t, gamma, a, width, frac, weight, grad):
     if not grad:
         return acc
     return acc, 2.0 * t * t * width * s1, -width * sg
+
+
+def _node_tau(width, f, a, tau, sq):
+    """A quadrature node of the band, in place: tau = a + width f and sq = tau^2."""
+    np.multiply(width, f, out=tau)
+    tau += a
+    np.multiply(tau, tau, out=sq)
+
+
+def _tau_chord(tau, sq):
+    """sq = tau sqrt(1 - tau^2) in place, from sq = tau^2 (0 where |tau| >= 1)."""
+    np.subtract(1.0, sq, out=sq)
+    np.maximum(sq, 0.0, out=sq)
+    np.sqrt(sq, out=sq)
+    sq *= tau
 
 
 def _density_node(tau, a, width, f, w, over, cp, sq, b1, b2):
@@ -324,19 +329,18 @@ def _band_density(t, gamma, a, width, frac, weight, band, whole, shape):
     b1 = np.empty(t.shape)
     b2 = np.empty(t.shape)
     for f, w in zip(frac, weight):
-        np.multiply(width, f, out=tau)
-        tau += a
-        np.multiply(tau, tau, out=sq)
-        np.subtract(1.0, sq, out=sq)
-        np.maximum(sq, 0.0, out=sq)
-        np.sqrt(sq, out=sq)
-        sq *= tau
+        _node_tau(width, f, a, tau, sq)
+        _tau_chord(tau, sq)
         s1 += _density_node(tau, a, width, f, w, over, cp, sq, b1, b2)
-    d_t = 2.0 * t * t * width * s1
+    return _unband(2.0 * t * t * width * s1, band, whole, shape)
+
+
+def _unband(values, band, whole, shape):
+    """Per-band-element ``values`` as an array of ``shape``: 0 off the band."""
     if whole:
-        return d_t.reshape(shape)
+        return values.reshape(shape)
     full = np.zeros(shape)
-    full.ravel()[band] = d_t
+    full.ravel()[band] = values
     return full
 
 #: Rows within this many standard deviations of a kink of ball_disk_cdf get the
