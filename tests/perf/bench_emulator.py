@@ -167,10 +167,7 @@ def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, tr
             else:
                 ser.close()
             emu.kill()
-    writes = np.loadtxt(log, delimiter=",", skiprows=1, usecols=(3, 4), ndmin=2)
-    return {"reader_rt": reader_rt, "steal_ms": steal.total_ms,
-            "reader": _interval_stats(arrivals, rate_hz, steal.events),
-            "write": _interval_stats(writes[:, 0], rate_hz, steal.events)}
+    return _run_result(reader_rt, steal, rate_hz, arrivals, _write_starts(log))
 
 
 def _jitter_c_reader(exe: Path, args: tuple, frames: int, rate_hz: float, seconds: float, log: Path,
@@ -201,10 +198,19 @@ def _jitter_c_reader(exe: Path, args: tuple, frames: int, rate_hz: float, second
         if emu is not None:
             emu.kill()
     arrivals = np.loadtxt(done.stdout.splitlines(), ndmin=2)[:, 1]
-    writes = np.loadtxt(log, delimiter=",", skiprows=1, usecols=(3, 4), ndmin=2)
-    return {"reader_rt": "fifo=1" in done.stderr, "steal_ms": steal.total_ms,
+    return _run_result("fifo=1" in done.stderr, steal, rate_hz, arrivals, _write_starts(log))
+
+
+def _write_starts(log: Path):
+    """The emulator's write() start of each epoch, from its ``--timing-log``."""
+    return np.loadtxt(log, delimiter=",", skiprows=1, usecols=(3, 4), ndmin=2)[:, 0]
+
+
+def _run_result(reader_rt: bool, steal: "StealWatch", rate_hz: float, arrivals, writes) -> dict:
+    """One real-time run's row data: interval statistics at the reader and at the writer."""
+    return {"reader_rt": reader_rt, "steal_ms": steal.total_ms,
             "reader": _interval_stats(arrivals, rate_hz, steal.events),
-            "write": _interval_stats(writes[:, 0], rate_hz, steal.events)}
+            "write": _interval_stats(writes, rate_hz, steal.events)}
 
 
 #: The bytes that start an epoch's first sentence ($PARVA slot 1 of 4): its arrival.
@@ -303,9 +309,7 @@ def bare_pair(exe: Path, transport: str, rate_hz: float, seconds: float, nbytes:
         done = subprocess.run([str(exe), transport, str(frames), str(nbytes), str(round(1e6 / rate_hz)),
                                str(RT_PRIORITY)], capture_output=True, text=True, timeout=seconds + 30, check=True)
     d = np.loadtxt(done.stdout.splitlines(), ndmin=2)
-    return {"reader_rt": "fifo=1" in done.stderr, "steal_ms": steal.total_ms,
-            "write": _interval_stats(d[:, 1], rate_hz, steal.events),
-            "reader": _interval_stats(d[:, 3], rate_hz, steal.events)}
+    return _run_result("fifo=1" in done.stderr, steal, rate_hz, d[:, 3], d[:, 1])
 
 
 def fast_with_reader(tmp: Path, frames: int) -> dict:

@@ -93,10 +93,11 @@ def main(argv=None) -> int:
         # The read's floor: the C number parser it uses alone over the same cells (pyarrow's
         # CSV reader when installed, else numpy's).
         raw = path.read_bytes()
-        arrow = csvio._arrow_columns(raw, raw.partition(b"\n")[0].count(b",") + 1) is not None
-        body = raw.partition(b"\n")[2]
+        head, _, body = raw.partition(b"\n")
+        width = head.count(b",") + 1
+        arrow = csvio._arrow_columns(raw, width) is not None
         parse = (
-            (lambda: csvio._arrow_columns(raw, raw.partition(b"\n")[0].count(b",") + 1))
+            (lambda: csvio._arrow_columns(raw, width))
             if arrow
             else (lambda: np.loadtxt(io.BytesIO(body), dtype=np.float64, delimiter=",", comments=None, encoding="latin1"))
         )
