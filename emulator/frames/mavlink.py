@@ -19,7 +19,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from emulator.frames.attitude import hpr_to_quaternion
+from emulator.frames.rotation import quaternion_products
 
 _SQRT_HALF = math.sqrt(0.5)
 _Q_T = (0.0, _SQRT_HALF, _SQRT_HALF, 0.0)  # NED <-> ENU (its own inverse)
@@ -31,22 +34,12 @@ def ned_to_enu(v) -> tuple[float, float, float]:
     return (float(v[1]), float(v[0]), -float(v[2]))
 
 
-def quat_multiply(a, b) -> tuple[float, float, float, float]:
-    """Hamilton product a * b of [w, x, y, z] quaternions."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
 def frd_ned_to_flu_enu(q_ned_frd) -> tuple[float, float, float, float]:
     """ATTITUDE_QUATERNION's [q1, q2, q3, q4] (FRD -> NED) as our [w, x, y, z] (FLU -> ENU),
     normalised, with w >= 0. ValueError for a degenerate quaternion."""
-    q = quat_multiply(quat_multiply(_Q_T, tuple(float(c) for c in q_ned_frd)), _Q_F)
+    with np.errstate(invalid="ignore", over="ignore"):  # a non-finite input is refused below
+        q_in = [float(c) for c in q_ned_frd]
+        q = tuple(float(c) for c in quaternion_products(quaternion_products(_Q_T, q_in), _Q_F))
     n = math.sqrt(sum(c * c for c in q))
     if not n > 1e-9 or not math.isfinite(n):
         raise ValueError(f"ATTITUDE_QUATERNION: degenerate quaternion {list(q_ned_frd)}")
