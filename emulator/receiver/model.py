@@ -35,6 +35,7 @@ may overflow to inf; its reciprocal is then 0 and nothing ever computes inf * 0.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import threading
@@ -260,12 +261,9 @@ def measure(
     # Coordinates beyond ~1e307 could overflow a difference: a chunk holding any is scaled
     # by an exact power of two (decided per chunk, as before, see _measure_chunk).
     # (Only the general path needs it, so it is found when first asked for.)
-    big_seen: list[bool] = []
-
+    @functools.cache
     def any_big() -> bool:
-        if not big_seen:
-            big_seen.append(max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE)
-        return big_seen[0]
+        return max(_max_abs(rx_p), _max_abs(tx_p)) > _HUGE
 
     if compiled:
         tab = _tables(params)
