@@ -703,6 +703,10 @@ def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol
     quasi-Newton steps from the previous pass's Hessian (``warm``: a :class:`_Newton` from
     rows linearised at other sigmas; else the 0.5-nat pass's)."""
     like = options.likelihood(rows)
+    if rows.moments is not None:
+        # quasi-Newton's final Hessian by differences re-visits the last gradient's axis
+        # points (8 of its 20 with 4 parameters): kept, as on all rows (_full_stage)
+        like.remember = 4 * len(free) + 8
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
     search = tol > DECREMENT_TOL
     if warm is not None and search and _convex(warm):
