@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+import pickle
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -48,6 +49,7 @@ from .likelihood import (
 )
 from .pose_error import MAX_SD, pose_moments, posterior_positions
 from .table import FitInputError, Table, gps_scale
+from .worker import Worker, WorkerError
 
 MIN_ROWS = 50
 #: 90 % of rows within this ratio of distances is "no spread".
@@ -302,15 +304,135 @@ _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
 
 
-def _evaluate(f, points: list) -> list[float]:
-    """``[f(x) for x in points]``, on the stencil threads when there are several."""
+#: Errors-in-variables likelihoods of at least this many rows evaluate a stencil's points
+#: half in the fit's process, half in a worker process (:mod:`.worker`: the same floats;
+#: two threads gained ~1.3x there, two processes ~1.8x). False: threads only.
+STENCIL_WORKER = True
+WORKER_ROWS = 5000
+_worker: Worker | None = None
+_worker_failed = False
+
+
+def _stencil_pool() -> ThreadPoolExecutor:
     global _pool
-    if STENCIL_THREADS == 1 or len(points) < 2:
-        return [f(x) for x in points]
     with _pool_lock:
         if _pool is None:
             _pool = ThreadPoolExecutor(STENCIL_THREADS, thread_name_prefix="fit-stencil")
-    return list(_pool.map(f, points))
+    return _pool
+
+
+def _get_worker() -> Worker | None:
+    """The worker process (started on first use), or None where it is not used."""
+    global _worker, _worker_failed
+    if not STENCIL_WORKER or STENCIL_THREADS == 1:
+        return None
+    with _pool_lock:
+        if _worker_failed:
+            return None
+        if _worker is None or not _worker.alive():
+            try:
+                _worker = Worker()
+            except OSError:
+                _worker_failed = True
+                return None
+        return _worker
+
+
+def _drop_worker() -> None:
+    """After a failure of the worker: evaluate in this process from now on."""
+    global _worker, _worker_failed
+    with _pool_lock:
+        _worker_failed = True
+        if _worker is not None:
+            _worker.proc.kill()
+            _worker.proc.wait()
+            _worker = None
+
+
+def worker_cpu() -> float:
+    """CPU time (s) the worker process has used so far (0 without one); for benchmarks."""
+    w = _worker
+    if w is None or not w.alive():
+        return 0.0
+    try:
+        return w.cpu()
+    except (OSError, EOFError, WorkerError, pickle.PickleError):
+        return 0.0
+
+
+def _worker_like(f):
+    """The likelihood behind ``f`` when its points may go to the worker, else None."""
+    like = getattr(f, "like", None)
+    if (
+        type(like) is Likelihood and like.rows.moments is not None and like.k.shape[0] >= WORKER_ROWS
+        and like.regimes is not None and like.rows.track is None
+    ):  # fmt: skip
+        return like
+    return None
+
+
+def _evaluate(f, points: list) -> list[float]:
+    """``[f(x) for x in points]``, on the stencil threads when there are several, or
+    (:func:`_worker_like`) half of them in the worker process."""
+    if STENCIL_THREADS == 1 or len(points) < 2:
+        return [f(x) for x in points]
+    like = _worker_like(f)
+    if like is not None:
+        done = _evaluate_split(f, like, points)
+        if done is not None:
+            return done
+    return list(_stencil_pool().map(f, points))
+
+
+def _evaluate_split(f, like: Likelihood, points: list) -> list[float] | None:
+    """``f`` at ``points``, shared out between a stencil thread here (not the main thread:
+    an evaluation of all rows stays in one piece) and the worker process, a point at a
+    time from the front of one queue (whoever is free takes the next: with other jobs on
+    the machine one of the two may be slowed). The worker's per-row log P are counted
+    and kept as this process's own (:meth:`Likelihood.record`). Points ``like`` kept
+    are not evaluated again. None when the worker is not available."""
+    params = [f.params(x) for x in points]
+    todo = [i for i, p in enumerate(params) if like.remembered(p) is None]
+    w = _get_worker() if len(todo) >= 2 else None
+    if w is None or not w.lock.acquire(blocking=False):
+        return None
+    queue = iter(todo)
+    take = threading.Lock()
+    theirs: dict[int, NDArray[np.float64]] = {}
+
+    def nxt():
+        with take:
+            return next(queue, None)
+
+    def local() -> dict[int, float]:
+        mine = {}
+        while (i := nxt()) is not None:
+            mine[i] = like.nll(params[i])
+        return mine
+
+    here = _stencil_pool().submit(local)
+    failed = False
+    try:
+        while (i := nxt()) is not None:
+            w.start(like, [params[i]])
+            theirs[i] = w.results(1)[0]
+    except (OSError, EOFError, WorkerError, pickle.PickleError):
+        failed = True
+    finally:
+        w.lock.release()
+    mine = here.result()
+    if failed:
+        _drop_worker()
+    values = [0.0] * len(points)
+    for i in range(len(points)):
+        if i in mine:
+            values[i] = mine[i]
+        elif i in theirs:
+            like.record(params[i], theirs[i])
+            values[i] = -float(np.sum(theirs[i]))
+        else:  # kept by ``like``, or the worker failed on it
+            values[i] = like.nll(params[i])
+    return values
 
 
 def _gradient(f, theta, h, f0=None, hessian=False):
@@ -440,10 +562,10 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         g = np.zeros(p)
         hess = np.zeros((p, p))
         if held.any():
-            gh, _ = _gradient(lambda th_h: f(_merge(theta, held, th_h)), theta[held], h[held], f0)
+            gh, _ = _gradient(_Part(f, lambda th_h: _merge(theta, held, th_h)), theta[held], h[held], f0)
             g[held] = gh
         live = np.flatnonzero(~held)
-        gl, hl = _gradient(lambda th_l: f(_merge(theta, ~held, th_l)), theta[live], h[live], f0, hessian=True)
+        gl, hl = _gradient(_Part(f, lambda th_l: _merge(theta, ~held, th_l)), theta[live], h[live], f0, hessian=True)
         g[live] = gl
         hess[np.ix_(live, live)] = hl
         if held.any():
@@ -520,7 +642,7 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if trial is None:
             # Near a steep side (the noise edge) differences over 0.3 standard errors bias
             # the gradient: retry with a gradient from steps ten times smaller.
-            gk, _ = _gradient(lambda th_k: f(_merge(theta, ~active, th_k)), theta[keep], h[keep] / 10.0, f0)
+            gk, _ = _gradient(_Part(f, lambda th_k: _merge(theta, ~active, th_k)), theta[keep], h[keep] / 10.0, f0)
             stepf, _mod = _solve(hf, gk)
             decrement = -0.5 * float(gk @ stepf)
             step = np.zeros(p)
@@ -569,7 +691,7 @@ def _newton_fixed(
     probed = np.zeros(len(free), bool)
     live = np.flatnonzero(~held)
     point = {"theta": theta}
-    sub = lambda th_l: f(_merge(point["theta"], ~held, th_l))  # noqa: E731
+    sub = _Part(f, lambda th_l: _merge(point["theta"], ~held, th_l))
     f0 = f(theta)
     if hess0 is None:
         g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
@@ -648,8 +770,27 @@ class _Objective:
     def __init__(self, like: Likelihood, base: Params, free: tuple[str, ...]) -> None:
         self.like, self.base, self.free = like, base, free
 
+    def params(self, theta) -> Params:
+        return to_params(self.base, self.free, theta)
+
     def __call__(self, theta) -> float:
-        return self.like.nll(to_params(self.base, self.free, theta))
+        return self.like.nll(self.params(theta))
+
+
+class _Part:
+    """``obj`` as a function of some of the coordinates (``full`` completes them to theta);
+    with ``like`` and ``params`` as an :class:`_Objective` has, so that :func:`_evaluate`
+    can hand its points to the worker process."""
+
+    def __init__(self, obj, full) -> None:
+        self.obj, self.full = obj, full
+        self.like = obj.like if isinstance(obj, _Objective) else None
+
+    def params(self, x) -> Params:
+        return self.obj.params(self.full(x))
+
+    def __call__(self, x) -> float:
+        return self.obj(self.full(x))
 
 
 def _convex(res: "_Newton") -> bool:
@@ -672,7 +813,7 @@ def _still_held(like: Likelihood, base: Params, free, theta, h, prev: "_Newton")
         return True
     f = _Objective(like, base, free)
     lo, hi = _box(free)
-    g_held, _ = _gradient(lambda th_h: f(_merge(theta, held, th_h)), theta[held], h[held])
+    g_held, _ = _gradient(_Part(f, lambda th_h: _merge(theta, held, th_h)), theta[held], h[held])
     g = np.zeros(len(free))
     g[held] = g_held
     return bool(np.all(_active(theta, g, lo, hi)[held]))
@@ -1379,6 +1520,8 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         if "attitude_sigma" in free:
             base = replace(base, attitude_sigma=EIV_START[1])
         all_rows.gps_scale = gps_scale(table)
+        if len(table) >= WORKER_ROWS:
+            _get_worker()  # it starts (imports numpy) while this process prepares the rows
     notes: list[str] = []
     if eiv and all_rows.gps_scale is not None:
         varied = float(np.ptp(all_rows.gps_scale[all_rows.gps_scale < 1e3])) if np.any(all_rows.gps_scale < 1e3) else 0.0
