@@ -412,10 +412,17 @@ def _evaluate_split(f, like: Likelihood, points: list) -> list[float] | None:
 
     here = _stencil_pool().submit(local)
     failed = False
+    sent: list[int] = []
     try:
-        while (i := nxt()) is not None:
+        # two points in flight, so the worker never waits for the round trip
+        while len(sent) < 2 and (i := nxt()) is not None:
             w.start(like, [params[i]])
-            theirs[i] = w.results(1)[0]
+            sent.append(i)
+        while sent:
+            theirs[sent.pop(0)] = w.results(1)[0]
+            if (i := nxt()) is not None:
+                w.start(like, [params[i]])
+                sent.append(i)
     except (OSError, EOFError, WorkerError, pickle.PickleError):
         failed = True
     finally:
