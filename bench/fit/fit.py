@@ -360,39 +360,48 @@ def worker_cpu() -> float:
         return 0.0
 
 
-def _worker_like(f):
-    """The likelihood behind ``f`` when its points may go to the worker, else None."""
-    like = getattr(f, "like", None)
-    if (
+def _worker_ok(like) -> bool:
+    """Whether ``like``'s evaluations may go to the worker: an errors-in-variables
+    :class:`Likelihood` (not a subclass) of at least :data:`WORKER_ROWS` rows, with its
+    regimes chosen and no pose track (a time-offset fit)."""
+    return (
         type(like) is Likelihood and like.rows.moments is not None and like.k.shape[0] >= WORKER_ROWS
-        and like.regimes is not None and like.rows.track is None
-    ):  # fmt: skip
-        return like
-    return None
+        and like.regimes is not None and like.rows.track is None and STENCIL_THREADS > 1
+    )  # fmt: skip
 
 
 def _evaluate(f, points: list) -> list[float]:
     """``[f(x) for x in points]``, on the stencil threads when there are several, or
-    (:func:`_worker_like`) half of them in the worker process."""
+    (:func:`_worker_ok`) shared with the worker process (:func:`_logps_split`)."""
     if STENCIL_THREADS == 1 or len(points) < 2:
         return [f(x) for x in points]
-    like = _worker_like(f)
-    if like is not None:
-        done = _evaluate_split(f, like, points)
+    like = getattr(f, "like", None)
+    if like is not None and _worker_ok(like):
+        done = _logps_split(like, [f.params(x) for x in points])
         if done is not None:
-            return done
+            return [-float(np.sum(out)) for out in done]  # like.nll's sum
     return list(_stencil_pool().map(f, points))
 
 
-def _evaluate_split(f, like: Likelihood, points: list) -> list[float] | None:
-    """``f`` at ``points``, shared out between a stencil thread here (not the main thread:
-    an evaluation of all rows stays in one piece) and the worker process, a point at a
-    time from the front of one queue (whoever is free takes the next: with other jobs on
-    the machine one of the two may be slowed). The worker's per-row log P are counted
-    and kept as this process's own (:meth:`Likelihood.record`). Points ``like`` kept
-    are not evaluated again. None when the worker is not available."""
-    params = [f.params(x) for x in points]
-    todo = [i for i, p in enumerate(params) if like.remembered(p) is None]
+def _logps(like: Likelihood, params: list) -> list[NDArray[np.float64]]:
+    """``[like.logp(p) for p in params]``, shared with the worker process when
+    :func:`_worker_ok` (the same arrays either way)."""
+    if len(params) >= 2 and _worker_ok(like):
+        done = _logps_split(like, params)
+        if done is not None:
+            return done
+    return [like.logp(p) for p in params]
+
+
+def _logps_split(like: Likelihood, params: list) -> list[NDArray[np.float64]] | None:
+    """``like.logp`` at ``params``, shared out between a stencil thread here (not the
+    main thread: an evaluation of all rows stays in one piece) and the worker process, a
+    point at a time from the front of one queue (whoever is free takes the next: with
+    other jobs on the machine one of the two may be slowed). The worker's per-row log P
+    are counted and kept as this process's own (:meth:`Likelihood.record`). Points
+    ``like`` kept are not evaluated again. None when the worker is not available."""
+    kept = [like.remembered(p) for p in params]  # (taken now: the batch's own results may push them out)
+    todo = [i for i, out in enumerate(kept) if out is None]
     w = _get_worker() if len(todo) >= 2 else None
     if w is None or not w.lock.acquire(blocking=False):
         return None
@@ -404,10 +413,10 @@ def _evaluate_split(f, like: Likelihood, points: list) -> list[float] | None:
         with take:
             return next(queue, None)
 
-    def local() -> dict[int, float]:
+    def local() -> dict[int, NDArray[np.float64]]:
         mine = {}
         while (i := nxt()) is not None:
-            mine[i] = like.nll(params[i])
+            mine[i] = like.logp(params[i])
         return mine
 
     here = _stencil_pool().submit(local)
@@ -430,16 +439,12 @@ def _evaluate_split(f, like: Likelihood, points: list) -> list[float] | None:
     mine = here.result()
     if failed:
         _drop_worker()
-    values = [0.0] * len(points)
-    for i in range(len(points)):
-        if i in mine:
-            values[i] = mine[i]
-        elif i in theirs:
-            like.record(params[i], theirs[i])
-            values[i] = -float(np.sum(theirs[i]))
-        else:  # kept by ``like``, or the worker failed on it
-            values[i] = like.nll(params[i])
-    return values
+    for i, out in theirs.items():
+        like.record(params[i], out)
+        kept[i] = out
+    for i, out in mine.items():
+        kept[i] = out
+    return [like.logp(p) if out is None else out for p, out in zip(params, kept)]  # (left by a failed worker)
 
 
 def _gradient(f, theta, h, f0=None, hessian=False):
@@ -902,11 +907,14 @@ def _scores(like: Likelihood, base: Params, free: tuple[str, ...], theta, h, liv
     """Per-row central-difference gradients of log P (N, p) (columns ``live`` only)."""
     cols = range(len(free)) if live is None else list(live)
     scores = np.empty((like.k.shape[0], len(cols)))
-    for c, j in enumerate(cols):
+    points = []
+    for j in cols:
         e = np.zeros(len(free))
         e[j] = h[j]
-        up = like.logp(to_params(base, free, theta + e))
-        down = like.logp(to_params(base, free, theta - e))
+        points += [to_params(base, free, theta + e), to_params(base, free, theta - e)]
+    outs = _logps(like, points)
+    for c, j in enumerate(cols):
+        up, down = outs[2 * c], outs[2 * c + 1]
         scores[:, c] = (up - down) / (2.0 * h[j])
     return scores
 
@@ -1740,7 +1748,7 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     """
     keep = list(keep)
     m = len(floor)
-    logp = lambda th: like.logp(to_params(base, free, th))  # noqa: E731
+    logps = lambda ths: _logps(like, [to_params(base, free, th) for th in ths])  # noqa: E731 (one batch: :func:`_logps`)
     v0 = np.exp(2.0 * theta[floor])
 
     def at(th, dv):  # theta with the floor sigmas at sqrt(v0 + dv)
@@ -1751,15 +1759,16 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     start = {"gps_sigma": 0.5**2, "attitude_sigma": math.radians(1.0) ** 2}
     delta = np.array([0.25 * start[free[i]] for i in floor])
     for _attempt in range(2):
-        l00 = logp(theta)
-        one = [logp(at(theta, delta * np.eye(m)[a])) for a in range(m)]
-        two = [logp(at(theta, 2.0 * delta * np.eye(m)[a])) for a in range(m)]
+        pairs = [(a, b) for a in range(m) for b in range(a + 1, m)]
+        got = logps([theta] + [at(theta, delta * np.eye(m)[a]) for a in range(m)]
+                    + [at(theta, 2.0 * delta * np.eye(m)[a]) for a in range(m)]
+                    + [at(theta, delta * (np.eye(m)[a] + np.eye(m)[b])) for a, b in pairs])  # fmt: skip
+        l00, one, two, both = got[0], got[1 : 1 + m], got[1 + m : 1 + 2 * m], dict(zip(pairs, got[1 + 2 * m :]))
         a_vv = np.empty((m, m))
         for a in range(m):
             a_vv[a, a] = -float(np.sum(two[a] - 2.0 * one[a] + l00)) / delta[a] ** 2
             for b in range(a + 1, m):
-                both = logp(at(theta, delta * (np.eye(m)[a] + np.eye(m)[b])))
-                a_vv[a, b] = a_vv[b, a] = -float(np.sum(both - one[a] - one[b] + l00)) / (delta[a] * delta[b])
+                a_vv[a, b] = a_vv[b, a] = -float(np.sum(both[a, b] - one[a] - one[b] + l00)) / (delta[a] * delta[b])
         if not np.all(np.diag(a_vv) > 0):
             return None
         se_v = 1.0 / np.sqrt(np.diag(a_vv))
@@ -1769,12 +1778,18 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
         delta = new
     # Mixed terms theta_j (log scale, central) x v_a (forward).
     a_tv = np.empty((len(keep), m))
-    for c, j in enumerate(keep):
+    shifts = []
+    for j in keep:
         e = np.zeros_like(theta)
         e[j] = h[j]
         for a in range(m):
             dv = delta * np.eye(m)[a]
-            val = logp(at(theta + e, dv)) - logp(at(theta - e, dv)) - logp(theta + e) + logp(theta - e)
+            shifts += [at(theta + e, dv), at(theta - e, dv), theta + e, theta - e]
+    got = iter(logps(shifts))
+    for c, j in enumerate(keep):
+        for a in range(m):
+            pv, mv, p0, m0 = next(got), next(got), next(got), next(got)
+            val = pv - mv - p0 + m0
             a_tv[c, a] = -float(np.sum(val)) / (2.0 * h[j] * delta[a])
     big = np.block([[hess_keep, a_tv], [a_tv.T, a_vv]])
     try:
@@ -1788,9 +1803,9 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     if height is not None:  # d/d(height) of the summed scores: the kept columns, then the v columns
         sample = sub, idx, scale = _height_sample(like)
         up = replace(base, height_offset=base.height_offset + HEIGHT_STEP)
-        sub_logp = lambda th: sub.logp(to_params(up, free, th))  # noqa: E731
         steps = [delta * np.eye(m)[a] for a in range(m)]
-        l0, l1, l2 = sub_logp(theta), [sub_logp(at(theta, d)) for d in steps], [sub_logp(at(theta, 2.0 * d)) for d in steps]
+        got = _logps(sub, [to_params(up, free, th) for th in [theta] + [at(theta, d) for d in steps] + [at(theta, 2.0 * d) for d in steps]])
+        l0, l1, l2 = got[0], got[1 : 1 + m], got[1 + m :]
         s_v_up = np.array([float(np.sum(-3.0 * l0 + 4.0 * l1[a] - l2[a])) / (2.0 * delta[a]) for a in range(m)])
         slope = np.concatenate([score_height_slope(like, base, free, theta, h, keep, scores_keep, sample),
                                 scale * (s_v_up - s_v[idx].sum(axis=0)) / HEIGHT_STEP])
