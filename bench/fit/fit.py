@@ -21,6 +21,7 @@ Newton step with that Hessian then closes).
 
 from __future__ import annotations
 
+import atexit
 import math
 import os
 import pickle
@@ -335,6 +336,7 @@ def _get_worker() -> Worker | None:
             except OSError:
                 _worker_failed = True
                 return None
+            atexit.register(_worker.close)
         return _worker
 
 

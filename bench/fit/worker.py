@@ -93,11 +93,18 @@ class Worker:
             return float(self._recv()[1])
 
     def close(self) -> None:
+        """End the worker (its input closes; killed if it has not ended within 10 s)."""
         try:
             self.proc.stdin.close()
         except OSError:
             pass
-        self.proc.wait(timeout=10)
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
 
 
 def main() -> int:
