@@ -306,8 +306,9 @@ _pool_lock = threading.Lock()
 
 
 #: Errors-in-variables likelihoods of at least this many rows evaluate a stencil's points
-#: half in the fit's process, half in a worker process (:mod:`.worker`: the same floats;
-#: two threads gained ~1.3x there, two processes ~1.8x). False: threads only.
+#: shared between a thread here and a worker process (:mod:`.worker`: the same floats;
+#: two threads evaluated 10,000-row points only ~1.3x faster than one on two free cores).
+#: False: threads only.
 STENCIL_WORKER = True
 WORKER_ROWS = 5000
 _worker: Worker | None = None

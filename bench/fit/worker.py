@@ -2,8 +2,8 @@
 
 The errors-in-variables likelihood is thousands of numpy calls of ~10 us each per
 evaluation; two threads evaluating two stencil points hand the GIL over at every call,
-which on the 2-core machine bought only ~1.3x (and cost ~10-25 % more CPU) where two
-processes get ~1.8x. :class:`Worker` starts ``python -m bench.fit.worker`` once per
+which on the 2-core machine bought only ~1.3x over one thread (numpy's own loops, with
+no GIL, ~1.7x). :class:`Worker` starts ``python -m bench.fit.worker`` once per
 process, sends it a likelihood's rows and regimes once (per pass: when the regimes are
 chosen again) and then batches of parameter points; it returns each point's per-row log
 P, computed by the same code on the same arrays: the same floats as an evaluation in the
