@@ -8,6 +8,7 @@ its input."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -134,3 +135,25 @@ def test_a_failing_worker_leaves_the_fit_unchanged(small, with_worker):
     assert len(calls) == 3 and fit_module._worker_failed and fit_module._worker is None
     assert failed.estimate == reference.estimate and failed.se == reference.se
     assert failed.n_evals == reference.n_evals
+
+
+def test_pose_moments_in_halves_are_the_whole(monkeypatch):
+    """eiv_rows computes the pose moments of big tables in two halves on two threads."""
+    from bench.fit.fit import _pose_moments
+    from bench.fit.pose_error import pose_moments, posterior_positions
+
+    monkeypatch.setattr(fit_module, "STENCIL_THREADS", 2)
+    t = emulate_campaign(0, TRUTH, seed=3, n_rows=fit_module.MOMENT_ROWS + 1, pose_error=TARGET_ERROR)
+    pos = posterior_positions(t.rx_pos, t.tx_pos, 1.0, 1.5).pos
+    rule = (1.0, 1.2, 0.035)
+    whole = pose_moments(pos, t.rx_quat, t.tx_pos, t.tx_quat, rule)
+    halves = _pose_moments(pos, t.rx_quat, t.tx_pos, t.tx_quat, rule)
+    for name in ("m_xy", "v_xy", "m_3", "v_3", "dz_xy", "dz_3"):
+        assert getattr(halves, name).tobytes() == getattr(whole, name).tobytes(), name
+    assert halves.sigma0 == whole.sigma0
+    quat = np.array(t.rx_quat, dtype=np.float64)
+    quat[-3] = 1e-12  # a norm below the floor, in the second half
+    with pytest.raises(Exception) as from_whole:
+        pose_moments(pos, quat, t.tx_pos, t.tx_quat, rule)
+    with pytest.raises(type(from_whole.value), match=re.escape(str(from_whole.value))):
+        _pose_moments(pos, quat, t.tx_pos, t.tx_quat, rule)
