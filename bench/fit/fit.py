@@ -334,7 +334,7 @@ def _get_worker() -> Worker | None:
         if _worker is None or not _worker.alive():
             try:
                 _worker = Worker()
-            except OSError:
+            except (OSError, ValueError, TypeError):  # no interpreter to start (sys.executable)
                 _worker_failed = True
                 return None
             atexit.register(_worker.close)
