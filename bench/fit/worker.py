@@ -55,6 +55,7 @@ class Worker:
             env.setdefault(name, value)
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "bench.fit.worker"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+            start_new_session=True,  # a Ctrl-C at the terminal is the fit's to handle; the worker ends with its input
         )
         self.shipped: OrderedDict[int, object] = OrderedDict()  # token -> the regimes.exact it was shipped with
         self._next = 0
@@ -154,4 +155,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except (BrokenPipeError, ConnectionError):  # the fit's process went away mid-answer
+        sys.exit(0)
