@@ -157,3 +157,35 @@ def test_pose_moments_in_halves_are_the_whole(monkeypatch):
         pose_moments(pos, quat, t.tx_pos, t.tx_quat, rule)
     with pytest.raises(type(from_whole.value), match=re.escape(str(from_whole.value))):
         _pose_moments(pos, quat, t.tx_pos, t.tx_quat, rule)
+
+
+_FORKED: list = []  # the likelihood a forked child finds (it cannot be pickled: a lock)
+
+
+def _in_child():
+    """(this process, the worker's owner, the worker's log P) in a forked child."""
+    import os
+
+    like = _FORKED[0]
+    w = fit_module._get_worker()
+    w.start(like, [AT])
+    return os.getpid(), w.owner, w.results(1)[0]
+
+
+def test_a_forked_child_starts_its_own_worker(table, with_worker):
+    import multiprocessing
+    import os
+
+    like = Likelihood(model_rows(table, AT))
+    like.choose_regimes(AT)
+    mine = fit_module._get_worker()
+    mine.start(like, [AT])
+    first = mine.results(1)[0]
+    _FORKED[:] = [like]
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        pid, owner, theirs = pool.apply_async(_in_child).get(timeout=60)
+    assert pid != os.getpid() and owner == pid
+    assert theirs.tobytes() == first.tobytes() == like.logp(AT).tobytes()
+    assert fit_module._get_worker() is mine  # and this process's worker still answers
+    mine.start(like, [AT])
+    assert mine.results(1)[0].tobytes() == first.tobytes()

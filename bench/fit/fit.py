@@ -331,7 +331,8 @@ def _get_worker() -> Worker | None:
     with _pool_lock:
         if _worker_failed:
             return None
-        if _worker is None or not _worker.alive():
+        if _worker is None or _worker.owner != os.getpid() or not _worker.alive():
+            # (a forked child, e.g. a ProcessPoolExecutor's, must not share its parent's pipes)
             try:
                 _worker = Worker()
             except (OSError, ValueError, TypeError):  # no interpreter to start (sys.executable)
@@ -346,16 +347,16 @@ def _drop_worker() -> None:
     global _worker, _worker_failed
     with _pool_lock:
         _worker_failed = True
-        if _worker is not None:
+        if _worker is not None and _worker.owner == os.getpid():
             _worker.proc.kill()
             _worker.proc.wait()
-            _worker = None
+        _worker = None
 
 
 def worker_cpu() -> float:
     """CPU time (s) the worker process has used so far (0 without one); for benchmarks."""
     w = _worker
-    if w is None or not w.alive():
+    if w is None or w.owner != os.getpid() or not w.alive():
         return 0.0
     try:
         return w.cpu()

@@ -57,6 +57,7 @@ class Worker:
             [sys.executable, "-m", "bench.fit.worker"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
             start_new_session=True,  # a Ctrl-C at the terminal is the fit's to handle; the worker ends with its input
         )
+        self.owner = os.getpid()  # the process whose pipes these are
         self.shipped: OrderedDict[int, object] = OrderedDict()  # token -> the regimes.exact it was shipped with
         self._next = 0
         self.lock = threading.Lock()
@@ -102,7 +103,10 @@ class Worker:
             return float(self._recv()[1])
 
     def close(self) -> None:
-        """End the worker (its input closes; killed if it has not ended within 10 s)."""
+        """End the worker (its input closes; killed if it has not ended within 10 s).
+        Nothing in a forked child, whose copies of the pipes are not its own."""
+        if self.owner != os.getpid():
+            return
         try:
             self.proc.stdin.close()
         except OSError:
