@@ -78,6 +78,11 @@ EIV_FREE = ("kappa_eq", "r_en", "gps_sigma", "attitude_sigma")
 #: (horizontal m, attitude rad); floors for the re-evaluation at the estimate.
 EIV_START = (0.5, math.radians(1.0))
 EIV_FLOOR = (0.01, math.radians(0.1))
+#: Fewer bandwidths of data than this under the time-block meat, and the fit says its
+#: standard errors run short: the long-run variance is then estimated from a handful of
+#: windows (10-minute campaigns, ~6 of them, covered 76-86 % in docs/accuracy.md (b);
+#: 30 minutes, ~11, covered 88-96 %).
+FEW_WINDOWS = 8
 MAX_ITER = 60
 #: Stop when the predicted gain to the optimum, g' H^-1 g / 2, is below this (nats):
 #: the estimate is then within 0.005 standard errors of the optimum.
@@ -1493,6 +1498,14 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         except np.linalg.LinAlgError:
             ok = False
             why = "the likelihood has no curvature in some direction: a parameter cannot be estimated from these rows"
+        if hac_lag == hac_lag:
+            span = float(np.ptp(like.rows.t)) + 1.0  # s of receiver time the meat saw
+            if span < FEW_WINDOWS * hac_lag:
+                notes.append(
+                    f"the time-block standard errors rest on {span:.0f} s of data, {span / hac_lag:.1f} times their "
+                    f"{hac_lag:.0f} s bandwidth: with fewer than {FEW_WINDOWS} they run short (docs/accuracy.md (b)); "
+                    "log longer before trusting the interval"
+                )
         for i in keep:
             name = newton_free[i]
             sd = math.sqrt(max(cov[ix[i], ix[i]], 0.0))
