@@ -175,7 +175,7 @@ class PoseTrack:
     times; rows logged at the same time share a pose. Needs >= 4 distinct times.
     """
 
-    def __init__(self, table: Table) -> None:
+    def __init__(self, table: Table, rx_pos: NDArray[np.float64] | None = None) -> None:
         t, first = np.unique(table.t, return_index=True)
         self.t = t
         self.row_t = table.t
@@ -189,7 +189,7 @@ class PoseTrack:
             q[1:] *= flip[:, None]
             return spline(q)
 
-        self.rx_p, self.tx_p = spline(table.rx_pos), spline(table.tx_pos)
+        self.rx_p, self.tx_p = spline(table.rx_pos if rx_pos is None else rx_pos), spline(table.tx_pos)
         self.rx_q, self.tx_q = quat_spline(table.rx_quat), quat_spline(table.tx_quat)
 
     def take(self, idx) -> "PoseTrack":
