@@ -1496,18 +1496,19 @@ def _sigma0(p: Params, free) -> tuple[float, float, float]:
     return (h, p.gps_ratio * h, max(p.attitude_sigma, EIV_FLOOR[1]))
 
 
-def eiv_rows(rows: Rows, table: Table, sigma0, idx=None) -> tuple[Rows, int]:
+def eiv_rows(rows: Rows, table: Table, sigma0, idx=None, track: bool = False) -> tuple[Rows, int]:
     """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
     sigmas ``sigma0``: geometry at the expected true receiver positions, the pose-error
     moments, and only rows not at the transmitter whose pose-error spread of log d is
     within pose_error.MAX_SD. Returns (rows, number left out for their pose error).
     ``idx``: only these rows (sorted indices; the positions and the time-offset track
-    still come from all of them)."""
+    still come from all of them). The time-offset track is built when ``rows`` has one
+    or ``track`` asks for it."""
     post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
     # the geometry at the expected true positions, and so is the time-offset track's (with
     # the logged ones there, any offset but 0 took the shrinkage away: a step in the
     # likelihood at 0 that moved kappa_eq by ~1.5 s.e. when the offset was freed)
-    if rows.track is not None:
+    if track or rows.track is not None:
         rows.track = PoseTrack(table, post.pos)
     pos, rx_q, tx_p, tx_q = post.pos, table.rx_quat, table.tx_pos, table.tx_quat
     if idx is not None:
@@ -1593,20 +1594,22 @@ def offset_scan(table: Table, params: Params, options: FitOptions) -> OffsetScan
     other parameters held. None when the table has fewer than 4 distinct times (no track)."""
     if np.unique(table.t).shape[0] < 4:
         return None
-    rows = rows_from_table(table, with_track=True)
+    rows = rows_from_table(table)  # (eiv_rows builds the track, from the positions it uses)
     rows.gps_scale = gps_scale(table)
     n = rows.k.shape[0]
     idx = None
     if n > OFFSET_ROWS:
         rng = np.random.default_rng(np.random.SeedSequence(options.seed, spawn_key=(0x0F5,)))
         idx = np.sort(rng.choice(n, OFFSET_ROWS, replace=False))
-    rows, _dropped = eiv_rows(rows, table, _sigma0(params, ()), idx)
-    like = options.likelihood(rows)
-    values = np.empty(OFFSET_GRID.shape)
-    for i, dt in enumerate(OFFSET_GRID):
+    rows, _dropped = eiv_rows(rows, table, _sigma0(params, ()), idx, track=True)
+
+    def at(dt):  # one likelihood per offset (its own regimes): the points run on the stencil threads
+        like = options.likelihood(rows)
         trial = replace(params, time_offset=float(dt))
         like.choose_regimes(trial)
-        values[i] = like.nll(trial)
+        return like.nll(trial)
+
+    values = np.array(_evaluate(at, list(OFFSET_GRID)))
     i = int(np.argmin(values))
     best = float(OFFSET_GRID[i])
     if 0 < i < len(values) - 1:
