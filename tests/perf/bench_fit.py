@@ -290,8 +290,9 @@ differences on all rows there and one Newton step with it, not evaluated, to the
 before this design (every pass on all rows, gradient steps, the 60-node rule near the
 kinks) took 629 evaluations and 1298 s here under a load of ~20. The evaluations column
 is the machine limit of this design: their count times the CPU cost of one evaluation
-(the `fit CPU` column adds the pilot, the moments and the covariance, and the worker
-process's start, ~0.6 s of imports). The points of each stencil are shared out, one at a
+(the `fit CPU` column adds the pilot, the moments, the covariance and the time-offset
+scan, 25 likelihoods on ~2,000 rows; the first row also the worker process's start, ~0.6 s
+of imports). The points of each stencil are shared out, one at a
 time from one queue, between a thread of the fit's process and a worker process
 (`bench/fit/worker.py`, started once per process; it gets each pass's rows and regimes
 once and returns per-row log P, the same floats); the `threads only` row is the same fit
