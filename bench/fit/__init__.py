@@ -2,7 +2,8 @@
 
 Modules: :mod:`.table` (the normative table), :mod:`.csvio` (reading it),
 :mod:`.special` and :mod:`.likelihood` (the model's distribution of d),
-:mod:`.fit` (maximum likelihood and standard errors), :mod:`.report`, :mod:`.scene`,
+:mod:`.fit` (maximum likelihood and standard errors; :mod:`.worker`, the second process
+that evaluates a stencil's points with it), :mod:`.report`, :mod:`.scene`,
 :mod:`.campaign` (emulated campaigns) and :mod:`.cli` (the sub-command).
 
 Importing the package stays light (argparse only), because ``arva-bench`` builds every

@@ -21,8 +21,10 @@ Newton step with that Hessian then closes).
 
 from __future__ import annotations
 
+import atexit
 import math
 import os
+import pickle
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -47,8 +49,9 @@ from .likelihood import (
     simulate,
     to_params,
 )
-from .pose_error import MAX_SD, pose_moments, posterior_positions
+from .pose_error import MAX_SD, PoseMoments, pose_moments, posterior_positions
 from .table import FitInputError, Table, gps_scale
+from .worker import Worker, WorkerError
 
 MIN_ROWS = 50
 #: 90 % of rows within this ratio of distances is "no spread".
@@ -312,15 +315,150 @@ _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
 
 
-def _evaluate(f, points: list) -> list[float]:
-    """``[f(x) for x in points]``, on the stencil threads when there are several."""
+#: Errors-in-variables likelihoods of at least this many rows evaluate a stencil's points
+#: shared between a thread here and a worker process (:mod:`.worker`: the same floats;
+#: two threads evaluated 10,000-row points only ~1.3x faster than one on two free cores).
+#: False: threads only.
+STENCIL_WORKER = True
+WORKER_ROWS = 5000
+_worker: Worker | None = None
+_worker_failed = False
+
+
+def _stencil_pool() -> ThreadPoolExecutor:
     global _pool
-    if STENCIL_THREADS == 1 or len(points) < 2:
-        return [f(x) for x in points]
     with _pool_lock:
         if _pool is None:
             _pool = ThreadPoolExecutor(STENCIL_THREADS, thread_name_prefix="fit-stencil")
-    return list(_pool.map(f, points))
+    return _pool
+
+
+def _get_worker() -> Worker | None:
+    """The worker process (started on first use), or None where it is not used."""
+    global _worker, _worker_failed
+    if not STENCIL_WORKER or STENCIL_THREADS == 1:
+        return None
+    with _pool_lock:
+        if _worker_failed:
+            return None
+        if _worker is None or _worker.owner != os.getpid() or not _worker.alive():
+            # (a forked child, e.g. a ProcessPoolExecutor's, must not share its parent's pipes)
+            try:
+                _worker = Worker()
+            except (OSError, ValueError, TypeError):  # no interpreter to start (sys.executable)
+                _worker_failed = True
+                return None
+            atexit.register(_worker.close)
+        return _worker
+
+
+def _drop_worker() -> None:
+    """After a failure of the worker: evaluate in this process from now on."""
+    global _worker, _worker_failed
+    with _pool_lock:
+        _worker_failed = True
+        if _worker is not None and _worker.owner == os.getpid():
+            _worker.proc.kill()
+            _worker.proc.wait()
+        _worker = None
+
+
+def worker_cpu() -> float:
+    """CPU time (s) the worker process has used so far (0 without one); for benchmarks."""
+    w = _worker
+    if w is None or w.owner != os.getpid() or not w.alive():
+        return 0.0
+    try:
+        return w.cpu()
+    except (OSError, EOFError, WorkerError, pickle.PickleError):
+        return 0.0
+
+
+def _worker_ok(like) -> bool:
+    """Whether ``like``'s evaluations may go to the worker: an errors-in-variables
+    :class:`Likelihood` (not a subclass) of at least :data:`WORKER_ROWS` rows, with its
+    regimes chosen and no pose track (a time-offset fit)."""
+    return (
+        type(like) is Likelihood and like.rows.moments is not None and like.k.shape[0] >= WORKER_ROWS
+        and like.regimes is not None and like.rows.track is None and STENCIL_THREADS > 1
+    )  # fmt: skip
+
+
+def _evaluate(f, points: list) -> list[float]:
+    """``[f(x) for x in points]``, on the stencil threads when there are several, or
+    (:func:`_worker_ok`) shared with the worker process (:func:`_logps_split`)."""
+    if STENCIL_THREADS == 1 or len(points) < 2:
+        return [f(x) for x in points]
+    like = getattr(f, "like", None)
+    if like is not None and _worker_ok(like):
+        done = _logps_split(like, [f.params(x) for x in points])
+        if done is not None:
+            return [-float(np.sum(out)) for out in done]  # like.nll's sum
+    return list(_stencil_pool().map(f, points))
+
+
+def _logps(like: Likelihood, params: list) -> list[NDArray[np.float64]]:
+    """``[like.logp(p) for p in params]``, shared with the worker process when
+    :func:`_worker_ok` (the same arrays either way)."""
+    if len(params) >= 2 and _worker_ok(like):
+        done = _logps_split(like, params)
+        if done is not None:
+            return done
+    return [like.logp(p) for p in params]
+
+
+def _logps_split(like: Likelihood, params: list) -> list[NDArray[np.float64]] | None:
+    """``like.logp`` at ``params``, shared out between a stencil thread here (not the
+    main thread: an evaluation of all rows stays in one piece) and the worker process, a
+    point at a time from the front of one queue (whoever is free takes the next: with
+    other jobs on the machine one of the two may be slowed). The worker's per-row log P
+    are counted and kept as this process's own (:meth:`Likelihood.record`). Points
+    ``like`` kept are not evaluated again. None when the worker is not available."""
+    kept = [like.remembered(p) for p in params]  # (taken now: the batch's own results may push them out)
+    todo = [i for i, out in enumerate(kept) if out is None]
+    w = _get_worker() if len(todo) >= 2 else None
+    if w is None or not w.lock.acquire(blocking=False):
+        return None
+    queue = iter(todo)
+    take = threading.Lock()
+    theirs: dict[int, NDArray[np.float64]] = {}
+
+    def nxt():
+        with take:
+            return next(queue, None)
+
+    def local() -> dict[int, NDArray[np.float64]]:
+        mine = {}
+        while (i := nxt()) is not None:
+            mine[i] = like.logp(params[i])
+        return mine
+
+    here = _stencil_pool().submit(local)
+    failed = False
+    sent: list[int] = []
+    try:
+        # two points in flight, so the worker never waits for the round trip
+        while len(sent) < 2 and (i := nxt()) is not None:
+            w.start(like, [params[i]])
+            sent.append(i)
+        while sent:
+            theirs[sent.pop(0)] = w.results(1)[0]
+            if (i := nxt()) is not None:
+                w.start(like, [params[i]])
+                sent.append(i)
+    except (OSError, EOFError, WorkerError, pickle.PickleError):
+        failed = True
+    finally:
+        w.lock.release()
+    mine = here.result()
+    if failed:
+        _drop_worker()
+    for i, out in theirs.items():
+        like.record(params[i], out)
+        kept[i] = out
+    for i, out in mine.items():
+        kept[i] = out
+    return [like.logp(p) if out is None else out for p, out in zip(params, kept)]  # (left by a failed worker)
 
 
 def _gradient(f, theta, h, f0=None, hessian=False):
@@ -450,10 +588,10 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         g = np.zeros(p)
         hess = np.zeros((p, p))
         if held.any():
-            gh, _ = _gradient(lambda th_h: f(_merge(theta, held, th_h)), theta[held], h[held], f0)
+            gh, _ = _gradient(_Part(f, lambda th_h: _merge(theta, held, th_h)), theta[held], h[held], f0)
             g[held] = gh
         live = np.flatnonzero(~held)
-        gl, hl = _gradient(lambda th_l: f(_merge(theta, ~held, th_l)), theta[live], h[live], f0, hessian=True)
+        gl, hl = _gradient(_Part(f, lambda th_l: _merge(theta, ~held, th_l)), theta[live], h[live], f0, hessian=True)
         g[live] = gl
         hess[np.ix_(live, live)] = hl
         if held.any():
@@ -530,7 +668,7 @@ def _newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> _Newton:
         if trial is None:
             # Near a steep side (the noise edge) differences over 0.3 standard errors bias
             # the gradient: retry with a gradient from steps ten times smaller.
-            gk, _ = _gradient(lambda th_k: f(_merge(theta, ~active, th_k)), theta[keep], h[keep] / 10.0, f0)
+            gk, _ = _gradient(_Part(f, lambda th_k: _merge(theta, ~active, th_k)), theta[keep], h[keep] / 10.0, f0)
             stepf, _mod = _solve(hf, gk)
             decrement = -0.5 * float(gk @ stepf)
             step = np.zeros(p)
@@ -579,7 +717,7 @@ def _newton_fixed(
     probed = np.zeros(len(free), bool)
     live = np.flatnonzero(~held)
     point = {"theta": theta}
-    sub = lambda th_l: f(_merge(point["theta"], ~held, th_l))  # noqa: E731
+    sub = _Part(f, lambda th_l: _merge(point["theta"], ~held, th_l))
     f0 = f(theta)
     if hess0 is None:
         g, hl = _gradient(sub, theta[live], h[live], f0, hessian=True)
@@ -658,8 +796,27 @@ class _Objective:
     def __init__(self, like: Likelihood, base: Params, free: tuple[str, ...]) -> None:
         self.like, self.base, self.free = like, base, free
 
+    def params(self, theta) -> Params:
+        return to_params(self.base, self.free, theta)
+
     def __call__(self, theta) -> float:
-        return self.like.nll(to_params(self.base, self.free, theta))
+        return self.like.nll(self.params(theta))
+
+
+class _Part:
+    """``obj`` as a function of some of the coordinates (``full`` completes them to theta);
+    with ``like`` and ``params`` as an :class:`_Objective` has, so that :func:`_evaluate`
+    can hand its points to the worker process."""
+
+    def __init__(self, obj, full) -> None:
+        self.obj, self.full = obj, full
+        self.like = obj.like if isinstance(obj, _Objective) else None
+
+    def params(self, x) -> Params:
+        return self.obj.params(self.full(x))
+
+    def __call__(self, x) -> float:
+        return self.obj(self.full(x))
 
 
 def _convex(res: "_Newton") -> bool:
@@ -682,7 +839,7 @@ def _still_held(like: Likelihood, base: Params, free, theta, h, prev: "_Newton")
         return True
     f = _Objective(like, base, free)
     lo, hi = _box(free)
-    g_held, _ = _gradient(lambda th_h: f(_merge(theta, held, th_h)), theta[held], h[held])
+    g_held, _ = _gradient(_Part(f, lambda th_h: _merge(theta, held, th_h)), theta[held], h[held])
     g = np.zeros(len(free))
     g[held] = g_held
     return bool(np.all(_active(theta, g, lo, hi)[held]))
@@ -713,6 +870,10 @@ def _optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol
     quasi-Newton steps from the previous pass's Hessian (``warm``: a :class:`_Newton` from
     rows linearised at other sigmas; else the 0.5-nat pass's)."""
     like = options.likelihood(rows)
+    if rows.moments is not None:
+        # quasi-Newton's final Hessian by differences re-visits the last gradient's axis
+        # points (8 of its 20 with 4 parameters): kept, as on all rows (_full_stage)
+        like.remember = 4 * len(free) + 8
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
     search = tol > DECREMENT_TOL
     if warm is not None and search and _convex(warm):
@@ -760,11 +921,14 @@ def _scores(like: Likelihood, base: Params, free: tuple[str, ...], theta, h, liv
     """Per-row central-difference gradients of log P (N, p) (columns ``live`` only)."""
     cols = range(len(free)) if live is None else list(live)
     scores = np.empty((like.k.shape[0], len(cols)))
-    for c, j in enumerate(cols):
+    points = []
+    for j in cols:
         e = np.zeros(len(free))
         e[j] = h[j]
-        up = like.logp(to_params(base, free, theta + e))
-        down = like.logp(to_params(base, free, theta - e))
+        points += [to_params(base, free, theta + e), to_params(base, free, theta - e)]
+    outs = _logps(like, points)
+    for c, j in enumerate(cols):
+        up, down = outs[2 * c], outs[2 * c + 1]
         scores[:, c] = (up - down) / (2.0 * h[j])
     return scores
 
@@ -1332,18 +1496,19 @@ def _sigma0(p: Params, free) -> tuple[float, float, float]:
     return (h, p.gps_ratio * h, max(p.attitude_sigma, EIV_FLOOR[1]))
 
 
-def eiv_rows(rows: Rows, table: Table, sigma0, idx=None) -> tuple[Rows, int]:
+def eiv_rows(rows: Rows, table: Table, sigma0, idx=None, track: bool = False) -> tuple[Rows, int]:
     """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
     sigmas ``sigma0``: geometry at the expected true receiver positions, the pose-error
     moments, and only rows not at the transmitter whose pose-error spread of log d is
     within pose_error.MAX_SD. Returns (rows, number left out for their pose error).
     ``idx``: only these rows (sorted indices; the positions and the time-offset track
-    still come from all of them)."""
+    still come from all of them). The time-offset track is built when ``rows`` has one
+    or ``track`` asks for it."""
     post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
     # the geometry at the expected true positions, and so is the time-offset track's (with
     # the logged ones there, any offset but 0 took the shrinkage away: a step in the
     # likelihood at 0 that moved kappa_eq by ~1.5 s.e. when the offset was freed)
-    if rows.track is not None:
+    if track or rows.track is not None:
         rows.track = PoseTrack(table, post.pos)
     pos, rx_q, tx_p, tx_q = post.pos, table.rx_quat, table.tx_pos, table.tx_quat
     if idx is not None:
@@ -1351,7 +1516,7 @@ def eiv_rows(rows: Rows, table: Table, sigma0, idx=None) -> tuple[Rows, int]:
         pos, rx_q, tx_p, tx_q = pos[idx], rx_q[idx], tx_p[idx], tx_q[idx]
     rows.geo = geometry(pos, rx_q, tx_p, tx_q)
     rule0 = (sigma0[0], max(sigma0[1] * post.v_factor, 1e-6), sigma0[2])
-    rows.moments = mom = pose_moments(pos, rx_q, tx_p, tx_q, rule0)
+    rows.moments = mom = _pose_moments(pos, rx_q, tx_p, tx_q, rule0)
     # the likelihood scales the vertical group by gps_ratio * gps_sigma: fold the factor in
     for arr in (mom.m_xy, mom.v_xy, mom.m_3, mom.v_3):
         arr[1] *= post.v_factor**2
@@ -1365,6 +1530,31 @@ def eiv_rows(rows: Rows, table: Table, sigma0, idx=None) -> tuple[Rows, int]:
     finite = np.isfinite(rows.geo.log_r)
     keep = finite & (np.maximum(vxy, v3) <= MAX_SD * MAX_SD)
     return rows.take(keep), int(np.sum(finite & ~keep))
+
+
+#: Above this many rows :func:`_pose_moments` splits the table in two halves.
+MOMENT_ROWS = 20_000
+
+
+def _pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0) -> PoseMoments:
+    """:func:`pose_moments` of the two halves of the rows on the stencil threads: it is
+    computed row by row, so the halves are the whole's values bit for bit (checked on the
+    1e5-row bench campaign; ~0.15 s per call on one thread, three calls per fit). Should
+    a half raise (a bad quaternion), the whole is computed again, which raises as before."""
+    n = len(rx_pos)
+    if STENCIL_THREADS == 1 or n < MOMENT_ROWS:
+        return pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0)
+    cols = [np.asarray(a) for a in (rx_pos, rx_quat, tx_pos, tx_quat)]
+    halves = (slice(0, n // 2), slice(n // 2, n))
+    try:
+        parts = list(_stencil_pool().map(lambda sl: pose_moments(*(c[sl] for c in cols), sigma0), halves))
+    except Exception:  # noqa: BLE001 - the whole table's call below raises it (or not) as before
+        return pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0)
+    a, b = parts
+    return PoseMoments(
+        *(np.concatenate([x, y], axis=1) for x, y in ((a.m_xy, b.m_xy), (a.v_xy, b.v_xy), (a.m_3, b.m_3), (a.v_3, b.v_3))),
+        a.sigma0, np.concatenate([a.dz_xy, b.dz_xy]), np.concatenate([a.dz_3, b.dz_3]),
+    )  # fmt: skip
 
 
 def model_rows(table: Table, params: Params) -> Rows:
@@ -1404,20 +1594,22 @@ def offset_scan(table: Table, params: Params, options: FitOptions) -> OffsetScan
     other parameters held. None when the table has fewer than 4 distinct times (no track)."""
     if np.unique(table.t).shape[0] < 4:
         return None
-    rows = rows_from_table(table, with_track=True)
+    rows = rows_from_table(table)  # (eiv_rows builds the track, from the positions it uses)
     rows.gps_scale = gps_scale(table)
     n = rows.k.shape[0]
     idx = None
     if n > OFFSET_ROWS:
         rng = np.random.default_rng(np.random.SeedSequence(options.seed, spawn_key=(0x0F5,)))
         idx = np.sort(rng.choice(n, OFFSET_ROWS, replace=False))
-    rows, _dropped = eiv_rows(rows, table, _sigma0(params, ()), idx)
-    like = options.likelihood(rows)
-    values = np.empty(OFFSET_GRID.shape)
-    for i, dt in enumerate(OFFSET_GRID):
+    rows, _dropped = eiv_rows(rows, table, _sigma0(params, ()), idx, track=True)
+
+    def at(dt):  # one likelihood per offset (its own regimes): the points run on the stencil threads
+        like = options.likelihood(rows)
         trial = replace(params, time_offset=float(dt))
         like.choose_regimes(trial)
-        values[i] = like.nll(trial)
+        return like.nll(trial)
+
+    values = np.array(_evaluate(at, list(OFFSET_GRID)))
     i = int(np.argmin(values))
     best = float(OFFSET_GRID[i])
     if 0 < i < len(values) - 1:
@@ -1483,6 +1675,8 @@ def _fit_once(table: Table, options: FitOptions) -> FitResult:
         if "attitude_sigma" in free:
             base = replace(base, attitude_sigma=EIV_START[1])
         all_rows.gps_scale = gps_scale(table)
+        if len(table) >= WORKER_ROWS:
+            _get_worker()  # it starts (imports numpy) while this process prepares the rows
     notes: list[str] = []
     if eiv and all_rows.gps_scale is not None:
         varied = float(np.ptp(all_rows.gps_scale[all_rows.gps_scale < 1e3])) if np.any(all_rows.gps_scale < 1e3) else 0.0
@@ -1702,7 +1896,7 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     """
     keep = list(keep)
     m = len(floor)
-    logp = lambda th: like.logp(to_params(base, free, th))  # noqa: E731
+    logps = lambda ths: _logps(like, [to_params(base, free, th) for th in ths])  # noqa: E731 (one batch: :func:`_logps`)
     v0 = np.exp(2.0 * theta[floor])
 
     def at(th, dv):  # theta with the floor sigmas at sqrt(v0 + dv)
@@ -1713,15 +1907,16 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     start = {"gps_sigma": 0.5**2, "attitude_sigma": math.radians(1.0) ** 2}
     delta = np.array([0.25 * start[free[i]] for i in floor])
     for _attempt in range(2):
-        l00 = logp(theta)
-        one = [logp(at(theta, delta * np.eye(m)[a])) for a in range(m)]
-        two = [logp(at(theta, 2.0 * delta * np.eye(m)[a])) for a in range(m)]
+        pairs = [(a, b) for a in range(m) for b in range(a + 1, m)]
+        got = logps([theta] + [at(theta, delta * np.eye(m)[a]) for a in range(m)]
+                    + [at(theta, 2.0 * delta * np.eye(m)[a]) for a in range(m)]
+                    + [at(theta, delta * (np.eye(m)[a] + np.eye(m)[b])) for a, b in pairs])  # fmt: skip
+        l00, one, two, both = got[0], got[1 : 1 + m], got[1 + m : 1 + 2 * m], dict(zip(pairs, got[1 + 2 * m :]))
         a_vv = np.empty((m, m))
         for a in range(m):
             a_vv[a, a] = -float(np.sum(two[a] - 2.0 * one[a] + l00)) / delta[a] ** 2
             for b in range(a + 1, m):
-                both = logp(at(theta, delta * (np.eye(m)[a] + np.eye(m)[b])))
-                a_vv[a, b] = a_vv[b, a] = -float(np.sum(both - one[a] - one[b] + l00)) / (delta[a] * delta[b])
+                a_vv[a, b] = a_vv[b, a] = -float(np.sum(both[a, b] - one[a] - one[b] + l00)) / (delta[a] * delta[b])
         if not np.all(np.diag(a_vv) > 0):
             return None
         se_v = 1.0 / np.sqrt(np.diag(a_vv))
@@ -1731,12 +1926,18 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
         delta = new
     # Mixed terms theta_j (log scale, central) x v_a (forward).
     a_tv = np.empty((len(keep), m))
-    for c, j in enumerate(keep):
+    shifts = []
+    for j in keep:
         e = np.zeros_like(theta)
         e[j] = h[j]
         for a in range(m):
             dv = delta * np.eye(m)[a]
-            val = logp(at(theta + e, dv)) - logp(at(theta - e, dv)) - logp(theta + e) + logp(theta - e)
+            shifts += [at(theta + e, dv), at(theta - e, dv), theta + e, theta - e]
+    got = iter(logps(shifts))
+    for c, j in enumerate(keep):
+        for a in range(m):
+            pv, mv, p0, m0 = next(got), next(got), next(got), next(got)
+            val = pv - mv - p0 + m0
             a_tv[c, a] = -float(np.sum(val)) / (2.0 * h[j] * delta[a])
     big = np.block([[hess_keep, a_tv], [a_tv.T, a_vv]])
     try:
@@ -1750,9 +1951,9 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
     if height is not None:  # d/d(height) of the summed scores: the kept columns, then the v columns
         sample = sub, idx, scale = _height_sample(like)
         up = replace(base, height_offset=base.height_offset + HEIGHT_STEP)
-        sub_logp = lambda th: sub.logp(to_params(up, free, th))  # noqa: E731
         steps = [delta * np.eye(m)[a] for a in range(m)]
-        l0, l1, l2 = sub_logp(theta), [sub_logp(at(theta, d)) for d in steps], [sub_logp(at(theta, 2.0 * d)) for d in steps]
+        got = _logps(sub, [to_params(up, free, th) for th in [theta] + [at(theta, d) for d in steps] + [at(theta, 2.0 * d) for d in steps]])
+        l0, l1, l2 = got[0], got[1 : 1 + m], got[1 + m :]
         s_v_up = np.array([float(np.sum(-3.0 * l0 + 4.0 * l1[a] - l2[a])) / (2.0 * delta[a]) for a in range(m)])
         slope = np.concatenate([score_height_slope(like, base, free, theta, h, keep, scores_keep, sample),
                                 scale * (s_v_up - s_v[idx].sum(axis=0)) / HEIGHT_STEP])

@@ -305,21 +305,40 @@ class Likelihood:
         """log P(d_i) for each row, gross-error floor included (the array may be shared:
         do not write to it)."""
         key = (p, None if self.regimes is None else id(self.regimes.exact))
-        if self.remember:
-            hit = self._memo.get(key)
-            if hit is not None and (self.regimes is None or hit[0] is self.regimes.exact):
-                return hit[1]
+        hit = self.remembered(p)
+        if hit is not None:
+            return hit
         with self._count:
             self.n_evals += 1
         prob = self._prob_blocks(p) if self._split() else self.prob(p)
         n_out = 100.0 * p.r_outer + 2.0
         out = np.log((1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out)
+        self._keep(key, out)
+        return out
+
+    def _keep(self, key, out) -> None:
+        """Keep ``out`` (log P per row) under ``key`` when :attr:`remember` asks for it."""
         if self.remember:
             with self._count:
                 while len(self._memo) >= self.remember:
                     self._memo.pop(next(iter(self._memo)))
                 self._memo[key] = (None if self.regimes is None else self.regimes.exact, out)
-        return out
+
+    def remembered(self, p: Params) -> NDArray[np.float64] | None:
+        """The per-row log P at ``p`` that :meth:`logp` kept (see :attr:`remember`), or None."""
+        key = (p, None if self.regimes is None else id(self.regimes.exact))
+        hit = self._memo.get(key) if self.remember else None
+        if hit is not None and (self.regimes is None or hit[0] is self.regimes.exact):
+            return hit[1]
+        return None
+
+    def record(self, p: Params, out: NDArray[np.float64]) -> None:
+        """Count ``out``, the per-row log P at ``p`` computed elsewhere from this
+        likelihood's rows and regimes (the fit's worker process, :mod:`.worker`), as an
+        evaluation, and keep it as :meth:`logp` would have."""
+        with self._count:
+            self.n_evals += 1
+        self._keep((p, None if self.regimes is None else id(self.regimes.exact)), out)
 
     def nll(self, p: Params) -> float:
         return -float(np.sum(self.logp(p)))
@@ -347,12 +366,7 @@ class Likelihood:
         n_out = 100.0 * p.r_outer + 2.0
         mixed = (1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out
         out = np.log(mixed)
-        if self.remember:
-            key = (p, None if self.regimes is None else id(self.regimes.exact))
-            with self._count:
-                while len(self._memo) >= self.remember:
-                    self._memo.pop(next(iter(self._memo)))
-                self._memo[key] = (None if self.regimes is None else self.regimes.exact, out)
+        self._keep((p, None if self.regimes is None else id(self.regimes.exact)), out)
         return out, dprob * ((1.0 - GROSS_ERROR) / mixed)
 
     def _split(self) -> bool:
