@@ -65,6 +65,14 @@ def jobs(seeds: int):
     return out
 
 
+def one_process_per_fit() -> None:
+    """In each pool process: no fit-worker process (bench.fit.fit.STENCIL_WORKER). The
+    pool already runs one fit per core; a worker per fit would only add processes."""
+    from bench.fit import fit
+
+    fit.STENCIL_WORKER = False
+
+
 def run_one(minutes: int, grade: str, seed: int) -> dict:
     from fit_campaign import PoseError, emulate_campaign
 
@@ -324,7 +332,7 @@ def main(argv=None) -> int:
             WALKS.unlink(missing_ok=True)
         done = {(r["minutes"], r["grade"], r["seed"]) for r in load()}
         todo = [j for j in jobs(args.seeds) if j not in done]
-        with ProcessPoolExecutor(args.workers) as pool:
+        with ProcessPoolExecutor(args.workers, initializer=one_process_per_fit) as pool:
             pending = set()
             it = iter(todo)
             for _ in range(args.workers):
@@ -346,7 +354,7 @@ def main(argv=None) -> int:
         done = {(tuple(r["band"]), r["grade"], r["seed"]) for r in load(WALKS)}
         todo = [(b, g, s) for s in range(args.walks) for g in ("RTK", "SBAS", "consumer") for b in WALK_BANDS
                 if (b, g, s) not in done]  # fmt: skip
-        with ProcessPoolExecutor(args.workers) as pool:
+        with ProcessPoolExecutor(args.workers, initializer=one_process_per_fit) as pool:
             for row in pool.map(walk_one, *zip(*todo)) if todo else []:
                 with WALKS.open("a") as f:
                     f.write(json.dumps(row) + "\n")
@@ -357,7 +365,8 @@ def main(argv=None) -> int:
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     note = (
         f"Measured by `{SCRIPT}` on {stamp}, {machine()}, fits at revision "
-        f"{', '.join(sorted({str(r.get('revision', 'unrecorded')) for r in load()}))}. GPS error Gauss-Markov (tau 30 s, vertical 1.5 x horizontal), "
+        f"{', '.join(sorted({str(r.get('revision', 'unrecorded')) for r in load()}))}, {args.workers} fits at a time, "
+        "each in its own process (no fit-worker process). GPS error Gauss-Markov (tau 30 s, vertical 1.5 x horizontal), "
         f"attitude error {ATTITUDE_DEG:g} deg Gauss-Markov (tau 30 s); 'covers': share of fits whose ±1.96 se "
         "interval contains the truth, with the sandwich (time-block) standard errors the fit reports / with "
         "the inverse Hessian (rows taken as independent), with a 95 % Wilson interval for the sandwich's share; "
