@@ -46,7 +46,7 @@ from .likelihood import (
     simulate,
     to_params,
 )
-from .pose_error import MAX_SD, pose_moments, posterior_positions
+from .pose_error import MAX_SD, pose_moments, posterior_attitudes, posterior_positions
 from .table import FitInputError, Table, gps_scale
 
 MIN_ROWS = 50
@@ -1328,10 +1328,11 @@ def eiv_rows(rows: Rows, table: Table, sigma0) -> tuple[Rows, int]:
     moments, and only rows not at the transmitter whose pose-error spread of log d is
     within pose_error.MAX_SD. Returns (rows, number left out for their pose error)."""
     post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
-    # the geometry at the expected true positions (the time-offset track keeps the logged ones)
-    rows.geo = geometry(post.pos, table.rx_quat, table.tx_pos, table.tx_quat)
+    quat = posterior_attitudes(table.rx_quat, sigma0[2])
+    # the geometry at the expected true poses (the time-offset track keeps the logged ones)
+    rows.geo = geometry(post.pos, quat, table.tx_pos, table.tx_quat)
     rule0 = (sigma0[0], max(sigma0[1] * post.v_factor, 1e-6), sigma0[2])
-    rows.moments = mom = pose_moments(post.pos, table.rx_quat, table.tx_pos, table.tx_quat, rule0)
+    rows.moments = mom = pose_moments(post.pos, quat, table.tx_pos, table.tx_quat, rule0)
     # the likelihood scales the vertical group by gps_ratio * gps_sigma: fold the factor in
     for arr in (mom.m_xy, mom.v_xy, mom.m_3, mom.v_3):
         arr[1] *= post.v_factor**2
