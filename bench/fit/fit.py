@@ -1324,7 +1324,7 @@ def _sigma0(p: Params, free) -> tuple[float, float, float]:
 
 def eiv_rows(rows: Rows, table: Table, sigma0) -> tuple[Rows, int]:
     """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
-    sigmas ``sigma0``: geometry at the expected true receiver positions, the pose-error
+    sigmas ``sigma0``: geometry at the expected true receiver poses, the pose-error
     moments, and only rows not at the transmitter whose pose-error spread of log d is
     within pose_error.MAX_SD. Returns (rows, number left out for their pose error)."""
     post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])

@@ -11,6 +11,13 @@ small body-frame rotation phi (radians, sigma_a on each axis). The transmitter p
 taken as exact (it is buried and static). So the true a is a(logged pose - error): a
 random variable for each row.
 
+The errors are classical (logged = true + error, the error independent of the truth), so
+the logged poses are spread wider than the true ones: the rule below is applied around
+each row's posterior mean pose, not the logged one (:func:`posterior_positions`: Tweedie
+shift of the horizontal position, shrinkage of the height; :func:`posterior_attitudes`:
+shrinkage of pitch and roll), and draws the error around it as if it were independent of
+that centre (the posterior spread left, k sigma^2, is taken as sigma^2 for the attitude).
+
 This module replaces that distribution by a Gaussian with the same mean and variance
 (moment matching), from a 3-point Gauss-Hermite rule along each of the six error axes
 (nodes at +-sqrt(3) sigma_0, weights 1/6, 2/3, 1/6):
