@@ -412,3 +412,22 @@ def test_a_library_caller_with_no_vertical_gps_error_ratio_gets_one_clear_error(
     with pytest.raises(FitInputError) as exc:
         fit_table(table, FitOptions(base=Params(gps_sigma=1.0, gps_ratio=ratio)))
     assert str(exc.value) == f"fit: {table.source}: gps_ratio (vertical / horizontal GPS error) must be > 0, got {ratio!r}"
+
+
+def test_eiv_rows_keep_the_logged_attitude_when_it_is_exact():
+    """With the attitude error given as 0 (GPS error only) the geometry uses the logged
+    attitudes bit for bit (a disabled effect costs nothing); with 2 deg it uses the
+    posterior ones."""
+    from bench.fit.fit import eiv_rows
+    from bench.fit.likelihood import geometry
+    from bench.fit.likelihood import rows_from_table
+
+    t = emulate_campaign(10, TRUTH, seed=4, pose_error=PoseError(gps_h=1.0, gps_v=1.5, attitude_deg=2.0))
+    sigma0 = (1.0, 1.5, math.radians(0.1))
+    post = posterior_positions(t.rx_pos, t.tx_pos, 1.0, 1.5)
+    for attitude, quat in ((0.0, t.rx_quat), (math.radians(2.0), posterior_attitudes(t.rx_quat, math.radians(2.0)))):
+        rows = eiv_rows(rows_from_table(t), t, sigma0, attitude)[0]
+        want = geometry(post.pos, quat, t.tx_pos, t.tx_quat)
+        keep = np.isin(want.log_r, rows.geo.log_r)  # the kept rows, in order (positions do not depend on the attitude)
+        assert keep.sum() == rows.k.shape[0] > 300
+        assert np.array_equal(rows.geo.g, want.g[:, keep])

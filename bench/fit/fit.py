@@ -1322,13 +1322,15 @@ def _sigma0(p: Params, free) -> tuple[float, float, float]:
     return (h, p.gps_ratio * h, max(p.attitude_sigma, EIV_FLOOR[1]))
 
 
-def eiv_rows(rows: Rows, table: Table, sigma0) -> tuple[Rows, int]:
+def eiv_rows(rows: Rows, table: Table, sigma0, attitude: float | None = None) -> tuple[Rows, int]:
     """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
     sigmas ``sigma0``: geometry at the expected true receiver poses, the pose-error
     moments, and only rows not at the transmitter whose pose-error spread of log d is
-    within pose_error.MAX_SD. Returns (rows, number left out for their pose error)."""
+    within pose_error.MAX_SD. Returns (rows, number left out for their pose error).
+    ``attitude``: the attitude error the tilts are shrunk by (default sigma0's, which is
+    floored for the rule; 0 keeps the logged attitudes)."""
     post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
-    quat = posterior_attitudes(table.rx_quat, sigma0[2])
+    quat = posterior_attitudes(table.rx_quat, sigma0[2] if attitude is None else attitude)
     # the geometry at the expected true poses (the time-offset track keeps the logged ones)
     rows.geo = geometry(post.pos, quat, table.tx_pos, table.tx_quat)
     rule0 = (sigma0[0], max(sigma0[1] * post.v_factor, 1e-6), sigma0[2])
@@ -1353,7 +1355,7 @@ def model_rows(table: Table, params: Params) -> Rows:
     rows = rows_from_table(table)
     if params.gps_sigma > 0 or params.attitude_sigma > 0:
         rows.gps_scale = gps_scale(table)
-        return eiv_rows(rows, table, _sigma0(params, ()))[0]
+        return eiv_rows(rows, table, _sigma0(params, ()), params.attitude_sigma)[0]
     return usable(rows)
 
 
@@ -1389,8 +1391,9 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
     n_dropped = 0
     for eiv_pass in range(3 if eiv else 1):
         if eiv:
-            sigma0 = _sigma0(base if start is None else start, free)
-            rows, n_dropped = eiv_rows(all_rows, table, sigma0)
+            at_p = base if start is None else start
+            sigma0 = _sigma0(at_p, free)
+            rows, n_dropped = eiv_rows(all_rows, table, sigma0, at_p.attitude_sigma)
             if rows.k.shape[0] < MIN_ROWS or not np.any(rows.k != -1):
                 raise FitInputError(
                     f"{table.source}: only {rows.k.shape[0]} rows are farther from the transmitter than the "
