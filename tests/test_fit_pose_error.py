@@ -426,7 +426,7 @@ def test_eiv_rows_keep_the_logged_attitude_when_it_is_exact():
     sigma0 = (1.0, 1.5, math.radians(0.1))
     post = posterior_positions(t.rx_pos, t.tx_pos, 1.0, 1.5)
     for attitude, quat in ((0.0, t.rx_quat), (math.radians(2.0), posterior_attitudes(t.rx_quat, math.radians(2.0)))):
-        rows = eiv_rows(rows_from_table(t), t, sigma0, attitude)[0]
+        rows = eiv_rows(rows_from_table(t), t, sigma0, attitude=attitude)[0]
         want = geometry(post.pos, quat, t.tx_pos, t.tx_quat)
         keep = np.isin(want.log_r, rows.geo.log_r)  # the kept rows, in order (positions do not depend on the attitude)
         assert keep.sum() == rows.k.shape[0] > 300

@@ -63,7 +63,11 @@ def register(subparsers) -> None:
     )
     fixed.add_argument("--antennas", type=int, choices=(2, 3), default=3, help="receiver class (default 3)")
     fixed.add_argument(
-        "--time-offset", type=TIME_OFFSET, default=0.0, metavar="SEC", help="evaluate readings at the poses of t + SEC (default 0)"
+        "--time-offset",
+        type=TIME_OFFSET,
+        default=None,
+        metavar="SEC",
+        help="evaluate readings at the poses of t + SEC (default: 0, after a scan over +-3 s finds no better offset)",
     )
     fixed.add_argument(
         "--gps-sigma",
@@ -178,7 +182,7 @@ def options_from_args(args):
         r_outer=args.r_outer,
         q=tuple(args.q),
         pose_sigma=args.pose_sigma if args.pose_sigma is not None else 1e-3,
-        time_offset=args.time_offset,
+        time_offset=args.time_offset if args.time_offset is not None else 0.0,
         antennas=args.antennas,
         gps_sigma=gps[0] if gps is not None else 0.0,
         gps_ratio=(gps[1] / gps[0]) if gps is not None and gps[0] > 0 else 1.5,
@@ -189,7 +193,11 @@ def options_from_args(args):
     from .fit import FREE_PARAMS
 
     return FitOptions(
-        free=tuple(n for n in FREE_PARAMS if n in free), base=base, seed=args.seed, eiv_floor=args.pose_sigma is None
+        free=tuple(n for n in FREE_PARAMS if n in free),
+        base=base,
+        seed=args.seed,
+        eiv_floor=args.pose_sigma is None,
+        scan_offset=args.time_offset is None,
     )
 
 

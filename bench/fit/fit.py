@@ -39,6 +39,7 @@ from .likelihood import (
     Likelihood,
     Params,
     Regimes,
+    PoseTrack,
     Rows,
     from_params,
     geometry,
@@ -78,6 +79,11 @@ EIV_FREE = ("kappa_eq", "r_en", "gps_sigma", "attitude_sigma")
 #: (horizontal m, attitude rad); floors for the re-evaluation at the estimate.
 EIV_START = (0.5, math.radians(1.0))
 EIV_FLOOR = (0.01, math.radians(0.1))
+#: Fewer bandwidths of data than this under the time-block meat, and the fit says its
+#: standard errors run short: the long-run variance is then estimated from a handful of
+#: windows (10-minute campaigns, ~6 of them, covered 76-86 % in docs/accuracy.md (b);
+#: 30 minutes, ~11, covered 88-96 %).
+FEW_WINDOWS = 8
 MAX_ITER = 60
 #: Stop when the predicted gain to the optimum, g' H^-1 g / 2, is below this (nats):
 #: the estimate is then within 0.005 standard errors of the optimum.
@@ -99,6 +105,10 @@ class FitOptions:
     # meat; "model" (and always without it: rows independent given exact poses): inverse Hessian
     covariance: str = "hac"
     eiv_floor: bool = True  # errors-in-variables: pose_sigma at EIV_POSE_SIGMA unless fitted (False: base's)
+    # errors-in-variables with time_offset neither fitted nor given (base.time_offset 0):
+    # look for a clock offset between the receiver and the pose streams (:func:`offset_scan`)
+    # and fit it when the poses fit clearly better at one; False: hold it at 0 unseen
+    scan_offset: bool = True
 
 
 @dataclass
@@ -1322,19 +1332,28 @@ def _sigma0(p: Params, free) -> tuple[float, float, float]:
     return (h, p.gps_ratio * h, max(p.attitude_sigma, EIV_FLOOR[1]))
 
 
-def eiv_rows(rows: Rows, table: Table, sigma0, attitude: float | None = None) -> tuple[Rows, int]:
+def eiv_rows(rows: Rows, table: Table, sigma0, idx=None, attitude: float | None = None) -> tuple[Rows, int]:
     """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
     sigmas ``sigma0``: geometry at the expected true receiver poses, the pose-error
     moments, and only rows not at the transmitter whose pose-error spread of log d is
     within pose_error.MAX_SD. Returns (rows, number left out for their pose error).
-    ``attitude``: the attitude error the tilts are shrunk by (default sigma0's, which is
-    floored for the rule; 0 keeps the logged attitudes)."""
+    ``idx``: only these rows (sorted indices; the positions and the time-offset track
+    still come from all of them). ``attitude``: the attitude error the tilts are shrunk
+    by (default sigma0's, which is floored for the rule; 0 keeps the logged attitudes)."""
     post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
     quat = posterior_attitudes(table.rx_quat, sigma0[2] if attitude is None else attitude)
-    # the geometry at the expected true poses (the time-offset track keeps the logged ones)
-    rows.geo = geometry(post.pos, quat, table.tx_pos, table.tx_quat)
+    # the geometry at the expected true poses, and so is the time-offset track's (with
+    # the logged ones there, any offset but 0 took the shrinkage away: a step in the
+    # likelihood at 0 that moved kappa_eq by ~1.5 s.e. when the offset was freed)
+    if rows.track is not None:
+        rows.track = PoseTrack(table, post.pos, quat)
+    pos, rx_q, tx_p, tx_q = post.pos, quat, table.tx_pos, table.tx_quat
+    if idx is not None:
+        rows = rows.take(idx)
+        pos, rx_q, tx_p, tx_q = pos[idx], rx_q[idx], tx_p[idx], tx_q[idx]
+    rows.geo = geometry(pos, rx_q, tx_p, tx_q)
     rule0 = (sigma0[0], max(sigma0[1] * post.v_factor, 1e-6), sigma0[2])
-    rows.moments = mom = pose_moments(post.pos, quat, table.tx_pos, table.tx_quat, rule0)
+    rows.moments = mom = pose_moments(pos, rx_q, tx_p, tx_q, rule0)
     # the likelihood scales the vertical group by gps_ratio * gps_sigma: fold the factor in
     for arr in (mom.m_xy, mom.v_xy, mom.m_3, mom.v_3):
         arr[1] *= post.v_factor**2
@@ -1355,12 +1374,100 @@ def model_rows(table: Table, params: Params) -> Rows:
     rows = rows_from_table(table)
     if params.gps_sigma > 0 or params.attitude_sigma > 0:
         rows.gps_scale = gps_scale(table)
-        return eiv_rows(rows, table, _sigma0(params, ()), params.attitude_sigma)[0]
+        return eiv_rows(rows, table, _sigma0(params, ()), attitude=params.attitude_sigma)[0]
     return usable(rows)
 
 
+#: The time-offset scan (:func:`offset_scan`): offsets tried (s), rows scanned (a seeded
+#: subsample: detection, not estimation), and how many nats on them the best offset must
+#: gain on 0 before the offset is fitted. The likelihood's gains are inflated by pose
+#: errors correlated in time (the sandwich's meat is several times its Hessian), so the
+#: threshold comes from emulated campaigns, not a chi-square quantile (docs/calibration.md
+#: section 2, "Time offset").
+OFFSET_GRID = np.arange(-3.0, 3.0001, 0.25)
+OFFSET_ROWS = 2000
+OFFSET_GAIN = 40.0
+
+
+@dataclass
+class OffsetScan:
+    """The time-offset scan at a fit's estimate: the best offset on :data:`OFFSET_GRID`
+    (s; refined by the parabola through its neighbours) and what it gains on 0 (nats, on
+    the rows scanned)."""
+
+    offset: float
+    gain: float
+    rows: int  # rows scanned (a seeded subsample of at most OFFSET_ROWS)
+
+
+def offset_scan(table: Table, params: Params, options: FitOptions) -> OffsetScan | None:
+    """The negative log-likelihood of ``params`` with the poses taken at t + dt, for dt on
+    :data:`OFFSET_GRID`, on (at most) OFFSET_ROWS of the errors-in-variables rows, the
+    other parameters held. None when the table has fewer than 4 distinct times (no track)."""
+    if np.unique(table.t).shape[0] < 4:
+        return None
+    rows = rows_from_table(table, with_track=True)
+    rows.gps_scale = gps_scale(table)
+    n = rows.k.shape[0]
+    idx = None
+    if n > OFFSET_ROWS:
+        rng = np.random.default_rng(np.random.SeedSequence(options.seed, spawn_key=(0x0F5,)))
+        idx = np.sort(rng.choice(n, OFFSET_ROWS, replace=False))
+    rows, _dropped = eiv_rows(rows, table, _sigma0(params, ()), idx, attitude=params.attitude_sigma)
+    like = options.likelihood(rows)
+    values = np.empty(OFFSET_GRID.shape)
+    for i, dt in enumerate(OFFSET_GRID):
+        trial = replace(params, time_offset=float(dt))
+        like.choose_regimes(trial)
+        values[i] = like.nll(trial)
+    i = int(np.argmin(values))
+    best = float(OFFSET_GRID[i])
+    if 0 < i < len(values) - 1:
+        vm, v0, vp = values[i - 1 : i + 2]
+        curv = vp - 2.0 * v0 + vm
+        if curv > 0:
+            step = float(OFFSET_GRID[1] - OFFSET_GRID[0])
+            best += float(np.clip(-0.5 * step * (vp - vm) / curv, -step, step))
+    zero = int(np.argmin(np.abs(OFFSET_GRID)))
+    return OffsetScan(best, float(values[zero] - values[i]), rows.k.shape[0])
+
+
 def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
-    """Validate ``table`` and fit the free parameters; see the module docstring."""
+    """Validate ``table`` and fit the free parameters; see the module docstring.
+
+    With the errors-in-variables model and the time offset neither fitted nor given, the
+    fit then scans for one (:func:`offset_scan`) and, when the poses fit better at an
+    offset by more than :data:`OFFSET_GAIN` nats, fits again with ``time_offset`` free;
+    either way one note says what the scan found."""
+    res = _fit_once(table, options)
+    eiv = res.params.gps_sigma > 0 or res.params.attitude_sigma > 0
+    if not (options.scan_offset and eiv and res.converged and "time_offset" not in res.free and options.base.time_offset == 0.0):
+        return res
+    t0 = time.perf_counter()
+    scan = offset_scan(table, res.params, options)
+    if scan is None:
+        res.notes.append("time offset not checked: the poses have fewer than 4 distinct times")
+        return res
+    if scan.gain > OFFSET_GAIN:
+        refit = _fit_once(table, replace(options, free=res.free + ("time_offset",)))
+        refit.notes.insert(
+            0,
+            f"time offset: on {scan.rows} rows the poses fit {scan.gain:.0f} nats better at t {scan.offset:+.2f} s "
+            "than at t (a scan over +-3 s), so it was fitted; --time-offset SEC gives it instead",
+        )
+        refit.seconds += res.seconds
+        refit.n_evals += res.n_evals
+        return refit
+    res.notes.append(
+        f"time offset: none found (a scan over +-3 s on {scan.rows} rows: the best, t {scan.offset:+.2f} s, fits "
+        f"{scan.gain:.1f} nats better than t, below {OFFSET_GAIN:g}); held at 0 s: --fit time_offset fits it anyway"
+    )
+    res.seconds += time.perf_counter() - t0
+    return res
+
+
+def _fit_once(table: Table, options: FitOptions) -> FitResult:
+    """:func:`fit_table` without the time-offset scan."""
     t0 = time.perf_counter()
     for name in options.free:
         if name not in FREE_PARAMS:
@@ -1393,7 +1500,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         if eiv:
             at_p = base if start is None else start
             sigma0 = _sigma0(at_p, free)
-            rows, n_dropped = eiv_rows(all_rows, table, sigma0, at_p.attitude_sigma)
+            rows, n_dropped = eiv_rows(all_rows, table, sigma0, attitude=at_p.attitude_sigma)
             if rows.k.shape[0] < MIN_ROWS or not np.any(rows.k != -1):
                 raise FitInputError(
                     f"{table.source}: only {rows.k.shape[0]} rows are farther from the transmitter than the "
@@ -1497,6 +1604,14 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         except np.linalg.LinAlgError:
             ok = False
             why = "the likelihood has no curvature in some direction: a parameter cannot be estimated from these rows"
+        if hac_lag == hac_lag:
+            span = float(np.ptp(like.rows.t)) + 1.0  # s of receiver time the meat saw
+            if span < FEW_WINDOWS * hac_lag:
+                notes.append(
+                    f"the time-block standard errors rest on {span:.0f} s of data, {span / hac_lag:.1f} times their "
+                    f"{hac_lag:.0f} s bandwidth: with fewer than {FEW_WINDOWS} they run short (docs/accuracy.md (b)); "
+                    "log longer before trusting the interval"
+                )
         for i in keep:
             name = newton_free[i]
             sd = math.sqrt(max(cov[ix[i], ix[i]], 0.0))

@@ -312,15 +312,16 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--budget", type=float, default=math.inf, help="stop submitting new fits after this many seconds")
     p.add_argument("--table-only", action="store_true")
-    p.add_argument("--fresh", action="store_true", help="forget the saved runs first")
+    p.add_argument("--fresh", action="store_true", help="forget the saved runs (both studies) first")
     p.add_argument("--no-bands", action="store_true", help="skip the information-per-distance table")
     p.add_argument("--walks", type=int, default=0, metavar="N", help="first run N seeds of the band-confined walks")
     args = p.parse_args(argv)
     t_start = time.time()
     if not args.table_only:
         RUNS.parent.mkdir(exist_ok=True)
-        if args.fresh and RUNS.exists():
-            RUNS.unlink()
+        if args.fresh:  # both studies: a table must not mix revisions
+            RUNS.unlink(missing_ok=True)
+            WALKS.unlink(missing_ok=True)
         done = {(r["minutes"], r["grade"], r["seed"]) for r in load()}
         todo = [j for j in jobs(args.seeds) if j not in done]
         with ProcessPoolExecutor(args.workers) as pool:
@@ -356,8 +357,7 @@ def main(argv=None) -> int:
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     note = (
         f"Measured by `{SCRIPT}` on {stamp}, {machine()}, fits at revision "
-        f"{', '.join(sorted({str(r.get('revision', 'unrecorded')) for r in load()}))}; fit times measured "
-        "while other jobs shared the 2 cores. GPS error Gauss-Markov (tau 30 s, vertical 1.5 x horizontal), "
+        f"{', '.join(sorted({str(r.get('revision', 'unrecorded')) for r in load()}))}. GPS error Gauss-Markov (tau 30 s, vertical 1.5 x horizontal), "
         f"attitude error {ATTITUDE_DEG:g} deg Gauss-Markov (tau 30 s); 'covers': share of fits whose ±1.96 se "
         "interval contains the truth, with the sandwich (time-block) standard errors the fit reports / with "
         "the inverse Hessian (rows taken as independent), with a 95 % Wilson interval for the sandwich's share; "
