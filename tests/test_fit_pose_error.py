@@ -431,3 +431,20 @@ def test_eiv_rows_keep_the_logged_attitude_when_it_is_exact():
         keep = np.isin(want.log_r, rows.geo.log_r)  # the kept rows, in order (positions do not depend on the attitude)
         assert keep.sum() == rows.k.shape[0] > 300
         assert np.array_equal(rows.geo.g, want.g[:, keep])
+
+
+def test_the_time_offset_track_holds_the_posterior_attitudes():
+    """At an offset of 1 ns the track's geometry is the rows' geometry at 0 (posterior
+    positions and tilts): no step in the likelihood where the offset leaves 0. With the
+    logged attitudes on the track the field directions would differ by the shrinkage."""
+    from bench.fit.fit import eiv_rows
+    from bench.fit.likelihood import rows_from_table
+
+    t = emulate_campaign(10, TRUTH, seed=4, pose_error=PoseError(gps_h=1.0, gps_v=1.5, attitude_deg=5.0))
+    s = math.radians(5.0)
+    rows = eiv_rows(rows_from_table(t, with_track=True), t, (1.0, 1.5, s))[0]
+    at0, moved = rows.geo, rows.track.geometry(1e-9)
+    assert np.abs(moved.g - at0.g).max() < 1e-6
+    assert np.abs(moved.log_r - at0.log_r).max() < 1e-9
+    logged = eiv_rows(rows_from_table(t, with_track=True), t, (1.0, 1.5, s), attitude=0.0)[0].geo
+    assert np.abs(logged.g - at0.g).max() > 1e-3  # the shrinkage is visible at this size
