@@ -92,6 +92,8 @@ def test_posterior_attitudes_shrink_pitch_and_roll_keep_the_heading():
         assert np.abs(got[:, j] - want).max() < 1e-12
     assert np.abs(np.angle(np.exp(1j * (got[:, 0] - euler[:, 0])))).max() < 1e-12
     assert np.array_equal(posterior_attitudes(quat, 0.0), quat)
+    # logged quaternions need not be unit: the same rotations come back, normalised
+    assert np.abs(posterior_attitudes(3.0 * quat, sigma) - posterior_attitudes(quat, sigma)).max() < 1e-12
     # a tilt that does not vary more than the error is shrunk all the way to its mean
     flat = Rotation.from_euler("ZYX", euler * [1.0, 1e-3, 1e-3]).as_quat(scalar_first=True)
     level = Rotation.from_quat(posterior_attitudes(flat, sigma), scalar_first=True).as_euler("ZYX")

@@ -189,10 +189,11 @@ def posterior_attitudes(rx_quat, sigma_a: float) -> NDArray[np.float64]:
     2 deg attitude, sigmas given, kappa_eq alone free): +0.039 +- 0.017 % on kappa_eq,
     most of the attitude error's part of its low bias (docs/calibration.md section 2).
     Angles are not unwrapped: a roll spread across +-180 deg has a huge variance and
-    k ~ 1 (no shrinkage)."""
+    k ~ 1 (no shrinkage). The result is normalised (the input need not be)."""
     q = np.array(rx_quat, dtype=np.float64)
     if sigma_a <= 0.0 or q.shape[0] < 2:
         return q
+    q = unit_quaternion_components(q, "rx_q").T  # logged quaternions need not be unit
     w, x, y, z = q.T
     pitch = -np.arcsin(np.clip(2.0 * (x * z - w * y), -1.0, 1.0))
     roll = np.arctan2(2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
