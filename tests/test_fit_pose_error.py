@@ -13,11 +13,18 @@ from bench.fit.csvio import parse_csv
 import bench.fit.fit as fit_module
 from bench.fit.fit import FitOptions, common_height_rows, fit_table, time_block_meat, with_common_height
 from bench.fit.likelihood import Params
-from bench.fit.pose_error import BIN_W_MAX, pose_moments, posterior_positions, signal_error_bin, signal_error_cdf
+from bench.fit.pose_error import (
+    BIN_W_MAX,
+    pose_moments,
+    posterior_attitudes,
+    posterior_positions,
+    signal_error_bin,
+    signal_error_cdf,
+)
 from bench.fit.special import ball_disk_cdf, smoothed_ball_disk_cdf
 from bench.fit.table import FitInputError, gps_scale
 from emulator.receiver.model import ModelParams
-from fit_campaign import PoseError, Walk, emulate_campaign, gauss_markov
+from fit_campaign import PoseError, Walk, emulate_campaign, gauss_markov, logged_poses
 
 TRUTH = ModelParams(kappa_eq=1.542, r_en=80.0)
 IDENTITY = np.array([[1.0, 0.0, 0.0, 0.0]])
@@ -65,6 +72,56 @@ def test_posterior_positions_radial_walk_and_flat_heights():
     moved = np.hypot(post.pos[pick, 0], post.pos[pick, 1]) - rho[pick]
     assert np.median(moved * rho[pick]) == pytest.approx(-1.0, abs=0.1)
     assert post.v_factor < 0.05 and np.ptp(post.pos[:, 2]) < 0.2
+
+
+def test_posterior_attitudes_shrink_pitch_and_roll_keep_the_heading():
+    """Pitch and roll (intrinsic z-y-x) move to m + k (angle - m), k = 1 - sigma^2 /
+    var(angle), each with its own campaign mean and variance; the heading stays; a zero
+    sigma returns the quaternions as given."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    n = 2000
+    euler = np.stack([rng.uniform(-3.1, 3.1, n), rng.normal(0.1, 0.35, n), rng.normal(-0.2, 0.3, n)], axis=1)
+    quat = Rotation.from_euler("ZYX", euler).as_quat(scalar_first=True)
+    sigma = math.radians(4.0)
+    got = Rotation.from_quat(posterior_attitudes(quat, sigma), scalar_first=True).as_euler("ZYX")
+    for j in (1, 2):
+        m, v = euler[:, j].mean(), euler[:, j].var()
+        want = m + (1.0 - sigma * sigma / v) * (euler[:, j] - m)
+        assert np.abs(got[:, j] - want).max() < 1e-12
+    assert np.abs(np.angle(np.exp(1j * (got[:, 0] - euler[:, 0])))).max() < 1e-12
+    assert np.array_equal(posterior_attitudes(quat, 0.0), quat)
+    # logged quaternions need not be unit: the same rotations come back, normalised
+    assert np.abs(posterior_attitudes(3.0 * quat, sigma) - posterior_attitudes(quat, sigma)).max() < 1e-12
+    # a tilt that does not vary more than the error is shrunk all the way to its mean
+    flat = Rotation.from_euler("ZYX", euler * [1.0, 1e-3, 1e-3]).as_quat(scalar_first=True)
+    level = Rotation.from_quat(posterior_attitudes(flat, sigma), scalar_first=True).as_euler("ZYX")
+    assert np.abs(level[:, 1] - euler[:, 1].mean() * 1e-3).max() < 1e-12
+
+
+def test_posterior_attitudes_remove_the_mean_error_of_a_xy():
+    """Classical attitude error (logged = true turned by 5 deg, Gauss-Markov 30 s) on a
+    30-minute walk: the prediction of a_xy from the logged attitude plus the rule's mean
+    shift is too large on average (the logged tilt is spread wider than the truth, and a
+    tilted receiver sees less of a horizontal field); from the posterior attitude the
+    mean error is gone. 40 seeded draws of the error over one walk."""
+    deg = 5.0
+    s = math.radians(deg)
+    t = emulate_campaign(30, TRUTH, seed=9001)
+    a_true = a_xy(t.rx_pos, t.rx_quat, t.tx_pos, t.tx_quat)
+    rng = np.random.default_rng(5)
+    err = {"logged": [], "posterior": []}
+    for _ in range(40):
+        _pos, logged = logged_poses(t.t, t.rx_pos, t.rx_quat, None, PoseError(attitude_deg=deg, attitude_tau=30.0), rng)
+        for name, quat in (("logged", logged), ("posterior", posterior_attitudes(logged, s))):
+            mom = pose_moments(t.rx_pos, quat, t.tx_pos, t.tx_quat, (0.01, 0.01, s))
+            shift, var, _m3, _v3 = mom.spread((0.0, 0.0, s))
+            keep = np.isfinite(a_true) & (var < 0.15**2)
+            err[name].append(np.mean((a_true - a_xy(t.rx_pos, quat, t.tx_pos, t.tx_quat) - shift)[keep]))
+    logged, post = np.mean(err["logged"]), np.mean(err["posterior"])
+    assert logged < -0.0015  # measured -0.0028 (+-0.0003)
+    assert abs(post) < 0.25 * abs(logged)  # measured -0.0001 (+-0.0003)
 
 
 def test_time_block_meat_white_and_ar1():
@@ -357,3 +414,39 @@ def test_a_library_caller_with_no_vertical_gps_error_ratio_gets_one_clear_error(
     with pytest.raises(FitInputError) as exc:
         fit_table(table, FitOptions(base=Params(gps_sigma=1.0, gps_ratio=ratio)))
     assert str(exc.value) == f"fit: {table.source}: gps_ratio (vertical / horizontal GPS error) must be > 0, got {ratio!r}"
+
+
+def test_eiv_rows_keep_the_logged_attitude_when_it_is_exact():
+    """With the attitude error given as 0 (GPS error only) the geometry uses the logged
+    attitudes bit for bit (a disabled effect costs nothing); with 2 deg it uses the
+    posterior ones."""
+    from bench.fit.fit import eiv_rows
+    from bench.fit.likelihood import geometry
+    from bench.fit.likelihood import rows_from_table
+
+    t = emulate_campaign(10, TRUTH, seed=4, pose_error=PoseError(gps_h=1.0, gps_v=1.5, attitude_deg=2.0))
+    sigma0 = (1.0, 1.5, math.radians(0.1))
+    post = posterior_positions(t.rx_pos, t.tx_pos, 1.0, 1.5)
+    for attitude, quat in ((0.0, t.rx_quat), (math.radians(2.0), posterior_attitudes(t.rx_quat, math.radians(2.0)))):
+        rows = eiv_rows(rows_from_table(t), t, sigma0, attitude=attitude)[0]
+        want = geometry(post.pos, quat, t.tx_pos, t.tx_quat)
+        keep = np.isin(want.log_r, rows.geo.log_r)  # the kept rows, in order (positions do not depend on the attitude)
+        assert keep.sum() == rows.k.shape[0] > 300
+        assert np.array_equal(rows.geo.g, want.g[:, keep])
+
+
+def test_the_time_offset_track_holds_the_posterior_attitudes():
+    """At an offset of 1 ns the track's geometry is the rows' geometry at 0 (posterior
+    positions and tilts): no step in the likelihood where the offset leaves 0. With the
+    logged attitudes on the track the field directions would differ by the shrinkage."""
+    from bench.fit.fit import eiv_rows
+    from bench.fit.likelihood import rows_from_table
+
+    t = emulate_campaign(10, TRUTH, seed=4, pose_error=PoseError(gps_h=1.0, gps_v=1.5, attitude_deg=5.0))
+    s = math.radians(5.0)
+    rows = eiv_rows(rows_from_table(t, with_track=True), t, (1.0, 1.5, s))[0]
+    at0, moved = rows.geo, rows.track.geometry(1e-9)
+    assert np.abs(moved.g - at0.g).max() < 1e-6
+    assert np.abs(moved.log_r - at0.log_r).max() < 1e-9
+    logged = eiv_rows(rows_from_table(t, with_track=True), t, (1.0, 1.5, s), attitude=0.0)[0].geo
+    assert np.abs(logged.g - at0.g).max() > 1e-3  # the shrinkage is visible at this size

@@ -49,7 +49,7 @@ from .likelihood import (
     simulate,
     to_params,
 )
-from .pose_error import MAX_SD, PoseMoments, pose_moments, posterior_positions
+from .pose_error import MAX_SD, PoseMoments, pose_moments, posterior_attitudes, posterior_positions
 from .table import FitInputError, Table, gps_scale
 from .worker import Worker, WorkerError
 
@@ -1496,21 +1496,25 @@ def _sigma0(p: Params, free) -> tuple[float, float, float]:
     return (h, p.gps_ratio * h, max(p.attitude_sigma, EIV_FLOOR[1]))
 
 
-def eiv_rows(rows: Rows, table: Table, sigma0, idx=None, track: bool = False) -> tuple[Rows, int]:
+def eiv_rows(
+    rows: Rows, table: Table, sigma0, idx=None, attitude: float | None = None, track: bool = False
+) -> tuple[Rows, int]:
     """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
-    sigmas ``sigma0``: geometry at the expected true receiver positions, the pose-error
+    sigmas ``sigma0``: geometry at the expected true receiver poses, the pose-error
     moments, and only rows not at the transmitter whose pose-error spread of log d is
     within pose_error.MAX_SD. Returns (rows, number left out for their pose error).
     ``idx``: only these rows (sorted indices; the positions and the time-offset track
-    still come from all of them). The time-offset track is built when ``rows`` has one
-    or ``track`` asks for it."""
+    still come from all of them). ``attitude``: the attitude error the tilts are shrunk
+    by (default sigma0's, which is floored for the rule; 0 keeps the logged attitudes).
+    The time-offset track is built when ``rows`` has one or ``track`` asks for it."""
     post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
-    # the geometry at the expected true positions, and so is the time-offset track's (with
+    quat = posterior_attitudes(table.rx_quat, sigma0[2] if attitude is None else attitude)
+    # the geometry at the expected true poses, and so is the time-offset track's (with
     # the logged ones there, any offset but 0 took the shrinkage away: a step in the
     # likelihood at 0 that moved kappa_eq by ~1.5 s.e. when the offset was freed)
     if track or rows.track is not None:
-        rows.track = PoseTrack(table, post.pos)
-    pos, rx_q, tx_p, tx_q = post.pos, table.rx_quat, table.tx_pos, table.tx_quat
+        rows.track = PoseTrack(table, post.pos, quat)
+    pos, rx_q, tx_p, tx_q = post.pos, quat, table.tx_pos, table.tx_quat
     if idx is not None:
         rows = rows.take(idx)
         pos, rx_q, tx_p, tx_q = pos[idx], rx_q[idx], tx_p[idx], tx_q[idx]
@@ -1562,7 +1566,7 @@ def model_rows(table: Table, params: Params) -> Rows:
     rows = rows_from_table(table)
     if params.gps_sigma > 0 or params.attitude_sigma > 0:
         rows.gps_scale = gps_scale(table)
-        return eiv_rows(rows, table, _sigma0(params, ()))[0]
+        return eiv_rows(rows, table, _sigma0(params, ()), attitude=params.attitude_sigma)[0]
     return usable(rows)
 
 
@@ -1601,7 +1605,7 @@ def offset_scan(table: Table, params: Params, options: FitOptions) -> OffsetScan
     if n > OFFSET_ROWS:
         rng = np.random.default_rng(np.random.SeedSequence(options.seed, spawn_key=(0x0F5,)))
         idx = np.sort(rng.choice(n, OFFSET_ROWS, replace=False))
-    rows, _dropped = eiv_rows(rows, table, _sigma0(params, ()), idx, track=True)
+    rows, _dropped = eiv_rows(rows, table, _sigma0(params, ()), idx, attitude=params.attitude_sigma, track=True)
 
     def at(dt):  # one likelihood per offset (its own regimes): the points run on the stencil threads
         like = options.likelihood(rows)
@@ -1690,8 +1694,9 @@ def _fit_once(table: Table, options: FitOptions) -> FitResult:
     n_dropped = 0
     for eiv_pass in range(3 if eiv else 1):
         if eiv:
-            sigma0 = _sigma0(base if start is None else start, free)
-            rows, n_dropped = eiv_rows(all_rows, table, sigma0)
+            at_p = base if start is None else start
+            sigma0 = _sigma0(at_p, free)
+            rows, n_dropped = eiv_rows(all_rows, table, sigma0, attitude=at_p.attitude_sigma)
             if rows.k.shape[0] < MIN_ROWS or not np.any(rows.k != -1):
                 raise FitInputError(
                     f"{table.source}: only {rows.k.shape[0]} rows are farther from the transmitter than the "

@@ -173,9 +173,13 @@ class PoseTrack:
 
     Positions and (sign-aligned) quaternion components are cubic splines over the unique
     times; rows logged at the same time share a pose. Needs >= 4 distinct times.
+    ``rx_pos`` / ``rx_quat``: the receiver poses to use instead of the logged ones (the
+    errors-in-variables model's posterior means).
     """
 
-    def __init__(self, table: Table, rx_pos: NDArray[np.float64] | None = None) -> None:
+    def __init__(
+        self, table: Table, rx_pos: NDArray[np.float64] | None = None, rx_quat: NDArray[np.float64] | None = None
+    ) -> None:
         t, first = np.unique(table.t, return_index=True)
         self.t = t
         self.row_t = table.t
@@ -190,7 +194,7 @@ class PoseTrack:
             return spline(q)
 
         self.rx_p, self.tx_p = spline(table.rx_pos if rx_pos is None else rx_pos), spline(table.tx_pos)
-        self.rx_q, self.tx_q = quat_spline(table.rx_quat), quat_spline(table.tx_quat)
+        self.rx_q, self.tx_q = quat_spline(table.rx_quat if rx_quat is None else rx_quat), quat_spline(table.tx_quat)
 
     def take(self, idx) -> "PoseTrack":
         """The same track, evaluated for the rows ``idx`` only."""

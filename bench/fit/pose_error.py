@@ -11,6 +11,13 @@ small body-frame rotation phi (radians, sigma_a on each axis). The transmitter p
 taken as exact (it is buried and static). So the true a is a(logged pose - error): a
 random variable for each row.
 
+The errors are classical (logged = true + error, the error independent of the truth), so
+the logged poses are spread wider than the true ones: the rule below is applied around
+each row's posterior mean pose, not the logged one (:func:`posterior_positions`: Tweedie
+shift of the horizontal position, shrinkage of the height; :func:`posterior_attitudes`:
+shrinkage of pitch and roll), and draws the error around it as if it were independent of
+that centre (the posterior spread left, k sigma^2, is taken as sigma^2 for the attitude).
+
 This module replaces that distribution by a Gaussian with the same mean and variance
 (moment matching), from a 3-point Gauss-Hermite rule along each of the six error axes
 (nodes at +-sqrt(3) sigma_0, weights 1/6, 2/3, 1/6):
@@ -40,7 +47,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr
 
-from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
+from emulator.frames.rotation import (
+    quaternion_conjugates,
+    quaternion_products,
+    rotation_components,
+    unit_quaternion_components,
+    x_axis_components,
+)
 
 from .special import Z_BLEND, Z_KINK, Z_SPAN, ball_disk_cdf, normal_pieces
 
@@ -153,6 +166,51 @@ def posterior_positions(rx_pos, tx_pos, sigma_h: float, sigma_v: float) -> Poste
         k = tau2 / (tau2 + sigma_v * sigma_v)
         pos[:, 2] = m + k * (z - m)
     return Posterior(pos, math.sqrt(k))
+
+
+def posterior_attitudes(rx_quat, sigma_a: float) -> NDArray[np.float64]:
+    """E[true tilt | logged tilt] for logged = true turned by a small body-frame error
+    (classical error, sigma_a rad per axis): the logged quaternions (n, 4) ``[w, x, y, z]``
+    with their pitch and roll (intrinsic z-y-x angles: the tilt, i.e. where the world's
+    up points in the body frame) shrunk towards their campaign means, heading unchanged.
+
+    Empirical Bayes with a Gaussian prior per angle, as the heights in
+    :func:`posterior_positions`: the true angles vary by tau^2 = max(var(logged) -
+    sigma_a^2, 0), so E[theta | theta_log] = m + k (theta_log - m), k = tau^2 / (tau^2 +
+    sigma_a^2) (the error on pitch and roll is taken as sigma_a, exact for a level
+    receiver). Why: the rule of :func:`pose_moments` draws the true attitude around the
+    logged one (a Berkson error), but the logged tilt is the true one plus the error, so
+    it is spread wider than the truth; |g_xy| is largest for a level receiver in a
+    horizontal field, so a tilt too large on average makes a_xy too large on average and
+    kappa_eq too small. Shrinking the tilt first is Tweedie's formula for a Gaussian
+    tilt distribution (the rule then spreads the attitude around the posterior mean;
+    the error left, k sigma_a^2 on the tilt, is taken as sigma_a^2: k > 0.98 for holds
+    of 20 deg at 2 deg error). Measured on 50 seeded 4-hour campaigns (1 m / 1.5 m GPS,
+    2 deg attitude, sigmas given, kappa_eq alone free): +0.039 +- 0.017 % on kappa_eq,
+    most of the attitude error's part of its low bias (docs/calibration.md section 2).
+    Angles are not unwrapped: a roll spread across +-180 deg has a huge variance and
+    k ~ 1 (no shrinkage). The result is normalised (the input need not be)."""
+    q = np.array(rx_quat, dtype=np.float64)
+    if sigma_a <= 0.0 or q.shape[0] < 2:
+        return q
+    q = unit_quaternion_components(q, "rx_q").T  # logged quaternions need not be unit
+    w, x, y, z = q.T
+    pitch = -np.arcsin(np.clip(2.0 * (x * z - w * y), -1.0, 1.0))
+    roll = np.arctan2(2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+    new = []
+    for ang in (pitch, roll):
+        var = float(np.var(ang))
+        k = max(var - sigma_a * sigma_a, 0.0) / var if var > 0.0 else 1.0
+        m = float(np.mean(ang))
+        new.append(m + k * (ang - m))
+
+    def tilt(p, r):  # Ry(p) Rx(r) as quaternions (n, 4)
+        cp, sp, cr, sr = np.cos(0.5 * p), np.sin(0.5 * p), np.cos(0.5 * r), np.sin(0.5 * r)
+        return np.stack([cp * cr, cp * sr, sp * cr, -sp * sr], axis=-1)
+
+    # R' = Rz(yaw) Ry(p') Rx(r') = R (Ry(p) Rx(r))^T Ry(p') Rx(r')
+    turn = quaternion_products(quaternion_conjugates(tilt(pitch, roll)), tilt(*new))
+    return quaternion_products(q, turn)
 
 
 def pose_moments(rx_pos, rx_quat, tx_pos, tx_quat, sigma0: tuple[float, float, float]) -> PoseMoments:
