@@ -84,8 +84,8 @@ EIV_START = (0.5, math.radians(1.0))
 EIV_FLOOR = (0.01, math.radians(0.1))
 #: Fewer bandwidths of data than this under the time-block meat, and the fit says its
 #: standard errors run short: the long-run variance is then estimated from a handful of
-#: windows (10-minute campaigns, ~6 of them, covered 76-86 % in docs/accuracy.md (b);
-#: 30 minutes, ~11, covered 88-96 %).
+#: windows (10-minute campaigns, ~6 of them, covered 80-83 % of kappa_eq in
+#: docs/accuracy.md (b); 30 minutes, ~11, 88-95 %).
 FEW_WINDOWS = 8
 MAX_ITER = 60
 #: Stop when the predicted gain to the optimum, g' H^-1 g / 2, is below this (nats):

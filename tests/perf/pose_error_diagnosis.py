@@ -35,6 +35,10 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+
+from accuracy_pose_error import one_process_per_fit  # noqa: E402
+
 OUT = HERE / "out" / "pose_error_diagnosis.jsonl"
 TRUTH = {"kappa_eq": 1.542, "r_en": 80.0}
 
@@ -185,7 +189,7 @@ def main(argv=None) -> int:
     if not a.summary_only:
         out.parent.mkdir(exist_ok=True)
         jobs = [(a.minutes, a.gps_h, s, a.sigmas == "known", v, a.errors) for s in range(a.first, a.first + a.seeds) for v in a.variants.split(",")]
-        with ProcessPoolExecutor(a.workers) as pool, out.open("a") as f:
+        with ProcessPoolExecutor(a.workers, initializer=one_process_per_fit) as pool, out.open("a") as f:
             for row in pool.map(one, *zip(*jobs)):
                 f.write(json.dumps(row) + "\n")
                 f.flush()
