@@ -1736,6 +1736,12 @@ def _fit_once(table: Table, options: FitOptions) -> FitResult:
         notes.append(
             f"{n_dropped} rows left out: closer to the transmitter than the pose error lets the model place them"
         )
+        if n_dropped > rows.k.shape[0]:
+            notes.append(
+                f"most rows ({n_dropped} of {n_dropped + rows.k.shape[0]}) were too close to the transmitter for the "
+                "pose error: the estimates rest on the few others, and on emulated walks like this their intervals "
+                "missed the truth (docs/accuracy.md (b)); walk farther out, or log with a better GPS"
+            )
     theta_n, fval, hess, active, ok, why = res.theta, res.f, res.hess, res.active, res.ok, res.why
     lo_n, hi_n = _box(newton_free)
     if active is not None:
