@@ -1490,6 +1490,37 @@ def _fit_r_outer(like: Likelihood, params: Params, rows: Rows) -> tuple[float, f
     return r, (right - left) / 3.92, f0
 
 
+#: Pose-error sigmas that may be held at their estimate when the Hessian by differences
+#: is not positive definite along them, least identified first (:func:`measurable`).
+UNMEASURABLE = ("attitude_sigma", "gps_sigma")
+
+
+def measurable(hess: NDArray[np.float64], keep: NDArray[np.int64], free: tuple[str, ...]):
+    """(keep, None) when the Hessian of the parameters ``keep`` is positive definite; else
+    (keep without one pose-error sigma, its name) when that makes it so. A sigma that the
+    data barely identify (attitude error on a 4-hour walk: anywhere from its floor to
+    5 deg at 2 deg true) can leave a Hessian by differences with a negative eigenvalue
+    along it a little above its floor, where the likelihood is flat: 4 of 200 seeded
+    4-hour campaigns failed with "no curvature" for that alone. Otherwise (keep, None),
+    and the caller's Cholesky says the fit has no curvature, as before."""
+
+    def positive(idx) -> bool:
+        try:
+            np.linalg.cholesky(hess[np.ix_(idx, idx)])
+        except np.linalg.LinAlgError:
+            return False
+        return True
+
+    if positive(keep):
+        return keep, None
+    for name in UNMEASURABLE:
+        if name in free and free.index(name) in keep:
+            trial = keep[keep != free.index(name)]
+            if trial.size and positive(trial):
+                return trial, name
+    return keep, None
+
+
 def _sigma0(p: Params, free) -> tuple[float, float, float]:
     """Where to evaluate the errors-in-variables rule: at the current sigmas, floored."""
     h = max(p.gps_sigma, EIV_FLOOR[0])
@@ -1770,7 +1801,12 @@ def _fit_once(table: Table, options: FitOptions) -> FitResult:
     ix = [free.index(m) for m in newton_free]
     lo, _hi = _box(newton_free)
     if ok and hess is not None:
-        keep = np.flatnonzero(~active)
+        keep, unmeasured = measurable(hess, np.flatnonzero(~active), newton_free)
+        if unmeasured is not None:
+            notes.append(
+                f"{unmeasured}'s curvature could not be measured (the likelihood is flat or uneven along it at the "
+                "estimate): it is held at its estimate for the other standard errors, which leave out its uncertainty"
+            )
         try:
             hk = hess[np.ix_(keep, keep)]
             np.linalg.cholesky(hk)
