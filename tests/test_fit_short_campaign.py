@@ -75,3 +75,32 @@ def test_a_walk_whose_rows_the_pose_error_mostly_hides_says_so():
     far = emulate_campaign(30, TRUTH, seed=9700, walk=Walk(r_min=25.0, r_max=45.0), pose_error=consumer)
     res = fit_table(far, FitOptions(free=("kappa_eq",), base=base))
     assert not [n for n in res.notes if n.startswith("most rows")]
+
+
+def test_a_sigma_without_measurable_curvature_is_held_for_the_others():
+    """measurable(): a positive definite Hessian keeps every parameter; one negative along
+    attitude_sigma (as the Hessian by differences of a barely identified attitude error
+    can be) drops that sigma from the standard errors and names it; one that dropping a
+    pose-error sigma does not mend is left to fail as before."""
+    import numpy as np
+
+    from bench.fit.fit import measurable
+
+    free = ("kappa_eq", "r_en", "gps_sigma", "attitude_sigma")
+    good = np.diag([4.0, 3.0, 2.0, 1.0]) + 0.1
+    keep, name = measurable(good, np.arange(4), free)
+    assert keep.tolist() == [0, 1, 2, 3] and name is None
+    bad_att = good.copy()
+    bad_att[3, 3] = -5.0
+    keep, name = measurable(bad_att, np.arange(4), free)
+    assert keep.tolist() == [0, 1, 2] and name == "attitude_sigma"
+    bad_gps = good.copy()
+    bad_gps[2, 2] = -5.0
+    keep, name = measurable(bad_gps, np.arange(4), free)
+    assert keep.tolist() == [0, 1, 3] and name == "gps_sigma"
+    bad_kappa = good.copy()
+    bad_kappa[0, 0] = -5.0
+    keep, name = measurable(bad_kappa, np.arange(4), free)
+    assert keep.tolist() == [0, 1, 2, 3] and name is None
+    keep, name = measurable(bad_att, np.array([0, 1, 2]), free)  # attitude already held: nothing to drop
+    assert keep.tolist() == [0, 1, 2] and name is None
