@@ -308,7 +308,7 @@ class Likelihood:
     def logp(self, p: Params) -> NDArray[np.float64]:
         """log P(d_i) for each row, gross-error floor included (the array may be shared:
         do not write to it)."""
-        key = (p, None if self.regimes is None else id(self.regimes.exact))
+        key = self._key(p)
         hit = self.remembered(p)
         if hit is not None:
             return hit
@@ -320,6 +320,10 @@ class Likelihood:
         self._keep(key, out)
         return out
 
+    def _key(self, p: Params):
+        """The memo's key of ``p`` under the current regimes."""
+        return (p, None if self.regimes is None else id(self.regimes.exact))
+
     def _keep(self, key, out) -> None:
         """Keep ``out`` (log P per row) under ``key`` when :attr:`remember` asks for it."""
         if self.remember:
@@ -330,8 +334,7 @@ class Likelihood:
 
     def remembered(self, p: Params) -> NDArray[np.float64] | None:
         """The per-row log P at ``p`` that :meth:`logp` kept (see :attr:`remember`), or None."""
-        key = (p, None if self.regimes is None else id(self.regimes.exact))
-        hit = self._memo.get(key) if self.remember else None
+        hit = self._memo.get(self._key(p)) if self.remember else None
         if hit is not None and (self.regimes is None or hit[0] is self.regimes.exact):
             return hit[1]
         return None
@@ -342,7 +345,7 @@ class Likelihood:
         evaluation, and keep it as :meth:`logp` would have."""
         with self._count:
             self.n_evals += 1
-        self._keep((p, None if self.regimes is None else id(self.regimes.exact)), out)
+        self._keep(self._key(p), out)
 
     def nll(self, p: Params) -> float:
         return -float(np.sum(self.logp(p)))
@@ -370,7 +373,7 @@ class Likelihood:
         n_out = 100.0 * p.r_outer + 2.0
         mixed = (1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out
         out = np.log(mixed)
-        self._keep((p, None if self.regimes is None else id(self.regimes.exact)), out)
+        self._keep(self._key(p), out)
         return out, dprob * ((1.0 - GROSS_ERROR) / mixed)
 
     def _split(self) -> bool:
