@@ -167,6 +167,13 @@ def _read_line(stream, timeout: float) -> bytes:  # type: ignore[no-untyped-def]
     return buf
 
 
+def _default_sigint() -> None:
+    """In the child: Ctrl-C as at a terminal. A suite started in the background by a
+    non-interactive shell (``make test &``) ignores SIGINT, and an ignored signal
+    stays ignored across exec: the command would then never see the test's SIGINT."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _popen(args: list[str]) -> subprocess.Popen:
     return subprocess.Popen(
         CAT + args,
@@ -175,6 +182,7 @@ def _popen(args: list[str]) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         cwd=ROOT,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
+        preexec_fn=_default_sigint,
     )
 
 
