@@ -87,6 +87,15 @@ EIV_FLOOR = (0.01, math.radians(0.1))
 #: windows (10-minute campaigns, ~6 of them, covered 80-83 % of kappa_eq in
 #: docs/accuracy.md (b); 30 minutes, ~11, 88-95 %).
 FEW_WINDOWS = 8
+#: The time-offset scan (:func:`offset_scan`; a fit of the offset starts from the same
+#: grid): offsets tried (s), rows scanned (a seeded subsample: detection, not estimation),
+#: and how many nats on them the best offset must gain on 0 before the offset is fitted.
+#: The likelihood's gains are inflated by pose errors correlated in time (the sandwich's
+#: meat is several times its Hessian), so the threshold comes from emulated campaigns,
+#: not a chi-square quantile (docs/calibration.md section 2, "Time offset").
+OFFSET_GRID = np.arange(-3.0, 3.0001, 0.25)
+OFFSET_ROWS = 2000
+OFFSET_GAIN = 40.0
 MAX_ITER = 60
 #: Stop when the predicted gain to the optimum, g' H^-1 g / 2, is below this (nats):
 #: the estimate is then within 0.005 standard errors of the optimum.
@@ -1036,7 +1045,7 @@ def _core(
             probe = replace(base, kappa_eq=k_med if math.isfinite(k_med) else base.kappa_eq, pose_sigma=0.01)
             scan = Likelihood(sub)
             best = (math.inf, 0.0)
-            for dt in np.arange(-3.0, 3.0001, 0.25):
+            for dt in OFFSET_GRID:
                 trial = replace(probe, time_offset=float(dt))
                 scan.choose_regimes(trial)
                 v = scan.nll(trial)
@@ -1068,11 +1077,7 @@ def _core(
             if _analytic(sub, start, free, options) and 0 < i < len(values) - 1 and np.all(np.isfinite(values[i - 1 : i + 2])):
                 # the vertex of the parabola through the best point and its neighbours (in log
                 # r_en): Newton from the grid's ratio of 1.4 took 5-8 steps more
-                vm, v0, vp = values[i - 1 : i + 2]
-                curv = vp - 2.0 * v0 + vm
-                if curv > 0:
-                    dx = math.log(grid_r[1] / grid_r[0])
-                    best_r *= math.exp(float(np.clip(-0.5 * dx * (vp - vm) / curv, -dx, dx)))
+                best_r *= math.exp(_vertex_shift(values, i, math.log(grid_r[1] / grid_r[0])))
             start = replace(start, r_en=best_r)
     theta = from_params(start, free)
     if "time_offset" in free and rows.track is not None:
@@ -1088,6 +1093,17 @@ def _core(
         like, res, extra = (_full_stage_grad if analytic else _full_stage)(rows, base, free, options, notes, res)
         n_evals += extra
     return like, res, n_evals
+
+
+def _vertex_shift(values, i: int, step: float) -> float:
+    """From grid point ``i`` (0 < i < len - 1) to the vertex of the parabola through it and
+    its neighbours, for a grid of spacing ``step``: at most one step either way, and 0
+    where the three values do not curve upwards."""
+    vm, v0, vp = values[i - 1 : i + 2]
+    curv = vp - 2.0 * v0 + vm
+    if curv > 0:
+        return float(np.clip(-0.5 * step * (vp - vm) / curv, -step, step))
+    return 0.0
 
 
 def _grid_values(f, grid) -> tuple[NDArray[np.float64], int]:
@@ -1602,17 +1618,6 @@ def model_rows(table: Table, params: Params) -> Rows:
     return usable(rows)
 
 
-#: The time-offset scan (:func:`offset_scan`): offsets tried (s), rows scanned (a seeded
-#: subsample: detection, not estimation), and how many nats on them the best offset must
-#: gain on 0 before the offset is fitted. The likelihood's gains are inflated by pose
-#: errors correlated in time (the sandwich's meat is several times its Hessian), so the
-#: threshold comes from emulated campaigns, not a chi-square quantile (docs/calibration.md
-#: section 2, "Time offset").
-OFFSET_GRID = np.arange(-3.0, 3.0001, 0.25)
-OFFSET_ROWS = 2000
-OFFSET_GAIN = 40.0
-
-
 @dataclass
 class OffsetScan:
     """The time-offset scan at a fit's estimate: the best offset on :data:`OFFSET_GRID`
@@ -1649,11 +1654,7 @@ def offset_scan(table: Table, params: Params, options: FitOptions) -> OffsetScan
     i = int(np.argmin(values))
     best = float(OFFSET_GRID[i])
     if 0 < i < len(values) - 1:
-        vm, v0, vp = values[i - 1 : i + 2]
-        curv = vp - 2.0 * v0 + vm
-        if curv > 0:
-            step = float(OFFSET_GRID[1] - OFFSET_GRID[0])
-            best += float(np.clip(-0.5 * step * (vp - vm) / curv, -step, step))
+        best += _vertex_shift(values, i, float(OFFSET_GRID[1] - OFFSET_GRID[0]))
     zero = int(np.argmin(np.abs(OFFSET_GRID)))
     return OffsetScan(best, float(values[zero] - values[i]), rows.k.shape[0])
 
