@@ -1672,6 +1672,7 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
         return res
     t0 = time.perf_counter()
     scan = offset_scan(table, res.params, options)
+    res.seconds += time.perf_counter() - t0
     if scan is None:
         res.notes.append("time offset not checked: the poses have fewer than 4 distinct times")
         return res
@@ -1682,14 +1683,13 @@ def fit_table(table: Table, options: FitOptions = FitOptions()) -> FitResult:
             f"time offset: on {scan.rows} rows the poses fit {scan.gain:.0f} nats better at t {scan.offset:+.2f} s "
             "than at t (a scan over +-3 s), so it was fitted; --time-offset SEC gives it instead",
         )
-        refit.seconds += res.seconds
+        refit.seconds += res.seconds  # the first fit and the scan
         refit.n_evals += res.n_evals
         return refit
     res.notes.append(
         f"time offset: none found (a scan over +-3 s on {scan.rows} rows: the best, t {scan.offset:+.2f} s, fits "
         f"{scan.gain:.1f} nats better than t, below {OFFSET_GAIN:g}); held at 0 s: --fit time_offset fits it anyway"
     )
-    res.seconds += time.perf_counter() - t0
     return res
 
 
