@@ -1,9 +1,12 @@
-"""A campaign too short for its time-block standard errors says so (issue 15).
+"""Where the fit's numbers are weaker than they look, it says so in a note (issue 15).
 
-The sandwich's meat estimates the long-run variance of the scores from windows of one
-bandwidth (Newey-West): 10 minutes hold about six of them, and the intervals then cover
-less than they claim (docs/accuracy.md (b)). The fit adds one note instead of a quiet
-interval; 30 minutes (about eleven) do not get it.
+* A campaign too short for its time-block standard errors: the sandwich's meat
+  estimates the long-run variance of the scores from windows of one bandwidth
+  (Newey-West); 10 minutes hold about six of them, and the intervals then cover less
+  than they claim (docs/accuracy.md (b)). 30 minutes (about eleven) get no note.
+* A walk whose rows the pose error mostly hides (near-field, consumer GPS).
+* A pose-error sigma without measurable curvature, held for the other standard errors
+  instead of failing the fit (:func:`bench.fit.fit.measurable`).
 """
 
 from __future__ import annotations
