@@ -23,6 +23,7 @@ from emulator.control import runtime as control_runtime
 from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port, stderr_notifier
 from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, is_file_spec
 from emulator.scene.reader import default_scene, load_scene
+from emulator.output.kworkers import raise_workers
 from emulator.output.realtime import request_realtime
 from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
 from emulator.pipeline import Pipeline
@@ -83,6 +84,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--realtime",
         action="store_true",
         help="real-time epochs: ask for SCHED_FIFO and locked memory where permitted (one stderr line if not)",
+    )
+    p.add_argument(
+        "--realtime-workers",
+        action="store_true",
+        help="with --realtime: also run the kernel's unbound workqueue workers (they carry a pty's bytes to "
+        "its reader) at SCHED_FIFO 1 for the run; host-wide, undone at exit (one stderr line if not permitted)",
     )
     p.add_argument(
         "--timing-log",
@@ -179,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
     if args.list_profiles:
         sys.stdout.write(profile_table())
         return 0
+    if args.realtime_workers and not args.realtime:
+        raise InputError("--realtime-workers: needs --realtime (the workers are raised only for a real-time run)")
     with_control = control_runtime.wanted(args)
     scene = load_scene(args.scene) if args.scene is not None else default_scene()
     pipe = Pipeline(scene)
@@ -217,11 +226,15 @@ def run(args: argparse.Namespace) -> int:
             except OSError as exc:
                 raise InputError(f"--timing-log: cannot write {args.timing_log}: {exc.strerror}") from None
             scheduler.on_write = lambda r, k, *times: timing.append((r.port.label, k, *times))
-        control = None
+        control = workers = None
         if with_control:
             control = control_runtime.ControlSession(args, pipe, scheduler, stop)
             control.start(lambda line: print(line, file=announce_to, flush=True))
         if args.realtime and args.speed != 0 and real:
+            if args.realtime_workers:  # before our own SCHED_FIFO, which the keeper would inherit
+                workers, refused = raise_workers()
+                if refused:
+                    print(refused, file=sys.stderr, flush=True)
             refused = request_realtime().message()
             if refused:
                 print(refused, file=sys.stderr, flush=True)
@@ -231,6 +244,8 @@ def run(args: argparse.Namespace) -> int:
         finally:
             if control is not None:
                 control.close()
+            if workers is not None:
+                workers.close()
             if status is not None:
                 sys.stderr.write("\r\x1b[K")
         if args.timing_log is not None:

@@ -16,6 +16,9 @@
    bare C reader (SCHED_FIFO) of a pty and of a loopback TCP connection, no emulator. And
    the emulator with that bare C reader on each transport (``rt_pair read``): the reader's
    Python wake-up out of the figure, so what is above the bare pair is the emulator's.
+   Then the pty rows again with ``--realtime-workers`` (the kernel's unbound workqueue
+   workers, which carry a pty's bytes, at SCHED_FIFO 1 for the run; skipped with the
+   reason where not permitted): the emulator with each reader, and the bare C pair.
    Every row also gives the host's steal time during the run (/proc/stat: time the
    hypervisor did not run a vCPU of this VM that wanted to run) and the p99 over the
    intervals with no steal reported within 20 ms of them (a separate sampler process).
@@ -44,6 +47,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
 from _report import ROOT, markdown_table, write_section  # noqa: E402
+from emulator.output.kworkers import raise_workers  # noqa: E402
 from emulator.output.realtime import PRIORITY as RT_PRIORITY  # noqa: E402
 from emulator.testing import EmulatorProcess  # noqa: E402
 
@@ -93,7 +97,7 @@ class SyntheticLoad:
 
 
 def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, transport: str = "pty",
-           c_reader: Path | None = None) -> dict:
+           c_reader: Path | None = None, workers: bool = False) -> dict:
     """One real-time run of the emulator to a reader on ``transport``:
 
     * ``pty``: ``--port pty``, read by pyserial (what most devices under test open);
@@ -106,10 +110,13 @@ def jitter(tmp: Path, rate_hz: float, seconds: float, realtime: bool = False, tr
     ``c_reader``: the reader is rt_pair's bare C reader (``rt_pair read``, SCHED_FIFO)
     instead of this Python process, so what is left above the bare C pair is the
     emulator's own share.
+    ``workers``: the emulator runs with --realtime-workers too (the kernel's unbound
+    workqueue workers, which carry a pty's bytes, at SCHED_FIFO 1 for the run).
     Host steal time (/proc/stat) during the run is returned with the intervals."""
     scene = scene_file(tmp, DEFAULT.replace("rate_hz = 1.0", f"rate_hz = {rate_hz}"))
     frames = int(rate_hz * seconds)
     extra = ("--realtime",) if realtime else ()
+    extra += ("--realtime-workers",) if workers else ()
     log = tmp / "timing.csv"
     args = ("--scene", scene, "--frames", str(frames), "--delay", "1", "--timing-log", str(log), *extra)
     emu = proc = None
@@ -302,12 +309,35 @@ def build_rt_pair() -> tuple[Path | None, str]:
     return exe, ""
 
 
-def bare_pair(exe: Path, transport: str, rate_hz: float, seconds: float, nbytes: int) -> dict:
-    """The machine's limit: rt_pair's bare C writer and reader on ``transport``."""
+BARE = "**bare C pair** (machine limit)"
+
+
+def raise_workers_probe() -> str | None:
+    """None when --realtime-workers is permitted here (the workers raised and put back at
+    once), else the line saying why not."""
+    keeper, refused = raise_workers(prog="bench_emulator")
+    if keeper is not None:
+        keeper.close()
+    return refused
+
+
+def bare_pair(exe: Path, transport: str, rate_hz: float, seconds: float, nbytes: int, workers: bool = False) -> dict:
+    """The machine's limit: rt_pair's bare C writer and reader on ``transport``; ``workers``:
+    with the kernel's unbound workqueue workers at SCHED_FIFO 1 meanwhile (the keeper
+    --realtime-workers starts, emulator/output/kworkers.py). Raises if not permitted."""
     frames = int(rate_hz * seconds)
-    with StealWatch() as steal:
-        done = subprocess.run([str(exe), transport, str(frames), str(nbytes), str(round(1e6 / rate_hz)),
-                               str(RT_PRIORITY)], capture_output=True, text=True, timeout=seconds + 30, check=True)
+    keeper = None
+    if workers:
+        keeper, refused = raise_workers(prog="bench_emulator")
+        if refused:
+            raise PermissionError(refused)
+    try:
+        with StealWatch() as steal:
+            done = subprocess.run([str(exe), transport, str(frames), str(nbytes), str(round(1e6 / rate_hz)),
+                                   str(RT_PRIORITY)], capture_output=True, text=True, timeout=seconds + 30, check=True)
+    finally:
+        if keeper is not None:
+            keeper.close()
     d = np.loadtxt(done.stdout.splitlines(), ndmin=2)
     return _run_result("fifo=1" in done.stderr, steal, rate_hz, d[:, 3], d[:, 1])
 
@@ -442,26 +472,37 @@ def main(argv=None) -> int:
     exe, c_note = build_rt_pair()
     nbytes = epoch_bytes(rate)
     loaded = f"{args.load} busy processes"
-    runs = []  # (what, load, transport, result, load average after)
+    runs = []  # (key, what, load, transport, result, load average after)
+    workers_refused = raise_workers_probe()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         load0 = os.getloadavg()[0]
-        runs.append(("emulator `--realtime`", "none added", "pty", jitter(tmp, rate, args.seconds, True), os.getloadavg()[0]))
+        runs.append(("idle", "emulator `--realtime`", "none added", "pty", jitter(tmp, rate, args.seconds, True),
+                     os.getloadavg()[0]))
         with SyntheticLoad(args.load):
-            plan = [("emulator, plain", "pty", lambda: jitter(tmp, rate, args.seconds, False)),
-                    ("emulator `--realtime`", "pty", lambda: jitter(tmp, rate, args.seconds, True))]
+            plan = [("plain", "emulator, plain", "pty", lambda: jitter(tmp, rate, args.seconds, False)),
+                    ("emu pty", "emulator `--realtime`", "pty", lambda: jitter(tmp, rate, args.seconds, True))]
             if exe is not None:
-                plan.append(("**bare C pair** (machine limit)", "pty", lambda: bare_pair(exe, "pty", rate, args.seconds, nbytes)))
-            plan.append(("emulator `--realtime`", "tcp", lambda: jitter(tmp, rate, args.seconds, True, "tcp")))
+                plan.append(("bare pty", BARE, "pty", lambda: bare_pair(exe, "pty", rate, args.seconds, nbytes)))
+            plan.append(("emu tcp", "emulator `--realtime`", "tcp", lambda: jitter(tmp, rate, args.seconds, True, "tcp")))
             if exe is not None:
-                plan.append(("**bare C pair** (machine limit)", "tcp", lambda: bare_pair(exe, "tcp", rate, args.seconds, nbytes)))
-            plan.append(("emulator `--realtime`", "pipe", lambda: jitter(tmp, rate, args.seconds, True, "pipe")))
+                plan.append(("bare tcp", BARE, "tcp", lambda: bare_pair(exe, "tcp", rate, args.seconds, nbytes)))
+            plan.append(("emu pipe", "emulator `--realtime`", "pipe",
+                         lambda: jitter(tmp, rate, args.seconds, True, "pipe")))
             if exe is not None:  # the emulator's own share: the bare C reader on its output
                 for transport in ("pty", "tcp", "pipe"):
-                    plan.append(("emulator `--realtime`, **C reader**", transport,
+                    plan.append((f"c {transport}", "emulator `--realtime`, **C reader**", transport,
                                  lambda t=transport: jitter(tmp, rate, args.seconds, True, t, c_reader=exe)))
-            for what, transport, run in plan:
-                runs.append((what, loaded, transport, run(), os.getloadavg()[0]))
+            if workers_refused is None:  # the pty's kernel workers at SCHED_FIFO 1 (--realtime-workers)
+                plan.append(("emu pty w", "emulator `--realtime --realtime-workers`", "pty",
+                             lambda: jitter(tmp, rate, args.seconds, True, workers=True)))
+                if exe is not None:
+                    plan.append(("bare pty w", BARE + ", kernel workers raised", "pty",
+                                 lambda: bare_pair(exe, "pty", rate, args.seconds, nbytes, workers=True)))
+                    plan.append(("c pty w", "emulator `--realtime --realtime-workers`, **C reader**", "pty",
+                                 lambda: jitter(tmp, rate, args.seconds, True, c_reader=exe, workers=True)))
+            for key, what, transport, run in plan:
+                runs.append((key, what, loaded, transport, run(), os.getloadavg()[0]))
         if args.realtime_only:
             f, costs = None, []
         else:
@@ -469,9 +510,9 @@ def main(argv=None) -> int:
             costs = effect_costs(50_000)
     readers = {"pty": "pty reader (pyserial)", "tcp": "socket reader (recv)", "pipe": "pipe reader (read)"}
     rows = []
-    for what, load, transport, x, after in runs:
-        bare = what.startswith("**bare")
-        c_read = bare or what.endswith("**C reader**")
+    for key, what, load, transport, x, after in runs:
+        bare = key.startswith("bare")
+        c_read = bare or key.startswith("c ")
         reader = ("C reader" if c_read else readers[transport]) + (", SCHED_FIFO" if x["reader_rt"] else ", normal priority")
         writer = "C writer's write()" if bare else "emulator's write() (`--timing-log`)"
         for where, st in ((writer, x["write"]), (reader, x["reader"])):
@@ -486,27 +527,26 @@ def main(argv=None) -> int:
     )
     if c_note:
         t1 += f"\n\n({c_note}.)"
-    by = {(w.startswith("**bare"), w.endswith("plain"), t, l == "none added"): x for w, l, t, x, _a in runs
-          if not w.endswith("**C reader**")}
-    by_c = {t: x for w, _l, t, x, _a in runs if w.endswith("**C reader**")}
+    if workers_refused is not None:
+        t1 += f"\n\n(`--realtime-workers` rows skipped: {workers_refused}.)"
+    by = {key: x for key, _w, _l, _t, x, _a in runs}
 
     def p99(key, where="reader"):
         x = by.get(key)
         return "n/a" if x is None else f"{x[where]['p99']:.2f} ms (without steal {x[where]['p99_clean']:.2f} ms)"
 
-    def gap(transport):
+    def gap(transport, workers=""):
         """How the emulator's loaded reader p99 (without steal) compares with the bare C pair's,
         with this script's Python reader and with the C reader."""
-        bare = by.get((True, False, transport, False))
+        bare = by.get(f"bare {transport}{workers}")
         if bare is None:
             return "not measured in this run"
         c = bare["reader"]["p99_clean"]
         said = []
-        for emu, reader in ((by.get((False, False, transport, False)), "its Python reader"),
-                            (by_c.get(transport), "the C reader")):
-            if emu is None:
+        for key, reader in ((f"emu {transport}{workers}", "its Python reader"), (f"c {transport}{workers}", "the C reader")):
+            if key not in by:
                 continue
-            e = emu["reader"]["p99_clean"]
+            e = by[key]["reader"]["p99_clean"]
             if e <= 1.25 * c + 0.05:
                 said.append(f"with {reader} the emulator is at the machine's limit ({e:.2f} vs {c:.2f} ms)")
             else:
@@ -515,21 +555,27 @@ def main(argv=None) -> int:
         return "; ".join(said) or "not measured in this run"
 
     findings = (
-        f"This run, loaded rows, p99 at the reader: emulator on a pty {p99((False, False, 'pty', False))}, "
-        f"the bare C pair on a pty {p99((True, False, 'pty', False))}; emulator over TCP "
-        f"{p99((False, False, 'tcp', False))}, bare C pair over TCP {p99((True, False, 'tcp', False))}; "
-        f"emulator to a pipe {p99((False, False, 'pipe', False))}. The emulator's own write() p99 under "
-        f"load: {p99((False, False, 'pty', False), 'write')}."
+        f"This run, loaded rows, p99 at the reader: emulator on a pty {p99('emu pty')}, "
+        f"the bare C pair on a pty {p99('bare pty')}; emulator over TCP "
+        f"{p99('emu tcp')}, bare C pair over TCP {p99('bare tcp')}; "
+        f"emulator to a pipe {p99('emu pipe')}. The emulator's own write() p99 under "
+        f"load: {p99('emu pty', 'write')}."
     )
-    if by_c:
-        def c_p99(t):
-            x = by_c.get(t)
-            return "n/a" if x is None else f"{x['reader']['p99']:.2f} ms (without steal {x['reader']['p99_clean']:.2f} ms)"
+    if "c pty" in by:
         findings += (
             " With the bare C reader on the emulator's output instead of this script's Python reader (what "
-            f"a device under test written in C sees: the emulator's own share): pty {c_p99('pty')}, TCP "
-            f"{c_p99('tcp')}, pipe {c_p99('pipe')}."
+            f"a device under test written in C sees: the emulator's own share): pty {p99('c pty')}, TCP "
+            f"{p99('c tcp')}, pipe {p99('c pipe')}."
         )
+    if "emu pty w" in by:
+        findings += (
+            f" With `--realtime-workers`, on a pty: emulator {p99('emu pty w')} at this script's pyserial "
+            f"reader, {p99('c pty w')} at the C reader; the bare C pair with the workers raised "
+            f"{p99('bare pty w')}."
+        )
+    workers_said = (
+        "not measured in this run" if "emu pty w" not in by else gap("pty", " w")
+    )
     if args.realtime_only:
         print(f"load average {load0:.1f} at the start\n" + t1 + "\n\n" + findings)
         return 0
@@ -563,7 +609,11 @@ def main(argv=None) -> int:
         "events_unbound workqueue, which runs at ordinary priority: with both cores busy the "
         "reader's wake-up waits for that kworker's slice, whatever the writer's and the "
         "reader's priorities. The bare C pair on a pty (no emulator, no Python) is the machine's "
-        f"limit for a pty under this load; on a pty in this run {gap('pty')}. Loopback TCP and a pipe "
+        f"limit for a pty under this load; on a pty in this run {gap('pty')}. `--realtime-workers` "
+        "(root or CAP_SYS_NICE; emulator/output/kworkers.py) raises the unbound workqueue's kworkers to "
+        "SCHED_FIFO 1 for the run, host-wide, and puts them back at exit: the kworker then runs when the "
+        "write queues it, ahead of the busy processes; with the workers raised, "
+        f"on a pty in this run {workers_said}. Loopback TCP and a pipe "
         "wake the reader from within the writer's own system "
         "call, with no kworker in the path: over TCP and to a pipe what is left is the wake-up "
         f"of a SCHED_FIFO reader; over TCP in this run {gap('tcp')}. So `--port "

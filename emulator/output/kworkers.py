@@ -1,0 +1,220 @@
+"""``--realtime-workers``: run the kernel workers that carry a pty's bytes at SCHED_FIFO.
+
+Linux only; times in seconds. A pty hands the bytes written on its master to the reader
+of its slave from a kernel worker: the write queues the tty's flush work on the unbound
+workqueue, and a worker of its pool (a kernel thread named ``kworker/uN:M``, a child of
+``kthreadd``) runs it. Those workers run at ordinary priority (SCHED_OTHER, nice 0): with
+every core busy, the reader's wake-up waits for that worker's fair-scheduler turn,
+whatever the priorities of the writer and the reader (1-3 ms at p99 on the benchmark's
+loaded host, docs/performance.md). At SCHED_FIFO priority 1 (above every ordinary task,
+below the emulator's and a real-time reader's priority) the worker runs when the write
+queues it.
+
+The change is host-wide: every work item of the unbound pool (writeback among them) then
+runs ahead of ordinary tasks. So it is opt-in, lasts for the run only, and is kept by a
+separate keeper process (``python -m emulator.output.kworkers PRIORITY``):
+
+* it raises the pool's workers it finds, and looks again every ``PERIOD`` seconds (the
+  pool creates workers as it needs them);
+* when its standard input closes (the emulator ended, however: even SIGKILL closes it)
+  it puts back every worker it changed that is still as it left it, and exits;
+* it ignores SIGINT (a Ctrl-C at the terminal is the emulator's to handle) and restores
+  on SIGTERM.
+
+Its first line on stdout says what it did: ``raised N`` or ``refused REASON`` (then it
+exits at once, having changed nothing).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+#: SCHED_FIFO priority given to the workers: above ordinary tasks, below the emulator's
+#: ``--realtime`` priority (emulator/output/realtime.py, 20), so the emulator's own
+#: deadline still comes first.
+PRIORITY = 1
+#: Seconds between the keeper's looks for workers the pool created since.
+PERIOD = 1.0
+#: Seconds the emulator waits for the keeper's first line.
+START_TIMEOUT = 10.0
+
+_WORKER = re.compile(r"kworker/u\d+:\d+(?:-.*)?")
+_KTHREADD = 2
+
+
+class Sched:
+    """The scheduler calls the keeper makes on other threads (os.*, Linux)."""
+
+    def policy(self, pid: int) -> int:
+        return os.sched_getscheduler(pid)
+
+    def nice(self, pid: int) -> int:
+        return os.getpriority(os.PRIO_PROCESS, pid)
+
+    def priority(self, pid: int) -> int:
+        return os.sched_getparam(pid).sched_priority
+
+    def set(self, pid: int, policy: int, priority: int) -> None:
+        os.sched_setscheduler(pid, policy, os.sched_param(priority))
+
+
+def unbound_workers(proc: Path = Path("/proc")) -> list[tuple[int, str]]:
+    """(pid, name) of the unbound workqueue pools' workers: children of kthreadd named
+    ``kworker/uN:M`` (with ``-WORKQUEUE`` appended while busy). Empty where kthreadd is
+    not pid 2 of this /proc (a container's own pid namespace)."""
+    try:
+        if (proc / str(_KTHREADD) / "comm").read_text().strip() != "kthreadd":
+            return []
+        children = (proc / str(_KTHREADD) / "task" / str(_KTHREADD) / "children").read_text().split()
+    except OSError:
+        return []
+    found = []
+    for pid in children:
+        try:
+            name = (proc / pid / "comm").read_text().strip()
+        except OSError:
+            continue  # the worker exited meanwhile
+        if _WORKER.fullmatch(name):
+            found.append((int(pid), name))
+    return found
+
+
+@dataclass
+class Keeper:
+    """The workers this keeper raised to SCHED_FIFO ``priority``, and how to put them back."""
+
+    priority: int = PRIORITY
+    proc: Path = Path("/proc")
+    sched: Sched = field(default_factory=Sched)
+    raised: dict[int, str] = field(default_factory=dict)
+
+    def sweep(self) -> str | None:
+        """Raise every worker of the ordinary unbound pool (SCHED_OTHER, nice 0) not raised
+        yet; None, or the first refusal (``NAME: strerror``)."""
+        for pid, name in unbound_workers(self.proc):
+            if pid in self.raised:
+                continue
+            try:
+                if self.sched.policy(pid) != os.SCHED_OTHER or self.sched.nice(pid) != 0:
+                    continue  # another pool (nice -20), or someone else's setting
+                self.sched.set(pid, os.SCHED_FIFO, self.priority)
+            except ProcessLookupError:
+                continue
+            except OSError as exc:
+                return f"{name}: {exc.strerror or exc}"
+            self.raised[pid] = name
+        return None
+
+    def restore(self) -> int:
+        """SCHED_OTHER again for each raised worker still at SCHED_FIFO ``priority`` (what
+        this keeper left); the count put back."""
+        restored = 0
+        for pid in list(self.raised):
+            try:
+                if self.sched.policy(pid) == os.SCHED_FIFO and self.sched.priority(pid) == self.priority:
+                    self.sched.set(pid, os.SCHED_OTHER, 0)
+                    restored += 1
+            except OSError:
+                pass  # exited, or changed by someone else: not ours to touch
+            del self.raised[pid]
+        return restored
+
+
+def serve(keeper: Keeper, stdin_fd: int, out, period: float = PERIOD) -> int:
+    """The keeper's loop: first line ``raised N`` / ``refused REASON``; then raise new
+    workers every ``period`` s until ``stdin_fd`` reaches end of file; then restore."""
+    refused = keeper.sweep()
+    if refused is not None:
+        keeper.restore()  # a partial sweep changes nothing either
+        out.write(f"refused {refused}\n")
+        out.flush()
+        return 0
+    if not keeper.raised:
+        out.write("refused no kernel workers visible (no kthreadd at pid 2: a container?)\n")
+        out.flush()
+        return 0
+    out.write(f"raised {len(keeper.raised)}\n")
+    out.flush()
+    try:
+        while True:
+            ready, _, _ = select.select([stdin_fd], [], [], period)
+            if ready and not os.read(stdin_fd, 4096):
+                break
+            keeper.sweep()
+    finally:
+        keeper.restore()
+    return 0
+
+
+class WorkersRaised:
+    """The emulator's side: the keeper process, started by :func:`raise_workers`."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self._proc = proc
+
+    def close(self) -> None:
+        """Close the keeper's stdin and wait for it to put the workers back."""
+        if self._proc.stdin is not None and not self._proc.stdin.closed:
+            self._proc.stdin.close()
+        try:
+            self._proc.wait(timeout=START_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+
+
+def raise_workers(priority: int = PRIORITY, prog: str = "arva-emulate") -> tuple[WorkersRaised | None, str | None]:
+    """Start the keeper; (handle to close at the end, None), or (None, the one stderr line
+    saying why the workers stay as they are)."""
+
+    def refused(why: str) -> tuple[None, str]:
+        return None, f"{prog}: --realtime-workers: not permitted ({why}); continuing without it"
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", __name__, str(priority)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT)
+    first = proc.stdout.readline().decode(errors="replace").strip() if ready else ""
+    proc.stdout.close()
+    if first.startswith("raised "):
+        return WorkersRaised(proc), None
+    proc.stdin.close()
+    try:
+        proc.wait(timeout=START_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    if first.startswith("refused "):
+        return refused(first.removeprefix("refused "))
+    return refused(f"the keeper process gave no answer in {START_TIMEOUT:g} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m emulator.output.kworkers [PRIORITY]``: the keeper process."""
+    argv = sys.argv[1:] if argv is None else argv
+    priority = int(argv[0]) if argv else PRIORITY
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # SystemExit runs serve's restore
+    try:  # never keep a real-time class inherited from a --realtime parent
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
+    if not hasattr(os, "sched_setscheduler"):
+        print("refused not Linux", flush=True)
+        return 0
+    return serve(Keeper(priority), sys.stdin.fileno(), sys.stdout)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
