@@ -10,8 +10,9 @@ stderr line. Linux's RT throttling (sched_rt_runtime_us) still caps a real-time 
 below 100 % of a core, and the scheduler sleeps between epochs, so this never starves
 the host. No guest priority helps against a hypervisor's steal time (a vCPU taken away,
 up to ~100 ms at a time on the VM this was measured on), and a pty's bytes reach their
-reader through an ordinary-priority kernel worker: see docs/emulator.md, "Sub-millisecond
-timing at the device under test".
+reader through an ordinary-priority kernel worker, which ``--realtime-workers`` raises
+(emulator/output/kworkers.py): see docs/emulator.md, "Sub-millisecond timing at the
+device under test".
 """
 
 from __future__ import annotations
