@@ -205,7 +205,7 @@ def test_real_run_raises_the_workers_and_puts_them_back_even_after_sigkill(scene
         if not raised:  # not permitted here: the run goes on and says why, once
             emu.wait(timeout=30)
             lines = emu.stderr.read().splitlines()
-            assert lines[0].startswith("arva-emulate: --realtime-workers: not permitted (")
+            assert lines[0].startswith("arva-emulate: --realtime-workers: not applied (")
             assert lines[0].endswith("); continuing without it")
             assert lines[-1].startswith("arva-emulate: 200 epochs sent")
             return
@@ -245,8 +245,16 @@ def test_without_the_permission_one_line_names_the_worker_and_the_run_goes_on(sc
     assert done.returncode == 0 and done.stdout.count("$PARVA,") == 12
     lines = done.stderr.splitlines()
     # (In a container of its own pid namespace there are no kernel workers to name.)
-    assert re.fullmatch(r"arva-emulate: --realtime-workers: not permitted \((kworker/u\d+:\d+(-\S+)?: "
+    assert re.fullmatch(r"arva-emulate: --realtime-workers: not applied \((kworker/u\d+:\d+(-\S+)?: "
                         r"Operation not permitted|no kernel workers visible \(no kthreadd at pid 2: a container\?\))"
                         r"\); continuing without it", lines[0]), lines
     assert lines[-1] == "arva-emulate: 3 epochs sent (arva 3), 0 bytes dropped, 0 faults injected"
     assert _raised_workers() == []
+
+
+def test_a_keeper_that_dies_at_start_is_one_line_naming_its_exit_status(monkeypatch):
+    monkeypatch.setattr(kworkers.sys, "executable", "/bin/false")
+    handle, line = kworkers.raise_workers()
+    assert handle is None
+    assert line == ("arva-emulate: --realtime-workers: not applied (the keeper process ended without an "
+                    "answer (exit status 1)); continuing without it")

@@ -23,6 +23,10 @@ separate keeper process (``python -m emulator.output.kworkers PRIORITY``):
 
 Its first line on stdout says what it did: ``raised N`` or ``refused REASON`` (then it
 exits at once, having changed nothing).
+
+Two emulators with ``--realtime-workers`` at once: the second keeper leaves the workers
+the first raised alone (not its own change); when the first ends and puts them back,
+the second's next look, within ``PERIOD``, raises them again.
 """
 
 from __future__ import annotations
@@ -175,7 +179,7 @@ def raise_workers(priority: int = PRIORITY, prog: str = "arva-emulate") -> tuple
     saying why the workers stay as they are)."""
 
     def refused(why: str) -> tuple[None, str]:
-        return None, f"{prog}: --realtime-workers: not permitted ({why}); continuing without it"
+        return None, f"{prog}: --realtime-workers: not applied ({why}); continuing without it"
 
     proc = subprocess.Popen(
         [sys.executable, "-m", __name__, str(priority)],
@@ -197,7 +201,9 @@ def raise_workers(priority: int = PRIORITY, prog: str = "arva-emulate") -> tuple
         proc.wait()
     if first.startswith("refused "):
         return refused(first.removeprefix("refused "))
-    return refused(f"the keeper process gave no answer in {START_TIMEOUT:g} s")
+    if not ready:
+        return refused(f"the keeper process gave no answer in {START_TIMEOUT:g} s")
+    return refused(f"the keeper process ended without an answer (exit status {proc.returncode})")
 
 
 def main(argv: list[str] | None = None) -> int:
