@@ -8,10 +8,10 @@ Each epoch, in stream order, is printed and flushed as::
 
 with ``null`` for a slot that never arrived intact, plus ``"field": [[hx, hy, hz] | null,
 ...]`` when ``$PARVH`` research sentences came with it. At the end of the input (EOF, or
-Ctrl-C, or ``--epochs`` / ``--until-idle``) the decoder is flushed and one line of
-counters goes to stderr. Exit status: 0 at the end of the input, however many errors the
-stream held (they are counted); 2 for bad arguments or a source that cannot be opened;
-1 when a port fails mid-stream; 130 after Ctrl-C.
+Ctrl-C, SIGTERM, or ``--epochs`` / ``--until-idle``) the decoder is flushed and one line
+of counters goes to stderr. Exit status: 0 at the end of the input, however many errors
+the stream held (they are counted); 2 for bad arguments or a source that cannot be opened;
+1 when a port fails mid-stream; 130 after Ctrl-C; 143 after SIGTERM.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import select
+import signal
 import stat
 import sys
 import time
@@ -131,7 +132,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "pyserial URL) and print one JSON object per epoch on stdout, in stream order; a line "
             "of counters goes to stderr at the end. Exit status 0 at the end of the input (errors "
             "in the stream are counted, not fatal), 2 for bad arguments or a source that cannot be "
-            "opened, 1 when a port fails mid-stream, 130 after Ctrl-C."
+            "opened, 1 when a port fails mid-stream, 130 after Ctrl-C, 143 after SIGTERM."
         ),
     )
     p.add_argument("source", metavar="SOURCE", help="file path, device, pyserial URL, or - for stdin")
@@ -161,6 +162,14 @@ class _PipeClosed(Exception):
     """stdout was closed by its reader (e.g. ``| head``)."""
 
 
+class _Terminated(Exception):
+    """SIGTERM arrived: stop as after Ctrl-C (flush, counters), exit status 143."""
+
+
+def _on_sigterm(_signum, _frame) -> None:
+    raise _Terminated
+
+
 def run(args: argparse.Namespace) -> int:
     source = open_source(args.source, args.baud)
     dec = Decoder(expect_fields=args.expect_fields)
@@ -187,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
 
     status = 0
     last_data = time.monotonic()
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         while True:
             try:
@@ -210,8 +220,8 @@ def run(args: argparse.Namespace) -> int:
             emit(dec.feed(data))
     except _Done:
         pass
-    except KeyboardInterrupt:
-        status = 130
+    except (KeyboardInterrupt, _Terminated) as exc:
+        status = 130 if isinstance(exc, KeyboardInterrupt) else 143
         try:
             finish()
         except _PipeClosed:
@@ -222,6 +232,7 @@ def run(args: argparse.Namespace) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         os.close(devnull)
     finally:
+        signal.signal(signal.SIGTERM, previous)
         source.close()
     print(summary(dec.stats), file=sys.stderr)
     return status

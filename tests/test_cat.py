@@ -187,7 +187,8 @@ def _popen(args: list[str]) -> subprocess.Popen:
 
 
 @pytest.mark.timeout(60)
-def test_live_stream_epochs_appear_without_waiting_and_ctrl_c_prints_stats() -> None:
+@pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["ctrl_c", "sigterm"])
+def test_live_stream_epochs_appear_without_waiting_and_a_stop_signal_prints_stats(sig: int, status: int) -> None:
     proc = _popen(["-"])
     try:
         assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
@@ -204,13 +205,13 @@ def test_live_stream_epochs_appear_without_waiting_and_ctrl_c_prints_stats() -> 
         proc.stdin.write(encode_epoch(7, [(1, 1903, 21), (2, 400, 3)])[:30])  # first slot only
         proc.stdin.flush()
         time.sleep(0.3)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         out, err = proc.communicate(timeout=10)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait(timeout=10)
-    assert proc.returncode == 130
+    assert proc.returncode == status
     assert json.loads(out) == {"seq": 7, "complete": False, "slots": [[1, 1903, 21], None]}
     assert err.decode().startswith("arva-bench: cat: bytes=")
     assert "epochs_complete=2 epochs_incomplete=1" in err.decode() and "Traceback" not in err.decode()
