@@ -8,7 +8,9 @@ its input."""
 
 from __future__ import annotations
 
+import os
 import re
+import signal
 from dataclasses import replace
 
 import numpy as np
@@ -17,6 +19,7 @@ import pytest
 import bench.fit.fit as fit_module
 from bench.fit.fit import EIV_FREE, FitOptions, fit_table, model_rows
 from bench.fit.likelihood import Likelihood, Params
+import bench.fit.worker as worker_module
 from bench.fit.worker import Worker, WorkerError
 from emulator.receiver.model import ModelParams
 from fit_campaign import PoseError, emulate_campaign
@@ -189,3 +192,37 @@ def test_a_forked_child_starts_its_own_worker(table, with_worker):
     assert fit_module._get_worker() is mine  # and this process's worker still answers
     mine.start(like, [AT])
     assert mine.results(1)[0].tobytes() == first.tobytes()
+
+
+@pytest.mark.timeout(120)  # without the answer timeout: a hang
+def test_a_worker_that_stops_answering_is_killed_after_the_timeout(table, worker, monkeypatch):
+    like = Likelihood(model_rows(table, AT))
+    like.choose_regimes(AT)
+    worker.start(like, [AT])
+    assert worker.results(1)[0].tobytes() == like.logp(AT).tobytes()
+    monkeypatch.setattr(worker_module, "ANSWER_TIMEOUT", 0.5)
+    os.kill(worker.proc.pid, signal.SIGSTOP)  # hung: alive, never answers
+    worker.start(like, [AT])
+    with pytest.raises(WorkerError, match=r"^no answer within 0.5 s: the worker was killed$"):
+        worker.results(1)
+    assert worker.proc.wait(timeout=10) == -signal.SIGKILL
+
+
+@pytest.mark.timeout(120)  # without the answer timeout: a hang
+def test_a_hung_worker_leaves_the_fit_unchanged(small, with_worker):
+    table, reference = small
+    with_worker.setattr(worker_module, "ANSWER_TIMEOUT", 0.5)
+    sent = []
+    real = Worker.start
+
+    def start_then_hang(self, like, ps):
+        sent.append(len(ps))
+        real(self, like, ps)
+        if len(sent) == 3:  # a few points in, the worker stops answering
+            os.kill(self.proc.pid, signal.SIGSTOP)
+
+    with_worker.setattr(Worker, "start", start_then_hang)
+    hung = _fit(table)
+    assert len(sent) >= 3 and fit_module._worker_failed and fit_module._worker is None
+    assert hung.estimate == reference.estimate and hung.se == reference.se
+    assert hung.n_evals == reference.n_evals

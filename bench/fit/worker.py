@@ -13,8 +13,9 @@ Protocol (pickle, over the child's stdin / stdout): ``("like", token, cls, rows,
 regimes, block)`` keeps a likelihood (the last :data:`KEEP` shipped), ``("eval", token,
 [Params])`` answers one ``("logp", array)`` per point in order, ``("cpu",)`` answers
 ``("cpu", seconds)`` (the worker's process time, for the benchmark). An exception in the
-worker answers ``("error", text)``; the fit then evaluates locally. End of input ends
-the worker (so it never outlives the fit's process). Units: those of
+worker answers ``("error", text)``; the fit then evaluates locally. So does a worker
+that has not answered within :data:`ANSWER_TIMEOUT` (it is killed: a hang never hangs
+the fit). End of input ends the worker (so it never outlives the fit's process). Units: those of
 :class:`.likelihood.Params`.
 """
 
@@ -38,6 +39,11 @@ KEEP = 4
 #: own (big-heap) process; with these it is the same (measured: 40 evaluations of 10,000
 #: rows 0.76-0.81 s -> 0.61-0.64 s, the fit's process 0.65 s).
 MALLOC_ENV = {"MALLOC_TRIM_THRESHOLD_": str(64 << 20), "MALLOC_MMAP_THRESHOLD_": str(32 << 20)}
+#: Seconds the fit waits for one answer before it kills the worker and evaluates locally
+#: (the same floats, only slower). One point of 1e5 rows takes ~0.06 s on the 2-core
+#: machine of docs/performance.md, so only a hung or stopped worker reaches this; a
+#: healthy one that did (a point of 1e8 rows under heavy load) costs speed, not results.
+ANSWER_TIMEOUT = 120.0
 
 
 class WorkerError(RuntimeError):
@@ -70,7 +76,24 @@ class Worker:
         self.proc.stdin.flush()
 
     def _recv(self):
-        msg = pickle.load(self.proc.stdout)
+        timeout = ANSWER_TIMEOUT
+        fired = threading.Event()
+
+        def kill() -> None:
+            fired.set()
+            self.proc.kill()  # its end of the pipe closes: EOF here
+
+        late = threading.Timer(timeout, kill)
+        late.daemon = True
+        late.start()
+        try:
+            msg = pickle.load(self.proc.stdout)
+        except EOFError:
+            if fired.is_set():
+                raise WorkerError(f"no answer within {timeout:g} s: the worker was killed") from None
+            raise
+        finally:
+            late.cancel()
         if msg[0] == "error":
             raise WorkerError(msg[1])
         return msg
