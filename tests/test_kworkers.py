@@ -85,6 +85,16 @@ def test_unbound_workers_are_the_kworker_u_children_of_kthreadd(tmp_path):
         (576, "kworker/u8:0-events_unbound"), (18817, "kworker/u8:1"), (23924, "kworker/u9:0")]
 
 
+def test_without_the_children_file_the_parents_are_read_from_stat(tmp_path):
+    proc = fake_proc(tmp_path, WORKERS)
+    (proc / "2" / "task" / "2" / "children").unlink()
+    for pid in (10, 576, 18817):
+        (proc / str(pid) / "stat").write_text(f"{pid} ({(proc / str(pid) / 'comm').read_text().strip()}) I 2 0 0\n")
+    (proc / "23924" / "stat").write_text("23924 (kworker/u9:0) I 7 0 0\n")  # not kthreadd's
+    (proc / "3" / "stat").write_text("3 (a (odd) name) S 2 0 0\n")
+    assert sorted(kworkers.unbound_workers(proc)) == [(576, "kworker/u8:0-events_unbound"), (18817, "kworker/u8:1")]
+
+
 def test_no_workers_where_pid_2_is_not_kthreadd(tmp_path):
     assert kworkers.unbound_workers(fake_proc(tmp_path, WORKERS, kthreadd="sh")) == []
     assert kworkers.unbound_workers(tmp_path / "nothing") == []

@@ -76,9 +76,12 @@ def unbound_workers(proc: Path = Path("/proc")) -> list[tuple[int, str]]:
     try:
         if (proc / str(_KTHREADD) / "comm").read_text().strip() != "kthreadd":
             return []
-        children = (proc / str(_KTHREADD) / "task" / str(_KTHREADD) / "children").read_text().split()
     except OSError:
         return []
+    try:
+        children = (proc / str(_KTHREADD) / "task" / str(_KTHREADD) / "children").read_text().split()
+    except OSError:  # a kernel without CONFIG_PROC_CHILDREN: every process's parent instead
+        children = [d.name for d in proc.iterdir() if d.name.isdigit() and _parent(d) == _KTHREADD]
     found = []
     for pid in children:
         try:
@@ -88,6 +91,15 @@ def unbound_workers(proc: Path = Path("/proc")) -> list[tuple[int, str]]:
         if _WORKER.fullmatch(name):
             found.append((int(pid), name))
     return found
+
+
+def _parent(pid_dir: Path) -> int | None:
+    """The parent pid from /proc/PID/stat (after the parenthesised name), or None."""
+    try:
+        stat = (pid_dir / "stat").read_text()
+        return int(stat[stat.rindex(")") + 2 :].split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 @dataclass
@@ -181,11 +193,15 @@ def raise_workers(priority: int = PRIORITY, prog: str = "arva-emulate") -> tuple
     def refused(why: str) -> tuple[None, str]:
         return None, f"{prog}: --realtime-workers: not applied ({why}); continuing without it"
 
+    root = str(Path(__file__).resolve().parents[2])  # the directory holding emulator/
+    env = dict(os.environ)
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     proc = subprocess.Popen(
         [sys.executable, "-m", __name__, str(priority)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
+        env=env,
         start_new_session=True,
     )
     ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT)
