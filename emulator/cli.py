@@ -20,10 +20,10 @@ from firmware_proto.errors import InputError
 from emulator import __version__
 from emulator.cli_types import OneLineParser, baud_rate, non_negative_int, output_dir, run_main, scene_file, seconds, speed
 from emulator.control import runtime as control_runtime
+from emulator.output.kworkers import raise_workers
 from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port, stderr_notifier
 from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, is_file_spec
 from emulator.scene.reader import default_scene, load_scene
-from emulator.output.kworkers import raise_workers
 from emulator.output.realtime import request_realtime
 from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
 from emulator.pipeline import Pipeline
