@@ -29,7 +29,8 @@ import threading
 import time
 import weakref
 from collections import OrderedDict
-from pathlib import Path
+
+from emulator.child_process import module_env
 
 #: Likelihoods a worker keeps (the subsample's and all rows', with a spare).
 KEEP = 4
@@ -54,9 +55,7 @@ class Worker:
     """The parent's handle on one worker process (not thread-safe: one caller at a time)."""
 
     def __init__(self) -> None:
-        root = str(Path(__file__).resolve().parents[2])  # the directory holding bench/
-        env = dict(os.environ)
-        env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        env = module_env()
         for name, value in MALLOC_ENV.items():
             env.setdefault(name, value)
         self.proc = subprocess.Popen(

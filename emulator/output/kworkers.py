@@ -40,6 +40,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from emulator.child_process import module_env
+
 #: SCHED_FIFO priority given to the workers: above ordinary tasks, below the emulator's
 #: ``--realtime`` priority (emulator/output/realtime.py, 20), so the emulator's own
 #: deadline still comes first.
@@ -193,15 +195,12 @@ def raise_workers(priority: int = PRIORITY, prog: str = "arva-emulate") -> tuple
     def refused(why: str) -> tuple[None, str]:
         return None, f"{prog}: --realtime-workers: not applied ({why}); continuing without it"
 
-    root = str(Path(__file__).resolve().parents[2])  # the directory holding emulator/
-    env = dict(os.environ)
-    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     proc = subprocess.Popen(
         [sys.executable, "-m", __name__, str(priority)],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
-        env=env,
+        env=module_env(),
         start_new_session=True,
     )
     ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT)
