@@ -50,7 +50,7 @@ from .likelihood import (
     to_params,
 )
 from .pose_error import MAX_SD, PoseMoments, pose_moments, posterior_attitudes, posterior_positions
-from .table import FitInputError, Table, gps_scale
+from .table import FitInputError, Table, TimeStamps, check_times, gps_scale
 from .worker import Worker, WorkerError
 
 MIN_ROWS = 50
@@ -149,6 +149,7 @@ class FitResult:
     separable: bool = True  # False: pose error and EMI noise could not be told apart
     n_pose_dropped: int = 0  # rows left out: the pose error hides where they were
     n_evals_all_rows: int = 0  # of n_evals, those on all rows (the rest: a subsample's, or the pilot's)
+    stamps: TimeStamps | None = None  # duplicated stamps, repeated slots and gaps in t (counted, kept)
 
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
@@ -183,6 +184,7 @@ class FitResult:
             covariance_lag_seconds=self.hac_lag,
             separable=self.separable,
             rows_dropped_for_pose_error=self.n_pose_dropped,
+            time_stamps=None if self.stamps is None else self.stamps.to_json(),
         )
         return _finite_or_none(out)
 
@@ -210,13 +212,15 @@ def _correlation(cov: NDArray, names: tuple[str, ...]) -> dict[str, float]:
 
 
 def check_table(table: Table, options: FitOptions) -> Rows:
-    """The fit-level checks (BRIEF issue 6 item 4); returns the usable rows."""
+    """The fit-level checks (BRIEF issue 6 item 4); returns the usable rows. Stamps that
+    go backwards are refused here (:func:`table.check_times`)."""
     src = table.source
     n = len(table)
     if n == 0:
         raise FitInputError(f"{src}: no rows")
     if n < MIN_ROWS:
-        raise FitInputError(f"{src}: only {n} rows; the fit needs at least {MIN_ROWS}")
+        raise FitInputError(f"{src}: only {n} row{'s' if n > 1 else ''}; the fit needs at least {MIN_ROWS}")
+    check_times(table)
     detected = table.d != -1
     if not detected.any():
         raise FitInputError(f"{src}: all {n} rows are -1 (nothing was detected); walk closer to the transmitter")
@@ -1704,6 +1708,7 @@ def _fit_once(table: Table, options: FitOptions) -> FitResult:
     base = options.base
     eiv = any(m in free for m in ("gps_sigma", "attitude_sigma", "height_offset")) or base.gps_sigma > 0 or base.attitude_sigma > 0
     all_rows = check_table(table, options)
+    stamps = check_times(table)
     if eiv:
         if "pose_sigma" not in free and options.eiv_floor:
             base = replace(base, pose_sigma=EIV_POSE_SIGMA)
@@ -1714,7 +1719,7 @@ def _fit_once(table: Table, options: FitOptions) -> FitResult:
         all_rows.gps_scale = gps_scale(table)
         if len(table) >= WORKER_ROWS:
             _get_worker()  # it starts (imports numpy) while this process prepares the rows
-    notes: list[str] = []
+    notes: list[str] = [] if stamps.summary() is None else [stamps.summary()]
     if eiv and all_rows.gps_scale is not None:
         varied = float(np.ptp(all_rows.gps_scale[all_rows.gps_scale < 1e3])) if np.any(all_rows.gps_scale < 1e3) else 0.0
         notes.append(
@@ -1921,6 +1926,7 @@ def _fit_once(table: Table, options: FitOptions) -> FitResult:
         hac_lag=hac_lag,
         separable=separable,
         n_pose_dropped=n_dropped,
+        stamps=stamps,
         n_evals_all_rows=res.full_evals or (n_evals if n <= SUBSAMPLE or "time_offset" in newton_free else 0),
     )
 
@@ -2106,6 +2112,11 @@ def _separable(ok, why, free, cov, estimate, se) -> bool:
     return bool(se["r_en"] <= 0.5 * estimate["r_en"])
 
 
+#: The longest stretch of seconds with no rows :func:`time_block_meat` keeps (s); a gap
+#: longer than this is shortened to it.
+MEAT_GAP = 3600
+
+
 def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
     """The meat of the sandwich covariance, robust to scores correlated in time.
 
@@ -2119,6 +2130,12 @@ def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tupl
     """
     t = np.asarray(t, dtype=np.float64)
     sec = np.floor(t - t.min()).astype(np.int64)
+    if int(sec.max()) > MEAT_GAP:
+        # seconds with nothing logged are zeros in the sums; a gap longer than MEAT_GAP is
+        # shortened to it (it already separates its two sides beyond any bandwidth), so a
+        # log with a day's pause costs no day of zeros
+        seconds, at = np.unique(sec, return_inverse=True)
+        sec = np.concatenate([[0], np.cumsum(np.minimum(np.diff(seconds), MEAT_GAP))])[at]
     T = int(sec.max()) + 1
     p = scores.shape[1]
     x = np.zeros((T, p))

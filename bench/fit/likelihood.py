@@ -180,18 +180,20 @@ class PoseTrack:
     def __init__(
         self, table: Table, rx_pos: NDArray[np.float64] | None = None, rx_quat: NDArray[np.float64] | None = None
     ) -> None:
+        # one pose sample per distinct stamp: the first row logged at it (rows sharing a
+        # stamp, several slots of an epoch or a stamp logged twice, share that pose)
         t, first = np.unique(table.t, return_index=True)
         self.t = t
         self.row_t = table.t
 
         def spline(values):
-            return CubicSpline(t, values[first], axis=0, extrapolate=True)
+            return CubicSpline(t, np.asarray(values)[first], axis=0, extrapolate=True)
 
         def quat_spline(q):
-            q = np.array(q[first])
+            q = np.array(np.asarray(q)[first])  # (once: the samples, in time order)
             flip = np.cumprod(np.where(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0, -1.0, 1.0))
             q[1:] *= flip[:, None]
-            return spline(q)
+            return CubicSpline(t, q, axis=0, extrapolate=True)
 
         self.rx_p, self.tx_p = spline(table.rx_pos if rx_pos is None else rx_pos), spline(table.tx_pos)
         self.rx_q, self.tx_q = quat_spline(table.rx_quat if rx_quat is None else rx_quat), quat_spline(table.tx_quat)

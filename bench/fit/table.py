@@ -128,6 +128,85 @@ class Table:
             path.write(text)
 
 
+#: An interval between consecutive time stamps longer than this many times their median
+#: counts as a gap (:class:`TimeStamps`).
+GAP_FACTOR = 3.0
+#: Largest |t| the fit accepts (s; 30,000 years): no clock stamps beyond it, and the
+#: float64 differences of the time-block sums stay exact to 1e-4 s.
+MAX_TIME = 1e12
+
+
+@dataclass(frozen=True)
+class TimeStamps:
+    """What the time column of a table holds beyond one stamp per epoch (counted, never a
+    reason to refuse: :func:`check_times`).
+
+    An epoch is a run of consecutive rows with the same ``(t, seq)``: its slots, one row
+    each (several transmitters, or empty slots with id -1, legitimately share t).
+    ``duplicated``: epochs stamped with the same t as the epoch before them (another seq):
+    a clock that stuttered or a coarse stamp. ``repeated``: rows whose (t, seq, id), id >=
+    0, already occurred in their epoch (one slot logged twice). Both are kept as readings.
+    ``gaps``: intervals between consecutive distinct stamps longer than
+    :data:`GAP_FACTOR` times their median; ``largest_gap``: the longest interval (s)."""
+
+    epochs: int
+    duplicated: int
+    repeated: int
+    gaps: int
+    largest_gap: float
+
+    def summary(self) -> str | None:
+        """One note for the fit's summary, or None when there is nothing to say."""
+        parts = []
+        if self.duplicated:
+            parts.append(f"{self.duplicated} epoch{'s' if self.duplicated > 1 else ''} shared the stamp of the one before")
+        if self.repeated:
+            parts.append(f"{self.repeated} row{'s' if self.repeated > 1 else ''} repeated a slot (t, seq, id) of their epoch")
+        if self.gaps:
+            parts.append(f"{self.gaps} gap{'s' if self.gaps > 1 else ''} in the time stamps (the largest {self.largest_gap:.6g} s)")
+        if not parts:
+            return None
+        kept = " (kept as readings; rows sharing a stamp share one pose in the time-offset track)" if self.duplicated or self.repeated else ""
+        return "time stamps: " + "; ".join(parts) + kept
+
+    def to_json(self) -> dict:
+        return {
+            "epochs": self.epochs, "duplicated": self.duplicated, "repeated": self.repeated,
+            "gaps": self.gaps, "largest_gap_seconds": self.largest_gap,
+        }  # fmt: skip
+
+
+def check_times(table: Table) -> TimeStamps:
+    """The time column's order (a stamp before the one above it: :class:`FitInputError`
+    naming the line) and what it holds beyond one stamp per epoch (:class:`TimeStamps`)."""
+    t = table.t
+    n = t.shape[0]
+    if n == 0:
+        return TimeStamps(0, 0, 0, 0, 0.0)
+    big = np.abs(t) > MAX_TIME
+    if big.any():
+        k = int(np.argmax(big))
+        raise FitInputError(f"{table.where(k)}: t = {float(t[k])!r} is beyond {MAX_TIME:g} s")
+    back = np.flatnonzero(t[1:] < t[:-1])
+    if back.size:
+        k = int(back[0]) + 1
+        raise FitInputError(f"{table.where(k)}: t goes backwards ({float(t[k])!r} after {float(t[k - 1])!r})")
+    new_epoch = np.ones(n, bool)
+    new_epoch[1:] = (t[1:] != t[:-1]) | (table.seq[1:] != table.seq[:-1])
+    starts = np.flatnonzero(new_epoch)
+    duplicated = int(np.sum(t[starts[1:]] == t[starts[:-1]]))
+    epoch = np.cumsum(new_epoch) - 1
+    slots = table.id >= 0
+    keys = np.stack([epoch[slots], table.id[slots]], axis=1)
+    repeated = int(keys.shape[0] - np.unique(keys, axis=0).shape[0]) if keys.size else 0
+    stamps = np.unique(t)
+    dt = np.diff(stamps)
+    if dt.size == 0:
+        return TimeStamps(int(starts.size), duplicated, repeated, 0, 0.0)
+    gaps = int(np.sum(dt > GAP_FACTOR * float(np.median(dt))))
+    return TimeStamps(int(starts.size), duplicated, repeated, gaps, float(dt.max()))
+
+
 def gps_scale(table: Table) -> NDArray[np.float64] | None:
     """Each row's GPS error relative to the table's median row: QUALITY_SIGMA[quality] x
     HDOP (either may be missing), divided by its median; None without both columns.
