@@ -132,7 +132,7 @@ def test_fit_says_it_used_the_gps_quality():
     """The fit of a table with the GPS columns scales each row's GPS error and says so."""
     from fit_campaign import PoseError, emulate_campaign
 
-    from bench.fit.fit import FitOptions, fit_table
+    from bench.fit import FitOptions, fit_table
     from bench.fit.likelihood import Params
     from emulator.receiver.model import ModelParams
 

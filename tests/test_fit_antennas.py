@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from fit_campaign import emulate_campaign
-from bench.fit.fit import FitOptions, fit_table
+from bench.fit.estimate import fit_table
+from bench.fit.result import FitOptions
 from bench.fit.likelihood import Geometry, Params, simulate
 from bench.fit.scene import write_scene
 from bench.fit.table import FitInputError

@@ -137,7 +137,7 @@ def test_report_diagnostics_of_a_correct_model(campaign):
     values uniform (Kolmogorov 1 % critical value), 90 % bands holding ~90 % of the rows,
     observed and predicted -1 fractions equal within binomial error."""
     from bench.fit.csvio import read_csv
-    from bench.fit.fit import fit_table
+    from bench.fit.estimate import fit_table
     from bench.fit.report import diagnostics
 
     table = read_csv(campaign)

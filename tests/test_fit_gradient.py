@@ -34,9 +34,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import bench.fit.fit as fit_module
+import bench.fit.stages as stages_module
 import bench.fit.special as special
-from bench.fit.fit import FitOptions, fit_table, rows_from_table, usable
+from bench.fit.eiv import usable
+from bench.fit.estimate import fit_table
+from bench.fit.result import FitOptions
+from bench.fit.rows import rows_from_table
 from bench.fit.likelihood import Likelihood, Params, from_params, to_params
 from bench.fit.special import ball_disk_cdf, epan_gauss_cdf, epan_gauss_density, smoothed_ball_disk_cdf
 from emulator.receiver.model import ModelParams
@@ -209,7 +212,7 @@ def test_gradient_route_fit_is_the_difference_route_fit(table, monkeypatch):
     tab = table()
     new = fit_table(tab)
     with monkeypatch.context() as m:
-        m.setattr(fit_module, "_analytic", lambda *a: False)
+        m.setattr(stages_module, "analytic", lambda *a: False)
         old = fit_table(tab)
     assert new.converged and old.converged
     live = [n for n in NAMES if old.se[n] == old.se[n]]  # pose_sigma at its floor has no s.e.
@@ -230,7 +233,7 @@ def test_all_rows_stage_ends_with_one_unevaluated_newton_step(monkeypatch):
     tab = emulate_campaign(0, ModelParams(kappa_eq=1.542, r_en=80.0), seed=400, n_rows=12000)
     new = fit_table(tab)
     with monkeypatch.context() as m:
-        m.setattr(fit_module, "FINISH_TOL", None)
+        m.setattr(stages_module, "FINISH_TOL", None)
         old = fit_table(tab)
     assert new.converged and old.converged
     for name in ("kappa_eq", "r_en"):

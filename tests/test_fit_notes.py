@@ -6,7 +6,7 @@
   than they claim (docs/accuracy.md (b)). 30 minutes (about eleven) get no note.
 * A walk whose rows the pose error mostly hides (near-field, consumer GPS).
 * A pose-error sigma without measurable curvature, held for the other standard errors
-  instead of failing the fit (:func:`bench.fit.fit.measurable`).
+  instead of failing the fit (:func:`bench.fit.covariance.measurable`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,9 @@ import math
 
 import pytest
 
-from bench.fit.fit import FEW_WINDOWS, FitOptions, fit_table
+from bench.fit.covariance import FEW_WINDOWS
+from bench.fit.estimate import fit_table
+from bench.fit.result import FitOptions
 from bench.fit.likelihood import Params
 from emulator.receiver.model import ModelParams
 from fit_campaign import PoseError, emulate_campaign
@@ -87,7 +89,7 @@ def test_a_sigma_without_measurable_curvature_is_held_for_the_others():
     pose-error sigma does not mend is left to fail as before."""
     import numpy as np
 
-    from bench.fit.fit import measurable
+    from bench.fit.covariance import measurable
 
     free = ("kappa_eq", "r_en", "gps_sigma", "attitude_sigma")
     good = np.diag([4.0, 3.0, 2.0, 1.0]) + 0.1

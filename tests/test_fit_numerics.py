@@ -18,7 +18,10 @@ from scipy import integrate
 from scipy.stats import norm
 
 import bench.fit.special as special
-from bench.fit.fit import check_table, FitOptions, time_block_meat, usable
+from bench.fit.covariance import time_block_meat
+from bench.fit.eiv import usable
+from bench.fit.estimate import check_table
+from bench.fit.result import FitOptions
 from bench.fit.likelihood import Likelihood, Params
 from bench.fit.special import ball_disk_cdf, smoothed_ball_disk_bin, smoothed_ball_disk_cdf
 from emulator.receiver.model import ModelParams

@@ -10,8 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.fit.csvio import parse_csv
-import bench.fit.fit as fit_module
-from bench.fit.fit import FitOptions, common_height_rows, fit_table, time_block_meat, with_common_height
+import bench.fit.covariance as covariance_module
+import bench.fit.estimate as fit_module
+from bench.fit.covariance import common_height_rows, time_block_meat, with_common_height
+from bench.fit.estimate import fit_table
+from bench.fit.result import FitOptions
 from bench.fit.likelihood import Params
 from bench.fit.pose_error import (
     BIN_W_MAX,
@@ -380,7 +383,7 @@ def test_common_height_slope_from_a_row_subsample_is_close(monkeypatch):
     base = Params(gps_sigma=1.0, gps_ratio=1.5, attitude_sigma=math.radians(2.0))
     fit_table(emulate_campaign(60, TRUTH, seed=0, pose_error=TARGET_ERROR), FitOptions(free=("kappa_eq", "r_en"), base=base))
     full = slope_of(*seen["args"])
-    monkeypatch.setattr(fit_module, "HEIGHT_ROWS", 1500)
+    monkeypatch.setattr(covariance_module, "HEIGHT_ROWS", 1500)
     sampled = slope_of(*seen["args"])
     assert sampled[0] == pytest.approx(full[0], rel=0.15)
     assert np.array_equal(sampled, slope_of(*seen["args"]))
@@ -420,7 +423,7 @@ def test_eiv_rows_keep_the_logged_attitude_when_it_is_exact():
     """With the attitude error given as 0 (GPS error only) the geometry uses the logged
     attitudes bit for bit (a disabled effect costs nothing); with 2 deg it uses the
     posterior ones."""
-    from bench.fit.fit import eiv_rows
+    from bench.fit.eiv import eiv_rows
     from bench.fit.likelihood import geometry
     from bench.fit.likelihood import rows_from_table
 
@@ -439,7 +442,7 @@ def test_the_time_offset_track_holds_the_posterior_attitudes():
     """At an offset of 1 ns the track's geometry is the rows' geometry at 0 (posterior
     positions and tilts): no step in the likelihood where the offset leaves 0. With the
     logged attitudes on the track the field directions would differ by the shrinkage."""
-    from bench.fit.fit import eiv_rows
+    from bench.fit.eiv import eiv_rows
     from bench.fit.likelihood import rows_from_table
 
     t = emulate_campaign(10, TRUTH, seed=4, pose_error=PoseError(gps_h=1.0, gps_v=1.5, attitude_deg=5.0))

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from fit_campaign import Walk, emulate_campaign
-from bench.fit.fit import FitOptions, fit_table
+from bench.fit.estimate import fit_table
+from bench.fit.result import FitOptions
 from bench.fit.likelihood import Params
 from emulator.receiver.model import ModelParams
 

@@ -3,7 +3,7 @@
 With the errors-in-variables model and the offset neither fitted (``--fit time_offset``)
 nor given (``--time-offset SEC``), the fit scans offsets of +-3 s at its estimate on a
 seeded subsample and fits the offset when the poses fit clearly better at one
-(:data:`bench.fit.fit.OFFSET_GAIN` nats); either way one note says what it found. The
+(:data:`bench.fit.offset.OFFSET_GAIN` nats); either way one note says what it found. The
 campaigns here log their poses late by a known offset (``PoseError.time_offset``).
 """
 
@@ -15,7 +15,9 @@ from dataclasses import replace
 import pytest
 
 from bench.cli import main
-from bench.fit.fit import OFFSET_GAIN, FitOptions, fit_table, offset_scan
+from bench.fit.estimate import fit_table
+from bench.fit.offset import OFFSET_GAIN, offset_scan
+from bench.fit.result import FitOptions
 from bench.fit.likelihood import Params
 from emulator.receiver.model import ModelParams
 from fit_campaign import PoseError, emulate_campaign

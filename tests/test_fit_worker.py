@@ -16,8 +16,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import bench.fit.fit as fit_module
-from bench.fit.fit import EIV_FREE, FitOptions, fit_table, model_rows
+import bench.fit.parallel as parallel_module
+from bench.fit.eiv import model_rows
+from bench.fit.estimate import fit_table
+from bench.fit.result import EIV_FREE, FitOptions
 from bench.fit.likelihood import Likelihood, Params
 import bench.fit.worker as worker_module
 from bench.fit.worker import Worker, WorkerError
@@ -90,8 +92,8 @@ def small():
     here) and its fit with threads only."""
     t = emulate_campaign(40, TRUTH, seed=7, pose_error=TARGET_ERROR)
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(fit_module, "STENCIL_THREADS", 2)
-        mp.setattr(fit_module, "STENCIL_WORKER", False)
+        mp.setattr(parallel_module, "STENCIL_THREADS", 2)
+        mp.setattr(parallel_module, "STENCIL_WORKER", False)
         return t, _fit(t)
 
 
@@ -101,10 +103,10 @@ def _fit(table):
 
 @pytest.fixture
 def with_worker(monkeypatch):
-    monkeypatch.setattr(fit_module, "WORKER_ROWS", 1000)
-    monkeypatch.setattr(fit_module, "STENCIL_THREADS", 2)
-    monkeypatch.setattr(fit_module, "STENCIL_WORKER", True)
-    monkeypatch.setattr(fit_module, "_worker_failed", False)
+    monkeypatch.setattr(parallel_module, "WORKER_ROWS", 1000)
+    monkeypatch.setattr(parallel_module, "STENCIL_THREADS", 2)
+    monkeypatch.setattr(parallel_module, "STENCIL_WORKER", True)
+    monkeypatch.setattr(parallel_module, "_worker_failed", False)
     return monkeypatch
 
 
@@ -135,22 +137,22 @@ def test_a_failing_worker_leaves_the_fit_unchanged(small, with_worker):
 
     with_worker.setattr(Worker, "results", broken)
     failed = _fit(table)
-    assert len(calls) == 3 and fit_module._worker_failed and fit_module._worker is None
+    assert len(calls) == 3 and parallel_module._worker_failed and parallel_module._worker is None
     assert failed.estimate == reference.estimate and failed.se == reference.se
     assert failed.n_evals == reference.n_evals
 
 
 def test_pose_moments_in_halves_are_the_whole(monkeypatch):
     """eiv_rows computes the pose moments of big tables in two halves on two threads."""
-    from bench.fit.fit import _pose_moments
+    from bench.fit.parallel import pose_moments_halves
     from bench.fit.pose_error import pose_moments, posterior_positions
 
-    monkeypatch.setattr(fit_module, "STENCIL_THREADS", 2)
-    t = emulate_campaign(0, TRUTH, seed=3, n_rows=fit_module.MOMENT_ROWS + 1, pose_error=TARGET_ERROR)
+    monkeypatch.setattr(parallel_module, "STENCIL_THREADS", 2)
+    t = emulate_campaign(0, TRUTH, seed=3, n_rows=parallel_module.MOMENT_ROWS + 1, pose_error=TARGET_ERROR)
     pos = posterior_positions(t.rx_pos, t.tx_pos, 1.0, 1.5).pos
     rule = (1.0, 1.2, 0.035)
     whole = pose_moments(pos, t.rx_quat, t.tx_pos, t.tx_quat, rule)
-    halves = _pose_moments(pos, t.rx_quat, t.tx_pos, t.tx_quat, rule)
+    halves = pose_moments_halves(pos, t.rx_quat, t.tx_pos, t.tx_quat, rule)
     for name in ("m_xy", "v_xy", "m_3", "v_3", "dz_xy", "dz_3"):
         assert getattr(halves, name).tobytes() == getattr(whole, name).tobytes(), name
     assert halves.sigma0 == whole.sigma0
@@ -159,7 +161,7 @@ def test_pose_moments_in_halves_are_the_whole(monkeypatch):
     with pytest.raises(Exception) as from_whole:
         pose_moments(pos, quat, t.tx_pos, t.tx_quat, rule)
     with pytest.raises(type(from_whole.value), match=re.escape(str(from_whole.value))):
-        _pose_moments(pos, quat, t.tx_pos, t.tx_quat, rule)
+        pose_moments_halves(pos, quat, t.tx_pos, t.tx_quat, rule)
 
 
 _FORKED: list = []  # the likelihood a forked child finds (it cannot be pickled: a lock)
@@ -170,7 +172,7 @@ def _in_child():
     import os
 
     like = _FORKED[0]
-    w = fit_module._get_worker()
+    w = parallel_module.get_worker()
     w.start(like, [AT])
     return os.getpid(), w.owner, w.results(1)[0]
 
@@ -181,7 +183,7 @@ def test_a_forked_child_starts_its_own_worker(table, with_worker):
 
     like = Likelihood(model_rows(table, AT))
     like.choose_regimes(AT)
-    mine = fit_module._get_worker()
+    mine = parallel_module.get_worker()
     mine.start(like, [AT])
     first = mine.results(1)[0]
     _FORKED[:] = [like]
@@ -189,7 +191,7 @@ def test_a_forked_child_starts_its_own_worker(table, with_worker):
         pid, owner, theirs = pool.apply_async(_in_child).get(timeout=60)
     assert pid != os.getpid() and owner == pid
     assert theirs.tobytes() == first.tobytes() == like.logp(AT).tobytes()
-    assert fit_module._get_worker() is mine  # and this process's worker still answers
+    assert parallel_module.get_worker() is mine  # and this process's worker still answers
     mine.start(like, [AT])
     assert mine.results(1)[0].tobytes() == first.tobytes()
 
@@ -223,6 +225,6 @@ def test_a_hung_worker_leaves_the_fit_unchanged(small, with_worker):
 
     with_worker.setattr(Worker, "start", start_then_hang)
     hung = _fit(table)
-    assert len(sent) >= 3 and fit_module._worker_failed and fit_module._worker is None
+    assert len(sent) >= 3 and parallel_module._worker_failed and parallel_module._worker is None
     assert hung.estimate == reference.estimate and hung.se == reference.se
     assert hung.n_evals == reference.n_evals

@@ -142,7 +142,7 @@ def load_input(arg: str):
 
 
 def options_from_args(args):
-    from .fit import FitOptions
+    from .result import FitOptions
     from .likelihood import Params
     from .table import FitInputError
 
@@ -190,7 +190,7 @@ def options_from_args(args):
     )
     if args.r_outer <= args.r_inner:
         raise FitInputError(f"--r-outer {args.r_outer:g} must exceed --r-inner {args.r_inner:g}")
-    from .fit import FREE_PARAMS
+    from .params import FREE_PARAMS
 
     return FitOptions(
         free=tuple(n for n in FREE_PARAMS if n in free),
@@ -243,7 +243,7 @@ def summary(result) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .fit import fit_table
+    from .estimate import fit_table
     from .report import write_report
     from .scene import write_scene
 

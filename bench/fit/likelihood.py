@@ -46,15 +46,12 @@ from __future__ import annotations
 import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import CubicSpline
 
-from emulator.frames.rotation import rotation_components, unit_quaternion_components, x_axis_components
-
-from .pose_error import BIN_W_MAX as SIGNAL_BIN_W_MAX, PoseMoments, signal_error_bin, signal_error_cdf
+from .pose_error import BIN_W_MAX as SIGNAL_BIN_W_MAX, signal_error_bin, signal_error_cdf
 from .special import (
     epan_gauss_cdf,
     epan_gauss_density,
@@ -62,7 +59,8 @@ from .special import (
     smoothed_ball_disk_bin,
     smoothed_ball_disk_cdf,
 )
-from .table import Table
+from .params import FREE_PARAMS, LINEAR, Params, from_params, to_params  # noqa: F401 (re-exported)
+from .rows import Geometry, PoseTrack, Rows, geometry, rows_from_table  # noqa: F401 (re-exported)
 
 GROSS_ERROR = 1e-6
 EPS_SPLIT = 0.03
@@ -83,156 +81,6 @@ def _rows_pool() -> ThreadPoolExecutor:
             _row_pool = ThreadPoolExecutor(2, thread_name_prefix="fit-rows")
     return _row_pool
 
-
-@dataclass(frozen=True)
-class Params:
-    """Every model constant the likelihood depends on (s = 1)."""
-
-    kappa_eq: float = 1.542
-    r_en: float = 80.0
-    q: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    r_inner: float = 3.0
-    r_outer: float = 50.0
-    pose_sigma: float = 0.001
-    time_offset: float = 0.0
-    antennas: int = 3  # 2: no z antenna, g_z = 0, so "d3" is dxy (emulator/receiver/model.py)
-    gps_sigma: float = 0.0  # horizontal GPS error of the receiver pose (m, per axis)
-    gps_ratio: float = 1.5  # vertical / horizontal GPS error
-    attitude_sigma: float = 0.0  # attitude error of the receiver (rad, per body axis)
-    height_offset: float = 0.0  # receiver-above-transmitter height the logs miss (m; common GPS error)
-
-    @property
-    def pose_error(self) -> tuple[float, float, float]:
-        """(horizontal m, vertical m, attitude rad) of the errors-in-variables model."""
-        return (self.gps_sigma, self.gps_ratio * self.gps_sigma, self.attitude_sigma)
-
-
-#: Parameters the fit can estimate, with their transform to the optimiser's scale.
-FREE_PARAMS = (
-    "kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma", "gps_sigma", "attitude_sigma", "height_offset",
-)  # fmt: skip
-#: Parameters on a linear scale (seconds, metres); the others are fitted in logs.
-LINEAR = ("time_offset", "height_offset")
-
-
-def to_params(base: Params, names: tuple[str, ...], theta: NDArray[np.float64]) -> Params:
-    """Map the optimiser's vector (log scale except time_offset; q as log(q_y/q_x))."""
-    kw = {}
-    for name, v in zip(names, theta):
-        if name in LINEAR:
-            kw[name] = float(v)
-        elif name == "q":
-            ratio = math.exp(v)
-            kw[name] = (1.0, ratio, 1.0) if ratio <= 1.0 else (1.0 / ratio, 1.0, 1.0)
-        else:
-            kw[name] = math.exp(v)
-    return replace(base, **kw)
-
-
-def from_params(p: Params, names: tuple[str, ...]) -> NDArray[np.float64]:
-    out = []
-    for name in names:
-        if name in LINEAR:
-            out.append(getattr(p, name))
-        elif name == "q":
-            out.append(math.log(p.q[1] / p.q[0]))
-        else:
-            out.append(math.log(getattr(p, name)))
-    return np.array(out)
-
-
-@dataclass
-class Geometry:
-    """Per-row log r and receiver-frame field direction g = (gx, gy, gz), |g| in [1, 2]."""
-
-    log_r: NDArray[np.float64]
-    g: NDArray[np.float64]  # (3, N)
-
-    @property
-    def r(self) -> NDArray[np.float64]:
-        return np.exp(self.log_r)
-
-
-def geometry(rx_pos, rx_quat, tx_pos, tx_quat) -> Geometry:
-    """r and g for each row (the emulator's formulas, emulator/receiver/model.py). r = 0 gives log r = -inf."""
-    rr = rotation_components(unit_quaternion_components(rx_quat, "rx_q"))  # (3, 3, N)
-    m = x_axis_components(unit_quaternion_components(tx_quat, "tx_q"))  # (3, N)
-    diff = (np.asarray(rx_pos, float) - np.asarray(tx_pos, float)).T
-    r = np.sqrt(np.einsum("in,in->n", diff, diff))
-    n = diff / np.where(r > 0, r, 1.0)
-    x3 = 3.0 * np.einsum("in,in->n", m, n)
-    uw = x3 * n - m
-    g = np.einsum("ijn,in->jn", rr, uw)  # R_r^T u_w
-    with np.errstate(divide="ignore"):
-        log_r = np.log(r)
-    return Geometry(log_r, g)
-
-
-class PoseTrack:
-    """Poses as smooth functions of time, to evaluate rows at t + time_offset.
-
-    Positions and (sign-aligned) quaternion components are cubic splines over the unique
-    times; rows logged at the same time share a pose. Needs >= 4 distinct times.
-    ``rx_pos`` / ``rx_quat``: the receiver poses to use instead of the logged ones (the
-    errors-in-variables model's posterior means).
-    """
-
-    def __init__(
-        self, table: Table, rx_pos: NDArray[np.float64] | None = None, rx_quat: NDArray[np.float64] | None = None
-    ) -> None:
-        # one pose sample per distinct stamp: the first row logged at it (rows sharing a
-        # stamp, several slots of an epoch or a stamp logged twice, share that pose)
-        t, first = np.unique(table.t, return_index=True)
-        self.t = t
-        self.row_t = table.t
-
-        def spline(values):
-            return CubicSpline(t, np.asarray(values)[first], axis=0, extrapolate=True)
-
-        def quat_spline(q):
-            q = np.array(np.asarray(q)[first])  # (once: the samples, in time order)
-            flip = np.cumprod(np.where(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0, -1.0, 1.0))
-            q[1:] *= flip[:, None]
-            return CubicSpline(t, q, axis=0, extrapolate=True)
-
-        self.rx_p, self.tx_p = spline(table.rx_pos if rx_pos is None else rx_pos), spline(table.tx_pos)
-        self.rx_q, self.tx_q = quat_spline(table.rx_quat if rx_quat is None else rx_quat), quat_spline(table.tx_quat)
-
-    def take(self, idx) -> "PoseTrack":
-        """The same track, evaluated for the rows ``idx`` only."""
-        out = object.__new__(PoseTrack)
-        out.__dict__.update(self.__dict__)
-        out.row_t = self.row_t[idx]
-        return out
-
-    def geometry(self, offset: float) -> Geometry:
-        tt = np.clip(self.row_t + offset, self.t[0], self.t[-1])
-        return geometry(self.rx_p(tt), self.rx_q(tt), self.tx_p(tt), self.tx_q(tt))
-
-
-@dataclass
-class Rows:
-    """Observed outcomes (k = d in cm, -1 censored), their geometry and, for the
-    errors-in-variables model, how pose error moves each row (:mod:`.pose_error`;
-    ``gps_scale``: a per-row factor on gps_sigma, from the logged HDOP and fix quality)."""
-
-    k: NDArray[np.int64]
-    geo: Geometry
-    track: PoseTrack | None = None
-    moments: PoseMoments | None = None
-    gps_scale: NDArray[np.float64] | None = None
-    t: NDArray[np.float64] | None = None  # receiver time of each row (s), for the time-block covariance
-
-    def take(self, idx, track: bool = True) -> "Rows":
-        """The rows ``idx`` (an index array or a mask), with everything that goes with them."""
-        return Rows(
-            self.k[idx],
-            Geometry(self.geo.log_r[idx], self.geo.g[:, idx]),
-            self.track.take(idx) if (track and self.track is not None) else None,
-            None if self.moments is None else self.moments.take(idx),
-            None if self.gps_scale is None else self.gps_scale[idx],
-            None if self.t is None else self.t[idx],
-        )
 
 
 @dataclass
@@ -743,11 +591,6 @@ def _cdf_above(log_t0, y, gamma, sigma, grad=False):
         o[sub] = v
     return out
 
-
-def rows_from_table(table: Table, with_track: bool = False) -> Rows:
-    geo = geometry(table.rx_pos, table.rx_quat, table.tx_pos, table.tx_quat)
-    track = PoseTrack(table) if with_track else None
-    return Rows(table.d.astype(np.int64), geo, track, t=np.asarray(table.t, dtype=np.float64))
 
 
 def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) -> NDArray[np.int64]:

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .fit import FitResult, model_rows
+from .eiv import model_rows
+from .result import FitResult
 from .likelihood import Likelihood, simulate
 from .table import Table
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from firmware_proto.errors import InputError
 
-from .fit import FitResult
+from .result import FitResult
 from .table import FitInputError
 
 _HEADER = re.compile(r"^\s*\[{1,2}\s*[^\]]+\]{1,2}\s*(#.*)?$")

@@ -66,9 +66,9 @@ def jobs(seeds: int):
 
 
 def one_process_per_fit() -> None:
-    """In each pool process: no fit-worker process (bench.fit.fit.STENCIL_WORKER). The
+    """In each pool process: no fit-worker process (bench.fit.parallel.STENCIL_WORKER). The
     pool already runs one fit per core; a worker per fit would only add processes."""
-    from bench.fit import fit
+    from bench.fit import parallel as fit
 
     fit.STENCIL_WORKER = False
 
@@ -76,7 +76,7 @@ def one_process_per_fit() -> None:
 def run_one(minutes: int, grade: str, seed: int) -> dict:
     from fit_campaign import PoseError, emulate_campaign
 
-    from bench.fit.fit import FitOptions, fit_table
+    from bench.fit import FitOptions, fit_table
     from emulator.receiver.model import ModelParams
 
     h = GRADES[grade]
@@ -108,7 +108,7 @@ def walk_one(band: tuple[int, int], grade: str, seed: int, minutes: int = 30) ->
     GPS and attitude sigmas given: how much a minute spent there tells."""
     from fit_campaign import PoseError, Walk, emulate_campaign
 
-    from bench.fit.fit import FitOptions, fit_table
+    from bench.fit import FitOptions, fit_table
     from bench.fit.likelihood import Params
     from bench.fit.table import FitInputError
     from emulator.receiver.model import ModelParams
@@ -175,7 +175,9 @@ def info_by_distance(grade: str, minutes: int = 30, seed: int = 0) -> dict:
     minute spent in the band, as a share of the best band's."""
     from fit_campaign import PoseError, emulate_campaign
 
-    from bench.fit.fit import FitOptions, _scores, fit_table, model_rows
+    from bench.fit import FitOptions, fit_table
+    from bench.fit.covariance import row_scores as _scores
+    from bench.fit.eiv import model_rows
     from bench.fit.likelihood import Likelihood, Params, from_params
     from emulator.receiver.model import ModelParams
 

@@ -30,7 +30,7 @@ sys.path.insert(0, str(HERE.parents[1]))
 from _report import ROOT, git_revision, machine, markdown_table  # noqa: E402
 
 from fit_campaign import Walk, emulate_campaign  # noqa: E402
-from bench.fit.fit import fit_table  # noqa: E402
+from bench.fit import fit_table  # noqa: E402
 from emulator.receiver.model import ModelParams  # noqa: E402
 
 ACCURACY_MD = ROOT / "docs" / "accuracy.md"

@@ -31,7 +31,9 @@ from _report import machine, markdown_table, write_section  # noqa: E402
 import bench.fit.special as special  # noqa: E402
 from fit_campaign import emulate_campaign  # noqa: E402
 from bench.fit.csvio import read_csv  # noqa: E402
-from bench.fit.fit import FitOptions, block_rows, fit_table, usable  # noqa: E402
+from bench.fit import FitOptions, fit_table  # noqa: E402
+from bench.fit.eiv import usable  # noqa: E402
+from bench.fit.stages import block_rows  # noqa: E402
 from bench.fit.likelihood import Likelihood, Params, _log_eps, rows_from_table  # noqa: E402
 from emulator.receiver.model import ModelParams  # noqa: E402
 
@@ -95,7 +97,7 @@ def counted_fit(table, options: FitOptions = FitOptions()):
         counts["all" if n_used and self.k.shape[0] >= n_used[0] else "sub"] += 1
         return plain(self, p)
 
-    from bench.fit.fit import check_table
+    from bench.fit.estimate import check_table
 
     n_used.append(usable(check_table(table, options)).k.shape[0])
     Likelihood.logp_grad = counting
@@ -120,7 +122,7 @@ def methods():
 def time_and_accuracy(seeds_small: int, seeds_big: int):
     import os
 
-    from bench.fit.fit import SUBSAMPLE
+    from bench.fit.stages import SUBSAMPLE
 
     rows = []
     tmp = Path(tempfile.mkdtemp())
@@ -210,7 +212,7 @@ def eval_cost(table, res, rows_limit=None, grad=False) -> float:
     """CPU seconds of one likelihood evaluation at the estimate, on the rows the fit used
     (or a random ``rows_limit`` of them: the subsample's cost), best of 3; with ``grad``,
     of one gradient pass (log P and its analytic derivatives)."""
-    from bench.fit.fit import model_rows
+    from bench.fit.eiv import model_rows
 
     rows = model_rows(table, res.params)
     if rows_limit is not None and rows.k.shape[0] > rows_limit:
@@ -234,8 +236,10 @@ def pose_error_timing(seeds: int) -> str:
 
     from fit_campaign import PoseError
 
-    import bench.fit.fit as fit_module
-    from bench.fit.fit import EIV_FREE, SUBSAMPLE, worker_cpu
+    import bench.fit.parallel as fit_module
+    from bench.fit import EIV_FREE
+    from bench.fit.parallel import worker_cpu
+    from bench.fit.stages import SUBSAMPLE
 
     pe = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0)
     rows, limits = [], []

@@ -34,8 +34,10 @@ from _report import markdown_table, write_section  # noqa: E402
 from bench.fit import csvio  # noqa: E402
 from bench_fit import counted_fit, eval_cost  # noqa: E402
 from fit_campaign import emulate_campaign  # noqa: E402
-from bench.fit import fit as fit_module  # noqa: E402
-from bench.fit.fit import STENCIL_THREADS, SUBSAMPLE, fit_table  # noqa: E402
+from bench.fit import parallel as fit_module  # noqa: E402
+from bench.fit import fit_table  # noqa: E402
+from bench.fit.parallel import STENCIL_THREADS  # noqa: E402
+from bench.fit.stages import SUBSAMPLE  # noqa: E402
 from emulator.receiver.model import ModelParams  # noqa: E402
 
 

@@ -41,7 +41,7 @@ sys.path.insert(0, str(HERE.parents[1]))
 
 from fit_campaign import PoseError, emulate_campaign  # noqa: E402
 
-from bench.fit.fit import EIV_FREE, FitOptions, fit_table  # noqa: E402
+from bench.fit import EIV_FREE, FitOptions, fit_table  # noqa: E402
 from bench.fit.likelihood import Params  # noqa: E402
 from emulator.receiver.model import ModelParams, measure  # noqa: E402
 

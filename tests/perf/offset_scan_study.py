@@ -4,7 +4,7 @@ Usage: python tests/perf/offset_scan_study.py [--workers 2]
 
 Emulated campaigns (tests/fit_campaign.py; 1 m / 1.5 m Gauss-Markov GPS error, tau 30 s,
 2 deg attitude error) whose poses are logged late by 0, 0.25, 0.5 or 1 s, fitted with the
-default errors-in-variables model without the scan; then ``bench.fit.fit.offset_scan`` at
+default errors-in-variables model without the scan; then ``bench.fit.offset.offset_scan`` at
 the estimate. Prints every run (JSON) and, per (minutes, offset), the range of the gains
 (nats on the rows scanned) and how many exceed ``OFFSET_GAIN``: the numbers behind the
 threshold in docs/calibration.md section 2, "Time offset".
@@ -35,7 +35,8 @@ def one(job) -> dict:
     minutes, offset, seed = job
     from fit_campaign import PoseError, emulate_campaign
 
-    from bench.fit.fit import EIV_FREE, FitOptions, fit_table, offset_scan
+    from bench.fit import EIV_FREE, FitOptions, fit_table
+    from bench.fit.offset import offset_scan
     from emulator.receiver.model import ModelParams
 
     pe = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0, time_offset=offset)
@@ -52,7 +53,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args(argv)
-    from bench.fit.fit import OFFSET_GAIN
+    from bench.fit.offset import OFFSET_GAIN
 
     gains = defaultdict(list)
     with ProcessPoolExecutor(args.workers) as pool:

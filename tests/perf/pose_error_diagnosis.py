@@ -64,14 +64,21 @@ def _patch(variant: str) -> None:
     shift (the vertical shrinkage stays); ``noshrink``: no vertical shrinkage; ``fixwalk=W``
     (in :func:`one`): the walk and EMI of seed W for every seed, only the pose error drawn
     from the seed (the spread given the walk, and each walk's own bias). Parts join with +."""
-    import bench.fit.fit as fitmod
+    from bench.fit import covariance, eiv, estimate
 
-    for name in ("MAX_SD", "time_block_meat", "posterior_positions"):
-        _ORIGINAL.setdefault(name, getattr(fitmod, name))
-        setattr(fitmod, name, _ORIGINAL[name])
+    # each name in every module of bench/fit that uses it
+    homes = {"MAX_SD": (eiv,), "time_block_meat": (estimate, covariance), "posterior_positions": (eiv, covariance)}
+
+    def put(name, value):
+        for module in homes[name]:
+            setattr(module, name, value)
+
+    for name in homes:
+        _ORIGINAL.setdefault(name, getattr(homes[name][0], name))
+        put(name, _ORIGINAL[name])
     for part in variant.split("+"):
         if part.startswith("maxsd="):
-            fitmod.MAX_SD = float(part.split("=")[1])
+            put("MAX_SD", float(part.split("=")[1]))
         elif part == "iidmeat":
 
             def iid(scores, t):
@@ -80,7 +87,7 @@ def _patch(variant: str) -> None:
                 x -= x.mean(axis=0)
                 return x.T @ x, 0.0
 
-            fitmod.time_block_meat = iid
+            put("time_block_meat", iid)
         elif part.startswith("lagfrac="):  # Newey-West bandwidth L = F T instead of the plug-in
             frac = float(part.split("=")[1])
 
@@ -93,17 +100,17 @@ def _patch(variant: str) -> None:
                 windows = cs[1:] - np.concatenate([np.zeros((big_l, x.shape[1])), cs[: x.shape[0]]])
                 return windows.T @ windows / (big_l + 1.0), float(big_l)
 
-            fitmod.time_block_meat = fixed_lag
+            put("time_block_meat", fixed_lag)
         elif part == "notweedie":
-            fitmod.posterior_positions = lambda rx, tx, sh, sv: _ORIGINAL["posterior_positions"](rx, tx, 0.0, sv)
+            put("posterior_positions", lambda rx, tx, sh, sv: _ORIGINAL["posterior_positions"](rx, tx, 0.0, sv))
         elif part == "noshrink":
-            fitmod.posterior_positions = lambda rx, tx, sh, sv: _ORIGINAL["posterior_positions"](rx, tx, sh, 0.0)
+            put("posterior_positions", lambda rx, tx, sh, sv: _ORIGINAL["posterior_positions"](rx, tx, sh, 0.0))
 
 
 def one(minutes: float, h: float, seed: int, known: bool, variant: str, errors: str = "gm") -> dict:
     from fit_campaign import PoseError, emulate_campaign
 
-    from bench.fit.fit import FitOptions, fit_table
+    from bench.fit import FitOptions, fit_table
     from bench.fit.likelihood import Params
     from emulator.receiver.model import ModelParams
 

@@ -22,7 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-import bench.fit.fit as fitmod
+import bench.fit.estimate as fitmod  # (fit_table, FitOptions; its eiv_rows is patched below)
+from bench.fit.pose_error import MAX_SD
 from bench.fit.likelihood import geometry, Params
 from bench.fit.pose_error import PoseMoments, pose_moments
 
@@ -104,9 +105,11 @@ def patched(rows, table, sigma0):
     rows.moments = mom
     _m, vxy, _m3, v3 = mom.spread(np.asarray(sigma0))
     finite = np.isfinite(rows.geo.log_r)
-    keep = finite & (np.maximum(vxy, v3) <= fitmod.MAX_SD ** 2)
+    keep = finite & (np.maximum(vxy, v3) <= MAX_SD ** 2)
     return rows.take(keep), int(np.sum(finite & ~keep))
 fitmod.eiv_rows = patched
+import bench.fit.offset  # noqa: E402 (the offset scan builds its rows too)
+bench.fit.offset.eiv_rows = patched
 
 def run(minutes, seed, modes, out):
     pe = PoseError(gps_h=SH, gps_v=0.01)

@@ -1,0 +1,326 @@
+"""Standard errors: the observed information, the sandwich with a time-block meat, and
+the terms the fit adds to it.
+
+Per-row scores by central differences (:func:`row_scores`), the Newey-West meat over
+seconds of receiver time (:func:`time_block_meat`), the common height's influence
+(:func:`common_height_rows`, :func:`score_height_slope`), pose-error variances at their
+floor as nuisance parameters (:func:`boundary_nuisance_cov`), and which Hessian blocks
+can be inverted (:func:`measurable`). Everything on the optimiser's scale (logs of the
+positive parameters; heights in m, times in s).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .likelihood import Likelihood, Params, Regimes, Rows, simulate, to_params
+from .parallel import logps
+from .pose_error import posterior_positions
+from .table import Table
+
+#: Fewer bandwidths of data than this under the time-block meat, and the fit says its
+#: standard errors run short: the long-run variance is then estimated from a handful of
+#: windows (10-minute campaigns, ~6 of them, covered 80-83 % of kappa_eq in
+#: docs/accuracy.md (b); 30 minutes, ~11, 88-95 %).
+FEW_WINDOWS = 8
+
+
+def row_scores(like: Likelihood, base: Params, free: tuple[str, ...], theta, h, live=None):
+    """Per-row central-difference gradients of log P (N, p) (columns ``live`` only)."""
+    cols = range(len(free)) if live is None else list(live)
+    scores = np.empty((like.k.shape[0], len(cols)))
+    points = []
+    for j in cols:
+        e = np.zeros(len(free))
+        e[j] = h[j]
+        points += [to_params(base, free, theta + e), to_params(base, free, theta - e)]
+    outs = logps(like, points)
+    for c, j in enumerate(cols):
+        up, down = outs[2 * c], outs[2 * c + 1]
+        scores[:, c] = (up - down) / (2.0 * h[j])
+    return scores
+
+
+def expected_information(like: Likelihood, base: Params, free: tuple[str, ...], theta, seed: int = 0, reps: int = 8):
+    """E[sum_i s_i s_i^T] at theta, by simulating every row's outcome from the fitted model
+    (:func:`likelihood.simulate`) ``reps`` times. Used by the coverage study in
+    docs/calibration.md, not by the fit."""
+    params = to_params(base, free, theta)
+    geo = like._geo(params)
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0xF1,)))
+    h = np.array([0.01 if n == "time_offset" else 1e-4 for n in free])
+    info = np.zeros((len(free), len(free)))
+    for _ in range(reps):
+        sim = Likelihood(Rows(simulate(geo, params, rng), like.rows.geo, like.rows.track), like.regimes)
+        s = row_scores(sim, base, free, theta, h)
+        info += s.T @ s
+    return info / reps
+
+
+
+#: is not positive definite along them, least identified first (:func:`measurable`).
+UNMEASURABLE = ("attitude_sigma", "gps_sigma")
+
+
+def measurable(hess: NDArray[np.float64], keep: NDArray[np.int64], free: tuple[str, ...]):
+    """(keep, None) when the Hessian of the parameters ``keep`` is positive definite; else
+    (keep without one pose-error sigma, its name) when that makes it so. A sigma that the
+    data barely identify (attitude error on a 4-hour walk: anywhere from its floor to
+    5 deg at 2 deg true) can leave a Hessian by differences with a negative eigenvalue
+    along it a little above its floor, where the likelihood is flat: 4 of 200 seeded
+    4-hour campaigns failed with "no curvature" for that alone. Otherwise (keep, None),
+    and the caller's Cholesky says the fit has no curvature, as before."""
+
+    def positive(idx) -> bool:
+        try:
+            np.linalg.cholesky(hess[np.ix_(idx, idx)])
+        except np.linalg.LinAlgError:
+            return False
+        return True
+
+    if positive(keep):
+        return keep, None
+    for name in UNMEASURABLE:
+        if name in free and free.index(name) in keep:
+            trial = keep[keep != free.index(name)]
+            if trial.size and positive(trial):
+                return trial, name
+    return keep, None
+
+
+
+def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, scores_keep, height=None):
+    """The sandwich covariance of the ``keep`` parameters when pose-error sigmas (indices
+    ``floor``) sit at their lower bound: their variances v = sigma^2 join as nuisance
+    parameters instead of being held fixed.
+
+    At the floor the likelihood is flat in log sigma (it depends on sigma through
+    sigma^2), so the log-scale Hessian has no information about it; in v it has. A sigma
+    held there as known made the others' standard errors too small: on emulated
+    60-minute campaigns with 2 deg attitude error, attitude_sigma went to its floor in
+    about one seed in four and those seeds' kappa_eq errors were up to 2.2 of their
+    standard errors (docs/accuracy.md (b)). Here the Hessian and the per-row scores are
+    extended by one-sided differences in v (steps about half a standard error of v, from
+    v at the floor upwards; second-order forward rules), the time-block meat is taken
+    over all of them, and the ``keep`` block of A^-1 B A^-1 is returned with the
+    inverse-Hessian block and the Newey-West lag, or None when the likelihood is not
+    curved upwards in v (then the caller holds the sigmas as before). ``height``
+    (:func:`common_height_rows`) adds the common height's influence to the meat.
+    """
+    keep = list(keep)
+    m = len(floor)
+    batch = lambda ths: logps(like, [to_params(base, free, th) for th in ths])  # noqa: E731 (one batch: :func:`logps`)
+    v0 = np.exp(2.0 * theta[floor])
+
+    def at(th, dv):  # theta with the floor sigmas at sqrt(v0 + dv)
+        out = th.copy()
+        out[floor] = 0.5 * np.log(v0 + dv)
+        return out
+
+    start = {"gps_sigma": 0.5**2, "attitude_sigma": math.radians(1.0) ** 2}
+    delta = np.array([0.25 * start[free[i]] for i in floor])
+    for _attempt in range(2):
+        pairs = [(a, b) for a in range(m) for b in range(a + 1, m)]
+        got = batch([theta] + [at(theta, delta * np.eye(m)[a]) for a in range(m)]
+                    + [at(theta, 2.0 * delta * np.eye(m)[a]) for a in range(m)]
+                    + [at(theta, delta * (np.eye(m)[a] + np.eye(m)[b])) for a, b in pairs])  # fmt: skip
+        l00, one, two, both = got[0], got[1 : 1 + m], got[1 + m : 1 + 2 * m], dict(zip(pairs, got[1 + 2 * m :]))
+        a_vv = np.empty((m, m))
+        for a in range(m):
+            a_vv[a, a] = -float(np.sum(two[a] - 2.0 * one[a] + l00)) / delta[a] ** 2
+            for b in range(a + 1, m):
+                a_vv[a, b] = a_vv[b, a] = -float(np.sum(both[a, b] - one[a] - one[b] + l00)) / (delta[a] * delta[b])
+        if not np.all(np.diag(a_vv) > 0):
+            return None
+        se_v = 1.0 / np.sqrt(np.diag(a_vv))
+        new = np.clip(0.5 * se_v, delta / 100.0, delta * 100.0)
+        if _attempt == 0 and np.all(np.abs(np.log(new / delta)) < math.log(2.0)):
+            break
+        delta = new
+    # Mixed terms theta_j (log scale, central) x v_a (forward).
+    a_tv = np.empty((len(keep), m))
+    shifts = []
+    for j in keep:
+        e = np.zeros_like(theta)
+        e[j] = h[j]
+        for a in range(m):
+            dv = delta * np.eye(m)[a]
+            shifts += [at(theta + e, dv), at(theta - e, dv), theta + e, theta - e]
+    got = iter(batch(shifts))
+    for c, j in enumerate(keep):
+        for a in range(m):
+            pv, mv, p0, m0 = next(got), next(got), next(got), next(got)
+            val = pv - mv - p0 + m0
+            a_tv[c, a] = -float(np.sum(val)) / (2.0 * h[j] * delta[a])
+    big = np.block([[hess_keep, a_tv], [a_tv.T, a_vv]])
+    try:
+        np.linalg.cholesky(big)
+    except np.linalg.LinAlgError:
+        return None
+    # Per-row scores in v at the floor: (-3 l(0) + 4 l(d) - l(2d)) / 2d.
+    s_v = np.stack([(-3.0 * l00 + 4.0 * one[a] - two[a]) / (2.0 * delta[a]) for a in range(m)], axis=1)
+    scores = np.concatenate([scores_keep, s_v], axis=1)
+    slope = None
+    if height is not None:  # d/d(height) of the summed scores: the kept columns, then the v columns
+        sample = sub, idx, scale = height_sample(like)
+        up = replace(base, height_offset=base.height_offset + HEIGHT_STEP)
+        steps = [delta * np.eye(m)[a] for a in range(m)]
+        got = logps(sub, [to_params(up, free, th) for th in [theta] + [at(theta, d) for d in steps] + [at(theta, 2.0 * d) for d in steps]])
+        l0, l1, l2 = got[0], got[1 : 1 + m], got[1 + m :]
+        s_v_up = np.array([float(np.sum(-3.0 * l0 + 4.0 * l1[a] - l2[a])) / (2.0 * delta[a]) for a in range(m)])
+        slope = np.concatenate([score_height_slope(like, base, free, theta, h, keep, scores_keep, sample),
+                                scale * (s_v_up - s_v[idx].sum(axis=0)) / HEIGHT_STEP])
+    inv = np.linalg.inv(big)
+    meat, lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
+    cov = inv @ meat @ inv
+    k = len(keep)
+    return inv[:k, :k], cov[:k, :k], lag
+
+
+#: The step in the common receiver height for :func:`score_height_slope` (m).
+HEIGHT_STEP = 0.02
+
+
+def common_height_rows(table: Table, sigma0) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """Each logged row's share in the common height the fit placed the rows at, or None.
+
+    :func:`pose_error.posterior_positions` moves each logged height z_i to
+    m + k (z_i - m), m the mean logged height of all N rows of the table, so (1 - k)
+    times the campaign mean of the vertical GPS error is in every row's height. With a
+    flat walk k is ~0: the per-row vertical errors leave the scores, and what is left is
+    common to all rows, which the time-block meat cannot see (it moves the estimate, not
+    the scores). As for any two-step estimator (Newey and McFadden 1994, section 6) the
+    first step's influence joins the scores: with the fit's scores S(theta, h), h a
+    common height offset, the estimate moves by A^-1 (dS/dh) (1 - k) (m - E m), and
+    (1 - k) (m - E m) is the sum over rows of w_i = (1 - k) (z_i - m) / N, a series
+    correlated in time like the GPS error itself. Returns (w, t) per table row (t the
+    receiver time) for :func:`with_common_height`; None when no vertical error is
+    modelled or k = 1 (the heights are kept as logged)."""
+    if sigma0[1] <= 0.0:
+        return None
+    post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
+    keep = 1.0 - post.v_factor**2
+    if keep <= 0.0:
+        return None
+    z = np.asarray(table.rx_pos, dtype=np.float64)[:, 2]
+    return keep * (z - z.mean()) / z.shape[0], np.asarray(table.t, dtype=np.float64)
+
+
+#: Above this many rows the common height's slope is summed over a fixed random
+#: subsample of them, scaled up (it only sizes a term of a few % of the meat; two
+#: likelihood evaluations per parameter on 1e5 rows cost ~1 s).
+HEIGHT_ROWS = 10_000
+
+
+def height_sample(like: Likelihood):
+    """(likelihood, row index, scale) for the slope: all rows, or :data:`HEIGHT_ROWS` of
+    them (seeded, sorted) with their frozen regimes, and N / n."""
+    n = like.k.shape[0]
+    if n <= HEIGHT_ROWS:
+        return like, slice(None), 1.0
+    idx = np.sort(np.random.default_rng(np.random.SeedSequence(n, spawn_key=(0x4E,))).choice(n, HEIGHT_ROWS, replace=False))
+    reg = like.regimes
+    if reg is not None:
+        reg = Regimes(reg.exact[idx], reg.eps_split, None if reg.narrow is None else reg.narrow[idx])
+    return Likelihood(like.rows.take(idx), reg), idx, n / HEIGHT_ROWS
+
+
+def score_height_slope(like: Likelihood, base: Params, free, theta, h, cols, scores, sample=None) -> NDArray[np.float64]:
+    """d/dh of the summed scores (columns ``cols``; ``scores`` their per-row values at
+    h = 0), h a common offset of every receiver height (``Params.height_offset``,
+    linearised), by a forward difference of :data:`HEIGHT_STEP` (two likelihood
+    evaluations per column, on at most :data:`HEIGHT_ROWS` rows: the fit's last step,
+    so kept cheap). ``sample``: :func:`height_sample`'s result, when the caller has it."""
+    sub, idx, scale = height_sample(like) if sample is None else sample
+    up = replace(base, height_offset=base.height_offset + HEIGHT_STEP)
+    return scale * (row_scores(sub, up, free, theta, h, live=cols).sum(axis=0) - np.sum(scores[idx], axis=0)) / HEIGHT_STEP
+
+
+def with_common_height(scores, t, height, slope):
+    """The scores and times for :func:`time_block_meat`, with the common height's influence
+    rows w_i (dS/dh) appended when ``height`` (:func:`common_height_rows`) is given."""
+    if height is None or slope is None:
+        return scores, t
+    w, t_rows = height
+    return np.concatenate([scores, np.outer(w, slope)]), np.concatenate([np.asarray(t, dtype=np.float64), t_rows])
+
+
+#: |correlation| of r_en with a pose-error sigma above which the two are not told apart.
+SEPARATION_CORR = 0.9
+
+
+def separable(ok, why, free, cov, estimate, se) -> bool:
+    """Whether the fit told pose error from EMI noise: r_en determined to within half
+    its value and not almost a function of a fitted pose-error sigma. A fit that failed
+    for another stated reason (r_en at its ceiling: no noise floor at all) is not blamed
+    on the pose error."""
+    if "r_en" not in free:
+        return True
+    pose = [m for m in ("gps_sigma", "attitude_sigma") if m in free]
+    if not pose:
+        return True
+    if not ok:
+        return "upper bound" in why
+    i = free.index("r_en")
+    for m in pose:
+        j = free.index(m)
+        if cov[i, i] > 0 and cov[j, j] > 0:
+            if abs(cov[i, j]) / math.sqrt(cov[i, i] * cov[j, j]) > SEPARATION_CORR:
+                return False
+    return bool(se["r_en"] <= 0.5 * estimate["r_en"])
+
+
+#: The longest stretch of seconds with no rows :func:`time_block_meat` keeps (s); a gap
+#: longer than this is shortened to it.
+MEAT_GAP = 3600
+
+
+def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+    """The meat of the sandwich covariance, robust to scores correlated in time.
+
+    Scores (N, p) are summed per second of receiver time (several rows per second add up;
+    gaps are zeros), then the long-run covariance of that series is the Newey-West
+    estimate with Bartlett weights 1 - l/(L + 1), l = 1..L. L is Andrews' (1991) AR(1)
+    plug-in, L = 1.1447 (alpha T)^(1/3), but at least 4 sqrt(T) and at most T/4: the
+    scores are mostly white EMI noise with a small pose-error part correlated over tens
+    of seconds, and the AR(1) fit to their sum sees only the white part (it chose ~25 s
+    on 30 s Gauss-Markov GPS error, and the intervals were too short). Returns (meat, L).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    sec = np.floor(t - t.min()).astype(np.int64)
+    if int(sec.max()) > MEAT_GAP:
+        # seconds with nothing logged are zeros in the sums; a gap longer than MEAT_GAP is
+        # shortened to it (it already separates its two sides beyond any bandwidth), so a
+        # log with a day's pause costs no day of zeros
+        seconds, at = np.unique(sec, return_inverse=True)
+        sec = np.concatenate([[0], np.cumsum(np.minimum(np.diff(seconds), MEAT_GAP))])[at]
+    T = int(sec.max()) + 1
+    p = scores.shape[1]
+    x = np.zeros((T, p))
+    for j in range(p):
+        x[:, j] = np.bincount(sec, weights=scores[:, j], minlength=T)
+    x -= x.mean(axis=0)
+    num = den = 0.0
+    for j in range(p):
+        a, b = x[1:, j], x[:-1, j]
+        bb = float(b @ b)
+        if bb <= 0:
+            continue
+        rho = float(np.clip((a @ b) / bb, -0.99, 0.99))
+        s2 = float(np.mean((a - rho * b) ** 2))
+        num += 4.0 * rho * rho * s2 * s2 / ((1.0 - rho) ** 6 * (1.0 + rho) ** 2)
+        den += s2 * s2 / (1.0 - rho) ** 4
+    alpha = num / den if den > 0 else 0.0
+    lag = min(max(1.1447 * (alpha * T) ** (1.0 / 3.0), 4.0 * math.sqrt(T)), T / 4.0)
+    big_l = int(math.floor(lag))
+    # sum_l (1 - |l|/(L + 1)) Gamma_l = sum_m S_m S_m^T / (L + 1), S_m the sums of x over the
+    # windows [m, m + L] (x zero outside [0, T)): each pair (t, s) lies in L + 1 - |t - s|
+    # windows. O(T p^2) instead of O(T L p^2).
+    cs = np.concatenate([np.zeros((1, p)), np.cumsum(np.concatenate([x, np.zeros((big_l, p))]), axis=0)])
+    windows = cs[1:] - np.concatenate([np.zeros((big_l, p)), cs[:T]])  # m = -L .. T - 1
+    meat = windows.T @ windows / (big_l + 1.0)
+    return meat, float(lag)

@@ -1,0 +1,121 @@
+"""The fitted parameters and the optimiser's box.
+
+:class:`Params` holds every model constant the likelihood depends on (lengths in m,
+kappa_eq for a transmitter moment s = 1, angles in rad, times in s). The optimiser works
+on a vector theta: logs of the positive parameters, q as log(q_y / q_x), time_offset and
+height_offset as they are (:data:`LINEAR`); :func:`to_params` / :func:`from_params` map
+between the two. :data:`BOUNDS` is the box the search stays in (natural units), with its
+first difference steps and largest steps per iteration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+@dataclass(frozen=True)
+class Params:
+    """Every model constant the likelihood depends on (s = 1)."""
+
+    kappa_eq: float = 1.542
+    r_en: float = 80.0
+    q: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    r_inner: float = 3.0
+    r_outer: float = 50.0
+    pose_sigma: float = 0.001
+    time_offset: float = 0.0
+    antennas: int = 3  # 2: no z antenna, g_z = 0, so "d3" is dxy (emulator/receiver/model.py)
+    gps_sigma: float = 0.0  # horizontal GPS error of the receiver pose (m, per axis)
+    gps_ratio: float = 1.5  # vertical / horizontal GPS error
+    attitude_sigma: float = 0.0  # attitude error of the receiver (rad, per body axis)
+    height_offset: float = 0.0  # receiver-above-transmitter height the logs miss (m; common GPS error)
+
+    @property
+    def pose_error(self) -> tuple[float, float, float]:
+        """(horizontal m, vertical m, attitude rad) of the errors-in-variables model."""
+        return (self.gps_sigma, self.gps_ratio * self.gps_sigma, self.attitude_sigma)
+
+
+#: Parameters the fit can estimate, with their transform to the optimiser's scale.
+FREE_PARAMS = (
+    "kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma", "gps_sigma", "attitude_sigma", "height_offset",
+)  # fmt: skip
+#: Parameters on a linear scale (seconds, metres); the others are fitted in logs.
+LINEAR = ("time_offset", "height_offset")
+
+
+def to_params(base: Params, names: tuple[str, ...], theta: NDArray[np.float64]) -> Params:
+    """Map the optimiser's vector (log scale except time_offset; q as log(q_y/q_x))."""
+    kw = {}
+    for name, v in zip(names, theta):
+        if name in LINEAR:
+            kw[name] = float(v)
+        elif name == "q":
+            ratio = math.exp(v)
+            kw[name] = (1.0, ratio, 1.0) if ratio <= 1.0 else (1.0 / ratio, 1.0, 1.0)
+        else:
+            kw[name] = math.exp(v)
+    return replace(base, **kw)
+
+
+def from_params(p: Params, names: tuple[str, ...]) -> NDArray[np.float64]:
+    out = []
+    for name in names:
+        if name in LINEAR:
+            out.append(getattr(p, name))
+        elif name == "q":
+            out.append(math.log(p.q[1] / p.q[0]))
+        else:
+            out.append(math.log(getattr(p, name)))
+    return np.array(out)
+
+
+
+#: Optimiser box (natural units); an estimate pinned at an edge has not converged.
+BOUNDS = {
+    "kappa_eq": (1e-6, 1e6),
+    "r_en": (0.5, 1e4),
+    "q": (1e-3, 1e3),  # q_y / q_x
+    "r_outer": (0.05, 1e4),
+    "pose_sigma": (1e-4, 0.5),
+    "time_offset": (-30.0, 30.0),
+    "height_offset": (-5.0, 5.0),  # m
+    # Below 5 mm and 0.05 deg the pose error is lost in the 1 cm rounding: the likelihood
+    # is flat there, and Newton crept along it for 60 iterations on exact poses.
+    "gps_sigma": (0.005, 30.0),  # m
+    "attitude_sigma": (math.radians(0.05), 0.5),  # rad
+}
+#: Parameters that may sit at their lower bound on exact poses (held there, with a note).
+MAY_VANISH = ("pose_sigma", "gps_sigma", "attitude_sigma")
+
+def box(free) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    lo = np.array([BOUNDS[n][0] if n in LINEAR else math.log(BOUNDS[n][0]) for n in free])
+    hi = np.array([BOUNDS[n][1] if n in LINEAR else math.log(BOUNDS[n][1]) for n in free])
+    return lo, hi
+
+
+#: First difference steps, about a third of a typical standard error (log scale).
+INITIAL_STEPS = {
+    "kappa_eq": 1e-4,
+    "r_en": 1e-3,
+    "q": 3e-3,
+    "r_outer": 1e-4,
+    "pose_sigma": 1e-2,
+    "time_offset": 0.05,
+    "height_offset": 0.01,
+    "gps_sigma": 1e-2,
+    "attitude_sigma": 1e-2,
+}
+
+
+def initial_steps(free) -> NDArray[np.float64]:
+    return np.array([INITIAL_STEPS[n] for n in free])
+
+
+def caps(free) -> NDArray[np.float64]:
+    """Largest step per iteration: log pose_sigma may travel far (exact poses)."""
+    return np.array([2.0 if n == "time_offset" else 2.5 if n in MAY_VANISH else 0.5 for n in free])
+

@@ -1,0 +1,595 @@
+"""Newton's method on the negative log-likelihood, in the optimiser's scale.
+
+A projected, damped Newton method in the :data:`params.BOUNDS` box (:func:`newton`, the
+Hessian by central differences at each iteration), its quasi-Newton form from a good start
+(:func:`quasi_newton`: BFGS updates, the Hessian by differences at the end) and the
+analytic-gradient form for exact poses (:func:`newton_grad`: BHHH, BFGS and the Hessian by
+differences of the gradient). The shared pieces: difference gradients, the eigenvalue-
+modified step, the active set (a parameter at a bound with the gradient pointing out is
+held), the line search, and the objectives (theta -> negative log-likelihood, nats).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .likelihood import LINEAR, Likelihood, Params, to_params
+from .params import MAY_VANISH, box, caps, initial_steps
+from .parallel import evaluate
+
+#: Stop when the predicted gain to the optimum, g' H^-1 g / 2, is below this (nats):
+#: the estimate is then within 0.005 standard errors of the optimum.
+DECREMENT_TOL = 1e-5
+
+
+def fd_gradient(f, theta, h, f0=None, hessian=False):
+    """Central-difference gradient (and Hessian) of f at theta with steps h.
+
+    Off-diagonal terms use the two diagonal points (+e_i + e_j, -e_i - e_j) with the
+    axis points already needed for the gradient (error O(h^2), like the four-point rule,
+    for half its evaluations): p^2 + p evaluations in all instead of 2p^2.
+    """
+    p = theta.shape[0]
+    f0 = f(theta) if f0 is None else f0
+    eye = np.diag(h)
+    points = [theta + eye[i] for i in range(p)] + [theta - eye[i] for i in range(p)]
+    pairs = [(i, j) for i in range(p) for j in range(i + 1, p)] if hessian else []
+    for i, j in pairs:
+        points += [theta + eye[i] + eye[j], theta - eye[i] - eye[j]]
+    values = evaluate(f, points)
+    fp, fm = np.array(values[:p]), np.array(values[p : 2 * p])
+    g = (fp - fm) / (2 * h)
+    hess = np.diag((fp - 2 * f0 + fm) / h**2)
+    for n, (i, j) in enumerate(pairs):
+        fpp, fmm = values[2 * p + 2 * n : 2 * p + 2 * n + 2]
+        v = fpp + fmm - fp[i] - fm[i] - fp[j] - fm[j] + 2 * f0
+        hess[i, j] = hess[j, i] = v / (2 * h[i] * h[j])
+    return g, hess
+
+
+def merge(theta, mask, values):
+    out = theta.copy()
+    out[mask] = values
+    return out
+
+
+def outward(theta, g, lo, hi):
+    """Parameters at a bound whose gradient (of f, to be minimised) points outwards."""
+    span = hi - lo
+    return ((theta <= lo + 1e-9 * span) & (g > 0)) | ((theta >= hi - 1e-9 * span) & (g < 0))
+
+
+def solve(hf, gf):
+    """Newton step with the Hessian's eigenvalues replaced by their absolute values
+    (floored at 1e-6 of the largest), so a saddle or a concave direction still gives a
+    descent step of sensible length. Returns (step, modified?)."""
+    w, v = np.linalg.eigh(0.5 * (hf + hf.T))
+    if not np.all(np.isfinite(w)):
+        return None, True
+    top = float(np.max(np.abs(w))) if w.size else 1.0
+    mod = np.maximum(np.abs(w), 1e-6 * top if top > 0 else 1e-12)
+    return -(v @ ((v.T @ gf) / mod)), bool(np.any(w <= 0))
+
+
+def line_search(f, theta, step, f0, lo, hi, cap=None, double=True):
+    """Backtracking from the full step; if the full step already decreases f, keep
+    doubling it while f keeps decreasing (the likelihood is steeper on the barrier side
+    of r_en than a quadratic, so Newton steps from there fall short). The full and the
+    first doubled step are evaluated together (two threads), which is what a step that
+    lands usually costs; the search itself is unchanged."""
+    trial = np.clip(theta + step, lo, hi)
+    longer = step * 2.0
+    if not double:  # quasi-Newton near the optimum: the full step, else backtracking
+        f1 = f(trial)
+        if f1 < f0:
+            return trial, f1
+    elif cap is None or not np.any(np.abs(longer) > cap):
+        t2 = np.clip(theta + longer, lo, hi)
+        f1, f2 = evaluate(f, [trial, t2])
+    else:
+        f1, f2 = f(trial), None
+    if double and f1 < f0:
+        for doubled in range(1, 5):
+            if f2 is None or not f2 < f1:
+                break
+            step, trial, f1 = longer, t2, f2
+            longer = step * 2.0
+            if doubled == 4 or (cap is not None and np.any(np.abs(longer) > cap)):
+                break
+            t2 = np.clip(theta + longer, lo, hi)
+            f2 = f(t2)
+        return trial, f1
+    for _ in range(11):
+        step = step * 0.5
+        trial = np.clip(theta + step, lo, hi)
+        f1 = f(trial)
+        if f1 < f0:
+            return trial, f1
+    return None, f0
+
+
+@dataclass
+class NewtonResult:
+    theta: NDArray[np.float64]
+    f: float
+    hess: NDArray[np.float64] | None
+    active: NDArray[np.bool_]
+    steps: NDArray[np.float64]
+    iterations: int
+    ok: bool
+    why: str
+    full_evals: int = 0  # evaluations on all rows (the full-data stage)
+    #: where the last gradient (and the Hessian) was taken when ``theta`` is a Newton step
+    #: from there that was not evaluated (:func:`full_stage`); else None
+    evaluated: NDArray[np.float64] | None = None
+
+
+def newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> NewtonResult:
+    """Projected damped Newton on f (the negative log-likelihood) in the BOUNDS box.
+
+    Steps of the differences start at 1e-3 and are re-set to 0.3 standard errors from the
+    current Hessian; convergence needs a Newton decrement below DECREMENT_TOL with steps
+    that no longer change by more than a factor 2. A parameter at a bound whose gradient
+    points outwards is held there (active set).
+    """
+    p = len(free)
+    lo, hi = box(free)
+    h = initial_steps(free) if h is None else h.copy()
+    cap = caps(free)
+    probe_lo = np.array([n in MAY_VANISH for n in free])
+    probe_hi = np.array([n == "r_en" for n in free])
+    theta = np.clip(theta, lo, hi)
+    f0 = f(theta)
+    none = np.zeros(p, bool)
+    if not math.isfinite(f0):
+        return NewtonResult(theta, f0, None, none, h, 0, False, "the likelihood is zero at the starting point")
+    held = np.zeros(p, bool)  # at a bound with the gradient pointing out: no Hessian row
+    shrinks = 0
+    for it in range(1, max_iter + 1):
+        g = np.zeros(p)
+        hess = np.zeros((p, p))
+        if held.any():
+            gh, _ = fd_gradient(Part(f, lambda th_h: merge(theta, held, th_h)), theta[held], h[held], f0)
+            g[held] = gh
+        live = np.flatnonzero(~held)
+        gl, hl = fd_gradient(Part(f, lambda th_l: merge(theta, ~held, th_l)), theta[live], h[live], f0, hessian=True)
+        g[live] = gl
+        hess[np.ix_(live, live)] = hl
+        if held.any():
+            hess[held, held] = 1.0  # placeholder, never used for a step
+        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(hess))):
+            return NewtonResult(theta, f0, hess, none, h, it, False, "the likelihood is not finite next to the estimate")
+        active = outward(theta, g, lo, hi)
+        keep = np.flatnonzero(~active)
+        if np.any(active & ~held):
+            held = active.copy()
+            continue  # recompute without the held rows (cheaper, and exact for the rest)
+        held = active.copy()
+        hf = hess[np.ix_(keep, keep)]
+        stepf, modified = solve(hf, g[keep])
+        if stepf is None:
+            return NewtonResult(theta, f0, hess, active, h, it, False, "the Hessian is not finite")
+        decrement = -0.5 * float(g[keep] @ stepf)
+        if tol >= 0.5 and decrement < tol:
+            # The pre-pass only settles the likelihood regimes: close enough, whatever the
+            # curvature at these steps (the next pass looks closer).
+            return NewtonResult(theta, f0, hess, active, h, it, True, "converged")
+        if modified and decrement < 0.5 and shrinks < 3:
+            # Not convex at this step size. Either a difference straddles a steep side (the
+            # noise edge: look again with smaller steps) or a flat, curved direction (a
+            # pose-error sigma far from its estimate): try the (modified) step first, and
+            # keep it if it clearly lowers f.
+            step = np.zeros(p)
+            step[keep] = stepf
+            step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+            trial = np.clip(theta + step, lo, hi)
+            f1 = f(trial)
+            if f1 < f0 - 1e-3:
+                theta, f0 = trial, f1
+                continue
+            shrinks += 1
+            h = h / 3.0
+            continue
+        new_h = h.copy()
+        if not modified:
+            w, v = np.linalg.eigh(0.5 * (hf + hf.T))
+            se = np.sqrt(np.maximum((v * v) @ (1.0 / np.maximum(w, 1e-300)), 0.0))
+            top = np.where(np.isin(np.array(free)[keep], LINEAR), 0.5, 0.05)
+            new_h[keep] = np.clip(0.3 * se, 1e-7, top)
+        if not modified and decrement < tol:
+            if tol > DECREMENT_TOL or np.all(np.abs(np.log(new_h / h)) < math.log(2.0)):
+                return NewtonResult(theta, f0, hess, active, h, it, True, "converged")
+            h = new_h  # once more, with steps on the standard-error scale
+            continue
+        h = new_h
+        step = np.zeros(p)
+        step[keep] = stepf
+        probed = False
+        # A parameter heading for a bound where the likelihood flattens (pose_sigma with
+        # exact poses; r_en with no noise in the data) would creep there in capped
+        # steps: try the bound itself.
+        toward_lo = probe_lo & (step < 0) & (theta > lo)
+        toward_hi = probe_hi & (step > 0) & ((np.abs(step) >= cap) | (theta > math.log(300.0))) & (theta < hi)
+        for i in np.flatnonzero(toward_lo | toward_hi):
+            trial = theta.copy()
+            trial[i] = lo[i] if toward_lo[i] else hi[i]
+            f1 = f(trial)
+            # a sigma that no longer matters (exact poses) leaves f flat to rounding: take the bound
+            if f1 < f0 or (toward_lo[i] and f1 < f0 + 1e-6):
+                theta, f0, probed = trial, f1, True
+        if probed:
+            continue
+        # A pose-error sigma in a flat direction (exact poses: the likelihood barely moves)
+        # gets a huge Newton step; clip it alone rather than shrinking every step with it.
+        flat = probe_lo & (np.abs(step) > cap)
+        if flat.any() and not flat.all():
+            step[flat] = np.sign(step[flat]) * cap[flat]
+        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        trial, f1 = line_search(f, theta, step, f0, lo, hi, cap)
+        if trial is None:
+            # Near a steep side (the noise edge) differences over 0.3 standard errors bias
+            # the gradient: retry with a gradient from steps ten times smaller.
+            gk, _ = fd_gradient(Part(f, lambda th_k: merge(theta, ~active, th_k)), theta[keep], h[keep] / 10.0, f0)
+            stepf, _mod = solve(hf, gk)
+            decrement = -0.5 * float(gk @ stepf)
+            step = np.zeros(p)
+            step[keep] = stepf
+            step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+            trial, f1 = line_search(f, theta, step, f0, lo, hi, cap) if decrement >= tol else (None, f0)
+        if trial is None:
+            if not modified and decrement < 1e-3:
+                return NewtonResult(theta, f0, hess, active, h, it, True, "converged")
+            if shrinks < 4:  # the differences were too coarse here: look closer
+                shrinks += 1
+                h = h / 3.0
+                continue
+            return NewtonResult(theta, f0, hess, active, h, it, False, "no step decreases the negative log-likelihood")
+        theta, f0 = trial, f1
+    return NewtonResult(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
+
+
+def quasi_newton(
+    f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0=None, final_hessian=True, probe=False, finish=None
+):
+    """Quasi-Newton on ``f`` from a good start: the Hessian by differences (steps ``h``) at
+    the start, then steps with it, corrected by BFGS updates from the gradient changes
+    (the curvature of a pose-error sigma changes over a few standard errors), until the
+    decrement is below ``tol``; then the Hessian by differences at the point
+    reached (its axis points are the last gradient's: with a memoising ``f`` only the
+    diagonal pairs cost). The ``held`` parameters (at a bound) stay where they are; with
+    ``probe``, a pose-error sigma stepping toward its lower bound, where the likelihood
+    flattens, is tried at the bound once (as :func:`newton` does) and held there if f is
+    no worse: otherwise it creeps down the valley in ever shorter steps (4 of 50 4-hour
+    fits ran out of iterations so).
+    ``hess0``: start from this Hessian (all parameters) instead; ``final_hessian`` False:
+    return the BFGS one (a search's, whose result is only a start). ``finish`` (with
+    ``final_hessian``; above ``tol``): once the decrement is below it, the Hessian by
+    differences is taken where the search stands (the final one, taken a step earlier)
+    and one Newton step with it ends the search, unevaluated (its f is the quadratic
+    model's, f0 - decrement), if that decrement is below ``finish`` too; else the steps go
+    on with that Hessian. Saves the last line-search point and gradient.
+    Returns (theta, f, Hessian of the live parameters, iterations, converged, held, at):
+    ``at`` is where that Hessian and the last gradient were taken when ``theta`` is the
+    unevaluated step from there, else None."""
+    lo, hi = box(free)
+    cap = caps(free)
+    held = held.copy()
+    probe_lo = np.array([probe and n in MAY_VANISH for n in free])
+    probed = np.zeros(len(free), bool)
+    live = np.flatnonzero(~held)
+    point = {"theta": theta}
+    sub = Part(f, lambda th_l: merge(point["theta"], ~held, th_l))
+    f0 = f(theta)
+    if hess0 is None:
+        g, hl = fd_gradient(sub, theta[live], h[live], f0, hessian=True)
+    else:
+        (g, _), hl = fd_gradient(sub, theta[live], h[live], f0), hess0[np.ix_(live, live)]
+    moved, ok, it = hess0 is not None, False, 0
+    hq = hl.copy()
+    differenced = None if hess0 is not None else theta  # where hl is the Hessian by differences
+    for it in range(1, max_iter + 1):
+        stepf, _mod = solve(hq, g)
+        if stepf is None:
+            break
+        decrement = -0.5 * float(g @ stepf)
+        if finish is not None and final_hessian and tol <= decrement < finish and differenced is not theta:
+            _g, hl = fd_gradient(sub, theta[live], h[live], f0, hessian=True)  # axis points: the last gradient's
+            differenced, hq = theta, hl.copy()
+            stepf, modified = solve(hl, g)
+            if stepf is None:
+                break
+            decrement = -0.5 * float(g @ stepf)
+            end = theta.copy()
+            end[live] += stepf
+            if not modified and decrement < finish and np.all((end >= lo) & (end <= hi)):
+                return end, f0 - decrement, hl, it, True, held, theta
+        if decrement < tol:
+            ok = True
+            break
+        step = np.zeros(len(free))
+        step[live] = stepf
+        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        took = False
+        for i in np.flatnonzero(probe_lo & ~held & ~probed & (step < 0) & (theta > lo)):
+            probed[i] = True
+            trial = theta.copy()
+            trial[i] = lo[i]
+            f1 = f(trial)
+            if f1 < f0 + 1e-6:
+                keep = [k for k, j in enumerate(live) if j != i]
+                theta, f0, took = trial, f1, True
+                point["theta"] = theta
+                held[i] = True
+                live = np.flatnonzero(~held)
+                hq, hl = hq[np.ix_(keep, keep)], hl[np.ix_(keep, keep)]
+        if took:
+            moved = True
+            g, _ = fd_gradient(sub, theta[live], h[live], f0)
+            continue
+        trial, f1 = line_search(f, theta, step, f0, lo, hi, double=False)
+        if trial is None:
+            ok = True
+            break
+        s_l = (trial - theta)[live]
+        theta, f0 = trial, f1
+        point["theta"] = theta
+        g_new, _ = fd_gradient(sub, theta[live], h[live], f0)
+        y = g_new - g
+        g, moved = g_new, True
+        ys = float(y @ s_l)
+        hs = hq @ s_l
+        shs = float(s_l @ hs)
+        if ys > 1e-12 * max(shs, 1e-300) and shs > 0:
+            hq = hq + np.outer(y, y) / ys - np.outer(hs, hs) / shs
+    if not final_hessian:
+        return theta, f0, hq, it, ok, held, None
+    if moved and differenced is not theta:
+        _g, hl = fd_gradient(sub, theta[live], h[live], f0, hessian=True)
+    return theta, f0, hl, it, ok, held, None
+
+
+# -- the likelihood as an objective ----------------------------------------------------------
+
+
+class Objective:
+    """theta -> negative log-likelihood, for fixed regimes."""
+
+    def __init__(self, like: Likelihood, base: Params, free: tuple[str, ...]) -> None:
+        self.like, self.base, self.free = like, base, free
+
+    def params(self, theta) -> Params:
+        return to_params(self.base, self.free, theta)
+
+    def __call__(self, theta) -> float:
+        return self.like.nll(self.params(theta))
+
+
+class Part:
+    """``obj`` as a function of some of the coordinates (``full`` completes them to theta);
+    with ``like`` and ``params`` as an :class:`Objective` has, so that :func:`evaluate`
+    can hand its points to the worker process."""
+
+    def __init__(self, obj, full) -> None:
+        self.obj, self.full = obj, full
+        self.like = obj.like if isinstance(obj, Objective) else None
+
+    def params(self, x) -> Params:
+        return self.obj.params(self.full(x))
+
+    def __call__(self, x) -> float:
+        return self.obj(self.full(x))
+
+
+
+class GradObjective(Objective):
+    """:class:`Objective` that also gives the gradient and the per-row scores (N, p) of
+    log P from one pass (:meth:`Likelihood.logp_grad`)."""
+
+    def __init__(self, like: Likelihood, base: Params, free: tuple[str, ...]) -> None:
+        super().__init__(like, base, free)
+        self.cols = [Likelihood.GRAD_PARAMS.index(n) for n in free]
+
+    def value_grad(self, theta):
+        logp, d = self.like.logp_grad(to_params(self.base, self.free, theta))
+        scores = d[self.cols].T
+        return -float(np.sum(logp)), -scores.sum(axis=0), scores
+
+
+
+#: Parameters whose column of the all-rows Hessian :func:`hessian_fd` takes by a forward
+#: difference (one pass instead of two): with 3e4-1e5 rows kappa_eq's curvature is smooth
+#: (its entry moves by < 1e-5 between steps of 0.1 and 1 s.e.; s.e. unchanged to 1e-4),
+#: unlike r_en's. Not below SUBSAMPLE rows: on 1200 rows it moved kappa_eq's s.e. by 2.3 %.
+ONE_SIDED = ("kappa_eq",)
+
+
+def hessian_fd(obj: GradObjective, theta, g0, live, h, lo, hi, one_sided=()):
+    """Hessian of the ``live`` parameters by differences of the analytic gradient (steps
+    ``h``, shortened to stay in the box); the points run on the stencil threads. Central
+    differences, as the differences of f they replace: the curvature averaged over +-h.
+    The likelihood's curvature in r_en wavers by ~1 % over a tenth of a standard error
+    (rows crossing the noise edge), and a one-sided difference followed it (1.7 % on the
+    1e5-row campaign of tests/perf/bench_fit_read.py). The columns of ``one_sided``
+    parameters are forward differences from ``g0``, the gradient at ``theta``, and their
+    off-diagonal entries come from the central columns."""
+    hs = np.minimum(h[live], np.maximum(np.minimum(hi[live] - theta[live], theta[live] - lo[live]), 1e-9))
+    one = np.array([obj.free[j] in one_sided for j in live], dtype=bool)
+    points = []
+    for c, j in enumerate(live):
+        for sgn in (1.0,) if one[c] else (1.0, -1.0):
+            th = theta.copy()
+            th[j] += sgn * hs[c]
+            points.append(th)
+    grads = iter(evaluate(lambda th: obj.value_grad(th)[1], points))
+    cols = []
+    for c in range(len(live)):
+        up = next(grads)[live]
+        cols.append((up - g0[live]) / hs[c] if one[c] else (up - next(grads)[live]) / (2.0 * hs[c]))
+    hl = np.stack(cols, axis=1)
+    out = 0.5 * (hl + hl.T)
+    for a in np.flatnonzero(one):  # the central columns' entries are the better ones
+        for b in np.flatnonzero(~one):
+            out[a, b] = out[b, a] = hl[a, b]
+    return out
+
+
+def se_steps(hl, free, live, fallback):
+    """Difference steps of 0.3 standard errors from a live-parameter Hessian."""
+    steps = fallback.copy()
+    try:
+        se = np.sqrt(np.maximum(np.diag(np.linalg.inv(hl)), 1e-18))
+    except np.linalg.LinAlgError:
+        return steps
+    top = np.where(np.isin(np.array(free)[live], LINEAR), 0.5, 0.05)
+    steps[live] = np.clip(0.3 * se, 1e-7, top)
+    return np.where(np.isfinite(steps), steps, fallback)
+
+
+#: :func:`newton_grad` leaves the outer product for the Hessian by differences after
+#: BHHH_STEPS steps (or two in a row that do not halve the decrement).
+BHHH_STEPS = 4
+
+
+def newton_grad(
+    obj: GradObjective, theta, free, max_iter, tol, hess0=None, hessian="final", one_sided=(), finish=None
+) -> NewtonResult:
+    """Projected Newton on f with the analytic gradient of each point (one pass each).
+
+    Curvature: the outer product of the per-row scores at each point (BHHH; positive
+    definite, and the Hessian's expectation at the optimum of a well-specified model) or
+    ``hess0`` (a previous Hessian: the scaled one of a subsample), corrected by BFGS
+    updates from the gradient changes of each step. The outer product alone can stall (a
+    misspecified model, e.g. the wrong r_outer; or exact poses, whose 0.01 % model pose
+    error is wider than the data's: it has half kappa_eq's curvature there), and BFGS can
+    go astray on a likelihood that is not smooth at the scale of a standard error (1200
+    rows: 60 ever shorter steps): after BHHH_STEPS steps with the outer product, or two
+    steps in a row that did not halve the decrement, the Hessian by central differences
+    of the gradient (:func:`hessian_fd`, 2p passes) is taken there. Convergence: a
+    decrement g' H^-1 g / 2 below ``tol``; then with ``hessian`` "final" the Hessian by
+    differences at the estimate (the likelihood's curvature wavers
+    by ~1 % over 0.02 standard errors, rows near the noise edge: taken elsewhere it would
+    not be the estimate's); "some": a Hessian by differences taken somewhere on the way
+    (BFGS-updated; a subsample's, to start all rows from); "none" (a pre-pass): whatever
+    curvature was used. Bounds as in :func:`newton`: a parameter at a bound with its
+    gradient pointing out is held, and pose_sigma (r_en) stepping toward a bound where f
+    flattens is tried at the bound. ``one_sided``: see :func:`hessian_fd`. ``finish`` (with
+    "final"; a decrement above ``tol``): below it, the Hessian by differences is taken
+    where the search stands and one Newton step with it ends the search, unevaluated (its
+    f is the quadratic model's: f0 - decrement); if that decrement is still above
+    ``finish`` the search goes on as usual."""
+    p = len(free)
+    lo, hi = box(free)
+    cap = caps(free)
+    h = initial_steps(free)
+    probe_lo = np.array([n in MAY_VANISH for n in free])
+    probe_hi = np.array([n == "r_en" for n in free])
+    theta = np.clip(theta, lo, hi)
+    f0, g, scores = obj.value_grad(theta)
+    none = np.zeros(p, bool)
+    if not math.isfinite(f0):
+        return NewtonResult(theta, f0, None, none, h, 0, False, "the likelihood is zero at the starting point")
+    hq = np.eye(p) if hess0 is None else hess0.copy()
+    bhhh = hess0 is None  # the outer product at each point, until a Hessian is differenced
+    n_steps, last_dec = 0, math.inf  # steps since the curvature was last renewed
+    exact_at = None  # (theta, live parameters) where hq was differenced
+    differenced = hess0 is not None and hessian != "final"
+
+    def difference(theta, keep, hk):
+        nonlocal h, bhhh, exact_at, differenced, n_steps, last_dec
+        h = se_steps(hk, free, keep, h)
+        n_steps, last_dec = 0, math.inf
+        hq[np.ix_(keep, keep)] = hessian_fd(obj, theta, g, keep, h, lo, hi, one_sided)
+        bhhh, differenced, exact_at = False, True, (theta.copy(), keep)
+        return hq[np.ix_(keep, keep)]
+
+    it = 0
+    for it in range(1, max_iter + 1):
+        if not (math.isfinite(f0) and np.all(np.isfinite(g))):
+            return NewtonResult(theta, f0, hq, none, h, it, False, "the likelihood is not finite next to the estimate")
+        active = outward(theta, g, lo, hi)
+        keep = np.flatnonzero(~active)
+        if keep.size == 0:
+            return NewtonResult(theta, f0, np.eye(p), active, h, it, True, "converged")
+        if bhhh:
+            hq[np.ix_(keep, keep)] = scores[:, keep].T @ scores[:, keep]
+        hk = hq[np.ix_(keep, keep)]
+        stepf, _mod = solve(hk, g[keep])
+        if stepf is None:
+            return NewtonResult(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
+        decrement = -0.5 * float(g[keep] @ stepf)
+        slow = n_steps >= 2 and decrement > 0.5 * last_dec
+        stalled = decrement >= tol and ((bhhh and n_steps >= BHHH_STEPS) or slow)
+        here = exact_at is not None and np.array_equal(exact_at[0], theta) and np.array_equal(exact_at[1], keep)
+        want = (hessian == "final" and not here) or (hessian == "some" and not differenced)
+        finishing = finish is not None and hessian == "final" and decrement < finish and not here
+        if stalled or (decrement < tol and want) or finishing:
+            hk = difference(theta, keep, hk)
+            stepf, _mod = solve(hk, g[keep])
+            if stepf is None:
+                return NewtonResult(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
+            decrement = -0.5 * float(g[keep] @ stepf)
+            if finishing and decrement < finish:
+                end = theta.copy()
+                end[keep] += stepf
+                if np.all((end >= lo) & (end <= hi)):
+                    return NewtonResult(end, f0 - decrement, hq, active, h, it, True, "converged")
+        n_steps += 1
+        last_dec = decrement
+        if decrement < tol:
+            return NewtonResult(theta, f0, hq if differenced else None, active, h, it, True, "converged")
+        step = np.zeros(p)
+        step[keep] = stepf
+        # A parameter heading for a bound where the likelihood flattens (pose_sigma with
+        # exact poses; r_en with no noise in the data): try the bound itself.
+        toward_lo = probe_lo & (step < 0) & (theta > lo)
+        toward_hi = probe_hi & (step > 0) & ((np.abs(step) >= cap) | (theta > math.log(300.0))) & (theta < hi)
+        probed = False
+        for i in np.flatnonzero(toward_lo | toward_hi):
+            trial = theta.copy()
+            trial[i] = lo[i] if toward_lo[i] else hi[i]
+            r = obj.value_grad(trial)
+            if r[0] < f0 or (toward_lo[i] and r[0] < f0 + 1e-6):
+                theta, (f0, g, scores), probed = trial, r, True
+        if probed:
+            n_steps, last_dec = 0, math.inf
+            continue
+        flat = probe_lo & (np.abs(step) > cap)
+        if flat.any() and not flat.all():
+            step[flat] = np.sign(step[flat]) * cap[flat]
+        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        accepted = None
+        for _half in range(12):
+            trial = np.clip(theta + step, lo, hi)
+            r = obj.value_grad(trial)
+            if r[0] < f0:
+                accepted = (trial, r)
+                break
+            step = step * 0.5
+        if accepted is None:
+            if exact_at is not None and decrement < 1e-3:
+                return NewtonResult(theta, f0, hq, active, h, it, True, "converged")
+            return NewtonResult(theta, f0, hq, active, h, it, False, "no step decreases the negative log-likelihood")
+        trial, (f1, g1, s1) = accepted
+        d0, d1 = float(g @ (trial - theta)), float(g1 @ (trial - theta))
+        if d0 < 0 < d1 and d1 > -0.5 * d0:
+            # far past the minimum along the step (the curvature underestimated, as the outer
+            # product does on the steep side of r_en): the secant of the slope there
+            alt = np.clip(theta + (trial - theta) * (d0 / (d0 - d1)), lo, hi)
+            r = obj.value_grad(alt)
+            if r[0] < f1:
+                trial, (f1, g1, s1) = alt, r
+        s_l, y = (trial - theta)[keep], (g1 - g)[keep]  # BFGS on the live block
+        ys, hs_ = float(y @ s_l), hk @ s_l
+        shs = float(s_l @ hs_)
+        if not bhhh and ys > 1e-12 * max(shs, 1e-300) and shs > 0:
+            hq[np.ix_(keep, keep)] = hk + np.outer(y, y) / ys - np.outer(hs_, hs_) / shs
+        theta, f0, g, scores = trial, f1, g1, s1
+    return NewtonResult(theta, f0, hq, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
+
+
+#: :func:`optimise_grad` splits the rows of each evaluation in two halves from this many
+#: rows on (a 10,000-row subsample: 9.5 -> ~6 ms wall with a core free).

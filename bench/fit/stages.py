@@ -1,0 +1,399 @@
+"""The search's stages: pilot, Newton passes with the likelihood regimes re-chosen, and
+for big tables the subsample search followed by steps and the Hessian on all rows.
+
+:func:`run_stages` runs them for one set of free parameters and returns the likelihood, the
+:class:`search.NewtonResult` and the number of evaluations. Parameters on the optimiser's
+scale (:mod:`.params`); tolerances are Newton decrements in nats.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from . import parallel  # (its STENCIL_THREADS read at each use: tests and benchmarks set it)
+from .likelihood import BLOCK_ROWS, Likelihood, Params, Rows, from_params, to_params
+from .offset import OFFSET_GRID
+from .params import box
+from .pilot import grid_values, median_kappa, pilot_sigma, vertex_shift
+from .result import FitOptions
+from .search import (
+    DECREMENT_TOL, ONE_SIDED, GradObjective, NewtonResult, Objective, Part, fd_gradient, merge, newton, newton_grad, outward,
+    quasi_newton,
+)  # fmt: skip
+
+
+def convex(res: "NewtonResult") -> bool:
+    """Whether ``res`` has a Hessian worth starting quasi-Newton steps from (positive
+    definite in its live parameters)."""
+    if res.hess is None:
+        return False
+    live = np.flatnonzero(~res.active)
+    w = np.linalg.eigvalsh(res.hess[np.ix_(live, live)]) if live.size else np.ones(1)
+    return bool(np.all(np.isfinite(w)) and np.all(w > 0))
+
+
+def still_held(like: Likelihood, base: Params, free, theta, h, prev: "NewtonResult") -> bool:
+    """Whether every parameter ``prev`` held at a bound still has its gradient pointing
+    out there (on ``like``, at ``theta``): quasi-Newton keeps them held, so a flat
+    pose-error sigma the first pass pinned to its floor must be free to leave it (Newton
+    re-checks the active set at each iteration). Two evaluations per held parameter."""
+    held = prev.active
+    if not held.any():
+        return True
+    f = Objective(like, base, free)
+    lo, hi = box(free)
+    g_held, _ = fd_gradient(Part(f, lambda th_h: merge(theta, held, th_h)), theta[held], h[held])
+    g = np.zeros(len(free))
+    g[held] = g_held
+    return bool(np.all(outward(theta, g, lo, hi)[held]))
+
+
+def quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "NewtonResult") -> "NewtonResult":
+    """Quasi-Newton (:func:`quasi_newton`) on ``like`` from ``prev``'s Hessian and bounds."""
+    held = prev.active.copy()
+    h = prev.steps if h is None else h
+    theta_n, fval, hq, it, ok, held, _at = quasi_newton(
+        Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess
+    )
+    hess = np.zeros((len(free), len(free)))
+    live = np.flatnonzero(~held)
+    hess[np.ix_(live, live)] = hq
+    if held.any():
+        hess[held, held] = 1.0  # placeholder, as in newton
+    why = "converged" if ok else "no convergence of the quasi-Newton search"
+    return NewtonResult(theta_n, fval, hess, held, h, it, ok, why)
+
+
+def optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=None):
+    """Newton with the S/L split re-chosen until the one at the estimate is the one the
+    estimate was found with (the first pass stops early, at a decrement of 0.5 nats, the
+    others at ``tol``; from a ``warm`` start, the previous pass's estimate, the first
+    pass goes to ``tol`` too). A subsample's search (``tol`` above DECREMENT_TOL) stops
+    after one full pass: all rows follow, with the split chosen at its estimate; it takes
+    quasi-Newton steps from the previous pass's Hessian (``warm``: a :class:`NewtonResult` from
+    rows linearised at other sigmas; else the 0.5-nat pass's)."""
+    like = options.likelihood(rows)
+    if rows.moments is not None:
+        # quasi-Newton's final Hessian by differences re-visits the last gradient's axis
+        # points (8 of its 20 with 4 parameters): kept, as on all rows (full_stage)
+        like.remember = 4 * len(free) + 8
+    eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    search = tol > DECREMENT_TOL
+    if warm is not None and search and convex(warm):
+        like.choose_regimes(to_params(base, free, theta), **eps_kw)
+        if still_held(like, base, free, theta, warm.steps if h is None else h, warm):
+            return like, quasi(like, base, free, theta, options, h, tol, warm)
+    iters = 0
+    res = None
+    for _pass in range(4):
+        like.choose_regimes(to_params(base, free, theta), **eps_kw)
+        split = like.regimes.exact.copy()
+        settled = _pass > 0 or warm is not None
+        if settled and search and res is not None and convex(res) and still_held(like, base, free, theta, h, res):
+            res = quasi(like, base, free, theta, options, h, tol, res)
+            res.iterations += iters
+            return like, res
+        res = newton(Objective(like, base, free), theta, free, options.max_iter, h, tol if settled else 0.5)
+        iters += res.iterations
+        theta, h = res.theta, res.steps
+        if not res.ok or (settled and search):
+            break
+        if regimes_settled(like, to_params(base, free, theta), eps_kw, split, settled, notes):
+            break
+    res.iterations = iters
+    return like, res
+
+
+def regimes_settled(like: Likelihood, p: Params, eps_kw: dict, split, settled: bool, notes: list[str]) -> bool:
+    """After a pass of the regime loop: the regimes chosen again at ``p``. True when the
+    loop ends (a settled pass and no row changed: the pass's own split is kept); a row
+    that changed after a settled pass is noted and the loop refits."""
+    changed = int(np.sum(like.choose_regimes(p, **eps_kw).exact != split))
+    if changed == 0 and settled:
+        like.regimes.exact = split
+        return True
+    if changed and settled:
+        notes.append(f"{changed} rows changed likelihood regime at the estimate; refitted")
+    return False
+
+
+
+#: Above this many rows, Newton and the Hessian run on a random subsample of this size
+#: (the Hessian is a sum over rows: scaled by n / SUBSAMPLE its relative error is about
+#: 1 / sqrt(SUBSAMPLE) times the rows' spread of curvature).
+SUBSAMPLE = 10000
+#: Newton on the subsample stops at this decrement (nats) when all rows follow: within
+#: 0.15 of the subsample's standard errors, which the full-data steps then remove.
+SUB_TOL = 1e-2
+#: The full-data steps stop at this decrement (nats): within 0.015 standard errors of the
+#: optimum. Below it the differences' own noise (~1e-5 nats with 1e5 rows) takes over.
+FULL_TOL = 1e-4
+#: With pose error (:func:`full_stage`), below this decrement (~0.08 standard errors from
+#: the optimum) the Hessian by differences is taken where the steps stand and one Newton
+#: step with it, unevaluated, ends them: a line-search point and a gradient fewer (9 of
+#: ~40 evaluations on all rows, 4 parameters).
+FULL_FINISH_TOL = 3e-3
+
+
+def subset(rows: Rows, idx) -> Rows:
+    return rows.take(idx, track=False)
+
+
+
+def run_stages(
+    rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], start: Params | None,
+    full: bool = True, prev: "NewtonResult | None" = None,
+):
+    """Pilot + Newton (+ the full-data stage for big tables, :func:`full_stage`, unless
+    ``full`` is False: then the result is the subsample's) for the parameters ``free``.
+    ``start``: skip the pilot (a previous pass's estimate; ``prev``: that pass's result)."""
+    n = rows.k.shape[0]
+    big = n > SUBSAMPLE and "time_offset" not in free  # the pose track needs every row
+    if big:
+        rng = np.random.default_rng(np.random.SeedSequence(options.seed, spawn_key=(0x5B,)))
+        sub = subset(rows, np.sort(rng.choice(n, SUBSAMPLE, replace=False)))
+    else:
+        sub = rows
+    n_evals = 0
+    warm = prev if start is not None else None
+    if start is None:  # pilot on (at most) the subsample
+        start = base
+        if "time_offset" in free and rows.track is not None:
+            # A misaligned clock looks like a large pose error (and no noise floor), so
+            # find the offset first: a scan over +-3 s at the naive kappa_eq.
+            k_med = median_kappa(sub, base.r_inner)
+            probe = replace(base, kappa_eq=k_med if math.isfinite(k_med) else base.kappa_eq, pose_sigma=0.01)
+            scan = Likelihood(sub)
+            best = (math.inf, 0.0)
+            for dt in OFFSET_GRID:
+                trial = replace(probe, time_offset=float(dt))
+                scan.choose_regimes(trial)
+                v = scan.nll(trial)
+                if v < best[0]:
+                    best = (v, float(dt))
+            n_evals += scan.n_evals
+            start = replace(start, time_offset=best[1])
+            sub = replace(sub, geo=sub.track.geometry(best[1]))  # pilots below at that offset
+        if "kappa_eq" in free:
+            k_med = median_kappa(sub, base.r_inner)
+            if math.isfinite(k_med):
+                start = replace(start, kappa_eq=k_med)
+        if "pose_sigma" in free and sub.moments is None:  # else the near scatter is GPS error
+            start = replace(start, pose_sigma=pilot_sigma(sub, start.kappa_eq, base.r_inner))
+        if "r_en" in free:
+            eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+            grid_r = np.geomspace(8.0, 1000.0, 15)
+
+            def at(r_en):  # one likelihood per point: the points run on the stencil threads
+                like_r = options.likelihood(sub)
+                trial = replace(start, r_en=float(r_en))
+                like_r.choose_regimes(trial, **eps_kw)
+                return like_r.nll(trial)
+
+            values, n_grid = grid_values(at, grid_r)
+            n_evals += n_grid
+            i = int(np.argmin(values))
+            best_r = float(grid_r[i]) if math.isfinite(values[i]) else start.r_en
+            if analytic(sub, start, free, options) and 0 < i < len(values) - 1 and np.all(np.isfinite(values[i - 1 : i + 2])):
+                # the vertex of the parabola through the best point and its neighbours (in log
+                # r_en): Newton from the grid's ratio of 1.4 took 5-8 steps more
+                best_r *= math.exp(vertex_shift(values, i, math.log(grid_r[1] / grid_r[0])))
+            start = replace(start, r_en=best_r)
+    theta = from_params(start, free)
+    if "time_offset" in free and rows.track is not None:
+        sub = rows  # the likelihood recomputes the geometry from the track at each offset
+    steps = None if prev is None else prev.steps
+    use_grad = analytic(sub, start, free, options)
+    if use_grad:
+        like, res = optimise_grad(sub, base, free, theta, options, notes, SUB_TOL if big else DECREMENT_TOL)
+    else:
+        like, res = optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else DECREMENT_TOL, warm)
+    n_evals += like.n_evals
+    if big and res.ok and full:
+        like, res, extra = (full_stage_grad if use_grad else full_stage)(rows, base, free, options, notes, res)
+        n_evals += extra
+    return like, res, n_evals
+
+
+
+def block_rows(rows: Rows) -> int:
+    """Rows per block for evaluating all ``rows`` (:data:`likelihood.BLOCK_ROWS`). With pose
+    error the near-kink rule's temporaries want cache-sized blocks; with exact poses an
+    evaluation is many small numpy calls and two threads gain only on halves (1e5 rows:
+    47 -> 33 ms wall with a core free; in blocks of 1e4: nothing)."""
+    n = rows.k.shape[0]
+    return BLOCK_ROWS if rows.moments is not None else max(BLOCK_ROWS, -(-n // 2))
+
+
+def full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], res: "NewtonResult"):
+    """From the subsample's estimate, Newton on all rows: the Hessian by differences on all
+    rows there (a subsample's, scaled, is too noisy for the standard errors: a few rows
+    near the noise edge carry much of the curvature), then Newton steps with it until the
+    decrement is below FULL_TOL. The subsample's estimate is ~sqrt(n / SUBSAMPLE)
+    standard errors away, where the Hessian is the optimum's to O(1 / sqrt(n)): one step
+    usually lands, and the gradient at the new point confirms it. With pose error, once
+    the decrement is below FULL_FINISH_TOL the Hessian by differences is taken there and
+    one Newton step with it, not evaluated, ends the stage (``finish`` of
+    :func:`quasi_newton`). The per-row log P of that last gradient's points are kept for
+    the sandwich's scores (:func:`row_scores`, taken there: :attr:`NewtonResult.evaluated`)."""
+    n = rows.k.shape[0]
+    scale = n / SUBSAMPLE
+    full = options.likelihood(rows)
+    eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
+    full.remember = 4 * len(free) + 8
+    if options.likelihood is Likelihood:  # (the benchmark's alternatives draw per-row noise)
+        full.block, full.threads = block_rows(rows), parallel.STENCIL_THREADS
+    # Differences of 0.3 standard errors of all rows, from the scaled subsample Hessian.
+    live = np.flatnonzero(~res.active)
+    try:
+        se_live = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.hess[np.ix_(live, live)] * scale)), 1e-18))
+    except np.linalg.LinAlgError:
+        se_live = res.steps[live] / 0.3 / math.sqrt(scale)
+    steps = res.steps.copy()
+    steps[live] = np.clip(0.3 * se_live, 1e-7, 0.05)
+    # With two live parameters the Hessian by differences costs two evaluations more than
+    # the gradient and saves a step or two; with more, the scaled subsample's is cheaper.
+    hess0 = None if live.size <= 2 else res.hess * scale
+    # (with exact poses the curvature wavers more over 0.08 s.e.: q's s.e. moved 4.7 % on a
+    # 1e5-row campaign, so those fits step on to FULL_TOL as before)
+    theta, fval, h_live, it, ok_r, held, at = quasi_newton(
+        Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=hess0, probe=True,
+        finish=FULL_FINISH_TOL if rows.moments is not None else None,
+    )
+    live = np.flatnonzero(~held)
+    hess = np.zeros_like(res.hess)
+    hess[np.ix_(live, live)] = h_live
+    if held.any():
+        hess[held, held] = 1.0  # placeholder, as in newton
+    res.theta, res.hess, res.f, res.steps, res.active, res.evaluated = theta, hess, fval, steps, held, at
+    res.iterations += it
+    if not ok_r:
+        # Quasi-Newton stalls where the likelihood is not convex (a flat pose-error sigma
+        # leaving its floor: BFGS skips the updates); Newton with the Hessian at each step
+        # (and its active set) finishes the job, at 21 evaluations a step for 4 parameters.
+        again = newton(Objective(full, base, free), theta, free, options.max_iter, steps, FULL_TOL)
+        res.iterations += again.iterations
+        if again.ok:
+            res.theta, res.hess, res.f, res.steps, res.active = again.theta, again.hess, again.f, again.steps, again.active
+            res.evaluated = None
+            ok_r = True
+    res.full_evals = full.n_evals
+    if not ok_r:
+        res.ok, res.why = False, "no convergence of the full-data refinement"
+    notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then Newton steps and the Hessian on all rows")
+    return full, res, full.n_evals
+
+
+
+def analytic(rows: Rows, p: Params, free: tuple[str, ...], options: FitOptions) -> bool:
+    """Whether the fit of ``free`` takes the analytic-gradient route (:func:`newton_grad`):
+    exact poses (no errors-in-variables model) and parameters among
+    :data:`Likelihood.GRAD_PARAMS`; the others keep central differences. So does a fit of
+    r_outer: its likelihood-ratio interval is taken at the first pass's estimate (with
+    the initial r_outer), whose optimum is rugged in r_en; the gradient route found a
+    lower one on the test campaign, and the interval came out 13 % narrower."""
+    return (
+        options.likelihood is Likelihood
+        and rows.moments is None
+        and "r_outer" not in options.free
+        and all(n in Likelihood.GRAD_PARAMS for n in free)
+        and Likelihood(rows).has_grad(p)
+    )
+
+
+
+#: :func:`optimise_grad` splits the rows of each evaluation in two halves from this many
+#: rows on (a 10,000-row subsample: 9.5 -> ~6 ms wall with a core free).
+SPLIT_ROWS = 4000
+
+
+def optimise_grad(rows: Rows, base: Params, free, theta, options, notes, tol):
+    """:func:`optimise` on the analytic-gradient route: a pre-pass to 0.5 nats, then Newton
+    to ``tol`` with the S/L split re-chosen until the one at the estimate is the one the
+    estimate was found with (a subsample's search: one pass; all rows follow). Its
+    evaluations are sequential: from SPLIT_ROWS rows on, each runs its two halves on the
+    stencil threads (same values, bit for bit)."""
+    like = Likelihood(rows)
+    n = rows.k.shape[0]
+    if n >= SPLIT_ROWS:
+        like.block, like.threads = -(-n // 2), parallel.STENCIL_THREADS
+    eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    obj = GradObjective(like, base, free)
+    search = tol > DECREMENT_TOL
+    iters = 0
+    res = None
+    hess0 = None
+    for _pass in range(4):
+        like.choose_regimes(to_params(base, free, theta), **eps_kw)
+        split = like.regimes.exact.copy()
+        settled = _pass > 0
+        # the pre-pass's Hessian, if it differenced one, starts the next pass; a subsample's
+        # search needs one only to start all rows from
+        hessian = ("some" if search else "final") if settled else "none"
+        res = newton_grad(obj, theta, free, options.max_iter, tol if settled else 0.5, hess0, hessian)
+        hess0 = res.hess
+        iters += res.iterations
+        theta = res.theta
+        if not res.ok or (settled and search):
+            break
+        if regimes_settled(like, to_params(base, free, theta), eps_kw, split, settled, notes):
+            break
+    res.iterations = iters
+    return like, res
+
+
+#: :func:`full_stage_grad` ends its search on all rows with one Newton step from where the
+#: decrement falls below this (~0.045 s.e. from the estimate) with the Hessian by
+#: differences taken there, unevaluated: one pass over all rows fewer.
+FINISH_TOL = 1e-3
+
+
+def full_stage_grad(rows: Rows, base: Params, free: tuple[str, ...], options: FitOptions, notes: list[str], res: "NewtonResult"):
+    """:func:`full_stage` on the analytic-gradient route: from the subsample's estimate,
+    Newton steps on all rows from the subsample's Hessian scaled by n / SUBSAMPLE (with BFGS
+    updates) to FINISH_TOL, then the Hessian by central differences of the gradient there
+    and one Newton step with it (not evaluated). The likelihood's curvature in r_en wavers
+    by ~15 % over one standard error (rows near the noise edge), so from ~1 s.e. away one
+    to three steps are needed, whatever the Hessian: 2-4 + 2p - 1 passes over all rows
+    (kappa_eq's column of the Hessian one-sided, :data:`ONE_SIDED`). (The outer product of all rows'
+    scores, free with the gradient, is no start: with exact poses the model's 0.01 % pose
+    error is wider than the data's, and it has half kappa_eq's curvature.)"""
+    full = Likelihood(rows)
+    eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
+    full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
+    full.block, full.threads = block_rows(rows), parallel.STENCIL_THREADS
+    hess0 = None if res.hess is None else res.hess * (rows.k.shape[0] / SUBSAMPLE)
+    again = newton_grad(
+        GradObjective(full, base, free), res.theta, free, options.max_iter, FULL_TOL, hess0, one_sided=ONE_SIDED, finish=FINISH_TOL
+    )
+    again.iterations += res.iterations
+    again.full_evals = full.n_evals
+    if not again.ok:
+        again.why = "no convergence of the full-data refinement"
+    notes.append(f"Newton on a {SUBSAMPLE}-row subsample, then Newton steps and the Hessian on all rows")
+    return full, again, full.n_evals
+
+
+def fit_r_outer(like: Likelihood, params: Params, rows: Rows) -> tuple[float, float, float]:
+    """r_outer is an end point (the largest d the receiver shows): its likelihood is not
+    quadratic, so it gets a bounded 1-D search with the other parameters held, and a
+    likelihood-ratio interval (ΔNLL = 1.92) whose width / 3.92 is reported as its s.e.
+    Returns (r_outer, se, nll)."""
+    from scipy.optimize import brentq, minimize_scalar
+
+    max_d = int(np.max(rows.k))
+    lo = (max_d - 0.5) / 100.0 + 1e-7
+    hi = max(lo, params.r_outer) + 2.0
+    f = lambda r: like.nll(replace(params, r_outer=float(r)))  # noqa: E731
+    best = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6})
+    r, f0 = float(best.x), float(best.fun)
+    g = lambda x: f(x) - f0 - 1.92  # noqa: E731
+    left = brentq(g, lo, r, xtol=1e-7) if g(lo) > 0 else lo
+    right = brentq(g, r, hi, xtol=1e-7) if g(hi) > 0 else hi
+    return r, (right - left) / 3.92, f0
+
+
