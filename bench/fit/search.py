@@ -75,6 +75,89 @@ def solve(hf, gf):
     return -(v @ ((v.T @ gf) / mod)), bool(np.any(w <= 0))
 
 
+def decrement_of(g, stepf) -> float:
+    """The Newton decrement g' H^-1 g / 2 of a step -H^-1 g: the predicted gain (nats)."""
+    return -0.5 * float(g @ stepf)
+
+
+def on_axes(p: int, idx, values) -> NDArray[np.float64]:
+    """A vector of ``p`` zeros with ``values`` at ``idx`` (a step of the live parameters)."""
+    out = np.zeros(p)
+    out[idx] = values
+    return out
+
+
+def capped(step, cap, flat_ok=None) -> NDArray[np.float64]:
+    """``step`` shortened so that no component exceeds its ``cap``. ``flat_ok``: parameters
+    whose oversized component is clipped alone first (a pose-error sigma in a flat
+    direction gets a huge Newton step; it should not shorten every other step with it),
+    unless all oversized components are such."""
+    step = step.copy()
+    if flat_ok is not None:
+        flat = flat_ok & (np.abs(step) > cap)
+        if flat.any() and not flat.all():
+            step[flat] = np.sign(step[flat]) * cap[flat]
+    return step * min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+
+
+def probe_bounds(value, theta, f0, step, lo, hi, cap, probe_lo, probe_hi):
+    """A parameter heading for a bound where the likelihood flattens (pose_sigma with exact
+    poses; r_en with no noise in the data) would creep there in capped steps: try the
+    bound itself. ``probe_lo`` / ``probe_hi``: the parameters that may be tried at their
+    lower / upper bound (r_en only when the step is capped or r_en is past 300 m).
+    ``value(theta)`` returns a tuple whose first item is f. A bound is taken when f is
+    lower there, or, at a lower bound, no more than 1e-6 higher (a sigma that no longer
+    matters leaves f flat to rounding). Returns (theta, the last accepted value tuple or
+    None, the indices taken)."""
+    toward_lo = probe_lo & (step < 0) & (theta > lo)
+    toward_hi = probe_hi & (step > 0) & ((np.abs(step) >= cap) | (theta > math.log(300.0))) & (theta < hi)
+    got, taken = None, []
+    for i in np.flatnonzero(toward_lo | toward_hi):
+        trial = theta.copy()
+        trial[i] = lo[i] if toward_lo[i] else hi[i]
+        r = value(trial)
+        if r[0] < f0 or (toward_lo[i] and r[0] < f0 + 1e-6):
+            theta, f0, got = trial, r[0], r
+            taken.append(int(i))
+    return theta, got, taken
+
+
+def bfgs(hk, s, y):
+    """The BFGS update of the Hessian block ``hk`` from a step ``s`` and the gradient's
+    change ``y``; None when the change has no positive curvature along the step."""
+    ys, hs = float(y @ s), hk @ s
+    shs = float(s @ hs)
+    if ys > 1e-12 * max(shs, 1e-300) and shs > 0:
+        return hk + np.outer(y, y) / ys - np.outer(hs, hs) / shs
+    return None
+
+
+def inside_step(theta, keep, stepf, lo, hi):
+    """theta + the step of the ``keep`` parameters, or None when it leaves the box."""
+    end = theta.copy()
+    end[keep] += stepf
+    return end if np.all((end >= lo) & (end <= hi)) else None
+
+
+def with_placeholders(hl, held) -> NDArray[np.float64]:
+    """The full Hessian from the block of the live (not ``held``) parameters; held ones get
+    1 on the diagonal, a placeholder never used for a step."""
+    p = held.shape[0]
+    hess = np.zeros((p, p))
+    live = np.flatnonzero(~held)
+    hess[np.ix_(live, live)] = hl
+    if held.any():
+        hess[held, held] = 1.0
+    return hess
+
+
+def se_clipped(se, free, idx) -> NDArray[np.float64]:
+    """Difference steps of 0.3 standard errors ``se`` for the parameters ``idx``, between 1e-7
+    and 0.05 (0.5 for the linear ones, in s or m)."""
+    top = np.where(np.isin(np.array(free)[idx], LINEAR), 0.5, 0.05)
+    return np.clip(0.3 * se, 1e-7, top)
+
+
 def line_search(f, theta, step, f0, lo, hi, cap=None, double=True):
     """Backtracking from the full step; if the full step already decreases f, keep
     doubling it while f keeps decreasing (the likelihood is steeper on the barrier side
@@ -128,6 +211,12 @@ class NewtonResult:
     evaluated: NDArray[np.float64] | None = None
 
 
+def probes(free) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """The parameters :func:`probe_bounds` may try at their lower bound (the sigmas of
+    :data:`params.MAY_VANISH`) and at their upper bound (r_en)."""
+    return np.array([n in MAY_VANISH for n in free]), np.array([n == "r_en" for n in free])
+
+
 def newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> NewtonResult:
     """Projected damped Newton on f (the negative log-likelihood) in the BOUNDS box.
 
@@ -140,8 +229,7 @@ def newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> NewtonResult:
     lo, hi = box(free)
     h = initial_steps(free) if h is None else h.copy()
     cap = caps(free)
-    probe_lo = np.array([n in MAY_VANISH for n in free])
-    probe_hi = np.array([n == "r_en" for n in free])
+    probe_lo, probe_hi = probes(free)
     theta = np.clip(theta, lo, hi)
     f0 = f(theta)
     none = np.zeros(p, bool)
@@ -151,16 +239,13 @@ def newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> NewtonResult:
     shrinks = 0
     for it in range(1, max_iter + 1):
         g = np.zeros(p)
-        hess = np.zeros((p, p))
         if held.any():
             gh, _ = fd_gradient(Part(f, lambda th_h: merge(theta, held, th_h)), theta[held], h[held], f0)
             g[held] = gh
         live = np.flatnonzero(~held)
         gl, hl = fd_gradient(Part(f, lambda th_l: merge(theta, ~held, th_l)), theta[live], h[live], f0, hessian=True)
         g[live] = gl
-        hess[np.ix_(live, live)] = hl
-        if held.any():
-            hess[held, held] = 1.0  # placeholder, never used for a step
+        hess = with_placeholders(hl, held)
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(hess))):
             return NewtonResult(theta, f0, hess, none, h, it, False, "the likelihood is not finite next to the estimate")
         active = outward(theta, g, lo, hi)
@@ -173,7 +258,7 @@ def newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> NewtonResult:
         stepf, modified = solve(hf, g[keep])
         if stepf is None:
             return NewtonResult(theta, f0, hess, active, h, it, False, "the Hessian is not finite")
-        decrement = -0.5 * float(g[keep] @ stepf)
+        decrement = decrement_of(g[keep], stepf)
         if tol >= 0.5 and decrement < tol:
             # The pre-pass only settles the likelihood regimes: close enough, whatever the
             # curvature at these steps (the next pass looks closer).
@@ -183,10 +268,7 @@ def newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> NewtonResult:
             # noise edge: look again with smaller steps) or a flat, curved direction (a
             # pose-error sigma far from its estimate): try the (modified) step first, and
             # keep it if it clearly lowers f.
-            step = np.zeros(p)
-            step[keep] = stepf
-            step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
-            trial = np.clip(theta + step, lo, hi)
+            trial = np.clip(theta + capped(on_axes(p, keep, stepf), cap), lo, hi)
             f1 = f(trial)
             if f1 < f0 - 1e-3:
                 theta, f0 = trial, f1
@@ -197,48 +279,26 @@ def newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> NewtonResult:
         new_h = h.copy()
         if not modified:
             w, v = np.linalg.eigh(0.5 * (hf + hf.T))
-            se = np.sqrt(np.maximum((v * v) @ (1.0 / np.maximum(w, 1e-300)), 0.0))
-            top = np.where(np.isin(np.array(free)[keep], LINEAR), 0.5, 0.05)
-            new_h[keep] = np.clip(0.3 * se, 1e-7, top)
+            new_h[keep] = se_clipped(np.sqrt(np.maximum((v * v) @ (1.0 / np.maximum(w, 1e-300)), 0.0)), free, keep)
         if not modified and decrement < tol:
             if tol > DECREMENT_TOL or np.all(np.abs(np.log(new_h / h)) < math.log(2.0)):
                 return NewtonResult(theta, f0, hess, active, h, it, True, "converged")
             h = new_h  # once more, with steps on the standard-error scale
             continue
         h = new_h
-        step = np.zeros(p)
-        step[keep] = stepf
-        probed = False
-        # A parameter heading for a bound where the likelihood flattens (pose_sigma with
-        # exact poses; r_en with no noise in the data) would creep there in capped
-        # steps: try the bound itself.
-        toward_lo = probe_lo & (step < 0) & (theta > lo)
-        toward_hi = probe_hi & (step > 0) & ((np.abs(step) >= cap) | (theta > math.log(300.0))) & (theta < hi)
-        for i in np.flatnonzero(toward_lo | toward_hi):
-            trial = theta.copy()
-            trial[i] = lo[i] if toward_lo[i] else hi[i]
-            f1 = f(trial)
-            # a sigma that no longer matters (exact poses) leaves f flat to rounding: take the bound
-            if f1 < f0 or (toward_lo[i] and f1 < f0 + 1e-6):
-                theta, f0, probed = trial, f1, True
-        if probed:
+        step = on_axes(p, keep, stepf)
+        theta, got, _taken = probe_bounds(lambda th: (f(th),), theta, f0, step, lo, hi, cap, probe_lo, probe_hi)
+        if got is not None:
+            f0 = got[0]
             continue
-        # A pose-error sigma in a flat direction (exact poses: the likelihood barely moves)
-        # gets a huge Newton step; clip it alone rather than shrinking every step with it.
-        flat = probe_lo & (np.abs(step) > cap)
-        if flat.any() and not flat.all():
-            step[flat] = np.sign(step[flat]) * cap[flat]
-        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
-        trial, f1 = line_search(f, theta, step, f0, lo, hi, cap)
+        trial, f1 = line_search(f, theta, capped(step, cap, probe_lo), f0, lo, hi, cap)
         if trial is None:
             # Near a steep side (the noise edge) differences over 0.3 standard errors bias
             # the gradient: retry with a gradient from steps ten times smaller.
             gk, _ = fd_gradient(Part(f, lambda th_k: merge(theta, ~active, th_k)), theta[keep], h[keep] / 10.0, f0)
             stepf, _mod = solve(hf, gk)
-            decrement = -0.5 * float(gk @ stepf)
-            step = np.zeros(p)
-            step[keep] = stepf
-            step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+            decrement = decrement_of(gk, stepf)
+            step = capped(on_axes(p, keep, stepf), cap)
             trial, f1 = line_search(f, theta, step, f0, lo, hi, cap) if decrement >= tol else (None, f0)
         if trial is None:
             if not modified and decrement < 1e-3:
@@ -278,7 +338,8 @@ def quasi_newton(
     lo, hi = box(free)
     cap = caps(free)
     held = held.copy()
-    probe_lo = np.array([probe and n in MAY_VANISH for n in free])
+    probe_lo = probes(free)[0] & probe
+    no_probe = np.zeros(len(free), bool)
     probed = np.zeros(len(free), bool)
     live = np.flatnonzero(~held)
     point = {"theta": theta}
@@ -295,38 +356,32 @@ def quasi_newton(
         stepf, _mod = solve(hq, g)
         if stepf is None:
             break
-        decrement = -0.5 * float(g @ stepf)
+        decrement = decrement_of(g, stepf)
         if finish is not None and final_hessian and tol <= decrement < finish and differenced is not theta:
             _g, hl = fd_gradient(sub, theta[live], h[live], f0, hessian=True)  # axis points: the last gradient's
             differenced, hq = theta, hl.copy()
             stepf, modified = solve(hl, g)
             if stepf is None:
                 break
-            decrement = -0.5 * float(g @ stepf)
-            end = theta.copy()
-            end[live] += stepf
-            if not modified and decrement < finish and np.all((end >= lo) & (end <= hi)):
+            decrement = decrement_of(g, stepf)
+            end = inside_step(theta, live, stepf, lo, hi)
+            if not modified and decrement < finish and end is not None:
                 return end, f0 - decrement, hl, it, True, held, theta
         if decrement < tol:
             ok = True
             break
-        step = np.zeros(len(free))
-        step[live] = stepf
-        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
-        took = False
-        for i in np.flatnonzero(probe_lo & ~held & ~probed & (step < 0) & (theta > lo)):
-            probed[i] = True
-            trial = theta.copy()
-            trial[i] = lo[i]
-            f1 = f(trial)
-            if f1 < f0 + 1e-6:
-                keep = [k for k, j in enumerate(live) if j != i]
-                theta, f0, took = trial, f1, True
-                point["theta"] = theta
-                held[i] = True
-                live = np.flatnonzero(~held)
-                hq, hl = hq[np.ix_(keep, keep)], hl[np.ix_(keep, keep)]
-        if took:
+        step = capped(on_axes(len(free), live, stepf), cap)
+        # (each sigma at most once; one taken there is held: this search keeps its active set)
+        candidates = probe_lo & ~held & ~probed
+        probed |= candidates & (step < 0) & (theta > lo)
+        theta, got, taken = probe_bounds(lambda th: (f(th),), theta, f0, step, lo, hi, cap, candidates, no_probe)
+        if taken:
+            f0 = got[0]
+            point["theta"] = theta
+            keep = [k for k, j in enumerate(live) if j not in taken]
+            held[taken] = True
+            live = np.flatnonzero(~held)
+            hq, hl = hq[np.ix_(keep, keep)], hl[np.ix_(keep, keep)]
             moved = True
             g, _ = fd_gradient(sub, theta[live], h[live], f0)
             continue
@@ -338,13 +393,10 @@ def quasi_newton(
         theta, f0 = trial, f1
         point["theta"] = theta
         g_new, _ = fd_gradient(sub, theta[live], h[live], f0)
-        y = g_new - g
+        updated = bfgs(hq, s_l, g_new - g)
         g, moved = g_new, True
-        ys = float(y @ s_l)
-        hs = hq @ s_l
-        shs = float(s_l @ hs)
-        if ys > 1e-12 * max(shs, 1e-300) and shs > 0:
-            hq = hq + np.outer(y, y) / ys - np.outer(hs, hs) / shs
+        if updated is not None:
+            hq = updated
     if not final_hessian:
         return theta, f0, hq, it, ok, held, None
     if moved and differenced is not theta:
@@ -485,8 +537,7 @@ def newton_grad(
     lo, hi = box(free)
     cap = caps(free)
     h = initial_steps(free)
-    probe_lo = np.array([n in MAY_VANISH for n in free])
-    probe_hi = np.array([n == "r_en" for n in free])
+    probe_lo, probe_hi = probes(free)
     theta = np.clip(theta, lo, hi)
     f0, g, scores = obj.value_grad(theta)
     none = np.zeros(p, bool)
@@ -520,7 +571,7 @@ def newton_grad(
         stepf, _mod = solve(hk, g[keep])
         if stepf is None:
             return NewtonResult(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
-        decrement = -0.5 * float(g[keep] @ stepf)
+        decrement = decrement_of(g[keep], stepf)
         slow = n_steps >= 2 and decrement > 0.5 * last_dec
         stalled = decrement >= tol and ((bhhh and n_steps >= BHHH_STEPS) or slow)
         here = exact_at is not None and np.array_equal(exact_at[0], theta) and np.array_equal(exact_at[1], keep)
@@ -531,36 +582,21 @@ def newton_grad(
             stepf, _mod = solve(hk, g[keep])
             if stepf is None:
                 return NewtonResult(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
-            decrement = -0.5 * float(g[keep] @ stepf)
-            if finishing and decrement < finish:
-                end = theta.copy()
-                end[keep] += stepf
-                if np.all((end >= lo) & (end <= hi)):
-                    return NewtonResult(end, f0 - decrement, hq, active, h, it, True, "converged")
+            decrement = decrement_of(g[keep], stepf)
+            end = inside_step(theta, keep, stepf, lo, hi) if finishing and decrement < finish else None
+            if end is not None:
+                return NewtonResult(end, f0 - decrement, hq, active, h, it, True, "converged")
         n_steps += 1
         last_dec = decrement
         if decrement < tol:
             return NewtonResult(theta, f0, hq if differenced else None, active, h, it, True, "converged")
-        step = np.zeros(p)
-        step[keep] = stepf
-        # A parameter heading for a bound where the likelihood flattens (pose_sigma with
-        # exact poses; r_en with no noise in the data): try the bound itself.
-        toward_lo = probe_lo & (step < 0) & (theta > lo)
-        toward_hi = probe_hi & (step > 0) & ((np.abs(step) >= cap) | (theta > math.log(300.0))) & (theta < hi)
-        probed = False
-        for i in np.flatnonzero(toward_lo | toward_hi):
-            trial = theta.copy()
-            trial[i] = lo[i] if toward_lo[i] else hi[i]
-            r = obj.value_grad(trial)
-            if r[0] < f0 or (toward_lo[i] and r[0] < f0 + 1e-6):
-                theta, (f0, g, scores), probed = trial, r, True
-        if probed:
+        step = on_axes(p, keep, stepf)
+        theta, got, _taken = probe_bounds(obj.value_grad, theta, f0, step, lo, hi, cap, probe_lo, probe_hi)
+        if got is not None:
+            f0, g, scores = got
             n_steps, last_dec = 0, math.inf
             continue
-        flat = probe_lo & (np.abs(step) > cap)
-        if flat.any() and not flat.all():
-            step[flat] = np.sign(step[flat]) * cap[flat]
-        step *= min(1.0, float(np.min(cap / np.maximum(np.abs(step), 1e-300))))
+        step = capped(step, cap, probe_lo)
         accepted = None
         for _half in range(12):
             trial = np.clip(theta + step, lo, hi)
@@ -582,11 +618,9 @@ def newton_grad(
             r = obj.value_grad(alt)
             if r[0] < f1:
                 trial, (f1, g1, s1) = alt, r
-        s_l, y = (trial - theta)[keep], (g1 - g)[keep]  # BFGS on the live block
-        ys, hs_ = float(y @ s_l), hk @ s_l
-        shs = float(s_l @ hs_)
-        if not bhhh and ys > 1e-12 * max(shs, 1e-300) and shs > 0:
-            hq[np.ix_(keep, keep)] = hk + np.outer(y, y) / ys - np.outer(hs_, hs_) / shs
+        updated = None if bhhh else bfgs(hk, (trial - theta)[keep], (g1 - g)[keep])  # on the live block
+        if updated is not None:
+            hq[np.ix_(keep, keep)] = updated
         theta, f0, g, scores = trial, f1, g1, s1
     return NewtonResult(theta, f0, hq, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
 

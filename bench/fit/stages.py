@@ -21,7 +21,7 @@ from .pilot import grid_values, median_kappa, pilot_sigma, vertex_shift
 from .result import FitOptions
 from .search import (
     DECREMENT_TOL, ONE_SIDED, GradObjective, NewtonResult, Objective, Part, fd_gradient, merge, newton, newton_grad, outward,
-    quasi_newton,
+    quasi_newton, with_placeholders,
 )  # fmt: skip
 
 
@@ -58,11 +58,7 @@ def quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "N
     theta_n, fval, hq, it, ok, held, _at = quasi_newton(
         Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess
     )
-    hess = np.zeros((len(free), len(free)))
-    live = np.flatnonzero(~held)
-    hess[np.ix_(live, live)] = hq
-    if held.any():
-        hess[held, held] = 1.0  # placeholder, as in newton
+    hess = with_placeholders(hq, held)
     why = "converged" if ok else "no convergence of the quasi-Newton search"
     return NewtonResult(theta_n, fval, hess, held, h, it, ok, why)
 
@@ -264,11 +260,7 @@ def full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpti
         Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=hess0, probe=True,
         finish=FULL_FINISH_TOL if rows.moments is not None else None,
     )
-    live = np.flatnonzero(~held)
-    hess = np.zeros_like(res.hess)
-    hess[np.ix_(live, live)] = h_live
-    if held.any():
-        hess[held, held] = 1.0  # placeholder, as in newton
+    hess = with_placeholders(h_live, held)
     res.theta, res.hess, res.f, res.steps, res.active, res.evaluated = theta, hess, fval, steps, held, at
     res.iterations += it
     if not ok_r:
