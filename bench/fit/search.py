@@ -1,12 +1,13 @@
 """Newton's method on the negative log-likelihood, in the optimiser's scale.
 
-A projected, damped Newton method in the :data:`params.BOUNDS` box (:func:`newton`, the
-Hessian by central differences at each iteration), its quasi-Newton form from a good start
-(:func:`quasi_newton`: BFGS updates, the Hessian by differences at the end) and the
-analytic-gradient form for exact poses (:func:`newton_grad`: BHHH, BFGS and the Hessian by
-differences of the gradient). The shared pieces: difference gradients, the eigenvalue-
-modified step, the active set (a parameter at a bound with the gradient pointing out is
-held), the line search, and the objectives (theta -> negative log-likelihood, nats).
+One projected, damped Newton method in the :data:`params.BOUNDS` box (:func:`newton`),
+parametrised by what differs between the fit's searches: the gradient source
+(:class:`Differences` of the likelihood, or :class:`Analytic`, one pass for exact poses)
+and the curvature (the Hessian by differences at every iteration, or a Hessian carried
+from a start and corrected by BFGS updates). Its pieces: difference gradients, the
+eigenvalue-modified step, the active set (a parameter at a bound with the gradient
+pointing out is held), bound probes, step caps, the line searches, and the objectives
+(theta -> negative log-likelihood, nats).
 """
 
 from __future__ import annotations
@@ -158,24 +159,21 @@ def se_clipped(se, free, idx) -> NDArray[np.float64]:
     return np.clip(0.3 * se, 1e-7, top)
 
 
-def line_search(f, theta, step, f0, lo, hi, cap=None, double=True):
+def line_search(f, theta, step, f0, lo, hi, cap=None):
     """Backtracking from the full step; if the full step already decreases f, keep
     doubling it while f keeps decreasing (the likelihood is steeper on the barrier side
     of r_en than a quadratic, so Newton steps from there fall short). The full and the
     first doubled step are evaluated together (two threads), which is what a step that
-    lands usually costs; the search itself is unchanged."""
+    lands usually costs; the search itself is unchanged. Returns (theta, f) or (None, f0).
+    (Searches with a carried Hessian backtrack without doubling: :func:`backtrack`.)"""
     trial = np.clip(theta + step, lo, hi)
     longer = step * 2.0
-    if not double:  # quasi-Newton near the optimum: the full step, else backtracking
-        f1 = f(trial)
-        if f1 < f0:
-            return trial, f1
-    elif cap is None or not np.any(np.abs(longer) > cap):
+    if cap is None or not np.any(np.abs(longer) > cap):
         t2 = np.clip(theta + longer, lo, hi)
         f1, f2 = evaluate(f, [trial, t2])
     else:
         f1, f2 = f(trial), None
-    if double and f1 < f0:
+    if f1 < f0:
         for doubled in range(1, 5):
             if f2 is None or not f2 < f1:
                 break
@@ -215,193 +213,6 @@ def probes(free) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """The parameters :func:`probe_bounds` may try at their lower bound (the sigmas of
     :data:`params.MAY_VANISH`) and at their upper bound (r_en)."""
     return np.array([n in MAY_VANISH for n in free]), np.array([n == "r_en" for n in free])
-
-
-def newton(f, theta, free, max_iter, h=None, tol=DECREMENT_TOL) -> NewtonResult:
-    """Projected damped Newton on f (the negative log-likelihood) in the BOUNDS box.
-
-    Steps of the differences start at 1e-3 and are re-set to 0.3 standard errors from the
-    current Hessian; convergence needs a Newton decrement below DECREMENT_TOL with steps
-    that no longer change by more than a factor 2. A parameter at a bound whose gradient
-    points outwards is held there (active set).
-    """
-    p = len(free)
-    lo, hi = box(free)
-    h = initial_steps(free) if h is None else h.copy()
-    cap = caps(free)
-    probe_lo, probe_hi = probes(free)
-    theta = np.clip(theta, lo, hi)
-    f0 = f(theta)
-    none = np.zeros(p, bool)
-    if not math.isfinite(f0):
-        return NewtonResult(theta, f0, None, none, h, 0, False, "the likelihood is zero at the starting point")
-    held = np.zeros(p, bool)  # at a bound with the gradient pointing out: no Hessian row
-    shrinks = 0
-    for it in range(1, max_iter + 1):
-        g = np.zeros(p)
-        if held.any():
-            gh, _ = fd_gradient(Part(f, lambda th_h: merge(theta, held, th_h)), theta[held], h[held], f0)
-            g[held] = gh
-        live = np.flatnonzero(~held)
-        gl, hl = fd_gradient(Part(f, lambda th_l: merge(theta, ~held, th_l)), theta[live], h[live], f0, hessian=True)
-        g[live] = gl
-        hess = with_placeholders(hl, held)
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(hess))):
-            return NewtonResult(theta, f0, hess, none, h, it, False, "the likelihood is not finite next to the estimate")
-        active = outward(theta, g, lo, hi)
-        keep = np.flatnonzero(~active)
-        if np.any(active & ~held):
-            held = active.copy()
-            continue  # recompute without the held rows (cheaper, and exact for the rest)
-        held = active.copy()
-        hf = hess[np.ix_(keep, keep)]
-        stepf, modified = solve(hf, g[keep])
-        if stepf is None:
-            return NewtonResult(theta, f0, hess, active, h, it, False, "the Hessian is not finite")
-        decrement = decrement_of(g[keep], stepf)
-        if tol >= 0.5 and decrement < tol:
-            # The pre-pass only settles the likelihood regimes: close enough, whatever the
-            # curvature at these steps (the next pass looks closer).
-            return NewtonResult(theta, f0, hess, active, h, it, True, "converged")
-        if modified and decrement < 0.5 and shrinks < 3:
-            # Not convex at this step size. Either a difference straddles a steep side (the
-            # noise edge: look again with smaller steps) or a flat, curved direction (a
-            # pose-error sigma far from its estimate): try the (modified) step first, and
-            # keep it if it clearly lowers f.
-            trial = np.clip(theta + capped(on_axes(p, keep, stepf), cap), lo, hi)
-            f1 = f(trial)
-            if f1 < f0 - 1e-3:
-                theta, f0 = trial, f1
-                continue
-            shrinks += 1
-            h = h / 3.0
-            continue
-        new_h = h.copy()
-        if not modified:
-            w, v = np.linalg.eigh(0.5 * (hf + hf.T))
-            new_h[keep] = se_clipped(np.sqrt(np.maximum((v * v) @ (1.0 / np.maximum(w, 1e-300)), 0.0)), free, keep)
-        if not modified and decrement < tol:
-            if tol > DECREMENT_TOL or np.all(np.abs(np.log(new_h / h)) < math.log(2.0)):
-                return NewtonResult(theta, f0, hess, active, h, it, True, "converged")
-            h = new_h  # once more, with steps on the standard-error scale
-            continue
-        h = new_h
-        step = on_axes(p, keep, stepf)
-        theta, got, _taken = probe_bounds(lambda th: (f(th),), theta, f0, step, lo, hi, cap, probe_lo, probe_hi)
-        if got is not None:
-            f0 = got[0]
-            continue
-        trial, f1 = line_search(f, theta, capped(step, cap, probe_lo), f0, lo, hi, cap)
-        if trial is None:
-            # Near a steep side (the noise edge) differences over 0.3 standard errors bias
-            # the gradient: retry with a gradient from steps ten times smaller.
-            gk, _ = fd_gradient(Part(f, lambda th_k: merge(theta, ~active, th_k)), theta[keep], h[keep] / 10.0, f0)
-            stepf, _mod = solve(hf, gk)
-            decrement = decrement_of(gk, stepf)
-            step = capped(on_axes(p, keep, stepf), cap)
-            trial, f1 = line_search(f, theta, step, f0, lo, hi, cap) if decrement >= tol else (None, f0)
-        if trial is None:
-            if not modified and decrement < 1e-3:
-                return NewtonResult(theta, f0, hess, active, h, it, True, "converged")
-            if shrinks < 4:  # the differences were too coarse here: look closer
-                shrinks += 1
-                h = h / 3.0
-                continue
-            return NewtonResult(theta, f0, hess, active, h, it, False, "no step decreases the negative log-likelihood")
-        theta, f0 = trial, f1
-    return NewtonResult(theta, f0, hess, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
-
-
-def quasi_newton(
-    f, theta, free, h, held, max_iter=10, tol=DECREMENT_TOL, hess0=None, final_hessian=True, probe=False, finish=None
-):
-    """Quasi-Newton on ``f`` from a good start: the Hessian by differences (steps ``h``) at
-    the start, then steps with it, corrected by BFGS updates from the gradient changes
-    (the curvature of a pose-error sigma changes over a few standard errors), until the
-    decrement is below ``tol``; then the Hessian by differences at the point
-    reached (its axis points are the last gradient's: with a memoising ``f`` only the
-    diagonal pairs cost). The ``held`` parameters (at a bound) stay where they are; with
-    ``probe``, a pose-error sigma stepping toward its lower bound, where the likelihood
-    flattens, is tried at the bound once (as :func:`newton` does) and held there if f is
-    no worse: otherwise it creeps down the valley in ever shorter steps (4 of 50 4-hour
-    fits ran out of iterations so).
-    ``hess0``: start from this Hessian (all parameters) instead; ``final_hessian`` False:
-    return the BFGS one (a search's, whose result is only a start). ``finish`` (with
-    ``final_hessian``; above ``tol``): once the decrement is below it, the Hessian by
-    differences is taken where the search stands (the final one, taken a step earlier)
-    and one Newton step with it ends the search, unevaluated (its f is the quadratic
-    model's, f0 - decrement), if that decrement is below ``finish`` too; else the steps go
-    on with that Hessian. Saves the last line-search point and gradient.
-    Returns (theta, f, Hessian of the live parameters, iterations, converged, held, at):
-    ``at`` is where that Hessian and the last gradient were taken when ``theta`` is the
-    unevaluated step from there, else None."""
-    lo, hi = box(free)
-    cap = caps(free)
-    held = held.copy()
-    probe_lo = probes(free)[0] & probe
-    no_probe = np.zeros(len(free), bool)
-    probed = np.zeros(len(free), bool)
-    live = np.flatnonzero(~held)
-    point = {"theta": theta}
-    sub = Part(f, lambda th_l: merge(point["theta"], ~held, th_l))
-    f0 = f(theta)
-    if hess0 is None:
-        g, hl = fd_gradient(sub, theta[live], h[live], f0, hessian=True)
-    else:
-        (g, _), hl = fd_gradient(sub, theta[live], h[live], f0), hess0[np.ix_(live, live)]
-    moved, ok, it = hess0 is not None, False, 0
-    hq = hl.copy()
-    differenced = None if hess0 is not None else theta  # where hl is the Hessian by differences
-    for it in range(1, max_iter + 1):
-        stepf, _mod = solve(hq, g)
-        if stepf is None:
-            break
-        decrement = decrement_of(g, stepf)
-        if finish is not None and final_hessian and tol <= decrement < finish and differenced is not theta:
-            _g, hl = fd_gradient(sub, theta[live], h[live], f0, hessian=True)  # axis points: the last gradient's
-            differenced, hq = theta, hl.copy()
-            stepf, modified = solve(hl, g)
-            if stepf is None:
-                break
-            decrement = decrement_of(g, stepf)
-            end = inside_step(theta, live, stepf, lo, hi)
-            if not modified and decrement < finish and end is not None:
-                return end, f0 - decrement, hl, it, True, held, theta
-        if decrement < tol:
-            ok = True
-            break
-        step = capped(on_axes(len(free), live, stepf), cap)
-        # (each sigma at most once; one taken there is held: this search keeps its active set)
-        candidates = probe_lo & ~held & ~probed
-        probed |= candidates & (step < 0) & (theta > lo)
-        theta, got, taken = probe_bounds(lambda th: (f(th),), theta, f0, step, lo, hi, cap, candidates, no_probe)
-        if taken:
-            f0 = got[0]
-            point["theta"] = theta
-            keep = [k for k, j in enumerate(live) if j not in taken]
-            held[taken] = True
-            live = np.flatnonzero(~held)
-            hq, hl = hq[np.ix_(keep, keep)], hl[np.ix_(keep, keep)]
-            moved = True
-            g, _ = fd_gradient(sub, theta[live], h[live], f0)
-            continue
-        trial, f1 = line_search(f, theta, step, f0, lo, hi, double=False)
-        if trial is None:
-            ok = True
-            break
-        s_l = (trial - theta)[live]
-        theta, f0 = trial, f1
-        point["theta"] = theta
-        g_new, _ = fd_gradient(sub, theta[live], h[live], f0)
-        updated = bfgs(hq, s_l, g_new - g)
-        g, moved = g_new, True
-        if updated is not None:
-            hq = updated
-    if not final_hessian:
-        return theta, f0, hq, it, ok, held, None
-    if moved and differenced is not theta:
-        _g, hl = fd_gradient(sub, theta[live], h[live], f0, hessian=True)
-    return theta, f0, hl, it, ok, held, None
 
 
 # -- the likelihood as an objective ----------------------------------------------------------
@@ -501,129 +312,319 @@ def se_steps(hl, free, live, fallback):
     return np.where(np.isfinite(steps), steps, fallback)
 
 
-#: :func:`newton_grad` leaves the outer product for the Hessian by differences after
-#: BHHH_STEPS steps (or two in a row that do not halve the decrement).
+
+
+# -- one Newton search, two gradient sources ---------------------------------------------------
+
+
+class Differences:
+    """Gradient source of a search on ``f`` (an :class:`Objective`: theta -> nats) by central
+    differences with the search's steps h: 2p evaluations for the gradient, p^2 + p for
+    the Hessian too (:func:`fd_gradient`; its axis points are the gradient's, which a
+    memoising likelihood keeps). No per-row scores."""
+
+    scores = False
+
+    def __init__(self, f) -> None:
+        self.f = f
+
+    def value(self, theta) -> tuple[float]:
+        return (self.f(theta),)
+
+    def gradient(self, theta, f0, mask, h, hessian=False):
+        """The gradient of the coordinates ``mask`` at ``theta`` (and their Hessian)."""
+        return fd_gradient(Part(self.f, lambda x: merge(theta, mask, x)), theta[mask], h[mask], f0, hessian)
+
+    def renewed(self, theta, f0, g, keep, hk, h, lo, hi, free):
+        """(Hessian of the ``keep`` parameters by differences of f, the same steps)."""
+        mask = np.zeros(len(free), bool)
+        mask[keep] = True
+        return self.gradient(theta, f0, mask, h, hessian=True)[1], h
+
+
+class Analytic:
+    """Gradient source of a search on a :class:`GradObjective`: one pass gives f, the gradient
+    and the per-row scores (whose outer product, BHHH, is a curvature to start from); the
+    Hessian by central differences of the gradient, steps re-set to 0.3 standard errors
+    (:func:`hessian_fd`; ``one_sided``: its forward-difference columns)."""
+
+    scores = True
+
+    def __init__(self, obj: GradObjective, one_sided=()) -> None:
+        self.obj, self.one_sided = obj, one_sided
+
+    def value(self, theta):
+        return self.obj.value_grad(theta)
+
+    def renewed(self, theta, f0, g, keep, hk, h, lo, hi, free):
+        h = se_steps(hk, free, keep, h)
+        return hessian_fd(self.obj, theta, g, keep, h, lo, hi, self.one_sided), h
+
+
+#: With the outer product of the scores as curvature, the search takes the Hessian by
+#: differences after BHHH_STEPS steps (or two in a row that do not halve the decrement).
 BHHH_STEPS = 4
+NOT_FINITE = "the likelihood is not finite next to the estimate"
 
 
-def newton_grad(
-    obj: GradObjective, theta, free, max_iter, tol, hess0=None, hessian="final", one_sided=(), finish=None
+def newton(
+    source, theta, free, max_iter, tol=DECREMENT_TOL, *, recompute=False, h=None, held=None, hess0=None,
+    hessian="final", finish=None, probe=True,
 ) -> NewtonResult:
-    """Projected Newton on f with the analytic gradient of each point (one pass each).
+    """Projected, damped Newton on f (the negative log-likelihood) in the BOUNDS box.
 
-    Curvature: the outer product of the per-row scores at each point (BHHH; positive
-    definite, and the Hessian's expectation at the optimum of a well-specified model) or
-    ``hess0`` (a previous Hessian: the scaled one of a subsample), corrected by BFGS
-    updates from the gradient changes of each step. The outer product alone can stall (a
-    misspecified model, e.g. the wrong r_outer; or exact poses, whose 0.01 % model pose
-    error is wider than the data's: it has half kappa_eq's curvature there), and BFGS can
-    go astray on a likelihood that is not smooth at the scale of a standard error (1200
-    rows: 60 ever shorter steps): after BHHH_STEPS steps with the outer product, or two
-    steps in a row that did not halve the decrement, the Hessian by central differences
-    of the gradient (:func:`hessian_fd`, 2p passes) is taken there. Convergence: a
-    decrement g' H^-1 g / 2 below ``tol``; then with ``hessian`` "final" the Hessian by
-    differences at the estimate (the likelihood's curvature wavers
-    by ~1 % over 0.02 standard errors, rows near the noise edge: taken elsewhere it would
-    not be the estimate's); "some": a Hessian by differences taken somewhere on the way
-    (BFGS-updated; a subsample's, to start all rows from); "none" (a pre-pass): whatever
-    curvature was used. Bounds as in :func:`newton`: a parameter at a bound with its
-    gradient pointing out is held, and pose_sigma (r_en) stepping toward a bound where f
-    flattens is tried at the bound. ``one_sided``: see :func:`hessian_fd`. ``finish`` (with
-    "final"; a decrement above ``tol``): below it, the Hessian by differences is taken
-    where the search stands and one Newton step with it ends the search, unevaluated (its
-    f is the quadratic model's: f0 - decrement); if that decrement is still above
-    ``finish`` the search goes on as usual."""
+    What differs between the fit's searches is the two parameters:
+
+    * ``source``: :class:`Differences` (the errors-in-variables likelihood) or
+      :class:`Analytic` (exact poses: the gradient from one pass);
+    * ``recompute``: the Hessian by differences at every iteration (the search from a
+      pilot: difference steps start at ``h`` and are re-set to 0.3 standard errors from
+      each Hessian; convergence needs a decrement below ``tol`` with steps that no longer
+      change by more than a factor 2), or else a Hessian carried from a start and
+      corrected by BFGS updates from the gradient's changes: ``hess0`` (a previous one,
+      e.g. a subsample's scaled), the outer product of the scores (Analytic; replaced by
+      the Hessian by differences after BHHH_STEPS steps or two slow ones) or the Hessian
+      by differences (Differences). ``hessian``: "final", the Hessian by differences at
+      the estimate; "some" (Analytic): one taken anywhere on the way; "none": whatever
+      curvature was used (a pre-pass). ``finish`` (with "final"; a decrement above
+      ``tol``): once the decrement is below it, the Hessian by differences is taken where
+      the search stands and one Newton step with it, not evaluated, ends the search (its
+      f is the quadratic model's; ``evaluated`` says where the last gradient was taken).
+
+    The active set: a parameter at a bound whose gradient points out is held there. Where
+    the gradient of every parameter is known at each iteration (recompute, or Analytic)
+    the set is re-checked each time; a BFGS search by differences keeps its ``held`` set
+    and evaluates only the others. A parameter heading for a bound where f flattens (a
+    pose-error sigma toward its floor, r_en toward its ceiling) is tried at the bound
+    (:func:`probe_bounds`); a BFGS search by differences tries each sigma once (with
+    ``probe``) and holds it there."""
     p = len(free)
     lo, hi = box(free)
     cap = caps(free)
-    h = initial_steps(free)
+    fd = not source.scores
+    recheck = recompute or not fd  # the gradient of every parameter at each iteration
+    h = initial_steps(free) if h is None else h.copy()
     probe_lo, probe_hi = probes(free)
+    if not recheck:
+        probe_lo, probe_hi = probe_lo & probe, np.zeros(p, bool)
+    probed = np.zeros(p, bool)
     theta = np.clip(theta, lo, hi)
-    f0, g, scores = obj.value_grad(theta)
     none = np.zeros(p, bool)
-    if not math.isfinite(f0):
+    if recompute:
+        f0 = source.value(theta)[0]
+        g = scores = None
+    elif fd:
+        f0, g, scores = source.value(theta)[0], np.zeros(p), None
+    else:
+        f0, g, scores = source.value(theta)
+    if recheck and not math.isfinite(f0):
         return NewtonResult(theta, f0, None, none, h, 0, False, "the likelihood is zero at the starting point")
-    hq = np.eye(p) if hess0 is None else hess0.copy()
-    bhhh = hess0 is None  # the outer product at each point, until a Hessian is differenced
-    n_steps, last_dec = 0, math.inf  # steps since the curvature was last renewed
-    exact_at = None  # (theta, live parameters) where hq was differenced
-    differenced = hess0 is not None and hessian != "final"
+    held = np.zeros(p, bool) if held is None else held.copy()
+    hq = np.eye(p) if hess0 is None else hess0.copy()  # the carried curvature (all parameters)
+    exact_at = None  # (theta, live parameters) where hq is the Hessian by differences
+    differenced = hess0 is not None and hessian != "final"  # a Hessian taken somewhere (for "some")
+    bhhh = hess0 is None and not fd  # the outer product at each point, until a Hessian is differenced
+    n_steps, last_dec, shrinks = 0, math.inf, 0
+    ok, why = False, f"no convergence after {max_iter} Newton iterations"
 
     def difference(theta, keep, hk):
+        """The Hessian by differences where the search stands."""
         nonlocal h, bhhh, exact_at, differenced, n_steps, last_dec
-        h = se_steps(hk, free, keep, h)
-        n_steps, last_dec = 0, math.inf
-        hq[np.ix_(keep, keep)] = hessian_fd(obj, theta, g, keep, h, lo, hi, one_sided)
+        if not fd:
+            n_steps, last_dec = 0, math.inf
+        hq[np.ix_(keep, keep)], h = source.renewed(theta, f0, g, keep, hk, h, lo, hi, free)
         bhhh, differenced, exact_at = False, True, (theta.copy(), keep)
         return hq[np.ix_(keep, keep)]
 
+    if not recompute and fd:  # the start: the gradient of the live parameters, and a curvature
+        keep = np.flatnonzero(~held)
+        if hess0 is None:
+            g[keep], hq[np.ix_(keep, keep)] = source.gradient(theta, f0, ~held, h, hessian=True)
+            exact_at = (theta.copy(), keep)
+        else:
+            g[keep] = source.gradient(theta, f0, ~held, h)[0]
     it = 0
     for it in range(1, max_iter + 1):
-        if not (math.isfinite(f0) and np.all(np.isfinite(g))):
-            return NewtonResult(theta, f0, hq, none, h, it, False, "the likelihood is not finite next to the estimate")
-        active = outward(theta, g, lo, hi)
+        # -- where the search stands: gradient, curvature and the active set
+        if recompute:
+            g = np.zeros(p)
+            if held.any():
+                g[held] = source.gradient(theta, f0, held, h)[0]
+            gl, hl = source.gradient(theta, f0, ~held, h, hessian=True)
+            g[~held] = gl
+            hq = with_placeholders(hl, held)
+            if not (np.all(np.isfinite(g)) and np.all(np.isfinite(hq))):
+                return NewtonResult(theta, f0, hq, none, h, it, False, NOT_FINITE)
+        elif not fd and not (math.isfinite(f0) and np.all(np.isfinite(g))):
+            return NewtonResult(theta, f0, hq, none, h, it, False, NOT_FINITE)
+        active = outward(theta, g, lo, hi) if recheck else held
         keep = np.flatnonzero(~active)
-        if keep.size == 0:
+        if recompute:
+            if np.any(active & ~held):
+                held = active.copy()
+                continue  # recompute without the held rows (cheaper, and exact for the rest)
+            held = active.copy()
+        elif not fd and keep.size == 0:
             return NewtonResult(theta, f0, np.eye(p), active, h, it, True, "converged")
         if bhhh:
             hq[np.ix_(keep, keep)] = scores[:, keep].T @ scores[:, keep]
         hk = hq[np.ix_(keep, keep)]
-        stepf, _mod = solve(hk, g[keep])
+        stepf, modified = solve(hk, g[keep])
         if stepf is None:
-            return NewtonResult(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
-        decrement = decrement_of(g[keep], stepf)
-        slow = n_steps >= 2 and decrement > 0.5 * last_dec
-        stalled = decrement >= tol and ((bhhh and n_steps >= BHHH_STEPS) or slow)
-        here = exact_at is not None and np.array_equal(exact_at[0], theta) and np.array_equal(exact_at[1], keep)
-        want = (hessian == "final" and not here) or (hessian == "some" and not differenced)
-        finishing = finish is not None and hessian == "final" and decrement < finish and not here
-        if stalled or (decrement < tol and want) or finishing:
-            hk = difference(theta, keep, hk)
-            stepf, _mod = solve(hk, g[keep])
-            if stepf is None:
+            if not fd or recompute:
                 return NewtonResult(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
-            decrement = decrement_of(g[keep], stepf)
-            end = inside_step(theta, keep, stepf, lo, hi) if finishing and decrement < finish else None
-            if end is not None:
-                return NewtonResult(end, f0 - decrement, hq, active, h, it, True, "converged")
-        n_steps += 1
-        last_dec = decrement
-        if decrement < tol:
-            return NewtonResult(theta, f0, hq if differenced else None, active, h, it, True, "converged")
+            break
+        decrement = decrement_of(g[keep], stepf)
+        # -- converged, or a better curvature first
+        if recompute:
+            if tol >= 0.5 and decrement < tol:
+                # The pre-pass only settles the likelihood regimes: close enough, whatever the
+                # curvature at these steps (the next pass looks closer).
+                return NewtonResult(theta, f0, hq, active, h, it, True, "converged")
+            if modified and decrement < 0.5 and shrinks < 3:
+                # Not convex at this step size. Either a difference straddles a steep side (the
+                # noise edge: look again with smaller steps) or a flat, curved direction (a
+                # pose-error sigma far from its estimate): try the (modified) step first, and
+                # keep it if it clearly lowers f.
+                trial = np.clip(theta + capped(on_axes(p, keep, stepf), cap), lo, hi)
+                f1 = source.value(trial)[0]
+                if f1 < f0 - 1e-3:
+                    theta, f0 = trial, f1
+                    continue
+                shrinks += 1
+                h = h / 3.0
+                continue
+            new_h = h.copy()
+            if not modified:
+                w, v = np.linalg.eigh(0.5 * (hk + hk.T))
+                new_h[keep] = se_clipped(np.sqrt(np.maximum((v * v) @ (1.0 / np.maximum(w, 1e-300)), 0.0)), free, keep)
+            if not modified and decrement < tol:
+                if tol > DECREMENT_TOL or np.all(np.abs(np.log(new_h / h)) < math.log(2.0)):
+                    return NewtonResult(theta, f0, hq, active, h, it, True, "converged")
+                h = new_h  # once more, with steps on the standard-error scale
+                continue
+            h = new_h
+        else:
+            here = exact_at is not None and np.array_equal(exact_at[0], theta) and np.array_equal(exact_at[1], keep)
+            if fd:
+                stalled = want = False
+                finishing = finish is not None and hessian == "final" and tol <= decrement < finish and not here
+            else:
+                slow = n_steps >= 2 and decrement > 0.5 * last_dec
+                stalled = decrement >= tol and ((bhhh and n_steps >= BHHH_STEPS) or slow)
+                want = (hessian == "final" and not here) or (hessian == "some" and not differenced)
+                finishing = finish is not None and hessian == "final" and decrement < finish and not here
+            if stalled or (decrement < tol and want) or finishing:
+                hk = difference(theta, keep, hk)
+                stepf, modified = solve(hk, g[keep])
+                if stepf is None:
+                    if not fd:
+                        return NewtonResult(theta, f0, hq, active, h, it, False, "the Hessian is not finite")
+                    break
+                decrement = decrement_of(g[keep], stepf)
+                end = inside_step(theta, keep, stepf, lo, hi) if finishing and decrement < finish else None
+                if end is not None and not (fd and modified):
+                    hess = with_placeholders(hk, held) if fd else hq
+                    out = NewtonResult(end, f0 - decrement, hess, active, h, it, True, "converged")
+                    out.evaluated = theta  # (where the last gradient and that Hessian were taken)
+                    return out
+            n_steps += 1
+            last_dec = decrement
+            if decrement < tol:
+                if fd:
+                    ok = True
+                    break
+                return NewtonResult(theta, f0, hq if differenced else None, active, h, it, True, "converged")
+        # -- a step: a bound tried first, then the (capped) Newton step with a line search
         step = on_axes(p, keep, stepf)
-        theta, got, _taken = probe_bounds(obj.value_grad, theta, f0, step, lo, hi, cap, probe_lo, probe_hi)
+        lo_ok = probe_lo
+        if not recheck:  # each sigma once
+            lo_ok = probe_lo & ~held & ~probed
+            probed |= lo_ok & (step < 0) & (theta > lo)
+        theta, got, taken = probe_bounds(source.value, theta, f0, step, lo, hi, cap, lo_ok, probe_hi)
         if got is not None:
-            f0, g, scores = got
             n_steps, last_dec = 0, math.inf
+            if recompute:
+                f0 = got[0]
+            elif fd:
+                f0 = got[0]
+                held[taken] = True  # (this search keeps its active set: held at the bound)
+                g[~held] = source.gradient(theta, f0, ~held, h)[0]
+            else:
+                f0, g, scores = got
             continue
-        step = capped(step, cap, probe_lo)
-        accepted = None
-        for _half in range(12):
-            trial = np.clip(theta + step, lo, hi)
-            r = obj.value_grad(trial)
-            if r[0] < f0:
-                accepted = (trial, r)
+        step = capped(step, cap, probe_lo if recheck else None)
+        if recompute:
+            trial, f1 = line_search(source.f, theta, step, f0, lo, hi, cap)
+            if trial is None:
+                # Near a steep side (the noise edge) differences over 0.3 standard errors bias
+                # the gradient: retry with a gradient from steps ten times smaller.
+                gk = source.gradient(theta, f0, ~active, h / 10.0)[0]
+                stepf, _mod = solve(hk, gk)
+                decrement = decrement_of(gk, stepf)
+                step = capped(on_axes(p, keep, stepf), cap)
+                trial, f1 = line_search(source.f, theta, step, f0, lo, hi, cap) if decrement >= tol else (None, f0)
+            if trial is None:
+                if not modified and decrement < 1e-3:
+                    return NewtonResult(theta, f0, hq, active, h, it, True, "converged")
+                if shrinks < 4:  # the differences were too coarse here: look closer
+                    shrinks += 1
+                    h = h / 3.0
+                    continue
+                return NewtonResult(theta, f0, hq, active, h, it, False, "no step decreases the negative log-likelihood")
+            theta, f0 = trial, f1
+            continue
+        trial, r = backtrack(source.value, theta, step, f0, lo, hi)
+        if trial is None:
+            if fd:  # from a good start: no step gains, the search is there
+                ok = True
                 break
-            step = step * 0.5
-        if accepted is None:
             if exact_at is not None and decrement < 1e-3:
                 return NewtonResult(theta, f0, hq, active, h, it, True, "converged")
             return NewtonResult(theta, f0, hq, active, h, it, False, "no step decreases the negative log-likelihood")
-        trial, (f1, g1, s1) = accepted
-        d0, d1 = float(g @ (trial - theta)), float(g1 @ (trial - theta))
-        if d0 < 0 < d1 and d1 > -0.5 * d0:
-            # far past the minimum along the step (the curvature underestimated, as the outer
-            # product does on the steep side of r_en): the secant of the slope there
-            alt = np.clip(theta + (trial - theta) * (d0 / (d0 - d1)), lo, hi)
-            r = obj.value_grad(alt)
-            if r[0] < f1:
-                trial, (f1, g1, s1) = alt, r
+        if fd:
+            g1 = g.copy()
+            g1[keep] = source.gradient(trial, r[0], ~held, h)[0]
+            r = (r[0], g1, None)
+        else:
+            trial, r = secant(source.value, theta, trial, g, r, lo, hi)
+        f1, g1, s1 = r
         updated = None if bhhh else bfgs(hk, (trial - theta)[keep], (g1 - g)[keep])  # on the live block
         if updated is not None:
             hq[np.ix_(keep, keep)] = updated
         theta, f0, g, scores = trial, f1, g1, s1
-    return NewtonResult(theta, f0, hq, none, h, max_iter, False, f"no convergence after {max_iter} Newton iterations")
+    if recheck:
+        return NewtonResult(theta, f0, hq, none, h, max_iter, False, why)
+    # a BFGS search by differences ends with the Hessian by differences where it stands
+    keep = np.flatnonzero(~held)
+    if not (exact_at is not None and np.array_equal(exact_at[0], theta) and np.array_equal(exact_at[1], keep)):
+        difference(theta, keep, hq[np.ix_(keep, keep)])
+    why = "converged" if ok else "no convergence of the quasi-Newton search"
+    return NewtonResult(theta, f0, with_placeholders(hq[np.ix_(keep, keep)], held), held, h, it, ok, why)
 
 
-#: :func:`optimise_grad` splits the rows of each evaluation in two halves from this many
-#: rows on (a 10,000-row subsample: 9.5 -> ~6 ms wall with a core free).
+def backtrack(value, theta, step, f0, lo, hi):
+    """The full step, then halving it up to 11 times, until f decreases: (trial, value
+    tuple) or (None, None)."""
+    for _half in range(12):
+        trial = np.clip(theta + step, lo, hi)
+        r = value(trial)
+        if r[0] < f0:
+            return trial, r
+        step = step * 0.5
+    return None, None
+
+
+def secant(value, theta, trial, g, r, lo, hi):
+    """When the accepted point lies far past the minimum along the step (the slope there
+    points back more than half as steeply as it fell: the curvature underestimated, as the
+    outer product does on the steep side of r_en), the secant of the slope: (that point,
+    its value tuple) if f is lower there, else (``trial``, ``r``)."""
+    g1 = r[1]
+    d0, d1 = float(g @ (trial - theta)), float(g1 @ (trial - theta))
+    if d0 < 0 < d1 and d1 > -0.5 * d0:
+        alt = np.clip(theta + (trial - theta) * (d0 / (d0 - d1)), lo, hi)
+        r2 = value(alt)
+        if r2[0] < r[0]:
+            return alt, r2
+    return trial, r

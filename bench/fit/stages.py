@@ -20,8 +20,8 @@ from .params import box
 from .pilot import grid_values, median_kappa, pilot_sigma, vertex_shift
 from .result import FitOptions
 from .search import (
-    DECREMENT_TOL, ONE_SIDED, GradObjective, NewtonResult, Objective, Part, fd_gradient, merge, newton, newton_grad, outward,
-    quasi_newton, with_placeholders,
+    DECREMENT_TOL, ONE_SIDED, Analytic, Differences, GradObjective, NewtonResult, Objective, Part, fd_gradient, merge, newton,
+    outward,
 )  # fmt: skip
 
 
@@ -52,15 +52,11 @@ def still_held(like: Likelihood, base: Params, free, theta, h, prev: "NewtonResu
 
 
 def quasi(like: Likelihood, base: Params, free, theta, options, h, tol, prev: "NewtonResult") -> "NewtonResult":
-    """Quasi-Newton (:func:`quasi_newton`) on ``like`` from ``prev``'s Hessian and bounds."""
-    held = prev.active.copy()
+    """Quasi-Newton (:func:`search.newton` by differences, BFGS) on ``like`` from ``prev``'s
+    Hessian and bounds."""
     h = prev.steps if h is None else h
-    theta_n, fval, hq, it, ok, held, _at = quasi_newton(
-        Objective(like, base, free), theta, free, h, held, options.max_iter, tol, prev.hess
-    )
-    hess = with_placeholders(hq, held)
-    why = "converged" if ok else "no convergence of the quasi-Newton search"
-    return NewtonResult(theta_n, fval, hess, held, h, it, ok, why)
+    source = Differences(Objective(like, base, free))
+    return newton(source, theta, free, options.max_iter, tol, h=h, held=prev.active, hess0=prev.hess, probe=False)
 
 
 def optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=DECREMENT_TOL, warm=None):
@@ -92,7 +88,8 @@ def optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=
             res = quasi(like, base, free, theta, options, h, tol, res)
             res.iterations += iters
             return like, res
-        res = newton(Objective(like, base, free), theta, free, options.max_iter, h, tol if settled else 0.5)
+        source = Differences(Objective(like, base, free))
+        res = newton(source, theta, free, options.max_iter, tol if settled else 0.5, recompute=True, h=h)
         iters += res.iterations
         theta, h = res.theta, res.steps
         if not res.ok or (settled and search):
@@ -233,7 +230,7 @@ def full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpti
     usually lands, and the gradient at the new point confirms it. With pose error, once
     the decrement is below FULL_FINISH_TOL the Hessian by differences is taken there and
     one Newton step with it, not evaluated, ends the stage (``finish`` of
-    :func:`quasi_newton`). The per-row log P of that last gradient's points are kept for
+    :func:`search.newton` (BFGS)). The per-row log P of that last gradient's points are kept for
     the sandwich's scores (:func:`row_scores`, taken there: :attr:`NewtonResult.evaluated`)."""
     n = rows.k.shape[0]
     scale = n / SUBSAMPLE
@@ -256,18 +253,19 @@ def full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpti
     hess0 = None if live.size <= 2 else res.hess * scale
     # (with exact poses the curvature wavers more over 0.08 s.e.: q's s.e. moved 4.7 % on a
     # 1e5-row campaign, so those fits step on to FULL_TOL as before)
-    theta, fval, h_live, it, ok_r, held, at = quasi_newton(
-        Objective(full, base, free), res.theta, free, steps, res.active, tol=FULL_TOL, hess0=hess0, probe=True,
+    quasi_res = newton(
+        Differences(Objective(full, base, free)), res.theta, free, 10, FULL_TOL, h=steps, held=res.active, hess0=hess0,
         finish=FULL_FINISH_TOL if rows.moments is not None else None,
     )
-    hess = with_placeholders(h_live, held)
-    res.theta, res.hess, res.f, res.steps, res.active, res.evaluated = theta, hess, fval, steps, held, at
-    res.iterations += it
+    theta, ok_r = quasi_res.theta, quasi_res.ok
+    res.theta, res.hess, res.f, res.active, res.evaluated = theta, quasi_res.hess, quasi_res.f, quasi_res.active, quasi_res.evaluated
+    res.steps = steps
+    res.iterations += quasi_res.iterations
     if not ok_r:
         # Quasi-Newton stalls where the likelihood is not convex (a flat pose-error sigma
         # leaving its floor: BFGS skips the updates); Newton with the Hessian at each step
         # (and its active set) finishes the job, at 21 evaluations a step for 4 parameters.
-        again = newton(Objective(full, base, free), theta, free, options.max_iter, steps, FULL_TOL)
+        again = newton(Differences(Objective(full, base, free)), theta, free, options.max_iter, FULL_TOL, recompute=True, h=steps)
         res.iterations += again.iterations
         if again.ok:
             res.theta, res.hess, res.f, res.steps, res.active = again.theta, again.hess, again.f, again.steps, again.active
@@ -282,7 +280,7 @@ def full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpti
 
 
 def analytic(rows: Rows, p: Params, free: tuple[str, ...], options: FitOptions) -> bool:
-    """Whether the fit of ``free`` takes the analytic-gradient route (:func:`newton_grad`):
+    """Whether the fit of ``free`` takes the analytic-gradient route (:func:`search.newton` with :class:`search.Analytic`):
     exact poses (no errors-in-variables model) and parameters among
     :data:`Likelihood.GRAD_PARAMS`; the others keep central differences. So does a fit of
     r_outer: its likelihood-ratio interval is taken at the first pass's estimate (with
@@ -326,7 +324,7 @@ def optimise_grad(rows: Rows, base: Params, free, theta, options, notes, tol):
         # the pre-pass's Hessian, if it differenced one, starts the next pass; a subsample's
         # search needs one only to start all rows from
         hessian = ("some" if search else "final") if settled else "none"
-        res = newton_grad(obj, theta, free, options.max_iter, tol if settled else 0.5, hess0, hessian)
+        res = newton(Analytic(obj), theta, free, options.max_iter, tol if settled else 0.5, hess0=hess0, hessian=hessian)
         hess0 = res.hess
         iters += res.iterations
         theta = res.theta
@@ -359,9 +357,8 @@ def full_stage_grad(rows: Rows, base: Params, free: tuple[str, ...], options: Fi
     full.choose_regimes(to_params(base, free, res.theta), **eps_kw)
     full.block, full.threads = block_rows(rows), parallel.STENCIL_THREADS
     hess0 = None if res.hess is None else res.hess * (rows.k.shape[0] / SUBSAMPLE)
-    again = newton_grad(
-        GradObjective(full, base, free), res.theta, free, options.max_iter, FULL_TOL, hess0, one_sided=ONE_SIDED, finish=FINISH_TOL
-    )
+    source = Analytic(GradObjective(full, base, free), one_sided=ONE_SIDED)
+    again = newton(source, res.theta, free, options.max_iter, FULL_TOL, hess0=hess0, finish=FINISH_TOL)
     again.iterations += res.iterations
     again.full_evals = full.n_evals
     if not again.ok:
