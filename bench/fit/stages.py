@@ -78,26 +78,43 @@ def optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         if still_held(like, base, free, theta, warm.steps if h is None else h, warm):
             return like, quasi(like, base, free, theta, options, h, tol, warm)
+
+    def one_pass(theta, settled, prev):
+        steps = h if prev is None else prev.steps
+        if settled and search and prev is not None and convex(prev) and still_held(like, base, free, theta, steps, prev):
+            return quasi(like, base, free, theta, options, steps, tol, prev), True
+        source = Differences(Objective(like, base, free))
+        return newton(source, theta, free, options.max_iter, tol if settled else 0.5, recompute=True, h=steps), False
+
+    return like, regime_passes(like, base, free, theta, eps_kw, notes, search, warm is not None, one_pass)
+
+
+def regime_passes(like: Likelihood, base: Params, free, theta, eps_kw: dict, notes: list[str], search: bool, settled0: bool, one_pass):
+    """Up to four Newton searches, each with the likelihood regimes chosen at its start and
+    frozen (so the objective stays smooth), until the regimes chosen at the estimate are
+    the ones it was found with (:func:`regimes_settled`). The first pass (unless
+    ``settled0``) only settles the regimes; a subsample's ``search`` stops after one
+    settled pass. ``one_pass(theta, settled, previous result)`` runs one search and says
+    whether it ends the loop at once (a quasi-Newton pass from the previous one's
+    Hessian). Returns the last :class:`search.NewtonResult`, its iterations summed."""
     iters = 0
     res = None
     for _pass in range(4):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         split = like.regimes.exact.copy()
-        settled = _pass > 0 or warm is not None
-        if settled and search and res is not None and convex(res) and still_held(like, base, free, theta, h, res):
-            res = quasi(like, base, free, theta, options, h, tol, res)
+        settled = _pass > 0 or settled0
+        res, last = one_pass(theta, settled, res)
+        if last:
             res.iterations += iters
-            return like, res
-        source = Differences(Objective(like, base, free))
-        res = newton(source, theta, free, options.max_iter, tol if settled else 0.5, recompute=True, h=h)
+            return res
         iters += res.iterations
-        theta, h = res.theta, res.steps
+        theta = res.theta
         if not res.ok or (settled and search):
             break
         if regimes_settled(like, to_params(base, free, theta), eps_kw, split, settled, notes):
             break
     res.iterations = iters
-    return like, res
+    return res
 
 
 def regimes_settled(like: Likelihood, p: Params, eps_kw: dict, split, settled: bool, notes: list[str]) -> bool:
@@ -314,26 +331,15 @@ def optimise_grad(rows: Rows, base: Params, free, theta, options, notes, tol):
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
     obj = GradObjective(like, base, free)
     search = tol > DECREMENT_TOL
-    iters = 0
-    res = None
-    hess0 = None
-    for _pass in range(4):
-        like.choose_regimes(to_params(base, free, theta), **eps_kw)
-        split = like.regimes.exact.copy()
-        settled = _pass > 0
+
+    def one_pass(theta, settled, prev):
         # the pre-pass's Hessian, if it differenced one, starts the next pass; a subsample's
         # search needs one only to start all rows from
         hessian = ("some" if search else "final") if settled else "none"
-        res = newton(Analytic(obj), theta, free, options.max_iter, tol if settled else 0.5, hess0=hess0, hessian=hessian)
-        hess0 = res.hess
-        iters += res.iterations
-        theta = res.theta
-        if not res.ok or (settled and search):
-            break
-        if regimes_settled(like, to_params(base, free, theta), eps_kw, split, settled, notes):
-            break
-    res.iterations = iters
-    return like, res
+        hess0 = None if prev is None else prev.hess
+        return newton(Analytic(obj), theta, free, options.max_iter, tol if settled else 0.5, hess0=hess0, hessian=hessian), False
+
+    return like, regime_passes(like, base, free, theta, eps_kw, notes, search, False, one_pass)
 
 
 #: :func:`full_stage_grad` ends its search on all rows with one Newton step from where the
