@@ -21,7 +21,7 @@ from pathlib import Path
 from emulator.cli_types import output_dir, output_file, real, seed
 from emulator.progress import progress
 
-OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset")
+OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset", "dropout")
 
 
 def register(subparsers) -> None:
@@ -228,6 +228,8 @@ def summary(result) -> str:
         lines.append(row("r_outer", p.r_outer, " m"))
     if "time_offset" in result.free:
         lines.append(row("time_offset", p.time_offset, " s"))
+    if "dropout" in result.free:
+        lines.append(row("dropout", p.dropout, "", "   (rows that read -1 whatever the signal)"))
     if "q" in result.free:
         lines.append(f"{'q':<11} = {', '.join(f'{v:.4g}' for v in p.q)}   (q_y/q_x +- {result.se.get('q', float('nan')):.3g})")
     if result.hac_lag == result.hac_lag:

@@ -35,6 +35,8 @@ from .stages import SUBSAMPLE, fit_r_outer, full_stage, run_stages
 from .table import FitInputError, Table, check_times, gps_scale
 
 MIN_ROWS = 50
+#: Where a fitted dropout probability starts (one spurious -1 row in a thousand).
+DROPOUT_START = 1e-3
 #: 90 % of rows within this ratio of distances is "no spread".
 MIN_SPREAD = 1.25
 
@@ -135,6 +137,8 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
     eiv = any(m in free for m in ("gps_sigma", "attitude_sigma", "height_offset")) or base.gps_sigma > 0 or base.attitude_sigma > 0
     all_rows = check_table(table, options)
     stamps = check_times(table)
+    if "dropout" in free and not base.dropout > 0.0:
+        base = replace(base, dropout=DROPOUT_START)
     if eiv:
         if "pose_sigma" not in free and options.eiv_floor:
             base = replace(base, pose_sigma=EIV_POSE_SIGMA)
@@ -291,9 +295,10 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
             name = newton_free[i]
             at_lower = theta_n[i] <= lo[i] + 1e-6
             if name in MAY_VANISH and at_lower:
-                what = {"pose_sigma": "the poses look exact", "gps_sigma": "no GPS error is visible"}.get(
-                    name, "no attitude error is visible"
-                )
+                what = {
+                    "pose_sigma": "the poses look exact", "gps_sigma": "no GPS error is visible",
+                    "attitude_sigma": "no attitude error is visible", "dropout": "no spurious -1 rows are visible",
+                }[name]  # fmt: skip
                 held_how = (
                     "the other standard errors include how far it could be above it (its variance is a "
                     "nuisance parameter there)"

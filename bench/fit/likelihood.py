@@ -165,6 +165,8 @@ class Likelihood:
         with self._count:
             self.n_evals += 1
         prob = self._prob_blocks(p) if self._split() else self.prob(p)
+        if p.dropout > 0.0:  # a row reads -1 with this probability whatever the signal
+            prob = (1.0 - p.dropout) * prob + p.dropout * self.censored
         n_out = 100.0 * p.r_outer + 2.0
         out = np.log((1.0 - GROSS_ERROR) * prob + GROSS_ERROR / n_out)
         self._keep(key, out)
@@ -209,7 +211,8 @@ class Likelihood:
         this class's own."""
         mom_free = self.rows.moments is None or (p.gps_sigma == 0.0 and p.attitude_sigma == 0.0 and p.height_offset == 0.0)
         narrow = self.regimes is not None and self.regimes.narrow is not None and bool(self.regimes.narrow.any())
-        return mom_free and not narrow and type(self).mid_prob is Likelihood.mid_prob and p.pose_sigma > 0.0
+        plain = type(self).mid_prob is Likelihood.mid_prob and p.pose_sigma > 0.0 and p.dropout == 0.0
+        return mom_free and not narrow and plain
 
     def logp_grad(self, p: Params) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(log P(d_i), d log P(d_i) / d(log kappa_eq, log r_en, log pose_sigma)) per row,
@@ -443,7 +446,7 @@ class Likelihood:
         det = k >= 1
         if det.any():
             widened = _UnionBin(self, det)
-            below[det] = widened.prob_le(p)
+            below[det] = widened.prob_le(p) * (1.0 - p.dropout)
         cens = k == -1
         if cens.any():
             below[cens] = 1.0 - self.prob_censored(p)[cens]
@@ -455,7 +458,7 @@ class Likelihood:
         try:
             self.k = np.full_like(saved[0], -1)
             self.censored = np.ones_like(saved[1])
-            return self.prob(p)
+            return (1.0 - p.dropout) * self.prob(p) + p.dropout
         finally:
             self.k, self.censored = saved
 
@@ -627,4 +630,7 @@ def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) ->
     dist = np.where(inner, d3, dxy) * 100.0
     t = np.trunc(dist)
     k = (t + (dist - t >= 0.5)).astype(np.int64)
-    return np.where(inner | mid, k, -1)
+    shown = inner | mid
+    if p.dropout > 0.0:  # (drawn only then: the outcomes of a model without it are unchanged)
+        shown &= rng.random(n) >= p.dropout
+    return np.where(shown, k, -1)

@@ -32,6 +32,7 @@ class Params:
     gps_ratio: float = 1.5  # vertical / horizontal GPS error
     attitude_sigma: float = 0.0  # attitude error of the receiver (rad, per body axis)
     height_offset: float = 0.0  # receiver-above-transmitter height the logs miss (m; common GPS error)
+    dropout: float = 0.0  # probability that a row reads -1 whatever the signal (a spurious "nothing heard")
 
     @property
     def pose_error(self) -> tuple[float, float, float]:
@@ -42,6 +43,7 @@ class Params:
 #: Parameters the fit can estimate, with their transform to the optimiser's scale.
 FREE_PARAMS = (
     "kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma", "gps_sigma", "attitude_sigma", "height_offset",
+    "dropout",
 )  # fmt: skip
 #: Parameters on a linear scale (seconds, metres); the others are fitted in logs.
 LINEAR = ("time_offset", "height_offset")
@@ -87,9 +89,11 @@ BOUNDS = {
     # is flat there, and Newton crept along it for 60 iterations on exact poses.
     "gps_sigma": (0.005, 30.0),  # m
     "attitude_sigma": (math.radians(0.05), 0.5),  # rad
+    # below 1e-5 a spurious -1 is rarer than one per campaign: the likelihood is flat there
+    "dropout": (1e-5, 0.5),
 }
 #: Parameters that may sit at their lower bound on exact poses (held there, with a note).
-MAY_VANISH = ("pose_sigma", "gps_sigma", "attitude_sigma")
+MAY_VANISH = ("pose_sigma", "gps_sigma", "attitude_sigma", "dropout")
 
 def box(free) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     lo = np.array([BOUNDS[n][0] if n in LINEAR else math.log(BOUNDS[n][0]) for n in free])
@@ -108,6 +112,7 @@ INITIAL_STEPS = {
     "height_offset": 0.01,
     "gps_sigma": 1e-2,
     "attitude_sigma": 1e-2,
+    "dropout": 1e-2,
 }
 
 

@@ -74,7 +74,7 @@ class FitResult:
 
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
-        for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset", "gps_sigma", "attitude_sigma", "height_offset"):
+        for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset", "gps_sigma", "attitude_sigma", "height_offset", "dropout"):
             out[name] = getattr(self.params, name)
             if name in self.free:
                 out[f"{name}_se"] = self.se.get(name)
