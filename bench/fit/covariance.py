@@ -274,8 +274,8 @@ def separable(ok, why, free, cov, estimate, se) -> bool:
     return bool(se["r_en"] <= 0.5 * estimate["r_en"])
 
 
-#: The longest stretch of seconds with no rows :func:`time_block_meat` keeps (s); a gap
-#: longer than this is shortened to it.
+#: How far apart (s) :func:`time_block_meat` keeps two consecutive seconds that hold rows:
+#: a longer gap is shortened to this.
 MEAT_GAP = 3600
 
 
