@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 
 from bench.fit.csvio import parse_csv
 import bench.fit.covariance as covariance_module
-import bench.fit.estimate as fit_module
 from bench.fit.covariance import common_height_rows, time_block_meat, with_common_height
 from bench.fit.estimate import fit_table
 from bench.fit.result import FitOptions
@@ -344,13 +343,13 @@ def test_common_height_influence_predicts_how_the_fit_moves(seed, monkeypatch):
     with the issue's correlated pose error, sigmas given): within 10 % and the same sign
     (measured 0.96-1.01). A wrong sign or a missing (1 - k) factor fails here."""
     seen = {}
-    slope_of = fit_module.score_height_slope
+    slope_of = covariance_module.score_height_slope
 
     def spy(*args, **kw):
         seen["slope"] = slope_of(*args, **kw)
         return seen["slope"]
 
-    monkeypatch.setattr(fit_module, "score_height_slope", spy)
+    monkeypatch.setattr(covariance_module, "score_height_slope", spy)
     base = Params(gps_sigma=1.0, gps_ratio=1.5, attitude_sigma=math.radians(2.0), r_en=80.0)
     opts = FitOptions(free=("kappa_eq",), base=base)
     table = emulate_campaign(60, TRUTH, seed=seed, pose_error=TARGET_ERROR)
@@ -373,13 +372,13 @@ def test_common_height_slope_from_a_row_subsample_is_close(monkeypatch):
     of the 3600 gives kappa_eq's component within 15 % of the all-rows value, and the
     same value every time (seeded)."""
     seen = {}
-    slope_of = fit_module.score_height_slope
+    slope_of = covariance_module.score_height_slope
 
     def spy(*args, **kw):
         seen["args"] = args
         return slope_of(*args, **kw)
 
-    monkeypatch.setattr(fit_module, "score_height_slope", spy)
+    monkeypatch.setattr(covariance_module, "score_height_slope", spy)
     base = Params(gps_sigma=1.0, gps_ratio=1.5, attitude_sigma=math.radians(2.0))
     fit_table(emulate_campaign(60, TRUTH, seed=0, pose_error=TARGET_ERROR), FitOptions(free=("kappa_eq", "r_en"), base=base))
     full = slope_of(*seen["args"])

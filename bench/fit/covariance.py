@@ -12,12 +12,13 @@ positive parameters; heights in m, times in s).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .likelihood import Likelihood, Params, Regimes, Rows, simulate, to_params
+from .params import LINEAR, box
 from .parallel import logps
 from .pose_error import posterior_positions
 from .table import Table
@@ -61,7 +62,6 @@ def expected_information(like: Likelihood, base: Params, free: tuple[str, ...], 
     return info / reps
 
 
-
 #: is not positive definite along them, least identified first (:func:`measurable`).
 UNMEASURABLE = ("attitude_sigma", "gps_sigma")
 
@@ -90,7 +90,6 @@ def measurable(hess: NDArray[np.float64], keep: NDArray[np.int64], free: tuple[s
             if trial.size and positive(trial):
                 return trial, name
     return keep, None
-
 
 
 def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, scores_keep, height=None):
@@ -324,3 +323,98 @@ def time_block_meat(scores: NDArray[np.float64], t: NDArray[np.float64]) -> tupl
     windows = cs[1:] - np.concatenate([np.zeros((big_l, p)), cs[:T]])  # m = -L .. T - 1
     meat = windows.T @ windows / (big_l + 1.0)
     return meat, float(lag)
+
+
+@dataclass
+class Uncertainty:
+    """The standard errors of a fit (:func:`standard_errors`): ``se`` in natural units (the
+    delta method from the optimiser's scale), ``se_model`` the inverse Hessian's (rows
+    independent), ``cov`` the sandwich on the optimiser's scale (all free parameters, NaN
+    where none), the Newey-West bandwidth (s), the pose-error sigmas at their floor whose
+    variance is a nuisance parameter, the notes to add, and why there are none (no
+    curvature) or None."""
+
+    se: dict[str, float]
+    se_model: dict[str, float]
+    cov: NDArray[np.float64]
+    hac_lag: float
+    nuisance_floor: list[str]
+    notes: list[str]
+    failed: str | None
+
+
+def standard_errors(like, res, base, free, newton_free, theta_n, active, estimate, covariance, eiv, table, sigma0) -> Uncertainty:
+    """The standard errors at the estimate ``theta_n`` of the search ``res`` (a converged
+    :class:`search.NewtonResult` whose Hessian is of the ``newton_free`` parameters; those
+    ``active`` are held at a bound): the inverse Hessian of the parameters whose curvature
+    can be measured (:func:`measurable`); with the errors-in-variables model (``eiv``) and
+    ``covariance`` "hac", the sandwich with the time-block meat of the per-row scores (the
+    common height's influence added, :func:`common_height_rows`; pose-error sigmas at
+    their floor as nuisance variances, :func:`boundary_nuisance_cov`). ``estimate``: the
+    natural-unit estimates (for the delta method); ``sigma0``: the rule's sigmas of the
+    last pass."""
+    se_model = {m: float("nan") for m in free}
+    nuisance_floor: list[str] = []  # sigmas at their floor whose uncertainty the s.e. include
+    hac_lag = float("nan")
+    cov = np.full((len(free), len(free)), np.nan)
+    se = {m: float("nan") for m in free}
+    ix = [free.index(m) for m in newton_free]
+    lo_n, _hi = box(newton_free)
+    notes: list[str] = []
+    failed = None
+    hess = res.hess
+    if res.ok and hess is not None:
+        keep, unmeasured = measurable(hess, np.flatnonzero(~active), newton_free)
+        if unmeasured is not None:
+            notes.append(
+                f"{unmeasured}'s curvature could not be measured (the likelihood is flat or uneven along it at the "
+                "estimate): it is held at its estimate for the other standard errors, which leave out its uncertainty"
+            )
+        try:
+            hk = hess[np.ix_(keep, keep)]
+            np.linalg.cholesky(hk)
+            model_cov = np.linalg.inv(hk)
+            sub_cov = model_cov
+            if covariance == "hac" and eiv and like.rows.t is not None:
+                # at the last gradient's point (its per-row log P are memoised) when the
+                # estimate is an unevaluated Newton step from there (full_stage, < 0.08
+                # standard errors): the meat is centred (kappa_eq's and r_en's s.e. moved
+                # by < 0.2 % on the 1e5-row pose-error benchmark's campaigns); so are the
+                # differences of boundary_nuisance_cov (its points at theta +- h: memoised)
+                at = res.evaluated
+                at = at if at is not None and np.array_equal(at[active], theta_n[active]) else theta_n
+                scores = row_scores(like, base, newton_free, at, res.steps, live=keep)
+                height = None if "height_offset" in newton_free else common_height_rows(table, sigma0)
+                floor = [i for i in np.flatnonzero(active) if newton_free[i] in ("gps_sigma", "attitude_sigma")
+                         and theta_n[i] <= lo_n[i] + 1e-6]  # fmt: skip
+                widened = None
+                if floor:
+                    widened = boundary_nuisance_cov(like, base, newton_free, at, res.steps, keep, floor, hk, scores, height)
+                if widened is not None:
+                    model_cov, sub_cov, hac_lag = widened
+                    nuisance_floor = [newton_free[i] for i in floor]
+                else:
+                    slope = None if height is None else score_height_slope(like, base, newton_free, at, res.steps, keep, scores)
+                    meat, hac_lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
+                    sub_cov = model_cov @ meat @ model_cov
+            for a_, i in enumerate(keep):
+                name = newton_free[i]
+                sd = math.sqrt(max(model_cov[a_, a_], 0.0))
+                se_model[name] = sd if name in LINEAR else estimate[name] * sd
+                for b_, j in enumerate(keep):
+                    cov[ix[i], ix[j]] = sub_cov[a_, b_]
+        except np.linalg.LinAlgError:
+            failed = "the likelihood has no curvature in some direction: a parameter cannot be estimated from these rows"
+        if hac_lag == hac_lag:
+            span = float(np.ptp(like.rows.t)) + 1.0  # s of receiver time the meat saw
+            if span < FEW_WINDOWS * hac_lag:
+                notes.append(
+                    f"the time-block standard errors rest on {span:.0f} s of data, {span / hac_lag:.1f} times their "
+                    f"{hac_lag:.0f} s bandwidth: with fewer than {FEW_WINDOWS} they run short (docs/accuracy.md (b)); "
+                    "log longer before trusting the interval"
+                )
+        for i in keep:
+            name = newton_free[i]
+            sd = math.sqrt(max(cov[ix[i], ix[i]], 0.0))
+            se[name] = sd if name in LINEAR else estimate[name] * sd  # delta method
+    return Uncertainty(se, se_model, cov, hac_lag, nuisance_floor, notes, failed)

@@ -33,7 +33,6 @@ def usable(rows: Rows) -> Rows:
     return rows.take(keep)
 
 
-
 def rule_sigmas(p: Params, free) -> tuple[float, float, float]:
     """Where to evaluate the errors-in-variables rule: at the current sigmas, floored."""
     h = max(p.gps_sigma, EIV_FLOOR[0])
@@ -79,8 +78,6 @@ def eiv_rows(
     finite = np.isfinite(rows.geo.log_r)
     keep = finite & (np.maximum(vxy, v3) <= MAX_SD * MAX_SD)
     return rows.take(keep), int(np.sum(finite & ~keep))
-
-
 
 
 def model_rows(table: Table, params: Params) -> Rows:

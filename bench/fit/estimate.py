@@ -11,7 +11,6 @@ one. Units: kappa_eq for a transmitter moment s = 1, lengths in m, sigmas in m a
 times in s; the optimiser works on logs of the positive parameters (:mod:`.params`).
 """
 
-
 from __future__ import annotations
 
 import math
@@ -21,10 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from . import parallel
-from .covariance import (
-    FEW_WINDOWS, boundary_nuisance_cov, common_height_rows, expected_information, measurable, row_scores,
-    score_height_slope, separable, time_block_meat, with_common_height,
-)  # fmt: skip
+from .covariance import expected_information, separable, standard_errors
 from .eiv import EIV_POSE_SIGMA, EIV_START, eiv_rows, rule_sigmas, usable
 from .likelihood import FREE_PARAMS, LINEAR, Rows, from_params, rows_from_table, to_params
 from .offset import OFFSET_GAIN, offset_scan
@@ -84,7 +80,6 @@ def check_table(table: Table, options: FitOptions) -> Rows:
                 "pass --r-outer or --fit r_outer"
             )
     return rows
-
 
 
 def fit(table: Table, options: FitOptions | None = None) -> FitResult:
@@ -158,6 +153,7 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         )
     start = None
     prev = None
+    sigma0 = None  # (the errors-in-variables rule's sigmas of the last pass)
     n_evals = 0
     n_dropped = 0
     for eiv_pass in range(3 if eiv else 1):
@@ -229,68 +225,14 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
     for name in MAY_VANISH:
         if name in free:
             estimate[name] = getattr(params, name)
-    se_model = {m: float("nan") for m in free}
-    nuisance_floor: list[str] = []  # sigmas at their floor whose uncertainty the s.e. include
-    hac_lag = float("nan")
-    cov = np.full((len(free), len(free)), np.nan)
-    se = {m: float("nan") for m in free}
-    ix = [free.index(m) for m in newton_free]
+    fitted = ok and hess is not None
+    unc = standard_errors(like, res, base, free, newton_free, theta_n, active, estimate, options.covariance, eiv, table, sigma0)
+    se, cov, hac_lag = unc.se, unc.cov, unc.hac_lag
+    notes += unc.notes
+    if unc.failed is not None:
+        ok, why = False, unc.failed
     lo, _hi = box(newton_free)
-    if ok and hess is not None:
-        keep, unmeasured = measurable(hess, np.flatnonzero(~active), newton_free)
-        if unmeasured is not None:
-            notes.append(
-                f"{unmeasured}'s curvature could not be measured (the likelihood is flat or uneven along it at the "
-                "estimate): it is held at its estimate for the other standard errors, which leave out its uncertainty"
-            )
-        try:
-            hk = hess[np.ix_(keep, keep)]
-            np.linalg.cholesky(hk)
-            model_cov = np.linalg.inv(hk)
-            sub_cov = model_cov
-            if options.covariance == "hac" and eiv and like.rows.t is not None:
-                # at the last gradient's point (its per-row log P are memoised) when the
-                # estimate is an unevaluated Newton step from there (full_stage, < 0.08
-                # standard errors): the meat is centred (kappa_eq's and r_en's s.e. moved
-                # by < 0.2 % on the 1e5-row pose-error benchmark's campaigns); so are the
-                # differences of boundary_nuisance_cov (its points at theta +- h: memoised)
-                at = res.evaluated
-                at = at if at is not None and np.array_equal(at[active], theta_n[active]) else theta_n
-                scores = row_scores(like, base, newton_free, at, res.steps, live=keep)
-                height = None if "height_offset" in newton_free else common_height_rows(table, sigma0)
-                floor = [i for i in np.flatnonzero(active) if newton_free[i] in ("gps_sigma", "attitude_sigma")
-                         and theta_n[i] <= lo_n[i] + 1e-6]  # fmt: skip
-                widened = None
-                if floor:
-                    widened = boundary_nuisance_cov(like, base, newton_free, at, res.steps, keep, floor, hk, scores, height)
-                if widened is not None:
-                    model_cov, sub_cov, hac_lag = widened
-                    nuisance_floor = [newton_free[i] for i in floor]
-                else:
-                    slope = None if height is None else score_height_slope(like, base, newton_free, at, res.steps, keep, scores)
-                    meat, hac_lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
-                    sub_cov = model_cov @ meat @ model_cov
-            for a_, i in enumerate(keep):
-                name = newton_free[i]
-                sd = math.sqrt(max(model_cov[a_, a_], 0.0))
-                se_model[name] = sd if name in LINEAR else estimate[name] * sd
-                for b_, j in enumerate(keep):
-                    cov[ix[i], ix[j]] = sub_cov[a_, b_]
-        except np.linalg.LinAlgError:
-            ok = False
-            why = "the likelihood has no curvature in some direction: a parameter cannot be estimated from these rows"
-        if hac_lag == hac_lag:
-            span = float(np.ptp(like.rows.t)) + 1.0  # s of receiver time the meat saw
-            if span < FEW_WINDOWS * hac_lag:
-                notes.append(
-                    f"the time-block standard errors rest on {span:.0f} s of data, {span / hac_lag:.1f} times their "
-                    f"{hac_lag:.0f} s bandwidth: with fewer than {FEW_WINDOWS} they run short (docs/accuracy.md (b)); "
-                    "log longer before trusting the interval"
-                )
-        for i in keep:
-            name = newton_free[i]
-            sd = math.sqrt(max(cov[ix[i], ix[i]], 0.0))
-            se[name] = sd if name in LINEAR else estimate[name] * sd  # delta method
+    if fitted:
         for i in np.flatnonzero(active):
             name = newton_free[i]
             at_lower = theta_n[i] <= lo[i] + 1e-6
@@ -302,7 +244,7 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
                 held_how = (
                     "the other standard errors include how far it could be above it (its variance is a "
                     "nuisance parameter there)"
-                    if name in nuisance_floor
+                    if name in unc.nuisance_floor
                     else "the other standard errors hold it there"
                 )
                 notes.append(f"{name} is at its lower bound {BOUNDS[name][0]:g} ({what}); {held_how}")
@@ -353,14 +295,13 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         exact_fraction=float(np.mean(like.regimes.exact)) if like.regimes is not None else float("nan"),
         notes=notes,
         expected_information=info,
-        se_model=se_model,
+        se_model=unc.se_model,
         hac_lag=hac_lag,
         separable=told_apart,
         n_pose_dropped=n_dropped,
         stamps=stamps,
         n_evals_all_rows=res.full_evals or (n_evals if n <= SUBSAMPLE or "time_offset" in newton_free else 0),
     )
-
 
 
 #: The name callers used before :func:`fit` (the same function).

@@ -82,7 +82,6 @@ def _rows_pool() -> ThreadPoolExecutor:
     return _row_pool
 
 
-
 @dataclass
 class Regimes:
     """Which rows use the exact (L) evaluation; frozen for one optimisation pass."""
@@ -593,7 +592,6 @@ def _cdf_above(log_t0, y, gamma, sigma, grad=False):
     for o, v in zip(out, part):
         o[sub] = v
     return out
-
 
 
 def simulate(geo: Geometry, p: Params, rng: np.random.Generator, spread=None) -> NDArray[np.int64]:

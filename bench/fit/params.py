@@ -75,7 +75,6 @@ def from_params(p: Params, names: tuple[str, ...]) -> NDArray[np.float64]:
     return np.array(out)
 
 
-
 #: Optimiser box (natural units); an estimate pinned at an edge has not converged.
 BOUNDS = {
     "kappa_eq": (1e-6, 1e6),

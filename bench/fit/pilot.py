@@ -42,7 +42,6 @@ def naive_fit(rows: Rows, r_inner: float = 3.0) -> dict[str, float]:
     return {"kappa_eq": math.exp(log_kappa), "r_en": r_en}
 
 
-
 def median_kappa(rows: Rows, r_inner: float) -> float:
     """kappa_eq from the median of 3 log(d / dxy0) over mid-zone rows closer than 25 m."""
     k = rows.k
@@ -76,7 +75,6 @@ def pilot_sigma(rows: Rows, kappa: float, r_inner: float) -> float:
     mad = 1.4826 * float(np.median(np.abs(res - np.median(res))))
     rounding = float(np.median(1.0 / k[near])) / math.sqrt(12.0)
     return float(np.clip(math.sqrt(max(mad * mad - rounding * rounding, 0.0)), BOUNDS["pose_sigma"][0], 0.2))
-
 
 
 def vertex_shift(values, i: int, step: float) -> float:

@@ -115,7 +115,6 @@ class Rows:
         )
 
 
-
 def rows_from_table(table: Table, with_track: bool = False) -> Rows:
     geo = geometry(table.rx_pos, table.rx_quat, table.tx_pos, table.tx_quat)
     track = PoseTrack(table) if with_track else None

@@ -247,7 +247,6 @@ class Part:
         return self.obj(self.full(x))
 
 
-
 class GradObjective(Objective):
     """:class:`Objective` that also gives the gradient and the per-row scores (N, p) of
     log P from one pass (:meth:`Likelihood.logp_grad`)."""
@@ -260,7 +259,6 @@ class GradObjective(Objective):
         logp, d = self.like.logp_grad(to_params(self.base, self.free, theta))
         scores = d[self.cols].T
         return -float(np.sum(logp)), -scores.sum(axis=0), scores
-
 
 
 #: Parameters whose column of the all-rows Hessian :func:`hessian_fd` takes by a forward
@@ -310,8 +308,6 @@ def se_steps(hl, free, live, fallback):
     top = np.where(np.isin(np.array(free)[live], LINEAR), 0.5, 0.05)
     steps[live] = np.clip(0.3 * se, 1e-7, top)
     return np.where(np.isfinite(steps), steps, fallback)
-
-
 
 
 # -- one Newton search, two gradient sources ---------------------------------------------------

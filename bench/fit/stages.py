@@ -130,7 +130,6 @@ def regimes_settled(like: Likelihood, p: Params, eps_kw: dict, split, settled: b
     return False
 
 
-
 #: Above this many rows, Newton and the Hessian run on a random subsample of this size
 #: (the Hessian is a sum over rows: scaled by n / SUBSAMPLE its relative error is about
 #: 1 / sqrt(SUBSAMPLE) times the rows' spread of curvature).
@@ -150,7 +149,6 @@ FULL_FINISH_TOL = 3e-3
 
 def subset(rows: Rows, idx) -> Rows:
     return rows.take(idx, track=False)
-
 
 
 def run_stages(
@@ -228,7 +226,6 @@ def run_stages(
     return like, res, n_evals
 
 
-
 def block_rows(rows: Rows) -> int:
     """Rows per block for evaluating all ``rows`` (:data:`likelihood.BLOCK_ROWS`). With pose
     error the near-kink rule's temporaries want cache-sized blocks; with exact poses an
@@ -295,7 +292,6 @@ def full_stage(rows: Rows, base: Params, free: tuple[str, ...], options: FitOpti
     return full, res, full.n_evals
 
 
-
 def analytic(rows: Rows, p: Params, free: tuple[str, ...], options: FitOptions) -> bool:
     """Whether the fit of ``free`` takes the analytic-gradient route (:func:`search.newton` with :class:`search.Analytic`):
     exact poses (no errors-in-variables model) and parameters among
@@ -310,7 +306,6 @@ def analytic(rows: Rows, p: Params, free: tuple[str, ...], options: FitOptions) 
         and all(n in Likelihood.GRAD_PARAMS for n in free)
         and Likelihood(rows).has_grad(p)
     )
-
 
 
 #: :func:`optimise_grad` splits the rows of each evaluation in two halves from this many
