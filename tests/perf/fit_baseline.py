@@ -41,7 +41,10 @@ sys.path.insert(0, str(HERE.parents[1]))
 
 from fit_campaign import PoseError, emulate_campaign  # noqa: E402
 
-from bench.fit import EIV_FREE, FitOptions, fit_table  # noqa: E402
+try:  # noqa: E402
+    from bench.fit import EIV_FREE, FitOptions, fit_table
+except ImportError:  # (a revision before bench.fit.fit was the function)
+    from bench.fit.fit import EIV_FREE, FitOptions, fit_table
 from bench.fit.likelihood import Params  # noqa: E402
 from emulator.receiver.model import ModelParams, measure  # noqa: E402
 
