@@ -393,7 +393,17 @@ def newton(
     and evaluates only the others. A parameter heading for a bound where f flattens (a
     pose-error sigma toward its floor, r_en toward its ceiling) is tried at the bound
     (:func:`probe_bounds`); a BFGS search by differences tries each sigma once (with
-    ``probe``) and holds it there."""
+    ``probe``) and holds it there.
+
+    The fit uses three combinations (:mod:`.stages`): Differences with ``recompute`` from
+    a pilot (the errors-in-variables passes), Differences with BFGS from a previous
+    Hessian (a warm pass, and the steps on all rows of a big table), and Analytic with
+    BFGS from the outer product or a subsample's Hessian (exact poses). Each iteration:
+    where the search stands (gradient, curvature, active set), whether it has converged
+    or needs a better curvature first (recompute: difference steps re-set or shrunk;
+    BFGS: the Hessian by differences when stalled, wanted at the end, or to finish), then
+    a step (a bound tried first, else the capped Newton step with a line search: doubling
+    with recompute, backtracking otherwise) and the BFGS update."""
     p = len(free)
     lo, hi = box(free)
     cap = caps(free)
