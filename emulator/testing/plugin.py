@@ -57,14 +57,31 @@ def pytest_runtest_makereport(item: pytest.Item, call):
 
 
 
+def _stop_all(request: pytest.FixtureRequest, started: list, folders: list) -> None:
+    """Teardown shared by the fixtures: stop everything started, keep the artefact folders
+    only when the test failed, then raise the first error a stop raised."""
+    errors = []
+    for thing in started:
+        try:
+            thing.stop()
+        except Exception as exc:  # noqa: BLE001 - stop every one, report after
+            errors.append(exc)
+    reports = request.node.stash.get(_REPORT_KEY, {})
+    if not any(r.failed for r in reports.values()):
+        for work in folders:
+            shutil.rmtree(work, ignore_errors=True)
+        folders.clear()
+    if errors:
+        raise errors[0]
+
+
 @pytest.fixture
 def arva_emulator(request: pytest.FixtureRequest, tmp_path):
     """A factory: ``arva_emulator(scene=None, clock="step", speed=1.0)`` -> Emulator."""
     from emulator.testing.harness import Emulator
 
     started: list[Emulator] = []
-    folders: list = []
-    request.node.stash[_ARTEFACTS_KEY] = folders
+    folders: list = request.node.stash.setdefault(_ARTEFACTS_KEY, [])
     device = request.config.getoption("--arva-port")
 
     def start(scene=None, clock: str = "step", speed: float = 1.0) -> Emulator:
@@ -80,18 +97,25 @@ def arva_emulator(request: pytest.FixtureRequest, tmp_path):
         return emu
 
     yield start
+    _stop_all(request, started, folders)
 
-    errors = []
-    for emu in started:
-        try:
-            emu.stop()
-        except Exception as exc:  # noqa: BLE001 - stop every one, report after
-            errors.append(exc)
-    reports = request.node.stash.get(_REPORT_KEY, {})
-    failed = any(r.failed for r in reports.values())
-    if not failed:
-        for work in folders:
-            shutil.rmtree(work, ignore_errors=True)
-        folders.clear()
-    if errors:
-        raise errors[0]
+
+@pytest.fixture
+def arva_firmware(request: pytest.FixtureRequest, tmp_path):
+    """A factory: ``arva_firmware(firmware, scene=None, clock="step", speed=1.0,
+    machine="mps2-an385", icount=None)`` -> FirmwareLoop: QEMU runs the firmware ELF, the
+    emulator writes the first receiver's stream into its UART0 (emulator.testing.qemu)."""
+    from emulator.testing.qemu import FirmwareLoop
+
+    started: list[FirmwareLoop] = []
+    folders: list = request.node.stash.setdefault(_ARTEFACTS_KEY, [])
+
+    def start(firmware, scene=None, clock: str = "step", speed: float = 1.0, machine: str = "mps2-an385", icount=None):
+        work = tmp_path / f"arva-firmware-{len(started)}"
+        folders.append(work)
+        loop = FirmwareLoop.start(firmware, scene, clock=clock, speed=speed, workdir=work, machine=machine, icount=icount)
+        started.append(loop)
+        return loop
+
+    yield start
+    _stop_all(request, started, folders)
