@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -96,8 +97,12 @@ SEARCH_SCENE = {
 
 def test_build_prints_size_and_stack(firmware):
     log = (firmware.parent / "build.log").read_text()
-    assert "text" in log and "search_fw.elf" in log
-    assert "deepest stack frames" in log
+    size = re.search(r"^\s*(\d+)\s+(\d+)\s+(\d+)\s+\d+\s+[0-9a-f]+\s+\S*search_fw.elf$", log, re.M)
+    assert size is not None, log
+    text, data, bss = map(int, size.groups())
+    assert text < 8192 and data + bss < 2048  # a small part of a Cortex-M3's memory
+    stack = re.search(r"^stack: (\d+) bytes worst case \(main \d+ -> arva_decoder_next \d+", log, re.M)
+    assert stack is not None and int(stack.group(1)) < 1024, log
 
 
 def test_acquires_keeps_target_and_locates(arva_firmware, firmware):

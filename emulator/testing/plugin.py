@@ -19,6 +19,10 @@ does (JUnit XML ``<property>`` elements ``arva_scene`` and ``arva_seed``; ``_1``
 first receiver's stream to DEVICE (a serial adapter wired to a real device under test)
 instead of a pty. See docs/hil_testing.md.
 
+``arva_firmware(firmware, scene=None, clock="step", ...)`` runs a firmware ELF on QEMU
+(``emulator.testing.qemu``) with the emulator writing the first receiver's stream into
+its UART0, and returns a ``FirmwareLoop``; same teardown and artefacts (``arva-firmware-N``).
+
 Loading the plugin costs one small import: nothing is started unless a test asks for
 the fixture.
 """
