@@ -26,7 +26,7 @@ import numpy as np
 from firmware_proto.errors import InputError
 
 from emulator.closed_loop.loop import ClosedLoop
-from emulator.output.scheduler import FAST_DRAIN_WAIT, EpochScheduler
+from emulator.output.scheduler import STEP_DRAIN_WAIT, EpochScheduler
 from emulator.pipeline import Pipeline
 
 from emulator.control.requests import (
@@ -103,7 +103,7 @@ class Controller:
             if left is not None and req.n > left:
                 raise ControlError(f"step: n = {req.n} but only {left} epochs are left (--frames)")
             for r in sch.routes:
-                r.port.set_drain_wait(FAST_DRAIN_WAIT)  # a reader that keeps up loses nothing
+                r.port.set_drain_wait(STEP_DRAIN_WAIT)  # a reader that keeps reading loses nothing
             pipe.step(req.n)
             return self._epoch()
         if isinstance(req, (Pause, Resume)):
