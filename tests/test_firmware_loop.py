@@ -215,3 +215,38 @@ def test_a_long_step_loses_no_byte(arva_firmware, firmware):
     assert loop.decision(k, timeout=60)["seq"] == 999
     got = check_against_reference(loop)
     assert len(got) == 1000 and len(loop.captured()) == 55780
+
+
+FAILING_FIRMWARE_TEST = '''
+from emulator.testing.qemu import EXAMPLE_FIRMWARE, build_firmware
+
+def test_firmware_misbehaves(arva_firmware, tmp_path):
+    loop = arva_firmware(build_firmware(EXAMPLE_FIRMWARE, tmp_path / "build"),
+                         scene={"spec": 1, "transmitters": [{"id": 1, "position": [20.0, 0.0, 0.0]}],
+                                "receiver": {"position": [0.0, 0.0, 0.0]}})
+    loop.emu.step(2)
+    loop.decision(1)
+    assert False, "the firmware misbehaved"
+'''
+
+
+@pytest.mark.timeout(120)
+def test_a_failing_firmware_test_keeps_its_artefacts(tmp_path):
+    """Outside this repository, with only the installed plugin: the report names the
+    folder, which holds the firmware's output, QEMU's log and the emulator's bytes."""
+    import subprocess
+    import sys
+
+    (tmp_path / "test_fw.py").write_text(FAILING_FIRMWARE_TEST)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTEST_ADDOPTS", "PYTEST_PLUGINS")}
+    result = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--rootdir", str(tmp_path), f"--basetemp={tmp_path / 'bt'}"],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=110,
+    )
+    assert result.returncode == 1, result.stdout + result.stderr
+    folder = Path(re.search(r"kept in:\n(\S+arva-firmware-0)", result.stdout).group(1))
+    lines = (folder / "uart1.txt").read_text().splitlines()
+    assert json.loads(lines[0])["event"] == "boot"
+    assert [json.loads(x)["d"] for x in lines[1:]] == [1834, 1834]
+    assert (folder / "qemu.log").exists() and "redirected to" in (folder / "qemu-stdout.txt").read_text()
+    assert (folder / "emulator" / "streams" / "arva.bytes").read_bytes() == b"$PARVA,0,1,1,1,1834,0*6B\r\n$PARVA,1,1,1,1,1834,0*6A\r\n"
