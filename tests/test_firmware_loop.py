@@ -44,18 +44,12 @@ DUT = _load_reference()
 
 def reference_decisions(captured: bytes) -> list[dict]:
     """What search_dut.py reports for these bytes (its read loop, lines split at LF)."""
-    search, out, slots, seq = DUT.Search(), [], [], None
+    search, epochs, out = DUT.Search(), DUT.Epochs(), []
     for line in captured.split(b"\n"):
         fields = DUT.parse_parva(line)
-        if fields is None:
-            continue
-        s, n, k, tx_id, d, delta = fields
-        if k == 1:
-            slots, seq = [], s
-        if s != seq:
-            continue
-        slots.append((tx_id, d, delta))
-        if k == n:
+        done = epochs.feed(fields) if fields is not None else None
+        if done is not None:
+            seq, slots = done
             search.epoch(slots)
             out.append({"seq": seq, "state": search.state, "target": search.target, "d": search.d})
     return out
