@@ -10,6 +10,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+from foreign_repo import foreign_repository
 
 HERE = Path(__file__).parent
 
@@ -22,10 +23,10 @@ def test_fails_after_two_epochs(arva_emulator):
 '''
 
 
-def run_pytest(folder: Path, *args: str) -> subprocess.CompletedProcess:
+def run_pytest(folder: Path, *args: str, command: list[str] | None = None) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTEST_ADDOPTS", "PYTEST_PLUGINS")}
     return subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--rootdir", str(folder), *args],
+        [*(command or [sys.executable, "-m", "pytest"]), "-q", "-p", "no:cacheprovider", "--rootdir", str(folder), *args],
         cwd=folder, env=env, capture_output=True, text=True, timeout=170,
     )
 
@@ -105,3 +106,16 @@ def test_arva_port_sends_the_first_receiver_to_a_device(tmp_path, monkeypatch):
     # Epochs 0 and 1, then 2 and 3 lost to the outage [2 s, 3 s) ... epoch 3 at t = 3 s is back.
     assert bytes(got) == (b"$PARVA,0,1,1,1,1905,21*5B\r\n$PARVA,1,1,1,1,1905,21*5A\r\n"
                           b"$PARVA,3,1,1,1,1905,21*58\r\n")
+
+
+@pytest.mark.timeout(180)
+def test_the_fixture_passes_in_a_repository_with_its_own_emulator_and_bench_packages(tmp_path):
+    """Issue 29: the harness started ``python -m emulator.cli`` in the test's working
+    directory, so the user's ``emulator/`` hid ours and every test failed."""
+    foreign_repository(tmp_path)
+    (tmp_path / "test_step_session.py").write_text((HERE / "outside" / "step_session.py").read_text())
+    # Run as a user runs it there: the ``pytest`` command (``python -m pytest`` would put
+    # the folder first on the test process's own sys.path, ahead of the plugin).
+    result = run_pytest(tmp_path, f"--basetemp={tmp_path / 'bt'}", command=[str(Path(sys.executable).with_name("pytest"))])
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "1 passed" in result.stdout

@@ -12,13 +12,13 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from emulator.child_process import module_command, module_env
 from firmware_proto.errors import ArvaError
 
 
@@ -141,12 +141,12 @@ class EmulatorProcess:
     def __init__(self, *args: str, streams: int = 1, timeout: float = 10.0, env: dict | None = None) -> None:
         self.args = list(args)
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "emulator.cli", *args],
+            module_command("emulator.cli", *args),
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             bufsize=0,
-            env=env,
+            env=module_env(env),
         )
         self.ports: dict[str, str] = {}
         self.control: str | None = None
