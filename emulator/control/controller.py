@@ -168,11 +168,8 @@ class Controller:
                 continue
             spec = self.pipe.scene.receivers[info.receiver]
             src = self.pipe.streams[info.label].receiver
-            if isinstance(src, ClosedLoop):
-                if src.uav is not None:  # where the vehicle is now: the next epoch's pose
-                    pos, quat = list(map(float, src.uav.position)), list(map(float, src.uav.orientation))
-                else:
-                    pos, quat = _pose(src.receiver.trajectory, t)
+            if isinstance(src, ClosedLoop):  # the vehicle's pose now, or the autopilot's (MAVLink)
+                pos, quat = src.current_pose()
             else:
                 pos, quat = _pose(src.trajectory, t)
             out.append({"id": spec.id, "position": pos, "orientation": quat})
