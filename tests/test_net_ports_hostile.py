@@ -10,9 +10,11 @@ reported line-setting changes, and the Telnet IAC escaping against pyserial's ow
 
 from __future__ import annotations
 
+import io
 import re
 import socket
 import struct
+import sys
 import threading
 import time
 
@@ -32,6 +34,7 @@ from emulator.output.net_ports import (
     ServerPort,
     escape_iac,
     parse_server_spec,
+    stderr_notifier,
 )
 from emulator.testing import EmulatorProcess
 from emulator.testing.harness import process_rss_kb
@@ -186,3 +189,43 @@ class _NoConnection:
 def test_iac_escaping_is_pyserials(data):
     manager = serial.rfc2217.PortManager(SerialBase(), _NoConnection())
     assert escape_iac(data) == b"".join(manager.escape(data))
+
+
+class _SlowStderr(io.RawIOBase):
+    """A stderr pipe that takes its time (the GIL is released in every write, so the
+    server's threads contend for it, as under load); keeps every byte."""
+
+    def __init__(self) -> None:
+        self.data = bytearray()
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b) -> int:
+        time.sleep(0.0002)
+        self.data += bytes(b)
+        return len(b)
+
+
+def test_lines_from_the_servers_threads_never_share_a_stderr_line(monkeypatch):
+    """Issue 29: client events from several threads sometimes merged onto one line."""
+    raw = _SlowStderr()
+    monkeypatch.setattr(sys, "stderr", io.TextIOWrapper(io.BufferedWriter(raw), line_buffering=True, write_through=True))
+    notify = stderr_notifier("arva-emulate")
+    threads, lines = 8, 150
+
+    def events(i: int) -> None:
+        for k in range(lines):
+            notify(f"arva: client 127.0.0.1:{40000 + i} event {k}")
+
+    workers = [threading.Thread(target=events, args=(i,)) for i in range(threads)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join(30)
+    sys.stderr.flush()
+    got = raw.data.decode().split("\n")
+    assert got[-1] == ""
+    pattern = re.compile(r"arva-emulate: arva: client 127\.0\.0\.1:400\d\d event \d+")
+    assert [line for line in got[:-1] if not pattern.fullmatch(line)] == []
+    assert len(got) - 1 == threads * lines

@@ -593,11 +593,15 @@ def _format_addr(addr) -> str:
 
 def stderr_notifier(prefix: str) -> Callable[[str], None]:
     """Client events as ``PREFIX: TEXT`` lines on stderr (from the server's threads). On a
-    terminal the line first clears a live status line (``\\r`` + erase to end of line)."""
+    terminal the line first clears a live status line (``\\r`` + erase to end of line).
+
+    Each line is one ``write`` (text and newline together): ``print`` writes them apart,
+    and another thread's line could land between the two (two messages on one line)."""
 
     def notify(text: str) -> None:
         clear = "\r\x1b[K" if sys.stderr.isatty() else ""
-        print(f"{clear}{prefix}: {text}", file=sys.stderr, flush=True)
+        sys.stderr.write(f"{clear}{prefix}: {text}\n")
+        sys.stderr.flush()
 
     return notify
 
