@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+import weakref
 
 import pytest
 
@@ -41,14 +42,20 @@ def raw_client(emu) -> socket.socket:
     return sock
 
 
+_pending: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # bytes read past a reply, per socket
+
+
 def read_reply(sock: socket.socket, timeout: float = 10.0) -> dict:
+    """The next reply line on ``sock`` (replies to pipelined requests may arrive together)."""
     sock.settimeout(timeout)
-    data = b""
-    while not data.endswith(b"\n"):
+    data = _pending.pop(sock, b"")
+    while b"\n" not in data:
         chunk = sock.recv(4096)
         assert chunk, f"closed without a reply after {data!r}"
         data += chunk
-    return json.loads(data)
+    line, _, rest = data.partition(b"\n")
+    _pending[sock] = rest
+    return json.loads(line)
 
 
 @pytest.mark.timeout(60)
