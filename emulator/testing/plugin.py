@@ -13,9 +13,11 @@ Registered by installing the project (entry point group ``pytest11``, name ``arv
 emulator a test started is stopped at teardown, whatever happened. The streams' bytes and
 the control transcript are kept under the test's ``tmp_path`` (folder ``arva-emulator-N``)
 when the test fails, and the failure report names the folder; on success they are
-removed. The scene (path) and its seed are recorded as test properties, as ``record_property``
-does (JUnit XML ``<property>`` elements ``arva_scene`` and ``arva_seed``; ``_1``, ``_2``
-... for further emulators of the same test). ``--arva-port DEVICE`` sends the
+removed. The scene and its seed are recorded as test properties, as ``record_property``
+does (JUnit XML ``<property>`` elements ``arva_scene``: the file given, ``<dict>`` or
+``<embedded default.toml>``; ``arva_scene_toml``: the scene's text as the emulator read it,
+so a report reproduces the run after its temporary files are gone; ``arva_seed``; ``_1``,
+``_2`` ... for further emulators of the same test). ``--arva-port DEVICE`` sends the
 first receiver's stream to DEVICE (a serial adapter wired to a real device under test)
 instead of a pty. See docs/hil_testing.md.
 
@@ -33,6 +35,8 @@ import shutil
 
 import pytest
 
+#: Longest scene text recorded in the JUnit report (``arva_scene_toml``), bytes.
+MAX_RECORDED_SCENE = 64 * 1024
 _REPORT_KEY = pytest.StashKey[dict]()  # the test's reports by phase
 _ARTEFACTS_KEY = pytest.StashKey[list]()  # folders of the emulators it started
 
@@ -79,6 +83,18 @@ def _stop_all(request: pytest.FixtureRequest, started: list, folders: list) -> N
         raise errors[0]
 
 
+def recorded_scene_text(path: str | None) -> str:
+    """The scene's text for the JUnit report (at most :data:`MAX_RECORDED_SCENE` bytes)."""
+    from emulator.testing.scenes import scene_text
+
+    try:
+        text = scene_text(path)
+    except (OSError, ValueError) as exc:
+        return f"<not readable: {exc}>"
+    size = len(text.encode("utf-8"))
+    return text if size <= MAX_RECORDED_SCENE else f"<{size} bytes: longer than {MAX_RECORDED_SCENE}, not recorded>"
+
+
 @pytest.fixture
 def arva_emulator(request: pytest.FixtureRequest, tmp_path):
     """A factory: ``arva_emulator(scene=None, clock="step", speed=1.0)`` -> Emulator."""
@@ -96,7 +112,9 @@ def arva_emulator(request: pytest.FixtureRequest, tmp_path):
         suffix = "" if len(started) == 1 else f"_{len(started) - 1}"
         # What record_property does, without its warning under junit_family xunit2
         # (pytest's default), which writes these properties all the same.
-        request.node.user_properties.append((f"arva_scene{suffix}", emu.scene_path or "<embedded default.toml>"))
+        source = "<embedded default.toml>" if scene is None else "<dict>" if isinstance(scene, dict) else str(scene)
+        request.node.user_properties.append((f"arva_scene{suffix}", source))
+        request.node.user_properties.append((f"arva_scene_toml{suffix}", recorded_scene_text(emu.scene_path)))
         request.node.user_properties.append((f"arva_seed{suffix}", emu.seed))
         return emu
 
