@@ -171,6 +171,16 @@ class DeviceFeed(Listener):
         name, role = self.spec.name, self.spec.role
         for stamped in records:
             rec, mono = stamped.record, stamped.mono
+            if "suppressed" in rec:  # error records summed by the ingest (bench.ingest.stamp)
+                kinds = rec["kinds"]
+                if self.spec.kind == "arva":
+                    self.errors += rec["suppressed"]
+                    self.checksum_errors += kinds.get("BAD_CHECKSUM", 0)
+                    self.rejected_bytes += rec.get("length", 0)
+                else:
+                    self.checksum_errors += kinds.get("bad_checksum", 0)
+                    self.errors += sum(v for k, v in kinds.items() if k != "junk_bytes")
+                continue
             err = rec.get("error")
             if err is not None:
                 if isinstance(err, dict):  # ground truth: counter increments
