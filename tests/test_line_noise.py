@@ -120,3 +120,4 @@ def test_the_stop_event_reports_the_sum(tmp_path):
     assert stop["devices"]["arva"]["decoder"]["error_records_suppressed"] == CHUNK - 1 - ERROR_RECORDS_PER_SECOND
     manifest = json.loads((tmp_path / "s" / "manifest.json").read_text())
     assert manifest["summary"]["devices"]["arva"]["decoder"]["errors"] == CHUNK - 1
+

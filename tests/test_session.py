@@ -157,7 +157,7 @@ def test_short_writes_are_completed_and_a_torn_line_stays_the_tail(tmp_path):
 WRITER = r"""
 import sys, time
 from bench.session import SessionWriter
-w = SessionWriter(sys.argv[1], {})
+w = SessionWriter(sys.argv[1], {"devices": {"arva": {"kind": "arva"}}})
 i = 0
 while True:
     w.raw("arva", b"%08d" % i)

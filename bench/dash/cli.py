@@ -75,14 +75,14 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
         if not (directory / MANIFEST).exists():
             raise InputError(f"dash: {directory}: not a session directory (no {MANIFEST})")
         manifest = load_manifest(directory)
+        logged = load_reads(directory, manifest.devices)  # a corrupt log: one line now, not a dead panel later
         specs = [
             DeviceSpec(name, dev.kind, dev.url, dev.role, dev.baudrate, dev.format)
             for name, dev in manifest.devices.items()
-            if (directory / f"{name}.raw").exists()
+            if name in logged
         ]
         if not specs:
             raise InputError(f"dash: {directory}: no device has logged anything")
-        load_reads(directory, [s.name for s in specs])  # a corrupt log: one line now, not a dead panel later
         origin = args.origin
         if origin is None and manifest.origin is not None:
             o = manifest.origin
