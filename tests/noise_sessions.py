@@ -56,12 +56,36 @@ def noise_session(directory: Path, noise: int, byte: bytes = b"$") -> int:
     return sent
 
 
-def peak_rss(argv: list[str], timeout: float = 600.0) -> tuple[int, str, int, float]:
-    """Run ``python -m bench.cli ARGV``: (exit status, stderr, peak RSS in kB, seconds)."""
+def log_noise(directory: Path, noise: int, byte: bytes = b"$") -> dict:
+    """What ``arva-bench log`` writes for a receiver line carrying ``noise`` bytes of
+    ``byte`` in 64 KiB reads at 115200 Bd (its listener, fed in this process); the device's
+    summary."""
+    from bench.ingest.reader import Device, DeviceSpec
+    from bench.logger import SessionListener
+
+    spec = DeviceSpec("arva", "arva", "x", baudrate=BAUD)
+    writer = SessionWriter(directory, {"devices": {"arva": spec.manifest()}})
+    device, listener = Device(spec), SessionListener(writer)
+    t, sent = 100.0, 0
+    while sent < noise:
+        data = byte * min(CHUNK, noise - sent)
+        t += len(data) * 10 / BAUD
+        listener.on_read(device, device.ingest(data, t, START_UTC + t))
+        sent += len(data)
+    listener.on_read(device, device.stop(t + 1.0, START_UTC + t + 1.0))
+    summary = listener.summary([device])
+    writer.close(devices=summary)
+    return summary["arva"]
+
+
+def peak_rss(argv: list[str], timeout: float = 600.0, how: tuple[str, ...] = ("-m", "bench.cli"),
+             env: dict | None = None) -> tuple[int, str, int, float]:  # fmt: skip
+    """Run ``python HOW ARGV`` (default ``-m bench.cli``): (exit status, stderr, peak RSS
+    in kB, seconds)."""
     t0 = time.monotonic()
     with tempfile.TemporaryFile() as err:
-        proc = subprocess.Popen([sys.executable, "-m", "bench.cli", *argv], stdin=subprocess.DEVNULL,
-                                stdout=subprocess.DEVNULL, stderr=err)  # fmt: skip
+        proc = subprocess.Popen([sys.executable, *how, *argv], stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=err, env=env)  # fmt: skip
         while True:
             pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
             if pid:
