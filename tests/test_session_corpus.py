@@ -65,8 +65,26 @@ def _raw_middle(path):
         f.write(b"not a read\n12.0\t2027-01-15T08:00:00.250000Z\tJA==\n")
 
 
+def _raw_loop(path):
+    (path / "arva.raw").unlink()
+    (path / "arva.raw").symlink_to("arva.raw")  # a link to itself
+
+
+def _raw_dangling(path):
+    (path / "arva.raw").unlink()
+    (path / "arva.raw").symlink_to("gone.raw")
+
+
+def _no_devices(m):
+    m["devices"] = {}
+
+
 M = "{d}/manifest.json"
 CASES = {
+    # issue 29, item 9: a log that cannot be looked at, a manifest that lists nothing
+    "raw-symlink-loop": (_raw_loop, "{d}/arva.raw: unreadable: Too many levels of symbolic links"),
+    "raw-dangling-symlink": (_raw_dangling, "{d}/arva.raw: a symbolic link to nothing (gone.raw)"),
+    "no-devices": (lambda p: edit_manifest(p, _no_devices), M + ": devices: none listed (a session logs at least one device)"),
     "non-utf8": (lambda p: set_manifest(p, b'{"format": "arva-session", "note": "\xff"}'),
                  M + ": not UTF-8 text (byte 36)"),
     "json-list": (lambda p: set_manifest(p, b"[1, 2]"), M + ": not a session manifest (a JSON object), got a list"),
@@ -121,3 +139,34 @@ def test_a_receiver_log_that_decodes_to_nothing_is_an_error(tmp_path, capsys):
 def test_the_good_session_exports(tmp_path, capsys):
     good_session(tmp_path / "s")
     assert main(["export", str(tmp_path / "s"), "--csv", str(tmp_path / "out.csv")]) == 0
+
+
+def _only_attitude(m):
+    del m["devices"]["arva"]
+
+
+#: Sessions that are valid but hold nothing to export (issue 29, item 9): export and fit
+#: refuse them (one line, exit 2) instead of writing "0 rows ... dropped: none".
+NOTHING_TO_EXPORT = {
+    "receiver-log-missing": (lambda p: (p / "arva.raw").unlink(), "{d}: no receiver log (arva.raw: missing): nothing to export"),
+    "receiver-log-empty": (lambda p: (p / "arva.raw").write_bytes(b""),
+                           "{d}/arva.raw: no complete read (empty or only a torn line): nothing to export"),
+    "receiver-log-torn": (lambda p: (p / "arva.raw").write_bytes(b"50.0\t2023-11-14T22:13:20.000000Z\tJFBBUl"),
+                          "{d}/arva.raw: no complete read (empty or only a torn line): nothing to export"),
+    "no-receiver": (lambda p: edit_manifest(p, _only_attitude), M + ": no receiver (a device of kind arva): nothing to export"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("reader", ["export", "fit"])
+@pytest.mark.parametrize("case", sorted(NOTHING_TO_EXPORT))
+def test_a_session_with_nothing_to_export_is_refused(tmp_path, capsys, case, reader):
+    d = tmp_path / "s"
+    good_session(d)
+    corrupt, expected = NOTHING_TO_EXPORT[case]
+    corrupt(d)
+    code = main(READERS[reader](d, tmp_path))
+    line = expected.format(d=d)
+    if reader == "fit":
+        line = f"fit: {d}: {line}"
+    assert (code, capsys.readouterr().err) == (2, f"arva-bench: {line}\n")
+    assert not (tmp_path / "out.csv").exists()
