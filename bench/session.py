@@ -533,7 +533,7 @@ class SessionClock:
         if not math.isfinite(read.mono):
             raise InputError(f"{where}: stamp {read.mono!r}: not a finite number of seconds")
         if previous is not None and read.mono < previous.mono - MONO_TOLERANCE:
-            raise InputError(f"{where}: stamp {read.mono:.6f} goes back {previous.mono - read.mono:.6g} s "
+            raise InputError(f"{where}: stamp {read.mono!r} goes back {previous.mono - read.mono:.6g} s "
                              f"(more than {MONO_TOLERANCE:g} s)")  # fmt: skip
         wall = read.utc - self.utc
         if not -CLOCK_TOLERANCE <= wall <= MAX_SESSION_SPAN:
@@ -541,7 +541,7 @@ class SessionClock:
                              f"(outside -{CLOCK_TOLERANCE:g} .. {MAX_SESSION_SPAN:g} s)")  # fmt: skip
         ahead = (read.mono - self.mono) - wall
         if ahead > CLOCK_TOLERANCE:
-            raise InputError(f"{where}: stamp {read.mono:.6f} runs {ahead:.6g} s ahead of the wall time since the "
+            raise InputError(f"{where}: stamp {read.mono!r} runs {ahead:.6g} s ahead of the wall time since the "
                              f"session's first read (more than {CLOCK_TOLERANCE:g} s)")  # fmt: skip
 
 

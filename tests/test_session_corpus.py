@@ -4,6 +4,7 @@ here, one small session per case."""
 
 from __future__ import annotations
 
+import base64
 import json
 
 import pytest
@@ -79,8 +80,35 @@ def _no_devices(m):
     m["devices"] = {}
 
 
-M = "{d}/manifest.json"
+def _arva_line(mono: bytes, utc: bytes = b"2023-11-14T22:13:21.000000Z"):
+    """Append a read of the next epoch to arva.raw with these stamps (the first read is at
+    mono 50.0, 2023-11-14T22:13:20Z)."""
+    b64 = base64.b64encode(encode_parva(1, 1, 1, 1, 1905, 21))
+
+    def corrupt(path):
+        with open(path / "arva.raw", "ab") as f:
+            f.write(mono + b"\t" + utc + b"\t" + b64 + b"\n")
+
+    return corrupt
+
+
+A = "{d}/arva.raw: line 2: "
 CASES = {
+    # issue 29, item 7: stamps that are not finite, go back, or leave the session's span
+    "stamp-nan": (_arva_line(b"nan"), A + "stamp nan: not a finite number of seconds"),
+    "stamp-inf": (_arva_line(b"inf"), A + "stamp inf: not a finite number of seconds"),
+    "stamp-1e308": (_arva_line(b"1e308"), A + "stamp 1e+308 runs 1e+308 s ahead of the wall time since the session's "
+                                              "first read (more than 60 s)"),
+    "stamp-goes-back": (_arva_line(b"40.0"), A + "stamp 40.0 goes back 10 s (more than 0.001 s)"),
+    "stamp-year-9999": (_arva_line(b"51.0", b"9999-01-01T00:00:00.000000Z"),
+                        A + "wall time 9999-01-01T00:00:00.000000Z is 2.51671e+11 s from the session's first read "
+                            "(outside -60 .. 3.1536e+07 s)"),
+    "stamp-before-start": (_arva_line(b"51.0", b"2023-11-14T20:00:00.000000Z"),
+                           A + "wall time 2023-11-14T20:00:00.000000Z is -8000 s from the session's first read "
+                               "(outside -60 .. 3.1536e+07 s)"),
+}
+M = "{d}/manifest.json"
+CASES |= {
     # issue 29, item 9: a log that cannot be looked at, a manifest that lists nothing
     "raw-symlink-loop": (_raw_loop, "{d}/arva.raw: unreadable: Too many levels of symbolic links"),
     "raw-dangling-symlink": (_raw_dangling, "{d}/arva.raw: a symbolic link to nothing (gone.raw)"),
@@ -170,3 +198,13 @@ def test_a_session_with_nothing_to_export_is_refused(tmp_path, capsys, case, rea
         line = f"fit: {d}: {line}"
     assert (code, capsys.readouterr().err) == (2, f"arva-bench: {line}\n")
     assert not (tmp_path / "out.csv").exists()
+
+
+def test_replay_in_real_time_refuses_a_stamp_far_ahead_before_waiting(tmp_path, capsys):
+    """The issue's case: ``replay --speed 1`` waited for ever (or overflowed after 14 s)."""
+    d = tmp_path / "s"
+    good_session(d)
+    _arva_line(b"1e308")(d)
+    assert main(["replay", str(d), "--speed", "1", "--port", "pty"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"arva-bench: {d}/arva.raw: line 2: stamp 1e+308 runs") and err.count("\n") == 1
