@@ -76,6 +76,13 @@ def _raw_dangling(path):
     (path / "arva.raw").symlink_to("gone.raw")
 
 
+def _nested(depth: int):
+    value: object = 0
+    for _ in range(depth - 1):  # the manifest's own object is the first level
+        value = {"a": value}
+    return value
+
+
 def _no_devices(m):
     m["devices"] = {}
 
@@ -108,6 +115,12 @@ CASES = {
                                "(outside -60 .. 3.1536e+07 s)"),
 }
 M = "{d}/manifest.json"
+CASES |= {
+    # issue 29, item 5: nesting that exhausts the JSON parser's recursion, or just deep
+    "manifest-5000-deep": (lambda p: set_manifest(p, b'{"format": "arva-session", "x": ' + b"[" * 5000 + b"]" * 5000 + b"}"),
+                           M + ": JSON nested more than 32 deep"),
+    "manifest-40-deep": (lambda p: edit_manifest(p, lambda m: m.update(note=_nested(40))), M + ": JSON nested more than 32 deep"),
+}
 CASES |= {
     # issue 29, item 9: a log that cannot be looked at, a manifest that lists nothing
     "raw-symlink-loop": (_raw_loop, "{d}/arva.raw: unreadable: Too many levels of symbolic links"),
