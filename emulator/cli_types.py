@@ -16,6 +16,8 @@ Ranges (all closed unless said otherwise; every float is finite: nan and inf are
 ``baud_rate``               an integer in :data:`BAUD_LIMITS` (50 .. 12,000,000)
 ``real_list(n, lo, hi)``    n (or n_min..n_max) comma-separated reals in range
 ``choice_list(names)``      one or more comma-separated names from ``names``
+every path                  no part longer than NAME_MAX (255) bytes, at most PATH_MAX
+                            (4095) bytes in all, no NUL byte
 ``input_file``              an existing regular file one can read; ``''`` is refused
                             (``scene_file``: the same, for ``--scene``)
 ``session_dir``             an existing directory
@@ -236,11 +238,27 @@ def scheduler_address(text: str) -> str:
 
 
 # --------------------------------------------------------------------------- paths
+#: The longest name of one path part and the longest whole path, in bytes (Linux's
+#: NAME_MAX and PATH_MAX - 1): beyond them every system call fails with ENAMETOOLONG.
+NAME_MAX = 255
+PATH_MAX = 4095
+
+
+def _short(part: bytes) -> str:
+    return os.fsdecode(part[:16]) + "..."
+
+
 def _path(text: str) -> Path:
     if not text:
         _fail("expected a path, got ''")
     if "\0" in text:
         _fail(f"a path cannot contain a NUL byte: {text!r}")
+    raw = os.fsencode(text)
+    if len(raw) > PATH_MAX:
+        _fail(f"{_short(raw)}: a path longer than {PATH_MAX} bytes ({len(raw)})")
+    for part in raw.split(b"/"):
+        if len(part) > NAME_MAX:
+            _fail(f"{_short(part)}: a path part longer than {NAME_MAX} bytes ({len(part)})")
     return Path(text)
 
 
@@ -416,9 +434,14 @@ def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[
       ``PROG: PATH: REASON``, status 2; a closed stdout (``| head``) ends quietly, status 0.
     - Ctrl-C (:class:`KeyboardInterrupt`): ``PROG: interrupted``, status 130.
 
-    Anything else is a bug and keeps its traceback.
+    Anything else is a bug and keeps its traceback. An :class:`OSError` of an argument's
+    type (a path the system refuses to look at) is reported as at run time.
     """
-    args = parse()
+    try:
+        args = parse()
+    except OSError as exc:
+        print(f"{prog}: {one_line(_os_error_line(exc))}", file=sys.stderr, flush=True)
+        return 2
     try:
         return int(run(args) or 0)
     except SceneError as exc:

@@ -302,3 +302,40 @@ def test_the_issues_examples_are_one_line_errors(inputs):
             assert text.startswith(fill(expected)[:-3]), (argv, text)
         elif expected is not None:
             assert text == fill(expected) + "\n", argv
+
+
+#: Issue 29, item 6: a path part longer than NAME_MAX (255 bytes) in each of the eight
+#: command lines that gave an ENAMETOOLONG traceback; {long} is 300 bytes.
+LONG_PART = "a" * 300
+TOO_LONG = "aaaaaaaaaaaaaaaa...: a path part longer than 255 bytes"
+ISSUE_29_PATHS = [
+    (EMULATE, ["--scene", "{tmp}/{long}"], f"arva-emulate: error: argument --scene: {TOO_LONG} (300)"),
+    (EMULATE, ["--port", "pty", "--link", "{tmp}/{long}"], f"arva-emulate: error: argument --link: {TOO_LONG} (300)"),
+    ((*BENCH, "export"), ["{tmp}/{long}", "--csv", "o.csv"], f"arva-bench export: error: argument DIR: {TOO_LONG} (300)"),
+    ((*BENCH, "export"), ["{session}", "--csv", "{tmp}/{long}.csv"], f"arva-bench export: error: argument --csv: {TOO_LONG} (304)"),
+    ((*BENCH, "replay"), ["{tmp}/{long}"], f"arva-bench replay: error: argument DIR: {TOO_LONG} (300)"),
+    ((*BENCH, "fit"), ["{csv}", "--report", "{tmp}/{long}"], f"arva-bench fit: error: argument --report: {TOO_LONG} (300)"),
+    ((*BENCH, "fit"), ["{csv}", "--write-scene", "{tmp}/{long}.toml"],
+     f"arva-bench fit: error: argument --write-scene: {TOO_LONG} (305)"),
+    ((*BENCH, "log"), ["--arva", "arvaemu://", "--out", "{tmp}/{long}"], f"arva-bench log: error: argument --out: {TOO_LONG} (300)"),
+    ((*BENCH, "fit"), ["{tmp}/{long}"], "arva-bench: {tmp}/{long}: File name too long"),
+]  # fmt: skip
+
+
+def test_a_path_part_too_long_is_one_line_in_every_command(inputs):
+    root: Path = inputs["root"]
+    names = {"session": inputs["session"], "csv": inputs["csv"], "tmp": str(root), "long": LONG_PART}
+
+    def fill(text: str) -> str:
+        for key, value in names.items():
+            text = text.replace("{" + key + "}", value)
+        return text
+
+    procs = [
+        (argv, fill(expected), subprocess.Popen([sys.executable, *module, *map(fill, argv)], cwd=root, stdin=subprocess.DEVNULL,
+                                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))  # fmt: skip
+        for module, argv, expected in ISSUE_29_PATHS
+    ]
+    for argv, expected, proc in procs:
+        _, err = proc.communicate(timeout=TIMEOUT_S)
+        assert (proc.returncode, err.decode()) == (2, expected + "\n"), argv
