@@ -23,14 +23,13 @@ import datetime as _dt
 import json
 import math
 import os
-import stat
 import threading
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
 
+from emulator.files import open_regular
 from firmware_proto.errors import InputError, LinkError
 
 MANIFEST = "manifest.json"
@@ -423,37 +422,10 @@ CLOCK_TOLERANCE = 60.0
 MAX_SESSION_SPAN = 365.0 * 86400.0
 
 
-def _file_kind(mode: int) -> str:
-    for test, name in ((stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
-                       (stat.S_ISFIFO, "named pipe"), (stat.S_ISSOCK, "socket")):  # fmt: skip
-        if test(mode):
-            return name
-    return "special file"
-
-
-def open_regular(path: str | Path, what: str = "log file") -> BinaryIO:
-    """``path`` opened for reading, if it is a regular file (after symbolic links); else an
-    :class:`InputError` with one line: only regular files are read as session files (a
-    link to ``/dev/zero`` would never end, a FIFO would block)."""
-    try:
-        st = os.stat(path)
-        if stat.S_ISDIR(st.st_mode):
-            raise InputError(f"{path}: a directory, not a {what}")
-        if not stat.S_ISREG(st.st_mode):
-            raise InputError(f"{path}: a {_file_kind(st.st_mode)}, not a regular file: only regular files are read as a {what}")
-        f = open(path, "rb")
-    except OSError as exc:
-        raise InputError(f"{path}: unreadable: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):  # replaced between the stat and the open
-        f.close()
-        raise InputError(f"{path}: not a regular file: only regular files are read as a {what}")
-    return f
-
-
 def _lines(path: Path, cap: int, what: str) -> Iterator[tuple[int, bytes, bool]]:
     """``(line number, line without its newline, ended by a newline)`` of a regular file,
     one at a time; a line longer than ``cap`` bytes is an :class:`InputError`."""
-    with open_regular(path) as f:
+    with open_regular(path, "log file") as f:
         number = 0
         while True:
             line = f.readline(cap + 1)

@@ -269,6 +269,8 @@ def input_file(text: str) -> Path:
         _fail(f"{text}: no such file")
     if path.is_dir():
         _fail(f"{text}: is a directory, expected a file")
+    if not path.is_file():  # a device, FIFO or socket: it may never end (/dev/zero) or block
+        _fail(f"{text}: not a regular file")
     if not os.access(path, os.R_OK):
         _fail(f"{text}: not readable")
     return path

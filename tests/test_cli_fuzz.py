@@ -319,10 +319,14 @@ ISSUE_29_PATHS = [
      f"arva-bench fit: error: argument --write-scene: {TOO_LONG} (305)"),
     ((*BENCH, "log"), ["--arva", "arvaemu://", "--out", "{tmp}/{long}"], f"arva-bench log: error: argument --out: {TOO_LONG} (300)"),
     ((*BENCH, "fit"), ["{tmp}/{long}"], "arva-bench: {tmp}/{long}: File name too long"),
+    # item 4: files that never end are not read
+    (EMULATE, ["--scene", "/dev/zero"], "arva-emulate: error: argument --scene: /dev/zero: not a regular file"),
+    ((*BENCH, "fit"), ["/dev/zero"],
+     "arva-bench: fit: /dev/zero: a character device, not a regular file: only regular files are read as a CSV file"),
 ]  # fmt: skip
 
 
-def test_a_path_part_too_long_is_one_line_in_every_command(inputs):
+def test_long_path_parts_and_endless_files_are_one_line(inputs):
     root: Path = inputs["root"]
     names = {"session": inputs["session"], "csv": inputs["csv"], "tmp": str(root), "long": LONG_PART}
 

@@ -36,6 +36,9 @@ def test_sources_that_can_never_work_exit_2_before_the_tui(files):
         ([f"arvaemu://{root}/missing.toml"], f"arva-bench: dash: {root}/missing.toml: cannot read: No such file or directory\n"),
         ([f"arvaemu://{bad_scene}"], f"arva-bench: dash: {bad_scene}: model.r_en: must be <= 1000000000, got 1e+300\n"),
         ([str(garbage)], f"arva-bench: dash: {garbage}: no valid $PARVA sentence in the first 2048 bytes\n"),
+        # issue 29, item 4: a scene that would never end
+        (["arvaemu:///dev/zero"], "arva-bench: dash: /dev/zero: a character device, not a regular file: only regular "
+                                  "files are read as a scene file\n"),
     ]
     for argv, message in cases:
         p = dash(*argv)

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 
 import pytest
 
 from bench.cli import main
-from bench.session import SessionWriter
+from bench.session import MAX_RAW_LINE, SessionWriter
 from firmware_proto.sentences import encode_parva
 
 PASHR = b"$PASHR,080000.000,123.40,T,+01.50,-02.00,+00.00,0.050,0.050,0.100,1,1*06\r\n"
@@ -114,7 +115,37 @@ CASES = {
                            A + "wall time 2023-11-14T20:00:00.000000Z is -8000 s from the session's first read "
                                "(outside -60 .. 3.1536e+07 s)"),
 }
+def _link_to(name: str, target: str):
+    def corrupt(path):
+        (path / name).unlink()
+        (path / name).symlink_to(target)
+
+    return corrupt
+
+
+def _fifo(path):
+    (path / "arva.raw").unlink()
+    os.mkfifo(path / "arva.raw")
+
+
+def _raw_line_too_long(path):
+    with open(path / "arva.raw", "ab") as f:
+        f.write(b"51.0\t2023-11-14T22:13:21.000000Z\t" + b"JCQk" * (MAX_RAW_LINE // 4))
+
+
+NOT_REGULAR = "a {kind}, not a regular file: only regular files are read as a {what}"
 M = "{d}/manifest.json"
+CASES |= {
+    # issue 29, item 4: endless or blocking files, and lines or files above the readers' caps
+    "raw-is-dev-zero": (_link_to("arva.raw", "/dev/zero"),
+                        "{d}/arva.raw: " + NOT_REGULAR.format(kind="character device", what="log file")),
+    "raw-is-a-fifo": (_fifo, "{d}/arva.raw: " + NOT_REGULAR.format(kind="named pipe", what="log file")),
+    "manifest-is-dev-zero": (_link_to("manifest.json", "/dev/zero"),
+                             M + ": " + NOT_REGULAR.format(kind="character device", what="manifest file")),
+    "raw-line-too-long": (_raw_line_too_long, f"{{d}}/arva.raw: line 2: longer than {MAX_RAW_LINE} bytes (not a raw log line)"),
+    "manifest-too-large": (lambda p: set_manifest(p, b'{"format": "arva-session", "note": "' + b"x" * (1 << 20) + b'"}'),
+                           M + ": larger than 1048576 bytes (not a session manifest)"),
+}
 CASES |= {
     # issue 29, item 5: nesting that exhausts the JSON parser's recursion, or just deep
     "manifest-5000-deep": (lambda p: set_manifest(p, b'{"format": "arva-session", "x": ' + b"[" * 5000 + b"]" * 5000 + b"}"),

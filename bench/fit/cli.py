@@ -128,6 +128,12 @@ def load_input(arg: str):
         return parse_csv(sys.stdin.buffer.read(), "<stdin>")
     path = Path(arg)
     if not path.is_dir():
+        from emulator.files import FileRefused, open_regular
+
+        try:
+            open_regular(path, "CSV file").close()  # /dev/zero would be read for ever
+        except FileRefused as exc:
+            raise FitInputError(str(exc)) from None
         return read_csv(path)
     from bench import export  # through the module: tests substitute export_rows
     from firmware_proto.errors import InputError
