@@ -31,13 +31,15 @@ every path                  no part longer than NAME_MAX (255) bytes, at most PA
 ``seconds``                 0 .. MAX_SECONDS (``positive_seconds``: > 0;
                             ``signed_seconds``: -MAX_SECONDS .. MAX_SECONDS)
 ``seed``                    0 .. 2**63 - 1
+``utf8_text``               text whose bytes are UTF-8 (a note stored in a manifest)
 ``origin``, ``tx_pose``     latitude -90..90, longitude -180..360, altitude in
                             ALT_LIMITS, angles -360..360 degrees; tx id 0..65535
 ``scheduler_address``       ``[SCHEME://]HOST:PORT`` (tcp, tls, ucx, ws, wss)
 ==========================  ======================================================
 
 ``probe_writable(path)`` creates and removes a file to prove it can be written (for an
-output written only after a long run).
+output written only after a long run); ``probe_creatable_dir(path)`` does the same for a
+directory made later (``dash --record-dir``).
 
 Times are seconds, speeds are multiples of real time. The limits of the numeric options
 are constants next to the options that use them (e.g. :data:`MAX_SECONDS`): large
@@ -192,6 +194,17 @@ def choice_list(names: Iterable[str], what: str = "name") -> Callable[[str], tup
     return _named(parse, "list of names")
 
 
+def utf8_text(text: str) -> str:
+    """Free text (a note stored in a file): any UTF-8 text. A command line carries bytes;
+    bytes that are not UTF-8 arrive as lone surrogates, which no UTF-8 file can store."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        offset = len(text[: exc.start].encode("utf-8", "surrogateescape"))
+        _fail(f"not UTF-8 text (byte {offset})")
+    return text
+
+
 # --------------------------------------------------------------------------- geodetic values
 #: Heights (m, above the WGS-84 ellipsoid) a pose may take: deeper than any mine, higher
 #: than any aircraft carrying a bench.
@@ -314,6 +327,20 @@ def _creatable_file(text: str, suffixes: Sequence[str] | None) -> Path:
     if not _writable_dir(parent):
         _fail(f"{text}: directory {parent} is not writable")
     return path
+
+
+def probe_creatable_dir(path: Path, what: str) -> None:
+    """Prove that directory ``path`` exists and takes new entries, or can be created (a
+    directory is made and removed in it or in its nearest existing ancestor): an
+    InputError now rather than a failure later (catches what permission bits cannot, e.g.
+    ``/proc/x`` as root). Nothing is left behind."""
+    import tempfile
+
+    base = _nearest_existing(path)
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".arva-probe-", dir=base))
+    except OSError as exc:
+        raise InputError(f"{what} {path}: cannot create it in {base}: {exc.strerror or exc}") from None
 
 
 def probe_writable(path: Path, what: str) -> None:

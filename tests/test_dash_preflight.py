@@ -61,3 +61,30 @@ def test_log_refuses_them_too_and_creates_no_session(files, tmp_path):
                         "--duration", "1"], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert (p.returncode, p.stderr) == (2, "arva-bench: log: bogus://x: unknown URL scheme 'bogus'\n")
     assert not (tmp_path / "s").exists()
+
+
+def test_a_missing_path_or_an_unusable_record_dir_is_refused_before_the_screen(tmp_path):
+    """Issue 29, item 10: the dashboard started its screen for these and showed a dead panel
+    (or failed when r was pressed); now one line, exit 2, before the TUI."""
+    missing = tmp_path / "no-such-session"
+    cases = [
+        ([str(missing)], f"arva-bench: dash: {missing}: no such file, device or session directory (a device not "
+                         "plugged in yet is waited for only under /dev/)\n"),
+        (["arvaemu://", "--gps", str(missing)], f"arva-bench: dash: {missing}: no such file, device or session "
+                                                "directory (a device not plugged in yet is waited for only under /dev/)\n"),
+        (["--record-dir", "/proc/x"], "arva-bench: dash: --record-dir /proc/x: cannot create it in /proc: "
+                                      "No such file or directory\n"),
+    ]  # fmt: skip
+    for argv, message in cases:
+        p = dash(*argv)
+        assert (p.returncode, p.stdout, p.stderr) == (2, "", message), argv
+    assert list(tmp_path.iterdir()) == []  # the probe leaves nothing
+
+
+def test_a_device_not_plugged_in_yet_is_waited_for_under_dev():
+    from bench.dash.cli import check_path_may_appear
+
+    check_path_may_appear("/dev/ttyUSB-not-plugged-yet")
+    check_path_may_appear("/dev/serial/by-id/usb-not-yet")
+    with pytest.raises(InputError, match=r"^dash: nope: no such file"):
+        check_path_may_appear("nope")
