@@ -79,13 +79,14 @@ def log_noise(directory: Path, noise: int, byte: bytes = b"$") -> dict:
 
 
 def peak_rss(argv: list[str], timeout: float = 600.0, how: tuple[str, ...] = ("-m", "bench.cli"),
-             env: dict | None = None) -> tuple[int, str, int, float]:  # fmt: skip
-    """Run ``python HOW ARGV`` (default ``-m bench.cli``): (exit status, stderr, peak RSS
-    in kB, seconds)."""
+             env: dict | None = None, cwd: Path | None = None) -> tuple[int, str, int, float]:  # fmt: skip
+    """Run ``python HOW ARGV`` (default ``-m bench.cli``) in ``cwd``: (exit status, stderr,
+    peak RSS in kB, seconds). With ``-m`` or ``-c`` the working directory comes first on
+    ``sys.path``: run it elsewhere than a source tree to measure the code on PYTHONPATH."""
     t0 = time.monotonic()
     with tempfile.TemporaryFile() as err:
         proc = subprocess.Popen([sys.executable, *how, *argv], stdin=subprocess.DEVNULL,
-                                stdout=subprocess.DEVNULL, stderr=err, env=env)  # fmt: skip
+                                stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=cwd)  # fmt: skip
         while True:
             pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
             if pid:

@@ -51,31 +51,37 @@ def main() -> None:
     args = ap.parse_args()
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(([str(args.code)] if args.code else []) + [str(HERE.parent)])
-    print(f"load average {os.getloadavg()[0]:.2f}; code: {args.code or 'this worktree'}")
+    root = Path(tempfile.mkdtemp(prefix="noise-cost-"))  # also the working directory: not a source tree
+    probe = "import bench, sys; print(bench.__file__, file=sys.stderr)"
+    print(f"load average {os.getloadavg()[0]:.2f}; code: {peak_rss([probe], how=('-c',), env=env, cwd=root)[1].strip()}")
     print("| noise | step | exit | peak RSS (MB) | time (s) | session / noise |")
     print("|---|---|---|---|---|---|")
-    root = Path(tempfile.mkdtemp(prefix="noise-cost-"))
+    notes = []
     try:
         for mib in args.mib:
             n = int(mib * (1 << 20))
             label = f"{n / 1e6:.1f} MB"
             logged = root / f"log-{n}"
-            code, err, kb, secs = peak_rss([LOG, str(logged), str(n)], args.timeout, how=("-c",), env=env)
+            code, err, kb, secs = peak_rss([LOG, str(logged), str(n)], args.timeout, how=("-c",), env=env, cwd=root)
             ratio = f"{size(logged) / n:.3f}" if code == 0 else "-"
             print(f"| {label} | log (listener) | {code} | {kb / 1024:.0f} | {secs:.1f} | {ratio} |", flush=True)
             shutil.rmtree(logged, ignore_errors=True)
             session = root / f"session-{n}"
-            peak_rss([MAKE, str(session), str(n)], args.timeout, how=("-c",), env=env)
+            peak_rss([MAKE, str(session), str(n)], args.timeout, how=("-c",), env=env, cwd=root)
             for name, argv in (
                 ("export", ["export", str(session), "--csv", str(root / "out.csv")]),
                 ("fit", ["fit", str(session)]),
                 ("replay", ["replay", str(session), "--speed", "0", "--port", "pty"]),
             ):
-                code, err, kb, secs = peak_rss(argv, args.timeout, env=env)
+                code, err, kb, secs = peak_rss(argv, args.timeout, env=env, cwd=root)
                 print(f"| {label} | {name} | {code} | {kb / 1024:.0f} | {secs:.1f} | |", flush=True)
+                if code:
+                    notes.append(f"{label} {name}: {err.strip().splitlines()[-1] if err.strip() else '(no message)'}")
             shutil.rmtree(session, ignore_errors=True)
     finally:
         shutil.rmtree(root, ignore_errors=True)
+    for note in notes:
+        print(note)
     print(f"load average {os.getloadavg()[0]:.2f}")
 
 
