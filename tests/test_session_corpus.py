@@ -181,19 +181,22 @@ READERS = {
 }
 
 
-@pytest.mark.parametrize("reader", sorted(READERS))
-@pytest.mark.parametrize("case", sorted(CASES))
-def test_a_corrupt_session_is_one_line_and_exit_2(tmp_path, capsys, case, reader):
+def assert_one_line(tmp_path, capsys, corrupt, expected: str, reader: str) -> None:
+    """The good session, corrupted, read by ``reader``: exit 2 and the one line expected."""
     d = tmp_path / "s"
     good_session(d)
-    corrupt, expected = CASES[case]
     corrupt(d)
     code = main(READERS[reader](d, tmp_path))
-    err = capsys.readouterr().err
     line = expected.format(d=d)
     if reader == "fit":  # the fit names its input argument first
         line = f"fit: {d}: {line}"
-    assert (code, err) == (2, f"arva-bench: {line}\n")
+    assert (code, capsys.readouterr().err) == (2, f"arva-bench: {line}\n")
+
+
+@pytest.mark.parametrize("reader", sorted(READERS))
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_a_corrupt_session_is_one_line_and_exit_2(tmp_path, capsys, case, reader):
+    assert_one_line(tmp_path, capsys, *CASES[case], reader)
 
 
 def test_a_receiver_log_that_decodes_to_nothing_is_an_error(tmp_path, capsys):
@@ -232,15 +235,7 @@ NOTHING_TO_EXPORT = {
 @pytest.mark.parametrize("reader", ["export", "fit"])
 @pytest.mark.parametrize("case", sorted(NOTHING_TO_EXPORT))
 def test_a_session_with_nothing_to_export_is_refused(tmp_path, capsys, case, reader):
-    d = tmp_path / "s"
-    good_session(d)
-    corrupt, expected = NOTHING_TO_EXPORT[case]
-    corrupt(d)
-    code = main(READERS[reader](d, tmp_path))
-    line = expected.format(d=d)
-    if reader == "fit":
-        line = f"fit: {d}: {line}"
-    assert (code, capsys.readouterr().err) == (2, f"arva-bench: {line}\n")
+    assert_one_line(tmp_path, capsys, *NOTHING_TO_EXPORT[case], reader)
     assert not (tmp_path / "out.csv").exists()
 
 
