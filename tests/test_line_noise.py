@@ -6,6 +6,12 @@ Small inputs (a few hundred kB); the 60 MB figures are measured by tests/perf/no
 from __future__ import annotations
 
 import json
+import tempfile
+from pathlib import Path
+
+from hostile_streams import chunkings, hostile_streams, split
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bench.dash.messages import LinkStatus
 from bench.dash.sources import DeviceFeed
@@ -121,3 +127,25 @@ def test_the_stop_event_reports_the_sum(tmp_path):
     manifest = json.loads((tmp_path / "s" / "manifest.json").read_text())
     assert manifest["summary"]["devices"]["arva"]["decoder"]["errors"] == CHUNK - 1
 
+
+
+@settings(max_examples=30, deadline=None)
+@given(hostile_streams(max_epochs=6), st.integers(0, 20000), st.booleans(), st.data())
+def test_any_hostile_stream_with_a_flood_logs_every_intact_epoch_and_counts_every_error(stream, flood, first, data):
+    """A hostile stream (tests/hostile_streams.py) with a flood of '$' before or after it,
+    cut into reads anyhow, logged within one second: every intact epoch is in the session,
+    at most 10 error records are written, and written plus summed errors are the decoder's."""
+    wire = b"$" * flood + stream.data if first else stream.data + b"$" * flood
+    cuts = data.draw(chunkings(wire))
+    reads = [(100.0 + 0.01 * i, chunk) for i, chunk in enumerate(split(wire, cuts)) if chunk] or [(100.0, b"")]
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = log_noise(Path(tmp) / "s", reads)
+        records = list(read_jsonl(Path(tmp) / "s" / "arva.jsonl")) if (Path(tmp) / "s" / "arva.jsonl").exists() else []
+        raw = Path(tmp) / "s" / "arva.raw"
+        assert b"".join(r.data for r in read_raw(raw).reads) == wire if raw.exists() else wire == b""
+    logged = {r["seq"] for r in records if "seq" in r and r["complete"]}
+    intact = {e.seq for e, ok in zip(stream.epochs, stream.intact) if ok}
+    assert intact <= logged
+    errors = [r for r in records if "error" in r]
+    assert len(errors) <= ERROR_RECORDS_PER_SECOND
+    assert len(errors) + sum(r["suppressed"] for r in records if "suppressed" in r) == summary["decoder"]["errors"]
