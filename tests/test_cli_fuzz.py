@@ -343,3 +343,17 @@ def test_long_path_parts_and_endless_files_are_one_line(inputs):
     for argv, expected, proc in procs:
         _, err = proc.communicate(timeout=TIMEOUT_S)
         assert (proc.returncode, err.decode()) == (2, expected + "\n"), argv
+
+
+def test_fit_outputs_that_cannot_be_written_are_refused_before_the_fit(inputs):
+    """``--report /proc/x`` and ``--write-scene /proc/x.toml`` pass the permission bits as
+    root; they used to fail only after the fit (its summary already printed)."""
+    for argv, line in (
+        (["--report", "/proc/x"], "arva-bench: fit: --report /proc/x: cannot create it in /proc: No such file or directory"),
+        (["--write-scene", "/proc/x.toml"], "arva-bench: fit: --write-scene /proc/x.toml: cannot write: No such file or directory"),
+    ):
+        proc = subprocess.run([sys.executable, *BENCH, "fit", inputs["csv"], *argv], capture_output=True, text=True,
+                              timeout=TIMEOUT_S, cwd=inputs["root"])  # fmt: skip
+        assert (proc.returncode, proc.stdout, proc.stderr.count("\n")) == (2, "", 1), (argv, proc.stderr)
+        if os.geteuid() == 0:  # otherwise the permission bits already refuse /proc (argparse's line)
+            assert proc.stderr == line + "\n", argv
