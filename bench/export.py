@@ -20,6 +20,10 @@ with the same stamp (a link faster than its baud) are real data: the last of the
 used. Epochs are decoded
 again from the raw bytes, so the export never depends on the derived ``.jsonl`` files.
 
+The raw logs are streamed (:class:`bench.session.RawLog`): only epochs and fixes are kept,
+however much line noise a log holds, and a read whose stamps break the session's rules
+(not finite, going back, outside its span) is an error naming the file and line.
+
 Rows are dropped, and counted, when the epoch is incomplete, when a pose cannot be
 interpolated (no fix within ``--max-gap`` seconds on both sides), or when an empty slot
 (d = -1) cannot be attributed to a single known transmitter.

@@ -12,6 +12,11 @@ and flushed at once (a SIGKILL loses nothing the kernel has), and a background t
 fsyncs dirty files at least once a second (a power cut loses at most the last second).
 Readers tolerate a torn last line. ``mono_s`` is ``time.monotonic()`` of the reading
 process, for intervals; ``utc_iso`` (``2026-11-22T08:01:02.123456Z``) is wall time.
+
+Readers never hold a whole file: :class:`RawLog` streams a ``.raw`` one line at a time
+and checks every read's stamps against the session's clock (:class:`SessionClock`);
+only regular files are read, and lines and manifests have caps (``MAX_*`` below). What
+breaks a rule or a cap is an :class:`InputError` of one line naming the file and line.
 """
 
 from __future__ import annotations
