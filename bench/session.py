@@ -491,8 +491,6 @@ class RawFile:
 
 def _parse_raw_line(line: bytes) -> RawRead:
     mono, utc, b64 = line.split(b"\t")
-    if len(b64) > MAX_RAW_LINE:
-        raise ValueError("longer than a read")
     return RawRead(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
 
 
