@@ -2,7 +2,7 @@
 and time of export, fit and replay reading a session full of it. Prints a table (the
 figures of docs/reliability.md, "Line noise").
 
-    python tests/perf/noise_cost.py                 # 4 MiB and 60 MB of '$'
+    python tests/perf/noise_cost.py                 # 4 MiB and 60 MB of '$' (4 MiB also through a pty)
     python tests/perf/noise_cost.py --mib 1 4 --code /tmp/base   # the same with the code in /tmp/base
 
 ``--code DIR`` puts DIR first on PYTHONPATH of every measured process (e.g. an export of
@@ -14,9 +14,13 @@ from __future__ import annotations
 
 import argparse
 import os
+import pty
 import shutil
 import sys
 import tempfile
+import threading
+import time
+import tty
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -43,11 +47,36 @@ def size(directory: Path) -> int:
     return sum(p.stat().st_size for p in directory.iterdir())
 
 
+def log_through_pty(out: Path, n: int, env: dict, root: Path, timeout: float) -> tuple[int, str, int, float]:
+    """The real ``arva-bench log`` reading a pty into which ``n`` bytes of '$' are written
+    (as fast as the pty takes them, after 2 s), for 8 s beyond the time that takes."""
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    duration = 10.0 + n / 1e6  # a pty carries several MB/s; the logger decodes about 1 MB/s
+
+    def write() -> None:
+        time.sleep(2.0)
+        sent = 0
+        while sent < n:
+            sent += os.write(master, b"$" * min(4096, n - sent))
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    try:
+        return peak_rss(["log", "--arva", os.ttyname(slave), "--out", str(out), "--duration", f"{duration:g}"],
+                        timeout, env=env, cwd=root)  # fmt: skip
+    finally:
+        writer.join(timeout)
+        os.close(master)
+        os.close(slave)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mib", type=float, nargs="+", default=[4, 60 / 1.048576], help="noise sizes in MiB")
     ap.add_argument("--code", type=Path, help="measure the code in this directory (PYTHONPATH first)")
     ap.add_argument("--timeout", type=float, default=1800.0)
+    ap.add_argument("--pty-max-mib", type=float, default=8.0, help="also log through a pty up to this size (MiB)")
     args = ap.parse_args()
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(([str(args.code)] if args.code else []) + [str(HERE.parent)])
@@ -66,6 +95,12 @@ def main() -> None:
             ratio = f"{size(logged) / n:.3f}" if code == 0 else "-"
             print(f"| {label} | log (listener) | {code} | {kb / 1024:.0f} | {secs:.1f} | {ratio} |", flush=True)
             shutil.rmtree(logged, ignore_errors=True)
+            if n <= args.pty_max_mib * (1 << 20):
+                code, err, kb, secs = log_through_pty(logged, n, env, root, args.timeout)
+                ratio = f"{size(logged) / n:.3f}" if code == 0 else "-"
+                print(f"| {label} | arva-bench log (a pty) | {code} | {kb / 1024:.0f} | {secs:.1f} | {ratio} |", flush=True)
+                notes.append(f"{label} arva-bench log: {err.strip().splitlines()[0] if err.strip() else ''}")
+                shutil.rmtree(logged, ignore_errors=True)
             session = root / f"session-{n}"
             peak_rss([MAKE, str(session), str(n)], args.timeout, how=("-c",), env=env, cwd=root)
             for name, argv in (
