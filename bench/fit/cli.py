@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from emulator.cli_types import output_dir, output_file, probe_creatable_dir, probe_writable, real, seed
+from emulator.files import FileRefused, open_regular
 from emulator.progress import progress
 
 OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset")
@@ -128,8 +129,6 @@ def load_input(arg: str):
         return parse_csv(sys.stdin.buffer.read(), "<stdin>")
     path = Path(arg)
     if not path.is_dir():
-        from emulator.files import FileRefused, open_regular
-
         try:
             open_regular(path, "CSV file").close()  # /dev/zero would be read for ever
         except FileRefused as exc:
