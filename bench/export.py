@@ -20,6 +20,10 @@ with the same stamp (a link faster than its baud) are real data: the last of the
 used. Epochs are decoded
 again from the raw bytes, so the export never depends on the derived ``.jsonl`` files.
 
+The raw logs are streamed (:class:`bench.session.RawLog`): only epochs and fixes are kept,
+however much line noise a log holds, and a read whose stamps break the session's rules
+(not finite, going back, outside its span) is an error naming the file and line.
+
 Rows are dropped, and counted, when the epoch is incomplete, when a pose cannot be
 interpolated (no fix within ``--max-gap`` seconds on both sides), or when an empty slot
 (d = -1) cannot be attributed to a single known transmitter.
@@ -30,6 +34,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,7 +49,7 @@ from firmware_proto.errors import InputError
 
 from .ingest.stamp import Stamped, StampedDecoder
 from .records import ArvaRecords, decoder_for
-from .session import Manifest, load_manifest, read_raw
+from .session import MANIFEST, Manifest, RawLog, load_manifest, session_logs
 
 COLUMNS = (
     "t", "seq", "id", "d", "delta",
@@ -137,19 +142,14 @@ class ExportResult:
         return int(self.columns["t"].size)
 
 
-def _decode(path: Path, decoder, baudrate: int) -> list[Stamped]:
-    """Every record the raw reads yield, in order, stamped by the stamp rule."""
-    return _decode_reads(read_raw(path).reads, decoder, baudrate)
-
-
-def _decode_reads(reads, decoder, baudrate: int) -> list[Stamped]:
+def _decode(log: RawLog, decoder, baudrate: int) -> Iterator[Stamped]:
+    """Every record a device's raw reads yield, in order, stamped by the stamp rule: a
+    stream (the log is read one line at a time, and only what the caller keeps stays)."""
     stamped = StampedDecoder(decoder, baudrate)
-    out: list[Stamped] = []
-    for read in reads:
-        out += stamped.feed(read.data, read.mono, read.utc)
-    last = reads[-1] if reads else None
-    out += stamped.flush(last.mono if last else 0.0, last.utc if last else 0.0)
-    return out
+    for read in log:
+        yield from stamped.feed(read.data, read.mono, read.utc)
+    last = log.last
+    yield from stamped.flush(last.mono if last else 0.0, last.utc if last else 0.0)
 
 
 def _last_of_ties(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -179,22 +179,24 @@ def export_rows(
     directory = Path(directory)
     manifest = load_manifest(directory)
     devices = manifest.devices
+    receivers = [name for name, dev in devices.items() if dev.kind == "arva"]
+    if not receivers:
+        raise InputError(f"{directory / MANIFEST}: no receiver (a device of kind arva): nothing to export")
+    logs = session_logs(directory, devices)  # a device that never delivered a byte has none
+    if not any(name in logs for name in receivers):
+        missing = ", ".join(f"{name}.raw" for name in receivers)
+        raise InputError(f"{directory}: no receiver log ({missing}: missing): nothing to export")
     fixes: dict[str, list] = {}
     attitudes: dict[str, list] = {}
     epochs: dict[str, list] = {}
-    for name, dev in devices.items():
-        path = directory / f"{name}.raw"
-        if not path.exists():
-            continue  # a device that never delivered a byte
+    for name, log in logs.items():
+        dev = devices[name]
         if dev.kind == "arva":
-            reads = read_raw(path).reads
-            records = _decode_reads(reads, ArvaRecords(), dev.baudrate)
-            epochs[name] = [(s.mono, s.utc, s.record) for s in records if "seq" in s.record]
-            size = sum(len(r.data) for r in reads)
-            if size and not epochs[name]:
-                raise InputError(f"{path}: {size} bytes decode to no $PARVA epoch (is {name} an ARVA receiver?)")
+            epochs[name] = [(s.mono, s.utc, s.record) for s in _decode(log, ArvaRecords(), dev.baudrate) if "seq" in s.record]
+            if log.bytes and not epochs[name]:
+                raise InputError(f"{log.path}: {log.bytes} bytes decode to no $PARVA epoch (is {name} an ARVA receiver?)")
         else:
-            for s in _decode(path, decoder_for(dev.kind, dev.format), dev.baudrate):
+            for s in _decode(log, decoder_for(dev.kind, dev.format), dev.baudrate):
                 r = s.record
                 if r.get("sentence") == "GGA" and r.get("valid") and r.get("alt_hae") is not None:
                     hdop = r.get("hdop")
@@ -279,6 +281,9 @@ def export_rows(
                 "hdop": rx_hdop[keep],
             }
         )
+    if not any(epochs.values()):
+        logged = ", ".join(str(logs[name].path) for name in receivers if name in logs)
+        raise InputError(f"{logged}: no complete read (empty or only a torn line): nothing to export")
     if parts:
         columns = {c: np.concatenate([p[c] for p in parts]) for c in COLUMNS + GPS_QUALITY_COLUMNS}
     else:

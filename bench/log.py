@@ -15,13 +15,14 @@ everything before it is kept.
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import signal
 import sys
 import threading
 import time
 
-from emulator.cli_types import baud_rate, device_spec, origin, output_dir, positive_seconds, tx_pose
+from emulator.cli_types import baud_rate, device_spec, origin, output_dir, positive_seconds, tx_pose, utf8_text
 from firmware_proto.errors import InputError, LinkError
 
 from . import __version__
@@ -60,7 +61,7 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, type=output_dir, metavar="DIR", help="new session directory")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--duration", type=positive_seconds, metavar="S", help="stop after S seconds")
-    p.add_argument("--note", default="", help="free text stored in the manifest")
+    p.add_argument("--note", type=utf8_text, default="", help="free text stored in the manifest (UTF-8)")
     p.set_defaults(func=run)
 
 
@@ -91,7 +92,8 @@ def manifest(args: argparse.Namespace, specs: list[DeviceSpec], argv: list[str])
     out = {
         "devices": {s.name: s.manifest() for s in specs},
         "software": {"arva-bench": __version__, "python": platform.python_version()},
-        "command": argv,
+        # Argument bytes that are not UTF-8 kept as backslash escapes (JSON holds text, not bytes).
+        "command": [os.fsencode(a).decode("utf-8", "backslashreplace") for a in argv],
         "note": args.note,
     }
     if args.origin:
@@ -166,9 +168,7 @@ def run(args: argparse.Namespace) -> int:
         if live is not None:
             live.stop()
         notifier.stop(timeout=STOP_TIMEOUT)  # every read already taken is written first
-        if notifier.thread.is_alive():
-            print(f"arva-bench: log: the writer did not finish within {STOP_TIMEOUT:g} s; the last reads may be "
-                  "missing", file=sys.stderr)  # fmt: skip
+        unfinished = notifier.thread.is_alive()
         summary = session.summary(devices)
         for dev in devices:
             if dev.cut_at_stop:
@@ -176,19 +176,23 @@ def run(args: argparse.Namespace) -> int:
             if not dev.opens:
                 summary[dev.spec.name]["never_opened"] = dev.reason or "not opened"
         writer.close(devices=summary, stopped_by="disk error" if fatal else stopped_by[0])
+    late = f"the writer did not finish within {STOP_TIMEOUT:g} s; the last reads may be missing" if unfinished else ""
+    never = [f"{dev.spec.name} never opened: {dev.reason or 'no attempt finished'}" for dev in devices if not dev.opens]
+    # Exit 2 is one line: what went wrong, with what the reader needs to know folded in.
+    if fatal:
+        parts = [f"log: {fatal[0]}", *never, late, "the session was closed, everything before is kept"]
+        raise LinkError("; ".join(p for p in parts if p))
+    if not any(c["bytes"] for c in summary.values()):
+        detail = f" ({'; '.join(never)})" if never else ""
+        raise InputError(f"log: no device delivered a byte{detail}; {writer.dir} holds only the manifest and events")
     for dev in devices:
         c = summary[dev.spec.name]
+        suppressed = c["decoder"].get("error_records_suppressed", 0)
         print(
             f"arva-bench: log: {dev.spec.name}: {c['reads']} reads, {c['bytes']} bytes, {c['records']} records, "
-            f"{c['gaps']} gaps",
+            f"{c['gaps']} gaps" + (f", {suppressed} error records summed (line noise)" if suppressed else ""),
             file=sys.stderr,
         )
-    for dev in devices:
-        if not dev.opens:
-            print(f"arva-bench: log: {dev.spec.name}: never opened: {dev.reason or 'no attempt finished'}",
-                  file=sys.stderr)  # fmt: skip
-    if fatal:
-        raise LinkError(f"log: {fatal[0]}; the session was closed, everything before is kept")
-    if not any(c["bytes"] for c in summary.values()):
-        raise InputError(f"log: no device delivered a byte; {writer.dir} holds only the manifest and events")
+    for line in never + ([late] if late else []):
+        print(f"arva-bench: log: {line}", file=sys.stderr)
     return 0

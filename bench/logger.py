@@ -84,5 +84,6 @@ class SessionListener(Listener):
             self._count(device.spec.name)["gaps"] += 1
 
     def summary(self, devices: list[Device]) -> dict:
-        """Per device: reads, bytes, records, gaps written, and the decoder's counters."""
-        return {d.spec.name: {**self._count(d.spec.name), "decoder": d.decoder.stats()} for d in devices}
+        """Per device: reads, bytes, records, gaps written, and the decoder's counters (with
+        the error records summed instead of written: see :mod:`bench.ingest.stamp`)."""
+        return {d.spec.name: {**self._count(d.spec.name), "decoder": d.stamper.stats()} for d in devices}

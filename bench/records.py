@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from bench.ground_truth import Attitude, GpsFix, GroundTruthReader
 from firmware_proto.decoder import Decoder
-from firmware_proto.events import DecodeError, Epoch
+from firmware_proto.events import DecodeError, Epoch, ErrorKind
 
 KINDS = ("arva", "gps", "attitude")
 #: Wire formats a ground-truth device of each kind may speak; the first is the default.
@@ -45,6 +45,10 @@ class RecordDecoder:
 
     def stats(self) -> dict[str, int]:
         return {}
+
+
+#: ErrorKind -> its name (a dict lookup: line noise makes one error record per byte).
+_KIND_NAMES = {kind: kind.name for kind in ErrorKind}
 
 
 class ArvaRecords(RecordDecoder):
@@ -76,7 +80,7 @@ class ArvaRecords(RecordDecoder):
                     rec["gap"] = ev.gap
                 out.append(rec)
             elif isinstance(ev, DecodeError):
-                out.append({"error": ev.kind.name, "offset": ev.offset, "length": ev.length})
+                out.append({"error": _KIND_NAMES[ev.kind], "offset": ev.offset, "length": ev.length})
         return out
 
     def stats(self) -> dict[str, int]:

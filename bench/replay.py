@@ -60,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"replay: --link {args.link}: not a directory")
     directory = Path(args.session)
     manifest = load_manifest(directory)
-    names = [n for n in manifest.devices if (directory / f"{n}.raw").exists()]
+    reads = load_reads(directory, manifest.devices)  # every line checked before any port opens
+    names = list(reads)
     if not names:
         raise InputError(f"replay: {directory}: no device has logged anything")
     ports_for = {n: args.port for n in names}
@@ -71,8 +72,7 @@ def run(args: argparse.Namespace) -> int:
         ports_for[name] = port
     if sum(1 for p in ports_for.values() if p == "-") > 1:
         raise InputError("replay: only one device can go to stdout (-)")
-    reads = load_reads(directory, names)
-    if not any(reads.values()):  # e.g. killed during its very first write: only a torn line
+    if not any(log.reads for log in reads.values()):  # e.g. killed during its very first write: only a torn line
         raise InputError(f"replay: {directory}: no complete read in any device's raw log")
     ports: dict[str, Port] = {}
     stop = threading.Event()
@@ -91,8 +91,8 @@ def run(args: argparse.Namespace) -> int:
                 port.set_drain_wait(0.05)
         stop.wait(args.delay)
         # Every device's reads merged by the logger's clock, at their recorded pace.
-        t0 = min(r[0].mono for r in reads.values() if r)
-        t_last = max(r[-1].mono for r in reads.values() if r)
+        t0 = min(log.first.mono for log in reads.values() if log.first is not None)
+        t_last = max(log.last.mono for log in reads.values() if log.last is not None)
         bar = stack.enter_context(progress("replay", total=t_last - t0, unit="s of session"))
 
         def deliver(name: str, read) -> None:

@@ -12,6 +12,11 @@ and flushed at once (a SIGKILL loses nothing the kernel has), and a background t
 fsyncs dirty files at least once a second (a power cut loses at most the last second).
 Readers tolerate a torn last line. ``mono_s`` is ``time.monotonic()`` of the reading
 process, for intervals; ``utc_iso`` (``2026-11-22T08:01:02.123456Z``) is wall time.
+
+Readers never hold a whole file: :class:`RawLog` streams a ``.raw`` one line at a time
+and checks every read's stamps against the session's clock (:class:`SessionClock`);
+only regular files are read, and lines and manifests have caps (``MAX_*`` below). What
+breaks a rule or a cap is an :class:`InputError` of one line naming the file and line.
 """
 
 from __future__ import annotations
@@ -25,10 +30,11 @@ import math
 import os
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from emulator.files import open_regular
 from firmware_proto.errors import InputError, LinkError
 
 MANIFEST = "manifest.json"
@@ -371,6 +377,8 @@ class Manifest:
             name: DeviceEntry.from_json(name, dev, f"devices.{name}")
             for name, dev in _object(obj.get("devices", {}), "devices").items()
         }
+        if not devices:
+            raise ValueError("devices: none listed (a session logs at least one device)")
         origin = obj.get("origin")
         origin = None if origin is None else GeoPose.from_json(origin, "origin", alt_default=0.0)
         poses = {}
@@ -394,6 +402,76 @@ class Manifest:
 
 
 # -- reading ------------------------------------------------------------------------
+#: Caps of the session readers. None of them ever holds a whole file: each reads one line
+#: at a time, and a line (or a manifest) above its cap is refused, naming the line.
+#: The logger reads at most 65,537 bytes at once (bench.ingest.reader.READ_CHUNK + 1): a
+#: read of more than MAX_READ_BYTES is not one of ours.
+MAX_READ_BYTES = 1 << 20
+#: Longest ``.raw`` line (bytes, without its newline): two stamps and the base64 of a read.
+MAX_RAW_LINE = 4 * ((MAX_READ_BYTES + 2) // 3) + 64
+#: Longest ``.jsonl`` line (bytes): a record, an event (a stop event holds every counter).
+MAX_JSONL_LINE = 1 << 20
+#: Largest manifest (bytes): the logger's is a few kB (plus MANIFEST_RESERVE padding).
+MAX_MANIFEST_BYTES = 1 << 20
+#: Deepest nesting of objects and lists in a manifest (the logger's is 4 deep).
+MAX_JSON_DEPTH = 32
+
+#: Stamps. A ``.raw`` line's ``mono`` must be a finite number; within a device it may go
+#: back by at most MONO_TOLERANCE s (the logger writes a device's reads in order); the
+#: monotonic time elapsed since the session's first read (the earliest first read of any
+#: device) may exceed the wall time elapsed by at most CLOCK_TOLERANCE s (monotonic time
+#: never runs ahead of wall time; it falls behind in a suspend, which is allowed); and a
+#: read's wall time lies within -CLOCK_TOLERANCE .. MAX_SESSION_SPAN s of the first read's.
+MONO_TOLERANCE = 0.001
+CLOCK_TOLERANCE = 60.0
+MAX_SESSION_SPAN = 365.0 * 86400.0
+
+
+def _lines(path: Path, cap: int, what: str) -> Iterator[tuple[int, bytes, bool]]:
+    """``(line number, line without its newline, ended by a newline)`` of a regular file,
+    one at a time; a line longer than ``cap`` bytes is an :class:`InputError`."""
+    with open_regular(path, "log file") as f:
+        number = 0
+        while True:
+            line = f.readline(cap + 1)
+            if not line:
+                return
+            number += 1
+            complete = line.endswith(b"\n")
+            if complete:
+                line = line[:-1]
+            elif len(line) > cap:
+                raise InputError(f"{path}: line {number}: longer than {cap} bytes (not a {what} line)")
+            yield number, line, complete
+
+
+def json_depth(obj: object) -> int:
+    """How deep lists and objects nest in a parsed JSON value (a scalar is 0)."""
+    deepest, stack = 0, [(obj, 1)]
+    while stack:
+        value, depth = stack.pop()
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else None
+        if children is not None:
+            deepest = max(deepest, depth)
+            stack.extend((child, depth + 1) for child in children)
+    return deepest
+
+
+def loads_json(text: str, where: str | Path) -> object:
+    """JSON ``text`` parsed, at most :data:`MAX_JSON_DEPTH` deep; :class:`InputError`
+    naming ``where`` otherwise (a deeper text exhausts the parser's recursion first)."""
+    try:
+        obj = json.loads(text)
+        deep = json_depth(obj) > MAX_JSON_DEPTH
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{where}: not JSON (line {exc.lineno} column {exc.colno}: {exc.msg})") from None
+    except RecursionError:
+        deep = True
+    if deep:
+        raise InputError(f"{where}: JSON nested more than {MAX_JSON_DEPTH} deep")
+    return obj
+
+
 @dataclass(frozen=True)
 class RawRead:
     """One logged read: ``mono`` (s, logger's monotonic clock), ``utc`` (POSIX s)."""
@@ -416,57 +494,158 @@ def _parse_raw_line(line: bytes) -> RawRead:
     return RawRead(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
 
 
-def read_raw(path: str | Path) -> RawFile:
-    """All reads in a ``.raw`` file.
+@dataclass(frozen=True)
+class SessionClock:
+    """The reference of a session's stamps: its first read (the earliest ``mono`` of any
+    device's first read) and that read's ``utc``. See the stamp rules above."""
 
-    A torn tail (a last line without its newline, or trailing lines that do not parse,
-    as a SIGKILL or a power cut may leave) is skipped and reported in ``torn_tail``; an
-    unparseable line followed by good ones is an :class:`InputError` naming the line.
+    mono: float
+    utc: float
+
+    def check(self, path: Path, line: int, read: RawRead, previous: RawRead | None) -> None:
+        """:class:`InputError` naming ``path`` and ``line`` when ``read``'s stamps break a rule."""
+        where = f"{path}: line {line}"
+        if not math.isfinite(read.mono):
+            raise InputError(f"{where}: stamp {read.mono!r}: not a finite number of seconds")
+        if previous is not None and read.mono < previous.mono - MONO_TOLERANCE:
+            raise InputError(f"{where}: stamp {read.mono!r} goes back {previous.mono - read.mono:.6g} s "
+                             f"(more than {MONO_TOLERANCE:g} s)")  # fmt: skip
+        wall = read.utc - self.utc
+        if not -CLOCK_TOLERANCE <= wall <= MAX_SESSION_SPAN:
+            raise InputError(f"{where}: wall time {utc_iso(read.utc)} is {wall:.6g} s from the session's first read "
+                             f"(outside -{CLOCK_TOLERANCE:g} .. {MAX_SESSION_SPAN:g} s)")  # fmt: skip
+        ahead = (read.mono - self.mono) - wall
+        if ahead > CLOCK_TOLERANCE:
+            raise InputError(f"{where}: stamp {read.mono!r} runs {ahead:.6g} s ahead of the wall time since the "
+                             f"session's first read (more than {CLOCK_TOLERANCE:g} s)")  # fmt: skip
+
+
+class RawLog:
+    """One device's ``<name>.raw``, read as a stream of :class:`RawRead` (never whole).
+
+    Every pass (``for read in log``) reads the file again, one line at a time (at most
+    :data:`MAX_RAW_LINE` bytes), checks each read's stamps against ``clock`` when one is
+    given (:class:`SessionClock`), and leaves what it saw in ``reads``, ``bytes``,
+    ``first``, ``last`` and ``torn_tail``. A torn tail (a last line without its newline,
+    or trailing lines that do not parse, as a SIGKILL or a power cut may leave) is
+    skipped and reported in ``torn_tail``; an unparseable line followed by good ones is
+    an :class:`InputError` naming the line, as is a stamp that breaks a rule.
     """
-    lines = _read_bytes(path).split(b"\n")
-    complete, tail = lines[:-1], lines[-1]  # tail is b"" when the file ends in a newline
-    reads: list[RawRead] = []
-    for i, line in enumerate(complete):
-        if not line:
-            continue
-        try:
-            reads.append(_parse_raw_line(line))
-        except (ValueError, binascii.Error) as exc:
-            if any(_parses(rest) for rest in complete[i + 1 :]):
-                raise InputError(f"{path}: line {i + 1}: not a raw record ({exc})") from None
-            return RawFile(reads, torn_tail=True)
-    return RawFile(reads, torn_tail=bool(tail))
+
+    def __init__(self, path: str | Path, clock: SessionClock | None = None) -> None:
+        self.path = Path(path)
+        self.clock = clock
+        self.reads = 0
+        self.bytes = 0
+        self.first: RawRead | None = None
+        self.last: RawRead | None = None
+        self.torn_tail = False
+
+    def __iter__(self) -> Iterator[RawRead]:
+        path, clock = self.path, self.clock
+        self.reads = self.bytes = 0
+        self.first = self.last = None
+        self.torn_tail = False
+        bad: tuple[int, Exception] | None = None
+        previous: RawRead | None = None
+        for number, line, complete in _lines(path, MAX_RAW_LINE, "raw log"):
+            if not complete:
+                self.torn_tail = True
+                return
+            if not line:
+                continue
+            try:
+                read = _parse_raw_line(line)
+            except (ValueError, binascii.Error) as exc:
+                bad = bad or (number, exc)
+                continue
+            if bad is not None:  # a good line after a bad one: the bad one is not a torn tail
+                raise InputError(f"{path}: line {bad[0]}: not a raw record ({bad[1]})")
+            if clock is not None:
+                clock.check(path, number, read, previous)
+            previous = read
+            self.reads += 1
+            self.bytes += len(read.data)
+            if self.first is None:
+                self.first = read
+            self.last = read
+            yield read
+        self.torn_tail = bad is not None
+
+    def scan(self) -> RawLog:
+        """One whole pass (validating every line); returns self."""
+        for _ in self:
+            pass
+        return self
+
+    def first_read(self) -> RawRead | None:
+        """The first read whose ``mono`` is a finite number (no stamp check), or None."""
+        for read in RawLog(self.path):
+            if math.isfinite(read.mono):
+                return read
+        return None
 
 
-def _read_bytes(path: str | Path) -> bytes:
+def read_raw(path: str | Path) -> RawFile:
+    """All reads in a ``.raw`` file, in a list (small files: tests, tools); the commands
+    stream with :class:`RawLog`."""
+    log = RawLog(path)
+    reads = list(log)
+    return RawFile(reads, log.torn_tail)
+
+
+def raw_path(directory: str | Path, name: str) -> Path | None:
+    """``<directory>/<name>.raw``, or None when it does not exist (a device that never
+    delivered a byte); :class:`InputError` when it cannot be looked at (a symbolic link
+    loop, a dangling link, a name too long)."""
+    path = Path(directory) / f"{name}.raw"
     try:
-        return Path(path).read_bytes()
-    except IsADirectoryError:
-        raise InputError(f"{path}: a directory, not a log file") from None
+        os.stat(path)
+    except FileNotFoundError:
+        if os.path.islink(path):
+            raise InputError(f"{path}: a symbolic link to nothing ({os.readlink(path)})") from None
+        return None
     except OSError as exc:
         raise InputError(f"{path}: unreadable: {exc.strerror or exc}") from None
+    return path
 
 
-def _parses(line: bytes) -> bool:
-    try:
-        _parse_raw_line(line)
-        return True
-    except (ValueError, binascii.Error):
-        return False
+def session_logs(directory: str | Path, names: Iterable[str]) -> dict[str, RawLog]:
+    """The raw logs of the devices ``names`` that logged something, keyed by name, each
+    checked against the session's clock (its earliest first read: :class:`SessionClock`)."""
+    paths = {name: p for name in names if (p := raw_path(directory, name)) is not None}
+    firsts = [r for p in paths.values() if (r := RawLog(p).first_read()) is not None]
+    if not firsts:
+        return {name: RawLog(p) for name, p in paths.items()}  # no read anywhere: nothing to check
+    ref = min(firsts, key=lambda r: r.mono)
+    clock = SessionClock(ref.mono, ref.utc)
+    return {name: RawLog(p, clock) for name, p in paths.items()}
 
 
 def read_jsonl(path: str | Path) -> Iterator[dict]:
-    """Objects of a ``.jsonl`` file; a torn last line is skipped."""
-    lines = _read_bytes(path).split(b"\n")
-    for i, line in enumerate(lines):
+    """Objects of a ``.jsonl`` file, one line at a time (at most :data:`MAX_JSONL_LINE`
+    bytes, :data:`MAX_JSON_DEPTH` deep); a torn last line is skipped."""
+    pending: tuple[int, str] | None = None
+    for number, line, complete in _lines(Path(path), MAX_JSONL_LINE, "JSON lines"):
+        if pending is not None:
+            raise InputError(f"{path}: line {pending[0]}: {pending[1]}")
         if not line:
             continue
         try:
-            yield json.loads(line)
-        except ValueError:  # not JSON, or not UTF-8
-            if i == len(lines) - 1:
-                return  # torn tail
-            raise InputError(f"{path}: line {i + 1}: not JSON") from None
+            obj = json.loads(line)
+            deep = json_depth(obj) > MAX_JSON_DEPTH
+        except RecursionError:
+            deep = True
+        except ValueError:  # not JSON, or not UTF-8: an error unless it is the torn tail
+            if not complete:
+                return
+            pending = (number, "not JSON")
+            continue
+        if deep:
+            raise InputError(f"{path}: line {number}: JSON nested more than {MAX_JSON_DEPTH} deep")
+        yield obj
+    if pending is not None:
+        raise InputError(f"{path}: line {pending[0]}: {pending[1]}")
 
 
 def read_manifest(directory: str | Path) -> dict:
@@ -476,22 +655,25 @@ def read_manifest(directory: str | Path) -> dict:
 
 def load_manifest(directory: str | Path) -> Manifest:
     """The typed manifest of a session directory; :class:`InputError` with one line naming
-    the file and the problem for anything that is not a session this program reads."""
+    the file and the problem for anything that is not a session this program reads (incl.
+    a manifest that is not a regular file, larger than :data:`MAX_MANIFEST_BYTES`, or
+    nested more than :data:`MAX_JSON_DEPTH` deep)."""
     path = Path(directory) / MANIFEST
     try:
-        data = path.read_bytes()
+        os.stat(path)
     except FileNotFoundError:
         raise InputError(f"{directory}: not a session directory (no {MANIFEST})") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: a directory, not a manifest file") from None
-    except OSError as exc:
-        raise InputError(f"{path}: unreadable: {exc.strerror or exc}") from None
+    except OSError:
+        pass  # open_regular says why
+    with open_regular(path, "manifest file") as f:
+        try:
+            data = f.read(MAX_MANIFEST_BYTES + 1)
+        except OSError as exc:
+            raise InputError(f"{path}: unreadable: {exc.strerror or exc}") from None
+    if len(data) > MAX_MANIFEST_BYTES:
+        raise InputError(f"{path}: larger than {MAX_MANIFEST_BYTES} bytes (not a session manifest)")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not JSON (line {exc.lineno} column {exc.colno}: {exc.msg})") from None
-    return Manifest.from_json(obj, path)
+    return Manifest.from_json(loads_json(text, path), path)

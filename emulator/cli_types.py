@@ -16,6 +16,8 @@ Ranges (all closed unless said otherwise; every float is finite: nan and inf are
 ``baud_rate``               an integer in :data:`BAUD_LIMITS` (50 .. 12,000,000)
 ``real_list(n, lo, hi)``    n (or n_min..n_max) comma-separated reals in range
 ``choice_list(names)``      one or more comma-separated names from ``names``
+every path                  no part longer than NAME_MAX (255) bytes, at most PATH_MAX
+                            (4095) bytes in all, no NUL byte
 ``input_file``              an existing regular file one can read; ``''`` is refused
                             (``scene_file``: the same, for ``--scene``)
 ``session_dir``             an existing directory
@@ -29,13 +31,15 @@ Ranges (all closed unless said otherwise; every float is finite: nan and inf are
 ``seconds``                 0 .. MAX_SECONDS (``positive_seconds``: > 0;
                             ``signed_seconds``: -MAX_SECONDS .. MAX_SECONDS)
 ``seed``                    0 .. 2**63 - 1
+``utf8_text``               text whose bytes are UTF-8 (a note stored in a manifest)
 ``origin``, ``tx_pose``     latitude -90..90, longitude -180..360, altitude in
                             ALT_LIMITS, angles -360..360 degrees; tx id 0..65535
 ``scheduler_address``       ``[SCHEME://]HOST:PORT`` (tcp, tls, ucx, ws, wss)
 ==========================  ======================================================
 
 ``probe_writable(path)`` creates and removes a file to prove it can be written (for an
-output written only after a long run).
+output written only after a long run); ``probe_creatable_dir(path)`` does the same for a
+directory made later (``dash --record-dir``).
 
 Times are seconds, speeds are multiples of real time. The limits of the numeric options
 are constants next to the options that use them (e.g. :data:`MAX_SECONDS`): large
@@ -190,6 +194,17 @@ def choice_list(names: Iterable[str], what: str = "name") -> Callable[[str], tup
     return _named(parse, "list of names")
 
 
+def utf8_text(text: str) -> str:
+    """Free text (a note stored in a file): any UTF-8 text. A command line carries bytes;
+    bytes that are not UTF-8 arrive as lone surrogates, which no UTF-8 file can store."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        offset = len(text[: exc.start].encode("utf-8", "surrogateescape"))
+        _fail(f"not UTF-8 text (byte {offset})")
+    return text
+
+
 # --------------------------------------------------------------------------- geodetic values
 #: Heights (m, above the WGS-84 ellipsoid) a pose may take: deeper than any mine, higher
 #: than any aircraft carrying a bench.
@@ -236,11 +251,27 @@ def scheduler_address(text: str) -> str:
 
 
 # --------------------------------------------------------------------------- paths
+#: The longest name of one path part and the longest whole path, in bytes (Linux's
+#: NAME_MAX and PATH_MAX - 1): beyond them every system call fails with ENAMETOOLONG.
+NAME_MAX = 255
+PATH_MAX = 4095
+
+
+def _short(part: bytes) -> str:
+    return os.fsdecode(part[:16]) + "..."
+
+
 def _path(text: str) -> Path:
     if not text:
         _fail("expected a path, got ''")
     if "\0" in text:
         _fail(f"a path cannot contain a NUL byte: {text!r}")
+    raw = os.fsencode(text)
+    if len(raw) > PATH_MAX:
+        _fail(f"{_short(raw)}: a path longer than {PATH_MAX} bytes ({len(raw)})")
+    for part in raw.split(b"/"):
+        if len(part) > NAME_MAX:
+            _fail(f"{_short(part)}: a path part longer than {NAME_MAX} bytes ({len(part)})")
     return Path(text)
 
 
@@ -251,6 +282,8 @@ def input_file(text: str) -> Path:
         _fail(f"{text}: no such file")
     if path.is_dir():
         _fail(f"{text}: is a directory, expected a file")
+    if not path.is_file():  # a device, FIFO or socket: it may never end (/dev/zero) or block
+        _fail(f"{text}: not a regular file")
     if not os.access(path, os.R_OK):
         _fail(f"{text}: not readable")
     return path
@@ -294,6 +327,20 @@ def _creatable_file(text: str, suffixes: Sequence[str] | None) -> Path:
     if not _writable_dir(parent):
         _fail(f"{text}: directory {parent} is not writable")
     return path
+
+
+def probe_creatable_dir(path: Path, what: str) -> None:
+    """Prove that directory ``path`` exists and takes new entries, or can be created (a
+    directory is made and removed in it or in its nearest existing ancestor): an
+    InputError now rather than a failure later (catches what permission bits cannot, e.g.
+    ``/proc/x`` as root). Nothing is left behind."""
+    import tempfile
+
+    base = _nearest_existing(path)
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".arva-probe-", dir=base))
+    except OSError as exc:
+        raise InputError(f"{what} {path}: cannot create it in {base}: {exc.strerror or exc}") from None
 
 
 def probe_writable(path: Path, what: str) -> None:
@@ -416,9 +463,14 @@ def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[
       ``PROG: PATH: REASON``, status 2; a closed stdout (``| head``) ends quietly, status 0.
     - Ctrl-C (:class:`KeyboardInterrupt`): ``PROG: interrupted``, status 130.
 
-    Anything else is a bug and keeps its traceback.
+    Anything else is a bug and keeps its traceback. An :class:`OSError` of an argument's
+    type (a path the system refuses to look at) is reported as at run time.
     """
-    args = parse()
+    try:
+        args = parse()
+    except OSError as exc:
+        print(f"{prog}: {one_line(_os_error_line(exc))}", file=sys.stderr, flush=True)
+        return 2
     try:
         return int(run(args) or 0)
     except SceneError as exc:

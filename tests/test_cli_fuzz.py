@@ -302,3 +302,58 @@ def test_the_issues_examples_are_one_line_errors(inputs):
             assert text.startswith(fill(expected)[:-3]), (argv, text)
         elif expected is not None:
             assert text == fill(expected) + "\n", argv
+
+
+#: Issue 29, item 6: a path part longer than NAME_MAX (255 bytes) in each of the eight
+#: command lines that gave an ENAMETOOLONG traceback; {long} is 300 bytes.
+LONG_PART = "a" * 300
+TOO_LONG = "aaaaaaaaaaaaaaaa...: a path part longer than 255 bytes"
+ISSUE_29_PATHS = [
+    (EMULATE, ["--scene", "{tmp}/{long}"], f"arva-emulate: error: argument --scene: {TOO_LONG} (300)"),
+    (EMULATE, ["--port", "pty", "--link", "{tmp}/{long}"], f"arva-emulate: error: argument --link: {TOO_LONG} (300)"),
+    ((*BENCH, "export"), ["{tmp}/{long}", "--csv", "o.csv"], f"arva-bench export: error: argument DIR: {TOO_LONG} (300)"),
+    ((*BENCH, "export"), ["{session}", "--csv", "{tmp}/{long}.csv"], f"arva-bench export: error: argument --csv: {TOO_LONG} (304)"),
+    ((*BENCH, "replay"), ["{tmp}/{long}"], f"arva-bench replay: error: argument DIR: {TOO_LONG} (300)"),
+    ((*BENCH, "fit"), ["{csv}", "--report", "{tmp}/{long}"], f"arva-bench fit: error: argument --report: {TOO_LONG} (300)"),
+    ((*BENCH, "fit"), ["{csv}", "--write-scene", "{tmp}/{long}.toml"],
+     f"arva-bench fit: error: argument --write-scene: {TOO_LONG} (305)"),
+    ((*BENCH, "log"), ["--arva", "arvaemu://", "--out", "{tmp}/{long}"], f"arva-bench log: error: argument --out: {TOO_LONG} (300)"),
+    ((*BENCH, "fit"), ["{tmp}/{long}"], "arva-bench: {tmp}/{long}: File name too long"),
+    # item 4: files that never end are not read
+    (EMULATE, ["--scene", "/dev/zero"], "arva-emulate: error: argument --scene: /dev/zero: not a regular file"),
+    ((*BENCH, "fit"), ["/dev/zero"],
+     "arva-bench: fit: /dev/zero: a character device, not a regular file: only regular files are read as a CSV file"),
+]  # fmt: skip
+
+
+def test_long_path_parts_and_endless_files_are_one_line(inputs):
+    root: Path = inputs["root"]
+    names = {"session": inputs["session"], "csv": inputs["csv"], "tmp": str(root), "long": LONG_PART}
+
+    def fill(text: str) -> str:
+        for key, value in names.items():
+            text = text.replace("{" + key + "}", value)
+        return text
+
+    procs = [
+        (argv, fill(expected), subprocess.Popen([sys.executable, *module, *map(fill, argv)], cwd=root, stdin=subprocess.DEVNULL,
+                                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))  # fmt: skip
+        for module, argv, expected in ISSUE_29_PATHS
+    ]
+    for argv, expected, proc in procs:
+        _, err = proc.communicate(timeout=TIMEOUT_S)
+        assert (proc.returncode, err.decode()) == (2, expected + "\n"), argv
+
+
+def test_fit_outputs_that_cannot_be_written_are_refused_before_the_fit(inputs):
+    """``--report /proc/x`` and ``--write-scene /proc/x.toml`` pass the permission bits as
+    root; they used to fail only after the fit (its summary already printed)."""
+    for argv, line in (
+        (["--report", "/proc/x"], "arva-bench: fit: --report /proc/x: cannot create it in /proc: No such file or directory"),
+        (["--write-scene", "/proc/x.toml"], "arva-bench: fit: --write-scene /proc/x.toml: cannot write: No such file or directory"),
+    ):
+        proc = subprocess.run([sys.executable, *BENCH, "fit", inputs["csv"], *argv], capture_output=True, text=True,
+                              timeout=TIMEOUT_S, cwd=inputs["root"])  # fmt: skip
+        assert (proc.returncode, proc.stdout, proc.stderr.count("\n")) == (2, "", 1), (argv, proc.stderr)
+        if os.geteuid() == 0:  # otherwise the permission bits already refuse /proc (argparse's line)
+            assert proc.stderr == line + "\n", argv

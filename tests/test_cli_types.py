@@ -139,3 +139,19 @@ def test_run_main_leaves_bugs_their_traceback():
 
 def test_one_line():
     assert ct.one_line("x\n\n  y  \n") == "x; y"
+
+
+def test_a_path_part_longer_than_name_max_is_an_argument_error():
+    with pytest.raises(argparse.ArgumentTypeError, match=r"^aaaaaaaaaaaaaaaa\.\.\.: a path part longer than 255 bytes \(256\)$"):
+        ct.output_dir("/tmp/" + "a" * 256)
+    with pytest.raises(argparse.ArgumentTypeError, match=r"a path longer than 4095 bytes \(4351\)$"):
+        ct.input_file("/".join(["b" * 255] * 17))
+    assert ct.output_dir("/tmp/" + "a" * 255) is not None  # at the limit: fine (not created)
+
+
+def test_an_os_error_while_parsing_is_one_line(capsys):
+    def parse():
+        raise PermissionError(13, "Permission denied", "/root/x")
+
+    assert ct.run_main("prog", parse, lambda args: 0) == 2
+    assert capsys.readouterr().err == "prog: /root/x: Permission denied\n"

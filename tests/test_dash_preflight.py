@@ -36,6 +36,9 @@ def test_sources_that_can_never_work_exit_2_before_the_tui(files):
         ([f"arvaemu://{root}/missing.toml"], f"arva-bench: dash: {root}/missing.toml: cannot read: No such file or directory\n"),
         ([f"arvaemu://{bad_scene}"], f"arva-bench: dash: {bad_scene}: model.r_en: must be <= 1000000000, got 1e+300\n"),
         ([str(garbage)], f"arva-bench: dash: {garbage}: no valid $PARVA sentence in the first 2048 bytes\n"),
+        # issue 29, item 4: a scene that would never end
+        (["arvaemu:///dev/zero"], "arva-bench: dash: /dev/zero: a character device, not a regular file: only regular "
+                                  "files are read as a scene file\n"),
     ]
     for argv, message in cases:
         p = dash(*argv)
@@ -58,3 +61,30 @@ def test_log_refuses_them_too_and_creates_no_session(files, tmp_path):
                         "--duration", "1"], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert (p.returncode, p.stderr) == (2, "arva-bench: log: bogus://x: unknown URL scheme 'bogus'\n")
     assert not (tmp_path / "s").exists()
+
+
+def test_a_missing_path_or_an_unusable_record_dir_is_refused_before_the_screen(tmp_path):
+    """Issue 29, item 10: the dashboard started its screen for these and showed a dead panel
+    (or failed when r was pressed); now one line, exit 2, before the TUI."""
+    missing = tmp_path / "no-such-session"
+    cases = [
+        ([str(missing)], f"arva-bench: dash: {missing}: no such file, device or session directory (a device not "
+                         "plugged in yet is waited for only under /dev/)\n"),
+        (["arvaemu://", "--gps", str(missing)], f"arva-bench: dash: {missing}: no such file, device or session "
+                                                "directory (a device not plugged in yet is waited for only under /dev/)\n"),
+        (["--record-dir", "/proc/x"], "arva-bench: dash: --record-dir /proc/x: cannot create it in /proc: "
+                                      "No such file or directory\n"),
+    ]  # fmt: skip
+    for argv, message in cases:
+        p = dash(*argv)
+        assert (p.returncode, p.stdout, p.stderr) == (2, "", message), argv
+    assert list(tmp_path.iterdir()) == []  # the probe leaves nothing
+
+
+def test_a_device_not_plugged_in_yet_is_waited_for_under_dev():
+    from bench.dash.cli import check_path_may_appear
+
+    check_path_may_appear("/dev/ttyUSB-not-plugged-yet")
+    check_path_may_appear("/dev/serial/by-id/usb-not-yet")
+    with pytest.raises(InputError, match=r"^dash: nope: no such file"):
+        check_path_may_appear("nope")

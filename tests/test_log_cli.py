@@ -69,10 +69,40 @@ def test_no_device_delivering_a_byte_is_exit_2_and_names_the_devices_never_opene
     except serial.SerialException as exc:
         reason = str(exc)
     proc = bench("log", "--arva", "/dev/ttyNOPE8", "--out", str(tmp_path / "s"), "--duration", "0.3")
-    assert proc.returncode == 2
-    assert proc.stderr.splitlines() == [
-        "arva-bench: log: arva: 0 reads, 0 bytes, 0 records, 0 gaps",
-        f"arva-bench: log: arva: never opened: {reason}",
-        f"arva-bench: log: no device delivered a byte; {tmp_path / 's'} holds only the manifest and events",
-    ]
+    # Exit 2 is one line (issue 29): the device never opened and why, folded in.
+    assert (proc.returncode, proc.stderr) == (2, f"arva-bench: log: no device delivered a byte (arva never opened: "
+                                                 f"{reason}); {tmp_path / 's'} holds only the manifest and events\n")
     assert read_manifest(tmp_path / "s")["summary"]["devices"]["arva"]["never_opened"] == reason
+
+
+def _file_size_limit(limit: int):
+    """For the child: files larger than ``limit`` bytes cannot be written (EFBIG, as a full
+    disk gives ENOSPC), and SIGXFSZ is ignored (the write fails instead of the process)."""
+
+    def preexec() -> None:
+        import resource
+        import signal
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+
+    return preexec
+
+
+def test_a_full_disk_is_one_line_and_the_session_stays_readable(tmp_path):
+    out = tmp_path / "s"
+    proc = subprocess.run([sys.executable, "-m", "bench.cli", "log", "--arva", "arvaemu://?speed=0&frames=100000",
+                           "--out", str(out), "--duration", "30"], capture_output=True, text=True, timeout=120,
+                          preexec_fn=_file_size_limit(100_000))  # fmt: skip
+    assert (proc.returncode, proc.stderr) == (2, f"arva-bench: log: {out / 'arva.raw'}: write failed: File too large; "
+                                                 "the session was closed, everything before is kept\n")
+    manifest = read_manifest(out)
+    assert manifest["summary"]["stopped_by"] == "disk error"
+    assert [e["event"] for e in read_jsonl(out / "events.jsonl")] == ["start", "stop"]
+
+
+def test_a_note_that_is_not_utf8_is_refused(tmp_path):
+    proc = subprocess.run([sys.executable.encode(), b"-m", b"bench.cli", b"log", b"--arva", b"arvaemu://", b"--out",
+                           bytes(tmp_path / "s"), b"--note", b"caf\xe9 au lait"], capture_output=True, timeout=60)  # fmt: skip
+    assert (proc.returncode, proc.stderr) == (2, b"arva-bench log: error: argument --note: not UTF-8 text (byte 3)\n")
+    assert not (tmp_path / "s").exists()

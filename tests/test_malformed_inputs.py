@@ -8,6 +8,7 @@ Malformed sessions are issue 12's corpus (bench ingest); not repeated here.
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 
@@ -98,6 +99,30 @@ def test_empty_scene_option_is_an_error_not_the_default_scene():
     p = subprocess.run([sys.executable, "-m", "emulator.cli", "--scene", "", "--frames", "1", "--speed", "0"],
                        capture_output=True, text=True, timeout=60)  # fmt: skip
     assert (p.returncode, p.stdout, p.stderr) == (2, "", "arva-emulate: error: argument --scene: expected a path, got ''\n")
+
+
+def test_a_scene_or_profile_that_never_ends_or_is_too_large_is_one_line(tmp_path):
+    """Issue 29, item 4: /dev/zero was read for ever (MemoryError), a FIFO blocked."""
+    from emulator.files import MAX_TOML_BYTES
+    from emulator.receiver.profile import load_profile_file
+    from emulator.scene.reader import load_scene
+
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"spec = 1\n" + b"#" * MAX_TOML_BYTES)
+    cases = [
+        ("/dev/zero", "/dev/zero: a character device, not a regular file: only regular files are read as a scene file"),
+        (str(fifo), f"{fifo}: a named pipe, not a regular file: only regular files are read as a scene file"),
+        (str(big), f"{big}: larger than {MAX_TOML_BYTES} bytes: not a scene file"),
+    ]
+    for path, message in cases:
+        with pytest.raises(SceneError) as info:
+            load_scene(path)
+        assert str(info.value) == message
+    with pytest.raises(SceneError) as info:
+        load_profile_file("/dev/zero")
+    assert str(info.value) == "/dev/zero: a character device, not a regular file: only regular files are read as a profile file"
 
 
 # --------------------------------------------------------------------------- the limits' property

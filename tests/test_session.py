@@ -157,7 +157,7 @@ def test_short_writes_are_completed_and_a_torn_line_stays_the_tail(tmp_path):
 WRITER = r"""
 import sys, time
 from bench.session import SessionWriter
-w = SessionWriter(sys.argv[1], {})
+w = SessionWriter(sys.argv[1], {"devices": {"arva": {"kind": "arva"}}})
 i = 0
 while True:
     w.raw("arva", b"%08d" % i)
@@ -240,3 +240,19 @@ def test_a_full_disk_still_leaves_a_finished_manifest(tmp_path, monkeypatch):
     m = read_manifest(tmp_path / "s")
     assert m["stop_utc"] >= m["start_utc"]
     assert m["summary"] == {"devices": {"arva": {"reads": 1}}, "stopped_by": "disk error"}
+
+
+def test_a_jsonl_line_nested_too_deep_is_one_error_not_a_recursion_error(tmp_path):
+    path = tmp_path / "events.jsonl"
+    path.write_bytes(b'{"event": "start"}\n' + b"[" * 100000 + b"]" * 100000 + b"\n")
+    with pytest.raises(InputError, match=r"events.jsonl: line 2: JSON nested more than 32 deep$"):
+        list(read_jsonl(path))
+
+
+def test_a_jsonl_line_longer_than_the_cap_is_refused_without_reading_it_whole(tmp_path):
+    from bench.session import MAX_JSONL_LINE
+
+    path = tmp_path / "a.jsonl"
+    path.write_bytes(b'{"n": 1}\n"' + b"x" * MAX_JSONL_LINE + b'"\n')
+    with pytest.raises(InputError, match=rf"a.jsonl: line 2: longer than {MAX_JSONL_LINE} bytes \(not a JSON lines line\)$"):
+        list(read_jsonl(path))

@@ -24,7 +24,7 @@ import os
 import sys
 from pathlib import Path
 
-from emulator.cli_types import baud_rate, output_dir, positive_seconds, speed
+from emulator.cli_types import baud_rate, output_dir, positive_seconds, probe_creatable_dir, speed
 from firmware_proto.errors import InputError
 
 from ..ingest.pacer import check_speed, load_reads
@@ -58,6 +58,20 @@ def _is_session(url: str) -> bool:
     return os.path.isdir(url)
 
 
+#: Where a device that is not there yet may appear (plugged in later): the dashboard waits
+#: for a missing path only below it; any other missing path is refused (a typo, or a
+#: session directory that does not exist).
+DEVICE_ROOT = "/dev/"
+
+
+def check_path_may_appear(url: str) -> None:
+    """:class:`InputError` for a plain path that does not exist outside :data:`DEVICE_ROOT`."""
+    if "://" in url or url.startswith(DEVICE_ROOT) or os.path.lexists(url):
+        return
+    raise InputError(f"dash: {url}: no such file, device or session directory "
+                     f"(a device not plugged in yet is waited for only under {DEVICE_ROOT})")  # fmt: skip
+
+
 def build_config(args: argparse.Namespace, argv: list[str] | None = None):
     """The :class:`~bench.dash.app.DashConfig` of parsed arguments (InputError if unusable)."""
     from .app import DashConfig
@@ -65,6 +79,7 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
     if not (args.stale > 0):
         raise InputError(f"dash: --stale {args.stale}: must be > 0")
     check_speed(args.speed, "dash")
+    probe_creatable_dir(Path(args.record_dir), "dash: --record-dir")  # a recording must not fail in the TUI
     sources = list(args.source) or [(DEFAULT_SOURCE, "rx")]
     sessions = [url for url, _ in sources if _is_session(url)]
     common = {"stale_after": args.stale, "record_dir": args.record_dir, "argv": list(sys.argv if argv is None else argv)}
@@ -75,14 +90,14 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
         if not (directory / MANIFEST).exists():
             raise InputError(f"dash: {directory}: not a session directory (no {MANIFEST})")
         manifest = load_manifest(directory)
+        logged = load_reads(directory, manifest.devices)  # a corrupt log: one line now, not a dead panel later
         specs = [
             DeviceSpec(name, dev.kind, dev.url, dev.role, dev.baudrate, dev.format)
             for name, dev in manifest.devices.items()
-            if (directory / f"{name}.raw").exists()
+            if name in logged
         ]
         if not specs:
             raise InputError(f"dash: {directory}: no device has logged anything")
-        load_reads(directory, [s.name for s in specs])  # a corrupt log: one line now, not a dead panel later
         origin = args.origin
         if origin is None and manifest.origin is not None:
             o = manifest.origin
@@ -99,6 +114,8 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
                           tx_poses=tx_poses, scene_truth=False, **common)  # fmt: skip
     ns = argparse.Namespace(arva=sources, gps=args.gps, attitude=args.attitude, baud=args.baud)
     specs = device_specs(ns, command="dash")
+    for spec in specs:
+        check_path_may_appear(spec.url)
     scene_truth = not (args.no_scene_truth or args.gps or args.attitude or args.tx_pose)
     return DashConfig(specs=specs, origin=args.origin, tx_poses=list(args.tx_pose), scene_truth=scene_truth,
                       **common)  # fmt: skip

@@ -70,7 +70,7 @@ class SessionRecorder(SessionListener):
                 return {}
             self.closed = True
             summary = {
-                name: {**self._count(name), "decoder": self._devices[name].decoder.stats() if name in self._devices else {}}
+                name: {**self._count(name), "decoder": self._devices[name].stamper.stats() if name in self._devices else {}}
                 for name in dict.fromkeys(self._names + list(self.counts))
             }
             self.writer.close(devices=summary, stopped_by="disk error" if self._error else "user")

@@ -18,7 +18,8 @@ import math
 import sys
 from pathlib import Path
 
-from emulator.cli_types import output_dir, output_file, real, seed
+from emulator.cli_types import output_dir, output_file, probe_creatable_dir, probe_writable, real, seed
+from emulator.files import FileRefused, open_regular
 from emulator.progress import progress
 
 OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset", "dropout")
@@ -128,6 +129,10 @@ def load_input(arg: str):
         return parse_csv(sys.stdin.buffer.read(), "<stdin>")
     path = Path(arg)
     if not path.is_dir():
+        try:
+            open_regular(path, "CSV file").close()  # /dev/zero would be read for ever
+        except FileRefused as exc:
+            raise FitInputError(str(exc)) from None
         return read_csv(path)
     from bench import export  # through the module: tests substitute export_rows
     from firmware_proto.errors import InputError
@@ -250,6 +255,12 @@ def run(args: argparse.Namespace) -> int:
     from .scene import write_scene
 
     options = options_from_args(args)
+    # Outputs written after the fit are proved writable now (/proc/x as root passes the
+    # permission bits): one line before minutes of fitting, not after.
+    if args.report is not None:
+        probe_creatable_dir(args.report, "fit: --report")
+    if args.write_scene is not None:
+        probe_writable(args.write_scene, "fit: --write-scene")
     # Stages, not iterations: the optimiser's count is not known ahead. Transient, on a
     # terminal's stderr only; gone before the summary reaches stdout.
     with progress(f"fit: reading {args.input}") as bar:

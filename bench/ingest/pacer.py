@@ -17,14 +17,14 @@ from pathlib import Path
 
 from firmware_proto.errors import InputError
 
-from ..session import RawRead, read_raw
+from ..session import RawLog, RawRead, session_logs
 
 
-def load_reads(directory: str | Path, names: Iterable[str]) -> dict[str, list[RawRead]]:
-    """The reads of each device ``<name>.raw`` of a session (:class:`InputError` naming the
-    file when one cannot be read)."""
-    directory = Path(directory)
-    return {name: read_raw(directory / f"{name}.raw").reads for name in names}
+def load_reads(directory: str | Path, names: Iterable[str]) -> dict[str, RawLog]:
+    """The raw logs of the devices ``names`` of a session that logged something, each
+    checked whole now (:meth:`RawLog.scan`: an :class:`InputError` naming the file and line
+    before anything is replayed) and read again, as a stream, when replayed."""
+    return {name: log.scan() for name, log in session_logs(directory, names).items()}
 
 
 def check_speed(speed: float, command: str) -> None:
@@ -39,7 +39,7 @@ class ReplayPacer:
     for the next read (the dashboard uses it to release epochs of a quiet link).
     """
 
-    def __init__(self, reads: dict[str, list[RawRead]], speed: float = 1.0, stop: threading.Event | None = None,
+    def __init__(self, reads: dict[str, Iterable[RawRead]], speed: float = 1.0, stop: threading.Event | None = None,
                  tick: Callable[[], None] | None = None, tick_interval: float = 0.1) -> None:  # fmt: skip
         self.reads = reads
         self.speed = speed
@@ -49,9 +49,14 @@ class ReplayPacer:
         self.sent = 0
 
     def run(self, deliver: Callable[[str, RawRead], None]) -> bool:
-        """Deliver every read (``deliver(name, read)``); False if stopped before the end."""
-        reads = self.reads
-        queue = [(r[0].mono, i, n, 0) for i, (n, r) in enumerate(reads.items()) if r]
+        """Deliver every read (``deliver(name, read)``); False if stopped before the end.
+        Each device's reads are taken one at a time from its iterable."""
+        streams = {name: iter(r) for name, r in self.reads.items()}
+        queue = []
+        for i, (name, it) in enumerate(streams.items()):
+            first = next(it, None)
+            if first is not None:
+                queue.append((first.mono, i, name, first))
         heapq.heapify(queue)
         t0 = queue[0][0] if queue else 0.0
         start = time.monotonic()
@@ -59,7 +64,7 @@ class ReplayPacer:
         while queue:
             if stop.is_set():
                 return False
-            mono, i, name, j = heapq.heappop(queue)
+            mono, i, name, read = heapq.heappop(queue)
             if self.speed > 0:
                 due = start + (mono - t0) / self.speed
                 delay = due - time.monotonic()
@@ -69,8 +74,9 @@ class ReplayPacer:
                     if self.tick is not None:
                         self.tick()
                     delay = due - time.monotonic()
-            deliver(name, reads[name][j])
+            deliver(name, read)
             self.sent += 1
-            if j + 1 < len(reads[name]):
-                heapq.heappush(queue, (reads[name][j + 1].mono, i, name, j + 1))
+            following = next(streams[name], None)
+            if following is not None:
+                heapq.heappush(queue, (following.mono, i, name, following))
         return not stop.is_set()

@@ -49,6 +49,10 @@ _NMEA_EOL = re.compile(rb"[\r\n]")
 
 #: Bits on the wire per byte (start, 8 data, stop).
 BITS_PER_BYTE = 10
+#: Most bytes fed to a decoder at once: bounds the events of line noise held in memory.
+FEED_SLICE = 4096
+#: Error records passed on per device and second of its stamps; the rest are summed.
+ERROR_RECORDS_PER_SECOND = 10
 
 
 def byte_time(baudrate: int) -> float:
@@ -70,16 +74,69 @@ class Stamped:
         return {"mono": round(self.mono, 6), "utc": round(self.utc, 6), **self.record}
 
 
-class StampedDecoder:
-    """A device's :class:`~bench.records.RecordDecoder` with the stamp rule applied."""
+class ErrorSampler:
+    """Which error records of one device are passed on: the first ``per_second`` of each
+    second of stamps (windows start at the first error stamped after the previous window
+    ended); the others are summed into a pending ``suppressed`` record."""
 
-    def __init__(self, decoder: RecordDecoder, baudrate: int) -> None:
+    def __init__(self, per_second: int = ERROR_RECORDS_PER_SECOND) -> None:
+        self.per_second = per_second
+        self.window_end = -math.inf
+        self.passed = 0  # in the current window
+        self.pending = 0  # suppressed, not reported yet
+        self.kinds: dict[str, int] = {}
+        self.length = 0
+        self.total = 0  # suppressed since the start
+
+    def allow(self, record: dict, mono: float) -> bool:
+        """True: pass ``record`` on; False: it is counted in the pending summary."""
+        if mono >= self.window_end:
+            self.window_end = mono + 1.0
+            self.passed = 0
+        if self.passed < self.per_second:
+            self.passed += 1
+            return True
+        self.pending += 1
+        self.total += 1
+        err = record["error"]
+        kinds = self.kinds
+        if isinstance(err, dict):  # ground truth: counter increments
+            for k, v in err.items():
+                kinds[k] = kinds.get(k, 0) + v
+        else:
+            kinds[err] = kinds.get(err, 0) + 1
+            self.length += record.get("length", 0)
+        return False
+
+    def due(self, mono: float) -> bool:
+        """A summary is pending and its second is over."""
+        return self.pending > 0 and mono >= self.window_end
+
+    def summary(self) -> dict:
+        """The pending summary record (and a fresh count)."""
+        rec: dict = {"suppressed": self.pending, "kinds": self.kinds}
+        if self.length:
+            rec["length"] = self.length
+        self.pending, self.kinds, self.length = 0, {}, 0
+        return rec
+
+
+class StampedDecoder:
+    """A device's :class:`~bench.records.RecordDecoder` with the stamp rule applied, fed
+    in bounded slices, its error records sampled (:class:`ErrorSampler`)."""
+
+    def __init__(self, decoder: RecordDecoder, baudrate: int, errors_per_second: int = ERROR_RECORDS_PER_SECOND) -> None:
         self.decoder = decoder
         self.byte_time = byte_time(baudrate)
         fmt = getattr(decoder, "format", None)  # ground truth: nmea or mavlink; receivers: none
         self.line_based = fmt != "mavlink"
         self._eol = None if fmt is None else _NMEA_EOL  # None: b"\n" only (the fast path)
         self._last = -math.inf
+        self.sampler = ErrorSampler(errors_per_second)
+
+    def stats(self) -> dict[str, int]:
+        """The decoder's counters, and the error records summed instead of passed on."""
+        return {**self.decoder.stats(), "error_records_suppressed": self.sampler.total}
 
     def _stamp(self, out: list[Stamped], records: list[dict], mono: float, utc: float) -> None:
         if records:
@@ -87,46 +144,60 @@ class StampedDecoder:
                 utc += self._last - mono
                 mono = self._last
             self._last = mono
+            sampler = self.sampler
+            if sampler.due(mono):
+                out.append(Stamped(mono, utc, sampler.summary()))
             for rec in records:
-                out.append(Stamped(mono, utc, rec))
+                if "error" not in rec or sampler.allow(rec, mono):
+                    out.append(Stamped(mono, utc, rec))
+
+    def _release(self, out: list[Stamped], mono: float, utc: float, force: bool) -> None:
+        """The pending summary, when its second is over (``force``: at the end)."""
+        sampler = self.sampler
+        if sampler.pending and (force or sampler.due(max(mono, self._last))):
+            mono, utc = (mono, utc) if mono >= self._last else (self._last, utc + self._last - mono)
+            self._last = mono
+            out.append(Stamped(mono, utc, sampler.summary()))
+
+    def _feed(self, out: list[Stamped], data: bytes, start: int, end: int, mono: float, utc: float) -> None:
+        """Feed ``data[start:end]`` in slices of at most FEED_SLICE bytes; the records of
+        a slice are stamped at its last byte (``data`` is the whole read, ending at ``mono``)."""
+        feed, bt, n = self.decoder.feed, self.byte_time, len(data)
+        while start < end:
+            stop = min(end, start + FEED_SLICE)
+            records = feed(data[start:stop] if start or stop < n else data)
+            if records:
+                back = (n - stop) * bt
+                self._stamp(out, records, mono - back, utc - back)
+            start = stop
 
     def feed(self, data: bytes, mono: float, utc: float) -> list[Stamped]:
         """Records completed by one read of ``data`` stamped ``mono``/``utc`` (its end)."""
         out: list[Stamped] = []
         n = len(data)
-        feed, bt = self.decoder.feed, self.byte_time
         if not self.line_based:
+            feed, bt = self.decoder.feed, self.byte_time
             for k in range(n):
                 records = feed(data[k : k + 1])
                 if records:
                     back = (n - 1 - k) * bt
                     self._stamp(out, records, mono - back, utc - back)
             return out
-        if self._eol is not None:
-            start = 0
-            for m in self._eol.finditer(data):
-                end = m.end()
-                records = feed(data[start:end])
-                if records:
-                    back = (n - end) * bt
-                    self._stamp(out, records, mono - back, utc - back)
-                start = end
-            if start < n:
-                self._stamp(out, feed(data[start:]), mono, utc)
-            return out
         start = 0
-        find = data.find
-        while True:
-            end = find(b"\n", start) + 1
-            if end == 0 or end == n:
-                records = feed(data[start:] if start else data)
-                self._stamp(out, records, mono, utc)
-                return out
-            records = feed(data[start:end])
-            if records:
-                back = (n - end) * bt
-                self._stamp(out, records, mono - back, utc - back)
-            start = end
+        if self._eol is not None:
+            for m in self._eol.finditer(data):
+                self._feed(out, data, start, m.end(), mono, utc)
+                start = m.end()
+        else:
+            find = data.find
+            while True:
+                end = find(b"\n", start) + 1
+                if end == 0:
+                    break
+                self._feed(out, data, start, end, mono, utc)
+                start = end
+        self._feed(out, data, start, n, mono, utc)
+        return out
 
     def idle(self, mono: float, utc: float) -> list[Stamped]:
         """Records a quiet link releases (a receiver epoch held for a ``$PARVH``)."""
@@ -134,6 +205,7 @@ class StampedDecoder:
         idle = getattr(self.decoder, "idle", None)
         if idle is not None:
             self._stamp(out, idle(), mono, utc)
+        self._release(out, mono, utc, force=False)
         return out
 
     def stop(self, mono: float, utc: float) -> tuple[list[Stamped], int]:
@@ -142,10 +214,12 @@ class StampedDecoder:
         records, cut = self.decoder.stop()
         out: list[Stamped] = []
         self._stamp(out, records, mono, utc)
+        self._release(out, mono, utc, force=True)
         return out, cut
 
     def flush(self, mono: float, utc: float) -> list[Stamped]:
         """The rest at end of input."""
         out: list[Stamped] = []
         self._stamp(out, self.decoder.flush(), mono, utc)
+        self._release(out, mono, utc, force=True)
         return out

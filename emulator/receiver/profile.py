@@ -38,6 +38,7 @@ from typing import Any
 from firmware_proto.errors import InputError, SceneError
 from firmware_proto.sentences import MAX_CHANNELS
 
+from emulator.files import MAX_TOML_BYTES, FileRefused, read_regular
 from emulator.receiver.model import ANTENNAS, ModelParams
 from emulator.receiver.quantize import QuantizeConfig
 
@@ -194,9 +195,9 @@ def load_profile_file(path: str | Path) -> ReceiverProfile:
     """Read and validate one profile file (its name must match the file name)."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise SceneError(str(path), "", f"cannot read: {exc.strerror or exc}") from None
+        raw = read_regular(path, MAX_TOML_BYTES, "profile file")
+    except FileRefused as exc:
+        raise SceneError(str(path), "", exc.reason) from None
     return _loads(raw, str(path), path.stem)
 
 

@@ -24,6 +24,7 @@ from firmware_proto.errors import InputError, SceneError
 from firmware_proto.sentences import MAX_CHANNELS, MAX_D_CM, MAX_ID
 
 from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
+from emulator.files import MAX_TOML_BYTES, FileRefused, read_regular
 from emulator.frames.geodesy import Origin
 from emulator.frames.trajectory import Trajectory
 from emulator.output.link_faults import LinkFaultConfig
@@ -450,9 +451,9 @@ def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file. Every failure is a one-line :class:`SceneError`."""
     source = str(path)
     try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise SceneError(source, "", f"cannot read: {exc.strerror or exc}") from None
+        raw = read_regular(path, MAX_TOML_BYTES, "scene file")
+    except FileRefused as exc:
+        raise SceneError(source, "", exc.reason) from None
     return loads_scene(raw, source)
 
 
