@@ -136,6 +136,7 @@ class ExportResult:
     columns: dict[str, np.ndarray]
     dropped: Counter
     origin: Origin
+    receivers: tuple[str, ...] = ()  # the receivers (device names) whose rows the columns hold
 
     @property
     def rows(self) -> int:
@@ -173,15 +174,25 @@ def _origin_from(manifest: Manifest, origin: list[float] | None, first_fix) -> O
 
 
 def export_rows(
-    directory: str | Path, origin: list[float] | None = None, latency: float = 0.0, max_gap: float = 2.0
+    directory: str | Path,
+    origin: list[float] | None = None,
+    latency: float = 0.0,
+    max_gap: float = 2.0,
+    receiver: str | None = None,
 ) -> ExportResult:
-    """The normative table of a session as numpy columns, with the drop counts."""
+    """The normative table of a session as numpy columns, with the drop counts: the rows of
+    every receiver one after the other, or of the device named ``receiver`` only."""
     directory = Path(directory)
     manifest = load_manifest(directory)
     devices = manifest.devices
     receivers = [name for name, dev in devices.items() if dev.kind == "arva"]
     if not receivers:
         raise InputError(f"{directory / MANIFEST}: no receiver (a device of kind arva): nothing to export")
+    if receiver is not None:
+        if receiver not in receivers:
+            raise InputError(f"{directory}: no receiver {receiver!r} in this session (its receivers: {', '.join(receivers)})")
+        devices = {name: dev for name, dev in devices.items() if dev.kind != "arva" or name == receiver}
+        receivers = [receiver]
     logs = session_logs(directory, devices)  # a device that never delivered a byte has none
     if not any(name in logs for name in receivers):
         missing = ", ".join(f"{name}.raw" for name in receivers)
@@ -289,7 +300,7 @@ def export_rows(
     else:
         ints = ("seq", "id", "d", "delta", "fix_quality")
         columns = {c: np.empty(0, dtype=np.int64 if c in ints else np.float64) for c in COLUMNS + GPS_QUALITY_COLUMNS}
-    return ExportResult(columns, Counter({k: v for k, v in dropped.items() if v}), org)
+    return ExportResult(columns, Counter({k: v for k, v in dropped.items() if v}), org, tuple(receivers))
 
 
 def write_csv(columns: dict[str, np.ndarray], path: str | Path, tracker: Tracker | None = None) -> None:
@@ -324,12 +335,14 @@ def register(sub) -> None:
                    help="the receiver's output latency: poses are taken S seconds before each epoch's arrival")
     p.add_argument("--max-gap", type=positive_seconds, default=2.0, metavar="S",
                    help="interpolate poses only between fixes at most S seconds apart (default 2)")
+    p.add_argument("--receiver", metavar="NAME",
+                   help="only this receiver's rows (its device name in the session; default: every receiver's, one after the other)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     with progress("export: decoding", unit="rows") as bar:
-        result = export_rows(args.session, args.origin, args.latency, args.max_gap)
+        result = export_rows(args.session, args.origin, args.latency, args.max_gap, receiver=args.receiver)
         bar.update(description="export: writing", total=result.rows, completed=0)
         try:
             write_csv(result.columns, args.csv, tracker=bar)

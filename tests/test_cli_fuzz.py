@@ -77,7 +77,7 @@ COMMANDS = (
         Opt("--baud"), Opt("--duration", "0.5"), Opt("--note"),
     )),
     Command("export", (*BENCH, "export"), ("{session}", "--csv", "{new}.csv"), (
-        Opt(None), Opt("--csv"), Opt("--origin"), Opt("--latency"), Opt("--max-gap"),
+        Opt(None), Opt("--csv"), Opt("--origin"), Opt("--latency"), Opt("--max-gap"), Opt("--receiver"),
     )),
     Command("replay", (*BENCH, "replay"), ("{session}", "--speed", "0", "--port", "pty"), (
         Opt(None), Opt("--speed", "0"), Opt("--port"), Opt("--device"), Opt("--link"), Opt("--delay", "0"),
@@ -85,7 +85,7 @@ COMMANDS = (
     Command("fit", (*BENCH, "fit"), ("{csv}",), (
         Opt(None), Opt("--report"), Opt("--write-scene"), Opt("--fit"), Opt("--r-inner"), Opt("--r-outer"),
         Opt("--q"), Opt("--pose-sigma"), Opt("--time-offset"), Opt("--seed"), Opt("--antennas"),
-        Opt("--gps-sigma", "0"), Opt("--attitude-sigma", "0"),
+        Opt("--gps-sigma", "0"), Opt("--attitude-sigma", "0"), Opt("--receiver"),
     ), codes=frozenset({0, 1, 2})),
     Command("dash", (*BENCH, "dash"), (), (
         Opt(None), Opt("--gps"), Opt("--attitude"), Opt("--tx-pose"), Opt("--origin"), Opt("--baud"),

@@ -8,6 +8,7 @@ from bench.export import export_rows
 from bench.session import SessionWriter, read_manifest
 from emulator.frames.geodesy import Origin, enu_to_geodetic, geodetic_to_enu
 from emulator.truth.nmea import gps_sentences, pashr_sentence
+from firmware_proto.errors import InputError
 from firmware_proto.sentences import encode_parva
 
 ORIGIN = Origin(46.5, 8.0, 2500.0)
@@ -89,3 +90,55 @@ def test_origin_from_the_session_from_the_option_and_from_the_first_fix(tmp_path
     np.testing.assert_allclose(rx_columns(first)[0], [0.0, 0.0, 0.0], atol=1e-3)
     np.testing.assert_allclose(rx_columns(first) - rx_columns(first)[0], truth - truth[0], atol=2e-3)
     assert "origin" not in read_manifest(tmp_path / "without")
+
+
+def write_two_receivers(path):
+    """Two receivers on one walker (rx), each its own device: d 500 and 700 cm."""
+    import datetime as dt
+
+    manifest = {
+        "devices": {
+            "arva-a": {"kind": "arva", "url": "x", "role": "rx"},
+            "arva-b": {"kind": "arva", "url": "x2", "role": "rx"},
+            "gps-rx": {"kind": "gps", "url": "y", "role": "rx"},
+            "attitude-rx": {"kind": "attitude", "url": "z", "role": "rx"},
+        },
+        "tx_poses": {"1": {"lat": 46.5, "lon": 8.0, "alt": 2499.0}},
+        "origin": {"lat": ORIGIN.lat, "lon": ORIGIN.lon, "alt": ORIGIN.alt},
+    }
+    w = SessionWriter(path, manifest)
+    for k in range(SECONDS):
+        lat, lon, alt = (float(v) for v in enu_to_geodetic(*rx_true(float(k)), ORIGIN))
+        utc = dt.datetime.fromtimestamp(START_UTC + k, dt.timezone.utc)
+        w.raw("gps-rx", gps_sentences(utc, lat, lon, alt, lat_lon_decimals=9), mono=1000.0 + k, utc=START_UTC + k)
+        w.raw("attitude-rx", pashr_sentence(utc, 90.0, 0.0, 0.0), mono=1000.0 + k, utc=START_UTC + k)
+        w.raw("arva-a", encode_parva(k, 1, 1, 1, 500, 0), mono=1000.0 + k, utc=START_UTC + k)
+        w.raw("arva-b", encode_parva(k, 1, 1, 1, 700, 0), mono=1000.0 + k, utc=START_UTC + k)
+    w.close()
+
+
+def test_receiver_selects_one_receivers_rows(tmp_path):
+    write_two_receivers(tmp_path / "s")
+    both = export_rows(tmp_path / "s")
+    assert both.receivers == ("arva-a", "arva-b") and both.rows == 2 * SECONDS
+    b = export_rows(tmp_path / "s", receiver="arva-b")
+    assert b.receivers == ("arva-b",) and b.rows == SECONDS and set(b.columns["d"].tolist()) == {700}
+    with pytest.raises(InputError, match=r": no receiver 'gps-rx' in this session \(its receivers: arva-a, arva-b\)$"):
+        export_rows(tmp_path / "s", receiver="gps-rx")
+
+
+def test_fit_of_a_two_receiver_session_asks_which(tmp_path, capsys):
+    from bench.cli import main
+
+    write_two_receivers(tmp_path / "s")
+    assert main(["fit", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"arva-bench: fit: {tmp_path / 's'}: 2 receivers (arva-a, arva-b): the fit calibrates one; "
+        "choose it with --receiver NAME\n"
+    )
+    # With --receiver the one receiver's 20 rows reach the fit (too few to fit: one line).
+    assert main(["fit", str(tmp_path / "s"), "--receiver", "arva-a"]) == 2
+    assert capsys.readouterr().err == f"arva-bench: fit: {tmp_path / 's'}: only 20 rows; the fit needs at least 50\n"
+    assert main(["fit", str(tmp_path / "s") + "/manifest.json", "--receiver", "arva-a"]) == 2
+    assert capsys.readouterr().err.endswith("--receiver arva-a: only for a session directory (a CSV holds one receiver's rows)\n")

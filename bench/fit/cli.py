@@ -83,6 +83,9 @@ def register(subparsers) -> None:
         metavar="DEG",
         help="the receiver attitude error, 1-sigma per axis in degrees, instead of estimating it (0 = exact)",
     )
+    p.add_argument(
+        "--receiver", metavar="NAME", help="a session directory with several receivers: fit this one (its device name in the session)"
+    )
     p.add_argument("--seed", type=seed, default=0, help="seed of the report's simulations and the subsample (default 0)")
     p.set_defaults(func=run)
 
@@ -120,14 +123,17 @@ def _q_triple(text: str) -> tuple[float, float, float]:
     return q  # type: ignore[return-value]
 
 
-def load_input(arg: str):
-    """The normative table from a CSV path, '-' (stdin) or a session directory."""
+def load_input(arg: str, receiver: str | None = None):
+    """The normative table from a CSV path, '-' (stdin) or a session directory (of one
+    receiver: ``receiver`` names it when the session has several)."""
     from .csvio import parse_csv, read_csv, validate
     from .table import FitInputError, Table
 
+    path = Path(arg)
+    if receiver is not None and (arg == "-" or not path.is_dir()):
+        raise FitInputError(f"--receiver {receiver}: only for a session directory (a CSV holds one receiver's rows)")
     if arg == "-":
         return parse_csv(sys.stdin.buffer.read(), "<stdin>")
-    path = Path(arg)
     if not path.is_dir():
         try:
             open_regular(path, "CSV file").close()  # /dev/zero would be read for ever
@@ -138,9 +144,14 @@ def load_input(arg: str):
     from firmware_proto.errors import InputError
 
     try:
-        out = export.export_rows(path)
+        out = export.export_rows(path, **({} if receiver is None else {"receiver": receiver}))
     except InputError as exc:
         raise FitInputError(f"{arg}: {exc}") from None
+    names = getattr(out, "receivers", ())
+    if len(names) > 1:  # their rows one after the other are not one campaign
+        raise FitInputError(
+            f"{arg}: {len(names)} receivers ({', '.join(names)}): the fit calibrates one; choose it with --receiver NAME"
+        )
     table = Table.from_mapping(arg, out.columns)
     validate(table)
     return table
@@ -264,7 +275,7 @@ def run(args: argparse.Namespace) -> int:
     # Stages, not iterations: the optimiser's count is not known ahead. Transient, on a
     # terminal's stderr only; gone before the summary reaches stdout.
     with progress(f"fit: reading {args.input}") as bar:
-        table = load_input(args.input)
+        table = load_input(args.input, args.receiver)
         bar.update(description=f"fit: fitting {len(table):,} rows")
         result = fit_table(table, options)
     if args.json:
