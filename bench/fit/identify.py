@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .likelihood import Params, Rows
 
@@ -50,12 +51,18 @@ class NoiseReach:
     gps: float = 0.0  # the GPS error the rule used (m)
 
 
+def noise_shows(r: NDArray[np.float64], r_en: float, gps: float) -> NDArray[np.bool_]:
+    """Rows at distances ``r`` (m) where the EMI noise, (r / r_en)^3, is at least the GPS
+    error, gps / r."""
+    return (r / r_en) ** 3 >= gps / np.maximum(r, 1e-9)
+
+
 def noise_reach(rows: Rows, p: Params) -> NoiseReach:
     """:class:`NoiseReach` of ``rows`` at ``p`` (its gps_sigma, r_en and r_outer)."""
     r = np.exp(rows.geo.log_r)
     r = r[np.isfinite(r) & (r <= p.r_outer)]
     gps = p.gps_sigma
-    shows = (r / p.r_en) ** 3 >= gps / np.maximum(r, 1e-9)
+    shows = noise_shows(r, p.r_en, gps)
     return NoiseReach(
         rows=int(np.sum(shows)),
         within=int(r.shape[0]),
