@@ -116,3 +116,24 @@ def test_grade_options_exit_2_with_one_line(tmp_path, capsys, argv, line):
         code = exc.code
     out, err = capsys.readouterr()
     assert (code, out, err) == (2, "", line)
+
+
+def test_no_noise_floor_leaves_r_en_not_determined_and_kappa_eq_fitted(tmp_path, capsys):
+    """No EMI at all in the readings: with the pose error free, r_en runs to its bound;
+    that is "not determined" (exit 0, JSON null, the note first), kappa_eq is fitted.
+    Exact poses keep "did not converge" (test_fit_cli.py)."""
+    from emulator.receiver.model import measure
+
+    t = emulate_campaign(10, ModelParams(), seed=1)
+    t.d = measure(t.rx_pos, t.rx_quat, t.tx_pos[:1], t.tx_quat[:1], ModelParams()).d[:, 0]
+    path = tmp_path / "clean.csv"
+    t.write_csv(path)
+    code = main(["fit", str(path), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["converged"] is True and out["separable"] is False
+    assert out["r_en"] is None and out["r_en_se"] is None
+    assert out["notes"][0].startswith(
+        "r_en is not determined: no reading shows the EMI noise through the pose error (the likelihood rises all the "
+        "way to r_en = 10000 m, its bound; the farthest row is at "
+    )
+    assert abs(out["kappa_eq"] / ModelParams().kappa_eq - 1) < 0.01

@@ -310,6 +310,7 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
     if unc.failed is not None:
         ok, why = False, unc.failed
     lo, _hi = box(newton_free)
+    no_floor = False
     if fitted:
         for i in np.flatnonzero(active):
             name = newton_free[i]
@@ -326,6 +327,8 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
                     else "the other standard errors hold it there"
                 )
                 notes.append(f"{name} is at its lower bound {BOUNDS[name][0]:g} ({what}); {held_how}")
+            elif name == "r_en" and not at_lower and params.gps_sigma > 0:
+                no_floor = True  # not determined (below), not a failure: kappa_eq stands
             else:
                 ok = False
                 bound = BOUNDS[name][0 if at_lower else 1]
@@ -344,7 +347,16 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         notes.append("r_outer is an end point: its standard error is a likelihood-ratio interval width / 3.92")
     told_apart = separable(ok, why, free, cov, estimate, se)
     reach = noise_reach(rows, params) if ok and "r_en" in free and params.gps_sigma > 0 else None
-    if reach is not None and not reach.determined:
+    if no_floor:
+        told_apart = False
+        r_max = float(np.max(np.exp(rows.geo.log_r[np.isfinite(rows.geo.log_r)])))
+        notes.insert(
+            0,
+            "r_en is not determined: no reading shows the EMI noise through the pose error (the likelihood rises all "
+            f"the way to r_en = {BOUNDS['r_en'][1]:g} m, its bound; the farthest row is at {r_max:.0f} m): kappa_eq is "
+            "fitted with the noise negligible on these rows; walk out farther to measure r_en",
+        )
+    elif reach is not None and not reach.determined:
         told_apart = False
         notes.insert(0, reach.note())
     elif not told_apart:
