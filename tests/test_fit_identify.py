@@ -75,7 +75,7 @@ def test_a_search_that_stopped_converges_after_the_restart():
     assert res.converged and res.separable
     assert res.notes[0] == (
         "the first search stopped (no step decreases the negative log-likelihood); a restart from its point with "
-        "attitude_sigma at the lower bound converged"
+        "attitude_sigma at its bound converged"
     )
     for name in ("kappa_eq", "r_en"):
         truth = getattr(camp.truth, name)
@@ -137,3 +137,21 @@ def test_no_noise_floor_leaves_r_en_not_determined_and_kappa_eq_fitted(tmp_path,
         "way to r_en = 10000 m, its bound; the farthest row is at "
     )
     assert abs(out["kappa_eq"] / ModelParams().kappa_eq - 1) < 0.01
+
+
+def test_a_search_stopped_at_the_r_en_ceiling_restarts_with_r_en_held_there():
+    """The study's near-only walk, tuning seed 16: the first search stops with r_en at its
+    ceiling (flat: no noise floor in sight) but not held by the active set; the restart
+    holds it there and reports it not determined, kappa_eq within 2 s.e. of the truth."""
+    camp = study_campaigns.campaign(study_campaigns.CONDITIONS["near-gm"], 16)
+    from bench.fit.csvio import parse_csv
+
+    res = fit(parse_csv(camp.csv_text().encode(), "near-gm-16.csv"), FitOptions(free=EIV_FREE))
+    assert res.converged and not res.separable and "r_en" not in res.free
+    assert res.notes[0] == (
+        "the first search stopped (no step decreases the negative log-likelihood); a restart from its point with "
+        "attitude_sigma, r_en at their bounds converged"
+    )
+    assert res.notes[1].startswith("r_en is not determined: no reading shows the EMI noise through the pose error")
+    assert res.to_json()["r_en"] is None
+    assert abs(res.estimate["kappa_eq"] - camp.truth.kappa_eq) < 2 * res.se["kappa_eq"]

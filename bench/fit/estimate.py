@@ -146,16 +146,30 @@ def fit_restarted(table: Table, options: FitOptions) -> FitResult:
     if res.converged or not pose or options.start is not None or not res.message.startswith(RESTART_WHY):
         return res
     snapped = {m: BOUNDS[m][0] for m in pose if getattr(res.params, m) < SNAP * BOUNDS[m][0]}
-    again = fit_once(table, replace(options, start=replace(res.params, **snapped), tol=RESTART_TOL))
+    start = replace(res.params, **snapped)
+    # r_en at its ceiling is flat (no noise floor in sight) and the active set did not hold
+    # it there (near-only walk, tuning seed 16): held there, and "not determined"
+    no_floor = "r_en" in res.free and res.params.r_en > BOUNDS["r_en"][1] / SNAP
+    again_options = replace(options, start=start, tol=RESTART_TOL)
+    if no_floor:
+        start = replace(start, r_en=BOUNDS["r_en"][1])
+        again_options = replace(
+            again_options, start=start, free=tuple(m for m in options.free if m != "r_en"), base=replace(options.base, r_en=BOUNDS["r_en"][1])
+        )
+    again = fit_once(table, again_options)
     again.seconds += res.seconds
     again.n_evals += res.n_evals
     if not again.converged:
         res.seconds, res.n_evals = again.seconds, again.n_evals
         return res
+    if no_floor:
+        again.separable = False
+        again.notes.insert(0, no_floor_note(float(np.max(np.linalg.norm(table.rx_pos - table.tx_pos, axis=1)))))
+        snapped["r_en"] = BOUNDS["r_en"][1]
     again.notes.insert(
         0,
         f"the first search stopped ({res.message}); a restart from its point"
-        + (f" with {', '.join(snapped)} at the lower bound" if snapped else "")
+        + (f" with {', '.join(snapped)} at {'its bound' if len(snapped) == 1 else 'their bounds'}" if snapped else "")
         + " converged",
     )
     return again
@@ -196,6 +210,15 @@ def held_attitude(table: Table, options: FitOptions, res: FitResult) -> tuple[Fi
         f"transmitter; held at {IMU_GRADES['consumer']:g} deg, a consumer IMU's grade (--imu-grade / --attitude-sigma give another)",
     )
     return held, options
+
+
+def no_floor_note(r_max: float) -> str:
+    """The note of a fit whose r_en ran to its upper bound with the pose error free."""
+    return (
+        "r_en is not determined: no reading shows the EMI noise through the pose error (the likelihood rises all "
+        f"the way to r_en = {BOUNDS['r_en'][1]:g} m, its bound; the farthest row is at {r_max:.0f} m): kappa_eq is "
+        "fitted with the noise negligible on these rows; walk out farther to measure r_en"
+    )
 
 
 def fit_once(table: Table, options: FitOptions) -> FitResult:
@@ -349,13 +372,7 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
     reach = noise_reach(rows, params) if ok and "r_en" in free and params.gps_sigma > 0 else None
     if no_floor:
         told_apart = False
-        r_max = float(np.max(np.exp(rows.geo.log_r[np.isfinite(rows.geo.log_r)])))
-        notes.insert(
-            0,
-            "r_en is not determined: no reading shows the EMI noise through the pose error (the likelihood rises all "
-            f"the way to r_en = {BOUNDS['r_en'][1]:g} m, its bound; the farthest row is at {r_max:.0f} m): kappa_eq is "
-            "fitted with the noise negligible on these rows; walk out farther to measure r_en",
-        )
+        notes.insert(0, no_floor_note(float(np.max(np.exp(rows.geo.log_r[np.isfinite(rows.geo.log_r)])))))
     elif reach is not None and not reach.determined:
         told_apart = False
         notes.insert(0, reach.note())
