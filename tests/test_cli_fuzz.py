@@ -85,7 +85,7 @@ COMMANDS = (
     Command("fit", (*BENCH, "fit"), ("{csv}",), (
         Opt(None), Opt("--report"), Opt("--write-scene"), Opt("--fit"), Opt("--r-inner"), Opt("--r-outer"),
         Opt("--q"), Opt("--pose-sigma"), Opt("--time-offset"), Opt("--seed"), Opt("--antennas"),
-        Opt("--gps-sigma", "0"), Opt("--attitude-sigma", "0"), Opt("--receiver"),
+        Opt("--gps-sigma", "0"), Opt("--attitude-sigma", "0"), Opt("--gps-grade"), Opt("--imu-grade"), Opt("--receiver"),
     ), codes=frozenset({0, 1, 2})),
     Command("dash", (*BENCH, "dash"), (), (
         Opt(None), Opt("--gps"), Opt("--attitude"), Opt("--tx-pose"), Opt("--origin"), Opt("--baud"),

@@ -22,6 +22,8 @@ from emulator.cli_types import output_dir, output_file, probe_creatable_dir, pro
 from emulator.files import FileRefused, open_regular
 from emulator.progress import progress
 
+from .grades import GPS_GRADE_RATIO, GPS_GRADES, IMU_GRADES
+
 OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset", "dropout")
 
 
@@ -82,6 +84,19 @@ def register(subparsers) -> None:
         type=_attitude_degrees,
         metavar="DEG",
         help="the receiver attitude error, 1-sigma per axis in degrees, instead of estimating it (0 = exact)",
+    )
+    fixed.add_argument(
+        "--gps-grade",
+        choices=tuple(GPS_GRADES),
+        help="the GPS error from the receiver's grade instead of estimating it: "
+        + ", ".join(f"{k} {v:g} m" for k, v in GPS_GRADES.items())
+        + " horizontal (vertical 1.5x)",
+    )
+    fixed.add_argument(
+        "--imu-grade",
+        choices=tuple(IMU_GRADES),
+        help="the attitude error from the IMU's grade instead of estimating it: "
+        + ", ".join(f"{k} {v:g} deg" for k, v in IMU_GRADES.items()),
     )
     p.add_argument(
         "--receiver", metavar="NAME", help="a session directory with several receivers: fit this one (its device name in the session)"
@@ -184,6 +199,14 @@ def options_from_args(args):
     # (exact poses) the relative pose_sigma is fitted instead, as before the errors-in-variables model.
     gps = args.gps_sigma
     att = args.attitude_sigma
+    if args.gps_grade is not None:
+        if gps is not None:
+            raise FitInputError("--gps-grade and --gps-sigma contradict each other; give one")
+        gps = (GPS_GRADES[args.gps_grade], GPS_GRADE_RATIO * GPS_GRADES[args.gps_grade])
+    if args.imu_grade is not None:
+        if att is not None:
+            raise FitInputError("--imu-grade and --attitude-sigma contradict each other; give one")
+        att = IMU_GRADES[args.imu_grade]
     eiv = not (gps is not None and gps[0] == 0 and att is not None and att == 0)
     pose_free = args.pose_sigma is None and (not eiv or fit_pose_sigma)
     free = (

@@ -21,6 +21,8 @@ import numpy as np
 
 from . import parallel
 from .covariance import expected_information, separable, standard_errors
+from .grades import IMU_GRADES
+from .identify import noise_reach
 from .eiv import EIV_POSE_SIGMA, EIV_START, eiv_rows, rule_sigmas, usable
 from .likelihood import FREE_PARAMS, LINEAR, Rows, from_params, rows_from_table, to_params
 from .offset import OFFSET_GAIN, offset_scan
@@ -93,7 +95,7 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
     offset by more than :data:`OFFSET_GAIN` nats, fits again with ``time_offset`` free;
     either way one note says what the scan found."""
     options = FitOptions() if options is None else options
-    res = fit_once(table, options)
+    res, options = held_attitude(table, options, fit_restarted(table, options))
     eiv = res.params.gps_sigma > 0 or res.params.attitude_sigma > 0
     if not (options.scan_offset and eiv and res.converged and "time_offset" not in res.free and options.base.time_offset == 0.0):
         return res
@@ -104,7 +106,7 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
         res.notes.append("time offset not checked: the poses have fewer than 4 distinct times")
         return res
     if scan.gain > OFFSET_GAIN:
-        refit = fit_once(table, replace(options, free=res.free + ("time_offset",)))
+        refit = fit_restarted(table, replace(options, free=res.free + ("time_offset",)))
         refit.notes.insert(
             0,
             f"time offset: on {scan.rows} rows the poses fit {scan.gain:.0f} nats better at t {scan.offset:+.2f} s "
@@ -120,8 +122,107 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
     return res
 
 
+#: The search's failures a restart may mend (a flat valley, not a bound or the data).
+RESTART_WHY = ("no convergence after", "no step decreases")
+#: A pose-error sigma within this factor of its lower bound restarts at the bound.
+SNAP = 4.0
+#: The restart's Newton decrement (nats) at which it stops: ~0.045 standard errors from
+#: the optimum (as stages.FINISH_TOL); the first search's 1e-5 sat below the noise of
+#: the differenced gradient on the failing walks (spiral-gm tuning seed 0: 60 iterations
+#: at 1e-5, 5 at 1e-3, the same estimate to 1e-4).
+RESTART_TOL = 1e-3
+
+
+def fit_restarted(table: Table, options: FitOptions) -> FitResult:
+    """:func:`fit_once`, and when its search failed in a flat valley with the pose error
+    free (issue 28, item 4) once more from where it stopped, with each pose-error sigma
+    within :data:`SNAP` of its lower bound put on the bound (there the search crept
+    towards a floor its likelihood hardly tells from 0: attitude_sigma at 1.03-3.6x its
+    bound on the failing tuning walks) and the decrement :data:`RESTART_TOL`. The restart
+    skips the pilot; its result is kept when it converges (one note says so), else the
+    first fit's is. Exact-pose fits never restart."""
+    res = fit_once(table, options)
+    pose = [m for m in ("gps_sigma", "attitude_sigma") if m in res.free]
+    if res.converged or not pose or options.start is not None or not res.message.startswith(RESTART_WHY):
+        return res
+    snapped = {m: BOUNDS[m][0] for m in pose if getattr(res.params, m) < SNAP * BOUNDS[m][0]}
+    start = replace(res.params, **snapped)
+    # r_en at its ceiling is flat (no noise floor in sight) and the active set did not hold
+    # it there (near-only walk, tuning seed 16): held there, and "not determined"
+    no_floor = "r_en" in res.free and res.params.r_en > BOUNDS["r_en"][1] / SNAP
+    again_options = replace(options, start=start, tol=RESTART_TOL)
+    if no_floor:
+        start = replace(start, r_en=BOUNDS["r_en"][1])
+        again_options = replace(
+            again_options, start=start, free=tuple(m for m in options.free if m != "r_en"), base=replace(options.base, r_en=BOUNDS["r_en"][1])
+        )
+    again = fit_once(table, again_options)
+    again.seconds += res.seconds
+    again.n_evals += res.n_evals
+    if not again.converged:
+        res.seconds, res.n_evals = again.seconds, again.n_evals
+        return res
+    if no_floor:
+        again.separable = False
+        again.notes.insert(0, no_floor_note(float(np.max(np.linalg.norm(table.rx_pos - table.tx_pos, axis=1)))))
+        snapped["r_en"] = BOUNDS["r_en"][1]
+    again.notes.insert(
+        0,
+        f"the first search stopped ({res.message}); a restart from its point"
+        + (f" with {', '.join(snapped)} at {'its bound' if len(snapped) == 1 else 'their bounds'}" if snapped else "")
+        + " converged",
+    )
+    return again
+
+
+#: A fitted attitude error above this many times the consumer IMU grade whose correlation
+#: with kappa_eq exceeds ATTITUDE_CORR is not determined by the walk (docs/calibration.md,
+#: identifiability): on level walks the tuning fits that put it at 8-25 deg (the truth 2)
+#: moved kappa_eq by -2 to -10 %.
+ATTITUDE_FACTOR = 2.0
+ATTITUDE_CORR = 0.5
+
+
+def held_attitude(table: Table, options: FitOptions, res: FitResult) -> tuple[FitResult, FitOptions]:
+    """``res`` and ``options``, or when its attitude error is not determined (above :data:`ATTITUDE_FACTOR`
+    times the consumer IMU grade and correlated with kappa_eq beyond :data:`ATTITUDE_CORR`:
+    the walk cannot tell a tilted receiver from a weaker transmitter) a fit with the
+    attitude error held at that grade (:data:`grades.IMU_GRADES`), with a note, and the
+    options that fit it (the time-offset refit keeps them)."""
+    grade = math.radians(IMU_GRADES["consumer"])
+    if not (res.converged and "attitude_sigma" in res.free and "kappa_eq" in res.free):
+        return res, options
+    i, j = res.free.index("kappa_eq"), res.free.index("attitude_sigma")
+    c = res.cov_theta
+    if not (res.params.attitude_sigma > ATTITUDE_FACTOR * grade and c[i, i] > 0 and c[j, j] > 0):
+        return res, options
+    corr = float(c[i, j] / math.sqrt(c[i, i] * c[j, j]))
+    if not abs(corr) > ATTITUDE_CORR:
+        return res, options
+    options = replace(options, free=tuple(m for m in options.free if m != "attitude_sigma"), base=replace(options.base, attitude_sigma=grade))
+    held = fit_restarted(table, options)
+    held.seconds += res.seconds
+    held.n_evals += res.n_evals
+    held.notes.insert(
+        0,
+        f"attitude error not determined: the fit put it at {math.degrees(res.params.attitude_sigma):.1f} deg with kappa_eq "
+        f"{res.estimate['kappa_eq']:.5g} (correlation {corr:+.2f}), which this walk cannot tell from a weaker "
+        f"transmitter; held at {IMU_GRADES['consumer']:g} deg, a consumer IMU's grade (--imu-grade / --attitude-sigma give another)",
+    )
+    return held, options
+
+
+def no_floor_note(r_max: float) -> str:
+    """The note of a fit whose r_en ran to its upper bound with the pose error free."""
+    return (
+        "r_en is not determined: no reading shows the EMI noise through the pose error (the likelihood rises all "
+        f"the way to r_en = {BOUNDS['r_en'][1]:g} m, its bound; the farthest row is at {r_max:.0f} m): kappa_eq is "
+        "fitted with the noise negligible on these rows; walk out farther to measure r_en"
+    )
+
+
 def fit_once(table: Table, options: FitOptions) -> FitResult:
-    """:func:`fit` without the time-offset scan."""
+    """:func:`fit` without the time-offset scan and the restart."""
     t0 = time.perf_counter()
     for name in options.free:
         if name not in FREE_PARAMS:
@@ -151,7 +252,7 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
             "each row's GPS error follows its logged fix quality and HDOP"
             + (" (gps_sigma is the median row's)" if varied > 0 else " (the same for every row)")
         )
-    start = None
+    start = options.start
     prev = None
     sigma0 = None  # (the errors-in-variables rule's sigmas of the last pass)
     n_evals = 0
@@ -232,6 +333,7 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
     if unc.failed is not None:
         ok, why = False, unc.failed
     lo, _hi = box(newton_free)
+    no_floor = False
     if fitted:
         for i in np.flatnonzero(active):
             name = newton_free[i]
@@ -248,6 +350,8 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
                     else "the other standard errors hold it there"
                 )
                 notes.append(f"{name} is at its lower bound {BOUNDS[name][0]:g} ({what}); {held_how}")
+            elif name == "r_en" and not at_lower and params.gps_sigma > 0:
+                no_floor = True  # not determined (below), not a failure: kappa_eq stands
             else:
                 ok = False
                 bound = BOUNDS[name][0 if at_lower else 1]
@@ -265,10 +369,19 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         cov[j, j] = (r_outer_se / estimate["r_outer"]) ** 2
         notes.append("r_outer is an end point: its standard error is a likelihood-ratio interval width / 3.92")
     told_apart = separable(ok, why, free, cov, estimate, se)
-    if not told_apart:
+    reach = noise_reach(rows, params) if ok and "r_en" in free and params.gps_sigma > 0 else None
+    if no_floor:
+        told_apart = False
+        notes.insert(0, no_floor_note(float(np.max(np.exp(rows.geo.log_r[np.isfinite(rows.geo.log_r)])))))
+    elif reach is not None and not reach.determined:
+        told_apart = False
+        notes.insert(0, reach.note())
+    elif not told_apart:
+        r_all = all_rows.geo.log_r
         ok_line = (
             "pose error and EMI noise cannot be told apart with these rows "
-            f"(no readings closer than {math.exp(float(np.percentile(rows.geo.log_r, 2))):.1f} m to the transmitter): "
+            f"(2 % of the readings are closer than {math.exp(float(np.percentile(r_all[np.isfinite(r_all)], 2))):.1f} m "
+            "to the transmitter): "
             "r_en is not determined; walk closer or give --gps-sigma / --attitude-sigma"
         )
         notes.insert(0, ok_line)

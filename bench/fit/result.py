@@ -42,6 +42,11 @@ class FitOptions:
     # look for a clock offset between the receiver and the pose streams (:func:`offset_scan`)
     # and fit it when the poses fit clearly better at one; False: hold it at 0 unseen
     scan_offset: bool = True
+    #: Where the search starts, skipping the pilot (a restart: :func:`estimate.fit_restarted`); None: the pilot's
+    start: Params | None = None
+    #: The Newton decrement (nats) at which the search on up to stages.SUBSAMPLE rows
+    #: stops; None: search.DECREMENT_TOL (a restart: estimate.RESTART_TOL)
+    tol: float | None = None
 
 
 @dataclass
@@ -78,6 +83,8 @@ class FitResult:
             out[name] = getattr(self.params, name)
             if name in self.free:
                 out[f"{name}_se"] = self.se.get(name)
+        if not self.separable:  # r_en not determined: no number (docs/calibration.md, identifiability)
+            out["r_en"] = out["r_en_se"] = None
         out["gps_sigma_vertical"] = self.params.gps_ratio * self.params.gps_sigma
         out["q"] = list(self.params.q)
         if "q" in self.free:

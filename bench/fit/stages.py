@@ -63,7 +63,7 @@ def optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=
     """Newton with the S/L split re-chosen until the one at the estimate is the one the
     estimate was found with (the first pass stops early, at a decrement of 0.5 nats, the
     others at ``tol``; from a ``warm`` start, the previous pass's estimate, the first
-    pass goes to ``tol`` too). A subsample's search (``tol`` above DECREMENT_TOL) stops
+    pass goes to ``tol`` too). A subsample's search (``tol`` SUB_TOL) stops
     after one full pass: all rows follow, with the split chosen at its estimate; it takes
     quasi-Newton steps from the previous pass's Hessian (``warm``: a :class:`NewtonResult` from
     rows linearised at other sigmas; else the 0.5-nat pass's)."""
@@ -73,7 +73,7 @@ def optimise(rows: Rows, base: Params, free, theta, options, notes, h=None, tol=
         # points (8 of its 20 with 4 parameters): kept, as on all rows (full_stage)
         like.remember = 4 * len(free) + 8
     eps_kw = {} if options.eps_split is None else {"eps_split": options.eps_split}
-    search = tol > DECREMENT_TOL
+    search = tol >= SUB_TOL
     if warm is not None and search and convex(warm):
         like.choose_regimes(to_params(base, free, theta), **eps_kw)
         if still_held(like, base, free, theta, warm.steps if h is None else h, warm):
@@ -218,7 +218,8 @@ def run_stages(
     if use_grad:
         like, res = optimise_grad(sub, base, free, theta, options, notes, SUB_TOL if big else DECREMENT_TOL)
     else:
-        like, res = optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else DECREMENT_TOL, warm)
+        tol = DECREMENT_TOL if options.tol is None else options.tol
+        like, res = optimise(sub, base, free, theta, options, notes, steps, SUB_TOL if big else tol, warm)
     n_evals += like.n_evals
     if big and res.ok and full:
         like, res, extra = (full_stage_grad if use_grad else full_stage)(rows, base, free, options, notes, res)

@@ -50,6 +50,7 @@ ROUTINE = (
     r"^each row's GPS error follows",
     r"rows left out: closer to the transmitter than the pose error lets the model place them$",
     r"is at its lower bound .*\(exact|is at its lower bound",
+    r"^the first search stopped .*; a restart from its point.* converged$",
 )
 
 
