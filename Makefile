@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 RUN_STAMP := $(VENV)/.installed-run
 DEV_STAMP := $(VENV)/.installed-dev
 
-.PHONY: run test bench clean venv
+.PHONY: run test bench clean venv firmware-tools
 
 venv: $(DEV_STAMP)
 
@@ -34,8 +34,29 @@ $(DEV_STAMP): $(BUILD_INPUTS) | $(BIN)/python
 run: $(RUN_STAMP)
 	$(BIN)/arva-emulate --port - --frames 10 --speed 0
 
-test: $(DEV_STAMP)
+test: $(DEV_STAMP) firmware-tools
 	$(BIN)/python -m pytest -q tests docs/examples
+
+# Firmware in the loop (tests/test_firmware_loop.py) needs QEMU and an Arm cross compiler,
+# Debian packages: installed here when one is missing and we are root with apt (CI, a
+# fresh container); otherwise one line says what to install and those tests skip.
+FIRMWARE_PACKAGES := qemu-system-arm gcc-arm-none-eabi libnewlib-arm-none-eabi
+firmware-tools:
+	@missing=""; for p in $(FIRMWARE_PACKAGES); do \
+	  if command -v dpkg-query >/dev/null; then \
+	    dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q 'ok installed' || missing="$$missing $$p"; \
+	  fi; \
+	done; \
+	for t in qemu-system-arm arm-none-eabi-gcc; do command -v $$t >/dev/null || missing="$$missing ($$t)"; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "make: installing $(FIRMWARE_PACKAGES) for the firmware-in-the-loop tests"; \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(FIRMWARE_PACKAGES)) >/dev/null \
+	      || echo "make: could not install $(FIRMWARE_PACKAGES): the firmware-in-the-loop tests will skip"; \
+	  else \
+	    echo "make: the firmware-in-the-loop tests will skip: as root, apt-get install $(FIRMWARE_PACKAGES)"; \
+	  fi; \
+	fi
 
 # Benchmarks: each script prints its table and rewrites its section of docs/performance.md.
 bench: $(DEV_STAMP)

@@ -1,21 +1,36 @@
-"""Starting one of our own modules as a child process (``sys.executable -m PACKAGE.MODULE``).
+"""Starting one of our own modules as a child process (``python -P -m PACKAGE.MODULE``).
 
-Used by the emulator (the ``--realtime-workers`` keeper) and the bench (the fit's worker);
-it lives in ``emulator`` so both can import it (bench -> emulator, never back).
+Used by the emulator (the ``--realtime-workers`` keeper), its HIL harness (``arva-emulate``
+under test) and the bench (the fit's worker); it lives in ``emulator`` so all can import
+it (bench -> emulator, never back).
+
+The child is isolated from the caller's working directory: plain ``python -m`` puts the
+working directory first on ``sys.path``, so a user's repository with its own top-level
+``emulator/`` or ``bench/`` package would hide ours (``No module named emulator.cli``).
+``-P`` (Python >= 3.11) leaves it out; :func:`module_env` puts this source tree first on
+``PYTHONPATH`` instead, so the child imports the same code as its parent, installed or not.
 """
 
 from __future__ import annotations
 
 import os
+import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 #: The directory holding ``emulator/``, ``bench/`` and ``firmware_proto/``.
 SOURCE_ROOT = str(Path(__file__).resolve().parents[1])
 
 
-def module_env() -> dict[str, str]:
-    """This process's environment with :data:`SOURCE_ROOT` first on ``PYTHONPATH``, so a
-    child started with ``sys.executable -m`` imports this source tree, installed or not."""
-    env = dict(os.environ)
+def module_command(module: str, *args: str) -> list[str]:
+    """The command line starting ``module`` (``PACKAGE.MODULE``) with ``args`` in this
+    interpreter, with nothing of the working directory on its ``sys.path``."""
+    return [sys.executable, "-P", "-m", module, *args]
+
+
+def module_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """``base`` (default: this process's environment) with :data:`SOURCE_ROOT` first on
+    ``PYTHONPATH``, so a child started by :func:`module_command` imports this source tree."""
+    env = dict(os.environ if base is None else base)
     env["PYTHONPATH"] = SOURCE_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env

@@ -229,15 +229,15 @@ def run(args: argparse.Namespace) -> int:
         control = workers = None
         if with_control:
             control = control_runtime.ControlSession(args, pipe, scheduler, stop)
-            control.start(lambda line: print(line, file=announce_to, flush=True))
+            control.start(lambda line: _say(announce_to, line))
         if args.realtime and args.speed != 0 and real:
             if args.realtime_workers:  # before our own SCHED_FIFO, which the keeper would inherit
                 workers, refused = raise_workers()
                 if refused:
-                    print(refused, file=sys.stderr, flush=True)
+                    _say(sys.stderr, refused)
             refused = request_realtime().message()
             if refused:
-                print(refused, file=sys.stderr, flush=True)
+                _say(sys.stderr, refused)
         try:
             scheduler.wait(args.delay)
             control.run() if control is not None else scheduler.run()
@@ -251,7 +251,7 @@ def run(args: argparse.Namespace) -> int:
         if args.timing_log is not None:
             _write_timing_log(args.timing_log, timing)
         # Only after a normal end: an error is then the one line on stderr.
-        print(f"arva-emulate: {summary_line(routes)}", file=sys.stderr, flush=True)
+        _say(sys.stderr, f"arva-emulate: {summary_line(routes)}")
     finally:
         for port in ports.values():
             port.close()
@@ -267,9 +267,16 @@ def _write_timing_log(path: Path, rows: list[tuple]) -> None:
             f.write(f"{label},{k},{deadline:.9f},{t0:.9f},{t1:.9f}\n")
 
 
+def _say(stream, line: str) -> None:
+    """One line in one write, flushed: the rfc2217 server's threads write lines to stderr
+    too (``print`` writes text and newline apart, and one of theirs could land between)."""
+    stream.write(line + "\n")
+    stream.flush()
+
+
 def _announcer(stream):
     def announce(port: Port) -> None:
-        print(f"{port.label} {port.path}", file=stream, flush=True)
+        _say(stream, f"{port.label} {port.path}")
 
     return announce
 

@@ -5,6 +5,7 @@ import math
 import os
 import socket
 import time
+import tomllib
 import tty
 
 import numpy as np
@@ -232,3 +233,33 @@ def test_serial_link_baud_comes_from_the_scene():
     flux = EXTERNAL.format(port=14551).replace('"external_mavlink"', '"flux"').split("mavlink = ")[0]
     with pytest.raises(SceneError, match=r'receiver.vehicle.mavlink_baud: only with controller = "external_mavlink"$'):
         loads_scene(flux + "mavlink_baud = 9600\n", "ext.toml")
+
+
+def test_truth_reports_the_mavlink_pose_the_stream_uses(arva_emulator):
+    """Issue 29: ``truth`` reported the start pose of a receiver driven by MAVLink while
+    its epochs used the autopilot's pose."""
+    port = free_udp_port()
+    emu = arva_emulator(scene=tomllib.loads(EXTERNAL.format(port=port)), clock="step")
+    start = emu.truth()["receivers"][0]
+    assert start["position"] == [0.0, 0.0, 1.0]  # the vehicle's start pose, before any message
+    assert emu.step(1) == 1  # the first epoch opens the link
+    out = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1)
+    try:
+        deadline = time.monotonic() + 10
+        while True:  # resent until the emulator has it (udp: the link opened with epoch 0)
+            send_pose(out, 4.0, 3.0, 0.0, 0.0, boot_ms=2)
+            rx = emu.truth()["receivers"][0]
+            if rx["position"] != start["position"]:
+                break
+            assert time.monotonic() < deadline, "truth never showed the MAVLink pose"
+            time.sleep(0.05)
+    finally:
+        out.close()
+    # 4 m north, 3 m east of the origin (5, 0, 0), at rest, facing north (float32 on the wire).
+    assert rx["position"] == [8.0, 4.0, 0.0]
+    assert rx["orientation"] == pytest.approx([math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)], abs=1e-7)
+    # ... and the stream's next epoch is the model's reading at that pose.
+    with emu.open(timeout=5) as ser:
+        emu.step(1)
+        d, delta = measure_one(rx["position"], rx["orientation"], [15.0, 0.0, 0.0])
+        assert ser.read_until(b"\r\n") == encode_parva(1, 1, 1, 1, d, delta)

@@ -30,7 +30,7 @@ import time
 import weakref
 from collections import OrderedDict
 
-from emulator.child_process import module_env
+from emulator.child_process import module_command, module_env
 
 #: Likelihoods a worker keeps (the subsample's and all rows', with a spare).
 KEEP = 4
@@ -59,7 +59,7 @@ class Worker:
         for name, value in MALLOC_ENV.items():
             env.setdefault(name, value)
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "bench.fit.worker"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+            module_command("bench.fit.worker"), stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
             start_new_session=True,  # a Ctrl-C at the terminal is the fit's to handle; the worker ends with its input
         )
         self.owner = os.getpid()  # the process whose pipes these are

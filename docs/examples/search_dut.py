@@ -75,19 +75,40 @@ class Search:
             self.d, self.missed = heard[self.target], 0
 
 
+class Epochs:
+    """Assembles epochs from single $PARVA sentences: :meth:`feed` takes one sentence's
+    fields and returns (seq, slots) when it completes an epoch (k = n) whose first slot
+    (k = 1) was seen with the same seq, else None."""
+
+    def __init__(self) -> None:
+        self.slots: list[tuple[int, int, int]] = []
+        self.seq: int | None = None
+
+    def reset(self) -> None:
+        self.slots = []
+
+    def feed(self, fields) -> tuple[int, list[tuple[int, int, int]]] | None:
+        s, n, k, tx_id, d, delta = fields
+        if k == 1:
+            self.slots, self.seq = [], s
+        if s != self.seq:
+            return None  # a slot of an epoch whose start we missed
+        self.slots.append((tx_id, d, delta))
+        return (self.seq, self.slots) if k == n else None
+
+
 def run(path: str) -> None:
     search = Search()
     stop = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     say = lambda obj: print(json.dumps(obj), flush=True)  # noqa: E731
     port = None
-    slots: list[tuple[int, int, int]] = []
-    seq = None
+    epochs = Epochs()
     while not stop:
         if port is None:
             try:
                 port = serial.Serial(path, timeout=0.1)
-                if seq is not None:
+                if epochs.seq is not None:
                     say({"event": "link_back"})
             except (serial.SerialException, OSError):
                 time.sleep(0.1)
@@ -97,19 +118,13 @@ def run(path: str) -> None:
         except (serial.SerialException, OSError):
             port.close()
             port = None
-            slots = []
+            epochs.reset()
             say({"event": "link_lost"})
             continue
         fields = parse_parva(line)
-        if fields is None:
-            continue
-        s, n, k, tx_id, d, delta = fields
-        if k == 1:
-            slots, seq = [], s
-        if s != seq:
-            continue  # a slot of an epoch whose start we missed
-        slots.append((tx_id, d, delta))
-        if k == n:
+        done = epochs.feed(fields) if fields is not None else None
+        if done is not None:
+            seq, slots = done
             search.epoch(slots)
             say({"seq": seq, "state": search.state, "target": search.target, "d": search.d})
 

@@ -139,11 +139,30 @@ class ClosedLoop:
             self.pose_source = None
 
     # -- one epoch ----------------------------------------------------------------
+    def current_pose(self) -> tuple[list[float], list[float]]:
+        """The receiver's pose as known now (ENU metres, ``[w, x, y, z]``): the vehicle's
+        (the next epoch's pose), or with ``external_mavlink`` the latest MAVLink pose
+        extrapolated to now by its velocity (what an epoch rendered now uses, before the
+        render lead), the start pose until one has arrived (what the epochs use then)."""
+        if self.uav is not None:
+            pos, quat = self.uav.position, self.uav.orientation
+        else:
+            p, q = self._external_at(time.monotonic())
+            pos, quat = p[0], q[0]
+        return [float(v) for v in pos], [float(v) for v in quat]
+
+    def _external_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The external pose at monotonic time ``t`` (the start pose before any arrived)."""
+        pose = self.pose_source.latest() if self.pose_source.started else None
+        if pose is None:
+            return self._start_pose
+        p = pose.extrapolated(t, horizon=2.0 / self.rate_hz)
+        return np.array([p]), np.array([pose.orientation])
+
     def _external_pose(self) -> tuple[np.ndarray, np.ndarray]:
         src = self.pose_source
         if not src.started:
             src.start()
-        pose = src.latest()
         now = time.monotonic()
         # The scheduler renders an epoch one period ahead of its deadline (right after
         # writing the previous one), so in real time the pose is extrapolated by the
@@ -151,13 +170,10 @@ class ClosedLoop:
         # renders (as fast as possible) extrapolate nothing.
         lead = 0.0 if self._last_render is None else min(now - self._last_render, 2.0 / self.rate_hz)
         self._last_render = now
-        if pose is None:
-            if not self._waiting_logged:
-                log.warning("%s: no MAVLink pose yet; epochs use the start pose", src.url)
-                self._waiting_logged = True
-            return self._start_pose
-        p = pose.extrapolated(now + lead, horizon=2.0 / self.rate_hz)
-        return np.array([p]), np.array([pose.orientation])
+        if src.latest() is None and not self._waiting_logged:
+            log.warning("%s: no MAVLink pose yet; epochs use the start pose", src.url)
+            self._waiting_logged = True
+        return self._external_at(now + lead)
 
     def step(self) -> Epochs:
         """Evaluate epoch ``next_k`` at the current pose, then fly until the next one."""

@@ -2,9 +2,11 @@
 epoch index, pause) and the :class:`~emulator.pipeline.Pipeline` (transmitters,
 receiver pins, faults on demand, the step clock's :meth:`~emulator.pipeline.Pipeline.step`).
 
-:meth:`Controller.handle` takes a parsed request and returns the reply object. It holds
-the scheduler's lock while it works, so a change lands between two epochs and takes
-effect from the next epoch rendered, whose index the reply carries (``epoch``). Errors
+:meth:`Controller.handle` takes a parsed request and returns the reply object (for a
+``step``, a :class:`StepJob` that the server runs :data:`STEP_SLICE` epochs at a time,
+so other clients are served during a long step). It holds the scheduler's lock while it
+works, so a change lands between two epochs and takes effect from the next epoch
+rendered, whose index the reply carries (``epoch``). Errors
 raise :class:`~emulator.control.requests.ControlError` and change nothing: requests
 are validated when parsed, and the pipeline checks before it changes anything.
 
@@ -21,12 +23,14 @@ fault starts at the scene time of the stream's next epoch.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from firmware_proto.errors import InputError
 
 from emulator.closed_loop.loop import ClosedLoop
-from emulator.output.scheduler import FAST_DRAIN_WAIT, EpochScheduler
+from emulator.output.scheduler import STEP_DRAIN_WAIT, EpochScheduler
 from emulator.pipeline import Pipeline
 
 from emulator.control.requests import (
@@ -42,9 +46,15 @@ from emulator.control.requests import (
     Status,
     Step,
     Truth,
+    error_reply,
 )
 
 CLOCKS = ("real", "step")
+#: Most epochs (of the first stream, with every other stream's epochs due meanwhile) a
+#: ``step`` writes before the control channel serves the other clients' requests again.
+#: An epoch of the default scene takes ~0.4 ms on the 2-core development machine under
+#: load, so a slice is ~40 ms; a ``step`` of 1,000,000 epochs is 10,000 slices.
+STEP_SLICE = 100
 
 
 class Controller:
@@ -62,15 +72,34 @@ class Controller:
         # sleep would hold the scheduler (and this channel) for as long as asked.
         pipe.stall_hold = True
 
-    def handle(self, req: Request) -> dict:
+    def handle(self, req: Request) -> dict | StepJob:
+        """The reply; for a ``step``, a :class:`StepJob` that the server runs a slice at a time."""
+        if isinstance(req, Step):
+            return StepJob(self, req.n)
+        return self.locked(req.op, lambda: {"ok": True, **self._dispatch(req)})
+
+    def locked(self, op: str, work: Callable[[], dict | None]) -> dict | None:
+        """``work()`` under the scheduler's lock (between two epochs); the pipeline's own
+        checks become a :class:`ControlError` named by ``op``."""
         with self.scheduler.lock:
             try:
-                return {"ok": True, **self._dispatch(req)}
+                return work()
             except ControlError:
                 raise
             except InputError as exc:  # the pipeline's own checks: one line, named by op
                 text = str(exc)
-                raise ControlError(text if text.startswith(f"{req.op}:") else f"{req.op}: {text}") from None
+                raise ControlError(text if text.startswith(f"{op}:") else f"{op}: {text}") from None
+
+    def start_step(self, n: int) -> None:
+        """Check that a ``step`` of ``n`` epochs can run now (under the lock)."""
+        sch = self.scheduler
+        if self.clock != "step":
+            raise ControlError("step: the emulator runs on the real clock (start it with --clock step)")
+        left = sch.remaining()
+        if left is not None and n > left:
+            raise ControlError(f"step: n = {n} but only {left} epochs are left (--frames)")
+        for r in sch.routes:
+            r.port.set_drain_wait(STEP_DRAIN_WAIT)  # a reader that keeps reading loses nothing
 
     def _epoch(self) -> dict:
         return {"epoch": self.scheduler.next_epoch}
@@ -96,16 +125,6 @@ class Controller:
                 "paused": sch.paused,
                 "streams": {r.stream.label: r.port.path or "-" for r in sch.routes},
             }
-        if isinstance(req, Step):
-            if self.clock != "step":
-                raise ControlError("step: the emulator runs on the real clock (start it with --clock step)")
-            left = sch.remaining()
-            if left is not None and req.n > left:
-                raise ControlError(f"step: n = {req.n} but only {left} epochs are left (--frames)")
-            for r in sch.routes:
-                r.port.set_drain_wait(FAST_DRAIN_WAIT)  # a reader that keeps up loses nothing
-            pipe.step(req.n)
-            return self._epoch()
         if isinstance(req, (Pause, Resume)):
             if self.clock != "real":
                 raise ControlError(f"{req.op}: the step clock emits only on step (pause/resume are for --clock real)")
@@ -149,11 +168,8 @@ class Controller:
                 continue
             spec = self.pipe.scene.receivers[info.receiver]
             src = self.pipe.streams[info.label].receiver
-            if isinstance(src, ClosedLoop):
-                if src.uav is not None:  # where the vehicle is now: the next epoch's pose
-                    pos, quat = list(map(float, src.uav.position)), list(map(float, src.uav.orientation))
-                else:
-                    pos, quat = _pose(src.receiver.trajectory, t)
+            if isinstance(src, ClosedLoop):  # the vehicle's pose now, or the autopilot's (MAVLink)
+                pos, quat = src.current_pose()
             else:
                 pos, quat = _pose(src.trajectory, t)
             out.append({"id": spec.id, "position": pos, "orientation": quat})
@@ -165,6 +181,36 @@ class Controller:
              "enabled": tx_id not in self.pipe.silenced}
             for tx_id, tx in sorted(self.pipe.transmitters.items())
         ]
+
+
+class StepJob:
+    """One ``step`` request, written :data:`STEP_SLICE` epochs at a time (a
+    :class:`~emulator.control.server.Sliced` request): between two slices the server
+    serves the other clients, and a change one of them makes takes effect from the next
+    epoch written (its reply names it). Checked when its first slice runs (after any
+    step queued before it); the slices together write exactly the bytes of one
+    ``Pipeline.step(n)``. Its reply, ``{"ok": true, "epoch": ...}``, comes after its last epoch."""
+
+    def __init__(self, controller: Controller, n: int) -> None:
+        self.controller = controller
+        self.n = n
+        self.done = 0
+        self.started = False
+
+    def advance(self) -> dict | None:
+        def work() -> dict | None:
+            if not self.started:
+                self.controller.start_step(self.n)
+                self.started = True
+            count = min(STEP_SLICE, self.n - self.done)
+            self.controller.pipe.step(count)
+            self.done += count
+            return {"ok": True, **self.controller._epoch()} if self.done == self.n else None
+
+        return self.controller.locked("step", work)
+
+    def abandon(self, why: str) -> dict:
+        return error_reply(f"step: {why}: stopped after {self.done} of {self.n} epochs")
 
 
 def _pose(trajectory, t: float) -> tuple[list[float], list[float]]:

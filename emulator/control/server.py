@@ -9,8 +9,14 @@ announced says which).
 One thread serves every client with a selector. Several clients may be connected at
 once (up to :data:`MAX_CLIENTS`); each gets exactly one reply per request, in order, on
 its own connection, and sees the changes made by the others (they change one emulator).
-Requests are executed one at a time in arrival order; a ``step`` of many epochs
-delays the other clients' replies until it is written. A line longer than
+Requests are executed one at a time in arrival order, except a long one (a ``step``):
+the handler returns it as a :class:`Sliced` request, which the thread runs a slice at a
+time (a ``step``: at most :data:`~emulator.control.controller.STEP_SLICE` epochs), serving
+the other clients' requests between two slices; its reply is sent once its last slice is
+done. Meanwhile its own client's further requests wait (unread: its socket applies back
+pressure), and other clients' long requests queue behind it. When the server closes (a
+``quit``, SIGTERM) a long request stops after its current slice and its client gets an
+error reply saying how far it got. A line longer than
 :data:`~emulator.control.requests.MAX_LINE`, bytes that are not UTF-8 or JSON, an
 unknown op or an invalid value each get an error reply and change nothing; blank lines
 are ignored. A client that does not read its replies is disconnected once
@@ -28,9 +34,11 @@ import socket
 import stat
 import threading
 import traceback
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 from firmware_proto.errors import InputError, LinkError
 
@@ -41,6 +49,18 @@ log = logging.getLogger("arva-emulate")
 MAX_CLIENTS = 64
 #: Reply bytes that may wait for a client before it is disconnected.
 MAX_OUTBOX = 1 << 20
+
+
+@runtime_checkable
+class Sliced(Protocol):
+    """A long request, executed a slice at a time by the server's thread."""
+
+    def advance(self) -> dict | None:
+        """Do one slice: the reply once the request is complete, else None. May raise
+        what a handler raises (an error reply)."""
+
+    def abandon(self, why: str) -> dict:
+        """The error reply of a request stopped before its end (``why``: the reason)."""
 
 
 @dataclass(frozen=True)
@@ -105,18 +125,21 @@ class _Client:
         self.outbox = bytearray()
         self.discarding = False  # inside an over-long line: drop bytes up to its newline
         self.quit_after_flush = False
+        self.job: Sliced | None = None  # its long request being served (its other lines wait)
+        self.events = 0  # the selector events it is registered for (0: not registered)
 
 
 class ControlServer:
     """Serves ``handle(request) -> reply dict`` on ``address`` (see the module docstring).
 
+    ``handle`` returns the reply, or a :class:`Sliced` request to run a slice at a time.
     ``on_quit`` is called once a ``quit`` reply has been sent (or its client has gone).
     """
 
     def __init__(
         self,
         address: ControlAddress,
-        handle: Callable[[Request], dict],
+        handle: Callable[[Request], dict | Sliced],
         on_quit: Callable[[], None],
         any_host: bool = False,
     ) -> None:
@@ -130,6 +153,8 @@ class ControlServer:
         self._wake_r, self._wake_w = os.pipe()
         self._closing = False
         self._thread: threading.Thread | None = None
+        self._jobs: deque[_Client] = deque()  # clients whose long request runs (the first) or waits
+        self._ready: deque[_Client] = deque()  # clients with request lines waiting to be served
         self.requests = 0
         self.errors = 0
 
@@ -228,12 +253,12 @@ class ControlServer:
     def _serve(self) -> None:
         while not self._closing:
             try:
-                events = self._sel.select(timeout=1.0)
+                events = self._sel.select(timeout=0 if self._jobs or self._ready else 1.0)
             except OSError:
-                return
+                break
+            if any(key.data == "wake" for key, _ in events):
+                break
             for key, mask in events:
-                if key.data == "wake":
-                    return
                 if key.data is None:
                     self._accept()
                     continue
@@ -242,6 +267,39 @@ class ControlServer:
                     self._read(client)
                 if mask & selectors.EVENT_WRITE and client.sock.fileno() >= 0:
                     self._flush(client)
+            while self._ready:
+                self._serve_inbox(self._ready.popleft())
+            if self._jobs and not self._closing:
+                self._advance()
+        self._abandon_jobs("the emulator is stopping")
+
+    def _advance(self) -> None:
+        """One slice of the first long request; its reply when it is complete."""
+        client = self._jobs[0]
+        reply = self._execute(client.job.advance, client.job)
+        if reply is None:
+            return
+        self._jobs.popleft()
+        client.job = None
+        self._reply(client, reply)
+        if client.sock.fileno() >= 0:
+            self._ready.append(client)  # its lines that waited, then its socket again
+
+    def _abandon_jobs(self, why: str) -> None:
+        """Error replies for the long requests still running or waiting (best effort:
+        nothing blocks, the server is closing)."""
+        while self._jobs:
+            client = self._jobs.popleft()
+            reply = client.job.abandon(why)
+            client.job = None
+            self.errors += 1
+            client.outbox += encode_reply(reply)
+            if client.sock.fileno() >= 0:
+                try:
+                    n = client.sock.send(client.outbox)
+                    del client.outbox[:n]
+                except OSError:
+                    pass
 
     def _accept(self) -> None:
         try:
@@ -258,7 +316,24 @@ class ControlServer:
         sock.setblocking(False)
         client = _Client(sock)
         self._clients[sock.fileno()] = client
-        self._sel.register(sock, selectors.EVENT_READ, client)
+        self._watch(client)
+
+    def _watch(self, client: _Client) -> None:
+        """Register the client for what it needs: reading (unless its long request runs:
+        its next lines wait in the socket), writing (while replies wait)."""
+        events = (0 if client.job is not None else selectors.EVENT_READ) | (selectors.EVENT_WRITE if client.outbox else 0)
+        if events == client.events or client.sock.fileno() < 0:
+            return
+        try:
+            if client.events == 0:
+                self._sel.register(client.sock, events, client)
+            elif events == 0:
+                self._sel.unregister(client.sock)
+            else:
+                self._sel.modify(client.sock, events, client)
+        except (KeyError, ValueError, OSError):
+            return
+        client.events = events
 
     def _read(self, client: _Client) -> None:
         try:
@@ -271,7 +346,11 @@ class ControlServer:
             self._drop(client)
             return
         client.inbox += data
-        while True:
+        self._serve_inbox(client)
+
+    def _serve_inbox(self, client: _Client) -> None:
+        """Serve the client's complete lines in order, until one is a long request."""
+        while client.job is None and client.sock.fileno() >= 0 and not client.quit_after_flush:
             nl = client.inbox.find(b"\n")
             if nl < 0:
                 if len(client.inbox) > MAX_LINE and not client.discarding:
@@ -286,26 +365,33 @@ class ControlServer:
                 client.discarding = False  # the tail of the over-long line: already answered
                 continue
             self._serve_line(client, line)
-            if client.quit_after_flush or client.sock.fileno() < 0:
-                break
+        self._watch(client)
+
+    def _execute(self, work: Callable[[], dict | Sliced | None], request: object) -> dict | Sliced | None:
+        """``work()`` (the handler, or a slice of a long request), its errors as error replies."""
+        try:
+            return work()
+        except ControlError as exc:
+            return error_reply(str(exc))
+        except InputError as exc:  # a value the model or a config rejected
+            return error_reply(f"{getattr(request, 'op', 'request')}: {exc}")
+        except Exception as exc:  # noqa: BLE001 - the emulator never dies of a request
+            log.error("control: request %r failed:\n%s", request, traceback.format_exc())
+            return error_reply(f"internal error: {type(exc).__name__}: {exc}")
 
     def _serve_line(self, client: _Client, line: bytes) -> None:
         if not line.strip():
             return
         self.requests += 1
-        request = None
-        try:
-            request = parse_request(line)
-            reply = self.handle(request)
-        except ControlError as exc:
-            reply = error_reply(str(exc))
-        except InputError as exc:  # a value the model or a config rejected
-            reply = error_reply(f"{getattr(request, 'op', 'request')}: {exc}")
-        except Exception as exc:  # noqa: BLE001 - the emulator never dies of a request
-            log.error("control: request %r failed:\n%s", line[:200], traceback.format_exc())
-            reply = error_reply(f"internal error: {type(exc).__name__}: {exc}")
-        if not reply.get("ok"):
-            self.errors += 1
+        request = self._execute(lambda: parse_request(line), line[:200])
+        if isinstance(request, dict):  # not a request: its error reply
+            self._reply(client, request)
+            return
+        reply = self._execute(lambda: self.handle(request), request)
+        if isinstance(reply, Sliced):
+            client.job = reply  # run by the serving loop, a slice at a time
+            self._jobs.append(client)
+            return
         self._reply(client, reply)
         if isinstance(request, Quit) and reply.get("ok"):
             client.quit_after_flush = True
@@ -313,6 +399,8 @@ class ControlServer:
             self.on_quit()
 
     def _reply(self, client: _Client, reply: dict) -> None:
+        if not reply.get("ok"):
+            self.errors += 1
         try:
             line = encode_reply(reply)
         except ValueError as exc:  # a NaN slipped into a reply: say so rather than die
@@ -341,18 +429,16 @@ class ControlServer:
             log.warning("control: a client does not read its replies; disconnected")
             self._drop(client)
             return
-        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if client.outbox else 0)
-        try:
-            self._sel.modify(client.sock, events, client)
-        except (KeyError, ValueError, OSError):
-            pass
+        self._watch(client)
 
     def _drop(self, client: _Client) -> None:
         fd = client.sock.fileno()
         if fd >= 0:
-            try:
-                self._sel.unregister(client.sock)
-            except (KeyError, ValueError, OSError):
-                pass
+            if client.events:
+                try:
+                    self._sel.unregister(client.sock)
+                except (KeyError, ValueError, OSError):
+                    pass
+                client.events = 0
             self._clients.pop(fd, None)
         client.sock.close()

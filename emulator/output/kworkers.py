@@ -40,7 +40,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from emulator.child_process import module_env
+from emulator.child_process import module_command, module_env
 
 #: SCHED_FIFO priority given to the workers: above ordinary tasks, below the emulator's
 #: ``--realtime`` priority (emulator/output/realtime.py, 20), so the emulator's own
@@ -196,7 +196,7 @@ def raise_workers(priority: int = PRIORITY, prog: str = "arva-emulate") -> tuple
         return None, f"{prog}: --realtime-workers: not applied ({why}); continuing without it"
 
     proc = subprocess.Popen(
-        [sys.executable, "-m", __name__, str(priority)],
+        module_command(__name__, str(priority)),
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,

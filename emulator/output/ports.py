@@ -156,12 +156,15 @@ class BufferPort(Port):
 class _FdWriter:
     """Writes a non-blocking fd like a UART: what does not fit is dropped.
 
-    With ``wait > 0`` (as fast as possible, ``--speed 0``) a full buffer is first given
-    up to ``wait`` seconds to drain, so a reader that keeps up loses nothing; once a wait
-    times out the reader is taken to be absent and later writes drop at once (no
-    blocking, no queue) until the buffer takes bytes again: any progress means someone
-    reads. (Waiting for a whole write to fit instead would keep a present but briefly
-    stalled reader "absent" for good when every write is larger than the buffer.)
+    With ``wait > 0`` (as fast as possible, ``--speed 0``, and the step clock) a full
+    buffer is given up to ``wait`` seconds *without progress* to drain: a reader that
+    keeps reading loses nothing, however slowly it reads (QEMU hands an emulated UART one
+    byte at a time, ~10 KB/s, so a 1000-epoch step into a firmware's UART takes seconds
+    and must not lose the bytes past the kernel's ~20 KB buffer); once a wait times out
+    the reader is taken to be absent and later writes drop at once (no blocking, no
+    queue) until the buffer takes bytes again: any progress means someone reads.
+    (Waiting for a whole write to fit instead would keep a present but briefly stalled
+    reader "absent" for good when every write is larger than the buffer.)
     """
 
     def __init__(self, wait: float = 0.0) -> None:
@@ -182,7 +185,10 @@ class _FdWriter:
             if left <= 0 or not poller.poll(left * 1000):
                 self.reader_absent = True
                 break
-            done += _write_some(fd, data[done:])
+            wrote = _write_some(fd, data[done:])
+            if wrote > 0:  # the reader took bytes: it is there, give it another `wait`
+                done += wrote
+                deadline = time.monotonic() + self.wait
         return done
 
 

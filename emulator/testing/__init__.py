@@ -7,6 +7,8 @@
   thin call of the control request of the same name (docs/hil_testing.md).
 * :class:`ControlClient` speaks the JSON-lines control protocol and keeps a transcript.
 * :func:`read_lines` reads CR LF lines from a pyserial port with a deadline.
+* :mod:`emulator.testing.qemu` (imported on use): firmware in the loop, a QEMU board whose
+  UART0 the emulator writes into (``Board``, ``FirmwareLoop``, ``build_firmware``).
 
 Importing this package is cheap (no numpy): pytest loads the plugin in every run.
 """

@@ -12,13 +12,13 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from emulator.child_process import module_command, module_env
 from firmware_proto.errors import ArvaError
 
 
@@ -141,12 +141,12 @@ class EmulatorProcess:
     def __init__(self, *args: str, streams: int = 1, timeout: float = 10.0, env: dict | None = None) -> None:
         self.args = list(args)
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "emulator.cli", *args],
+            module_command("emulator.cli", *args),
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             bufsize=0,
-            env=env,
+            env=module_env(env),
         )
         self.ports: dict[str, str] = {}
         self.control: str | None = None
@@ -265,7 +265,7 @@ class Emulator:
         self.ports = ports
         self.scene_path = scene_path
         self.seed = seed
-        #: The folder with stream captures, transcript, symlinks (see :meth:`start`).
+        #: The folder with stream captures, transcript, symlinks while running (see :meth:`start`).
         self.artefacts = artefacts
         self._cleanup = list(cleanup)  # folders removed at stop
         self._stopped = False
@@ -285,8 +285,9 @@ class Emulator:
 
         ``scene``: a scene file, a dict with the TOML structure (written to ``workdir``)
         or None for the embedded default. ``workdir`` (default: a temporary folder,
-        removed by :meth:`stop`) receives the stream captures (``<stream>.bytes``), the control transcript
-        (``control-transcript.txt``) and stable pty symlinks (``pty/<stream>``). ``arva_port``
+        removed by :meth:`stop`) receives the stream captures (``streams/<stream>.bytes``), the control
+        transcript (``control-transcript.txt``) and, while the emulator runs, stable pty symlinks
+        (``pty/<stream>``, removed with the ptys at :meth:`stop`). ``arva_port``
         sends the first receiver's stream to that device instead of a pty.
         """
         import tempfile
@@ -408,6 +409,11 @@ class Emulator:
             self.client.close()
             for folder in self._cleanup:
                 _remove_dir(folder)
+            if self.artefacts is not None:
+                try:  # its symlinks went with the ptys: no empty folder among the artefacts
+                    (self.artefacts / "pty").rmdir()
+                except OSError:
+                    pass
 
     def __enter__(self) -> "Emulator":
         return self

@@ -13,11 +13,17 @@ Registered by installing the project (entry point group ``pytest11``, name ``arv
 emulator a test started is stopped at teardown, whatever happened. The streams' bytes and
 the control transcript are kept under the test's ``tmp_path`` (folder ``arva-emulator-N``)
 when the test fails, and the failure report names the folder; on success they are
-removed. The scene (path) and its seed are recorded as test properties, as ``record_property``
-does (JUnit XML ``<property>`` elements ``arva_scene`` and ``arva_seed``; ``_1``, ``_2``
-... for further emulators of the same test). ``--arva-port DEVICE`` sends the
+removed. The scene and its seed are recorded as test properties, as ``record_property``
+does (JUnit XML ``<property>`` elements ``arva_scene``: the file given, ``<dict>`` or
+``<embedded default.toml>``; ``arva_scene_toml``: the scene's text as the emulator read it,
+so a report reproduces the run after its temporary files are gone; ``arva_seed``; ``_1``,
+``_2`` ... for further emulators of the same test). ``--arva-port DEVICE`` sends the
 first receiver's stream to DEVICE (a serial adapter wired to a real device under test)
 instead of a pty. See docs/hil_testing.md.
+
+``arva_firmware(firmware, scene=None, clock="step", ...)`` runs a firmware ELF on QEMU
+(``emulator.testing.qemu``) with the emulator writing the first receiver's stream into
+its UART0, and returns a ``FirmwareLoop``; same teardown and artefacts (``arva-firmware-N``).
 
 Loading the plugin costs one small import: nothing is started unless a test asks for
 the fixture.
@@ -29,6 +35,8 @@ import shutil
 
 import pytest
 
+#: Longest scene text recorded in the JUnit report (``arva_scene_toml``), bytes.
+MAX_RECORDED_SCENE = 64 * 1024
 _REPORT_KEY = pytest.StashKey[dict]()  # the test's reports by phase
 _ARTEFACTS_KEY = pytest.StashKey[list]()  # folders of the emulators it started
 
@@ -57,14 +65,43 @@ def pytest_runtest_makereport(item: pytest.Item, call):
 
 
 
+def _stop_all(request: pytest.FixtureRequest, started: list, folders: list) -> None:
+    """Teardown shared by the fixtures: stop everything started, keep the artefact folders
+    only when the test failed, then raise the first error a stop raised."""
+    errors = []
+    for thing in started:
+        try:
+            thing.stop()
+        except Exception as exc:  # noqa: BLE001 - stop every one, report after
+            errors.append(exc)
+    reports = request.node.stash.get(_REPORT_KEY, {})
+    if not any(r.failed for r in reports.values()):
+        for work in folders:
+            shutil.rmtree(work, ignore_errors=True)
+        folders.clear()
+    if errors:
+        raise errors[0]
+
+
+def recorded_scene_text(path: str | None) -> str:
+    """The scene's text for the JUnit report (at most :data:`MAX_RECORDED_SCENE` bytes)."""
+    from emulator.testing.scenes import scene_text
+
+    try:
+        text = scene_text(path)
+    except (OSError, ValueError) as exc:
+        return f"<not readable: {exc}>"
+    size = len(text.encode("utf-8"))
+    return text if size <= MAX_RECORDED_SCENE else f"<{size} bytes: longer than {MAX_RECORDED_SCENE}, not recorded>"
+
+
 @pytest.fixture
 def arva_emulator(request: pytest.FixtureRequest, tmp_path):
     """A factory: ``arva_emulator(scene=None, clock="step", speed=1.0)`` -> Emulator."""
     from emulator.testing.harness import Emulator
 
     started: list[Emulator] = []
-    folders: list = []
-    request.node.stash[_ARTEFACTS_KEY] = folders
+    folders: list = request.node.stash.setdefault(_ARTEFACTS_KEY, [])
     device = request.config.getoption("--arva-port")
 
     def start(scene=None, clock: str = "step", speed: float = 1.0) -> Emulator:
@@ -75,23 +112,32 @@ def arva_emulator(request: pytest.FixtureRequest, tmp_path):
         suffix = "" if len(started) == 1 else f"_{len(started) - 1}"
         # What record_property does, without its warning under junit_family xunit2
         # (pytest's default), which writes these properties all the same.
-        request.node.user_properties.append((f"arva_scene{suffix}", emu.scene_path or "<embedded default.toml>"))
+        source = "<embedded default.toml>" if scene is None else "<dict>" if isinstance(scene, dict) else str(scene)
+        request.node.user_properties.append((f"arva_scene{suffix}", source))
+        request.node.user_properties.append((f"arva_scene_toml{suffix}", recorded_scene_text(emu.scene_path)))
         request.node.user_properties.append((f"arva_seed{suffix}", emu.seed))
         return emu
 
     yield start
+    _stop_all(request, started, folders)
 
-    errors = []
-    for emu in started:
-        try:
-            emu.stop()
-        except Exception as exc:  # noqa: BLE001 - stop every one, report after
-            errors.append(exc)
-    reports = request.node.stash.get(_REPORT_KEY, {})
-    failed = any(r.failed for r in reports.values())
-    if not failed:
-        for work in folders:
-            shutil.rmtree(work, ignore_errors=True)
-        folders.clear()
-    if errors:
-        raise errors[0]
+
+@pytest.fixture
+def arva_firmware(request: pytest.FixtureRequest, tmp_path):
+    """A factory: ``arva_firmware(firmware, scene=None, clock="step", speed=1.0,
+    machine="mps2-an385", icount=None)`` -> FirmwareLoop: QEMU runs the firmware ELF, the
+    emulator writes the first receiver's stream into its UART0 (emulator.testing.qemu)."""
+    from emulator.testing.qemu import FirmwareLoop
+
+    started: list[FirmwareLoop] = []
+    folders: list = request.node.stash.setdefault(_ARTEFACTS_KEY, [])
+
+    def start(firmware, scene=None, clock: str = "step", speed: float = 1.0, machine: str = "mps2-an385", icount=None):
+        work = tmp_path / f"arva-firmware-{len(started)}"
+        folders.append(work)
+        loop = FirmwareLoop.start(firmware, scene, clock=clock, speed=speed, workdir=work, machine=machine, icount=icount)
+        started.append(loop)
+        return loop
+
+    yield start
+    _stop_all(request, started, folders)

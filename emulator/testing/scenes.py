@@ -22,17 +22,21 @@ def scene_file(scene, workdir: Path) -> str | None:
     return str(Path(scene))
 
 
+def scene_text(path: str | None) -> str:
+    """The text of a scene file (None: the embedded default); OSError or
+    UnicodeDecodeError (a ValueError) if it cannot be read."""
+    if path is None:
+        from importlib import resources
+
+        return (resources.files("emulator") / "scenes" / "default.toml").read_text(encoding="utf-8")
+    return Path(path).read_text(encoding="utf-8")
+
+
 def first_receiver_label(path: str | None) -> tuple[int | None, str]:
     """(seed, label of the first receiver's stream) read from a scene file (None: the
     embedded default), without validating it (the emulator does, naming the key)."""
     try:
-        if path is None:
-            from importlib import resources
-
-            text = (resources.files("emulator") / "scenes" / "default.toml").read_text(encoding="utf-8")
-        else:
-            text = Path(path).read_text(encoding="utf-8")
-        data = tomllib.loads(text)
+        data = tomllib.loads(scene_text(path))
     except (OSError, ValueError):
         return None, "arva"
     seed = data.get("seed", 0)

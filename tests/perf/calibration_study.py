@@ -1,0 +1,192 @@
+"""The calibration validation study (issue 28, item 7): `arva-bench fit` as a team runs it,
+on independent campaigns (``study_campaigns.py``) with a hidden truth.
+
+Each run writes one campaign's CSV and runs ``python -m bench.cli fit CSV --json`` (the
+command line, with its defaults, unless a condition adds options), with a time limit;
+one JSON line per run goes to ``--out``. The table per condition:
+
+* ``conv``: converged (exit 0) out of the runs; ``crash``: no JSON at all (a traceback or
+  a time-out), which a user sees as a broken tool;
+* kappa_eq and r_en: mean error and RMS error (% of the truth), coverage of the
+  printed 95 % interval (estimate +- 1.96 s.e.);
+* ``silent``: converged, |z| > 3 for kappa_eq or r_en, and no warning note (a note is a
+  warning unless it is one of the routine ones listed in ``ROUTINE``).
+
+Seeds: ``--tuning`` draws seeds from 0 up (for development); without it, seeds start at
+``REPORT_SEED0``. Numbers that go into the docs come from the report seeds only.
+
+Usage::
+
+    python tests/perf/calibration_study.py --seeds 50 --workers 2 [--conditions a,b] [--tuning]
+    python tests/perf/calibration_study.py --table out.jsonl   # the table of earlier runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import study_campaigns as sc  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+REPORT_SEED0 = 1_000_000
+TIMEOUT_S = 600.0
+#: Notes that say how the fit ran, not that something is wrong with its numbers.
+ROUTINE = (
+    r"^Newton on a \d+-row subsample",
+    r"^time offset: none found",
+    r"rows changed likelihood regime at the estimate; refitted$",
+    r"^each row's GPS error follows",
+    r"rows left out: closer to the transmitter than the pose error lets the model place them$",
+    r"is at its lower bound .*\(exact|is at its lower bound",
+)
+
+
+def warning_notes(notes: list[str]) -> list[str]:
+    return [n for n in notes if not any(re.search(p, n) for p in ROUTINE)]
+
+
+def run_one(cond: sc.Condition, seed: int, extra: list[str], workdir: Path) -> dict:
+    camp = sc.campaign(cond, seed)
+    path = workdir / f"{cond.name}-{seed}.csv"
+    path.write_text(camp.csv_text())
+    cmd = [sys.executable, "-m", "bench.cli", "fit", str(path), "--json", *extra]
+    t0 = time.monotonic()
+    rec: dict = {
+        "condition": cond.name,
+        "seed": seed,
+        "truth": {"kappa_eq": camp.truth.kappa_eq, "r_en": camp.truth.r_en},
+        "rows": int(len(camp.rows)),
+        "heard": camp.heard,
+        "extra": extra,
+    }
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=TIMEOUT_S, cwd=ROOT)
+    except subprocess.TimeoutExpired:
+        rec.update(status="timeout", wall=time.monotonic() - t0)
+        path.unlink(missing_ok=True)
+        return rec
+    rec["wall"] = time.monotonic() - t0
+    rec["exit"] = proc.returncode
+    err = proc.stderr.strip().splitlines()
+    rec["stderr_last"] = err[-1] if err else ""
+    try:
+        out = json.loads(proc.stdout)
+    except ValueError:
+        rec["status"] = "crash" if proc.returncode not in (2,) else "refused"
+        path.unlink(missing_ok=True)
+        return rec
+    rec["status"] = "converged" if out.get("converged") else "not_converged"
+    rec["fit"] = {k: out.get(k) for k in ("kappa_eq", "kappa_eq_se", "r_en", "r_en_se", "gps_sigma", "attitude_sigma", "time_offset", "separable", "fit_seconds", "message")}
+    rec["fit"]["gps_sigma_se"] = out.get("gps_sigma_se")
+    rec["fit"]["attitude_sigma_se"] = out.get("attitude_sigma_se")
+    rec["notes"] = out.get("notes", [])
+    rec["warnings"] = warning_notes(rec["notes"]) + ([] if out.get("separable", True) else ["not separable"])
+    path.unlink(missing_ok=True)
+    return rec
+
+
+def _z(rec: dict, name: str) -> float | None:
+    f = rec.get("fit") or {}
+    est, se = f.get(name), f.get(f"{name}_se")
+    if est is None or se is None or not (se > 0):
+        return None
+    return (est - rec["truth"][name]) / se
+
+
+def table(records: list[dict]) -> tuple[list[str], list[list[object]]]:
+    header = [
+        "condition", "runs", "conv %", "crash", "kappa bias %", "kappa RMS %", "kappa cover %",
+        "r_en bias %", "r_en RMS %", "r_en cover %", "silent", "median s",
+    ]
+    by: dict[str, list[dict]] = {}
+    for r in records:
+        by.setdefault(r["condition"], []).append(r)
+    rows = []
+    for name, recs in by.items():
+        conv = [r for r in recs if r.get("status") == "converged"]
+        crash = sum(r.get("status") in ("crash", "timeout") for r in recs)
+        cells: list[object] = [name, len(recs), f"{100 * len(conv) / len(recs):.0f}", crash]
+        silent = 0
+        for pname in ("kappa_eq", "r_en"):
+            errs = [(r["fit"][pname] - r["truth"][pname]) / r["truth"][pname] for r in conv if r["fit"].get(pname) is not None]
+            zs = [z for z in (_z(r, pname) for r in conv) if z is not None]
+            if errs:
+                mean = 100 * sum(errs) / len(errs)
+                rms = 100 * math.sqrt(sum(e * e for e in errs) / len(errs))
+                cover = 100 * sum(abs(z) <= 1.96 for z in zs) / len(zs) if zs else float("nan")
+                cells += [f"{mean:+.2f}", f"{rms:.2f}", f"{cover:.0f} ({sum(abs(z) <= 1.96 for z in zs)}/{len(zs)})"]
+            else:
+                cells += ["-", "-", "-"]
+        for r in conv:
+            zk, zr = _z(r, "kappa_eq"), _z(r, "r_en")
+            if ((zk is not None and abs(zk) > 3) or (zr is not None and abs(zr) > 3)) and not r["warnings"]:
+                silent += 1
+        walls = sorted(r["wall"] for r in recs if "wall" in r)
+        cells += [silent, f"{walls[len(walls) // 2]:.1f}" if walls else "-"]
+        rows.append(cells)
+    return header, rows
+
+
+def markdown(header, rows) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--conditions", default=",".join(sc.CONDITIONS), help="comma-separated condition names")
+    ap.add_argument("--seeds", type=int, default=50)
+    ap.add_argument("--tuning", action="store_true", help="development seeds (0 up) instead of the report seeds")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=ROOT / "tests/perf/out/calibration_study.jsonl")
+    ap.add_argument("--extra", default="", help="extra fit options, space-separated")
+    ap.add_argument("--table", type=Path, help="only print the table of this jsonl")
+    args = ap.parse_args(argv)
+    if args.table:
+        recs = [json.loads(line) for line in args.table.read_text().splitlines() if line.strip()]
+        print(markdown(*table(recs)))
+        return 0
+    names = [n for n in args.conditions.split(",") if n]
+    unknown = [n for n in names if n not in sc.CONDITIONS]
+    if unknown:
+        ap.error(f"unknown condition(s): {', '.join(unknown)} (choose from {', '.join(sc.CONDITIONS)})")
+    seed0 = 0 if args.tuning else REPORT_SEED0
+    jobs = [(sc.CONDITIONS[n], seed0 + k) for n in names for k in range(args.seeds)]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    extra = args.extra.split()
+    records = []
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    with tempfile.TemporaryDirectory() as tmp, open(args.out, "a") as fh, ThreadPoolExecutor(args.workers) as pool:
+        for rec in pool.map(lambda job: run_one(job[0], job[1], extra, Path(tmp)), jobs):
+            rec["started"] = started
+            fh.write(json.dumps(rec) + "\n")
+            fh.flush()
+            records.append(rec)
+            f = rec.get("fit") or {}
+            print(
+                f"{rec['condition']:<16} seed {rec['seed']:>8} {rec['status']:<13} "
+                f"kappa {f.get('kappa_eq') or float('nan'):.4f} (truth {rec['truth']['kappa_eq']:.4f}) "
+                f"r_en {f.get('r_en') or float('nan'):.1f} (truth {rec['truth']['r_en']:.1f}) "
+                f"{rec.get('wall', 0):.1f} s {'; '.join(rec.get('warnings', []))[:80]}",
+                flush=True,
+            )
+    print()
+    print(markdown(*table(records)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
