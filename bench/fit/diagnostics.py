@@ -166,7 +166,7 @@ class GoodnessOfFit:
                 "lacks and which pull r_en low, or positions metres off at those moments (GPS jumps, multipath)"
             )
         b = self.bins[self.worst_bin]
-        where = f"at {b.lo:g}-{b.hi:g} m" if math.isfinite(b.hi) else f"beyond {b.lo:g} m"
+        where = f"at {b.lo:g}-{b.hi:g} m" if math.isfinite(b.hi) else (f"beyond {b.lo:g} m" if b.lo > 0 else "at every distance")
         stat = b.z[self.worst_feature]
         if self.worst_feature == "shift":
             way = "longer" if stat > 0 else "shorter"
