@@ -20,6 +20,7 @@ from bench.fit import EIV_FREE, FitOptions, fit  # noqa: E402
 from bench.fit import diagnostics as dg  # noqa: E402
 from bench.fit.cli import summary  # noqa: E402
 from bench.fit.csvio import parse_csv  # noqa: E402
+from bench.fit.report import write_report  # noqa: E402
 from bench.fit.likelihood import GROSS_ERROR, Likelihood, Params, rows_from_table  # noqa: E402
 
 MISFIT_WORDS = "does not describe this walk"
@@ -159,7 +160,7 @@ def test_exact_pose_fit_quiet_when_specified_fires_on_spurious_rows(seed):
     assert len(notes) == 1 and f"{gof.unexpected_censored} rows say 'nothing heard'" in notes[0]
 
 
-def test_pose_error_fit_quiet_when_specified_fires_on_spurious_rows():
+def test_pose_error_fit_quiet_when_specified_fires_on_spurious_rows(tmp_path):
     """The default (errors-in-variables) fit, time-block variances: 20-minute level walks
     with Gauss-Markov GPS error, with and without 2 % spurious -1 rows."""
     table, _ = campaign_table("level_rw", "gm", (), 2)
@@ -185,3 +186,11 @@ def test_pose_error_fit_quiet_when_specified_fires_on_spurious_rows():
     assert line == [f"goodness of fit: PIT residuals by distance on {bad.n_used} rows, p = {gof['p_value']:.2g}: "
                     "THE MODEL DOES NOT FIT (see note)"]  # fmt: skip
     assert f"goodness of fit: PIT residuals by distance on {good.n_used} rows" in summary(good)
+    md_path, _png, _warning = write_report(tmp_path, table, bad)
+    md = md_path.read_text()
+    section = md[md.index("## Goodness of fit"):]
+    assert f"on {bad.n_used} rows, variances from time blocks of {gof['lag_seconds']:.0f} s" in section
+    assert f"p = {gof['p_value']:.2g} ({gof['statistics_tested']} statistics" in section
+    assert "**the model does not fit** (see the notes)" in section
+    first = gof["bins"][0]
+    assert f"| {first['from_m']:g} - {first['to_m']:g} | {first['rows']} | {first['mean_z']:+.3f} |" in section
