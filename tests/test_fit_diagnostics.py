@@ -114,7 +114,7 @@ def test_unexpected_censored_rows_use_markov_bound():
     g = dg.pit_test(norm.cdf(z), np.full(400, 20.0), None, cens, np.full(400, 1e-5))
     assert g.unexpected_censored == 10
     assert g.expected_unexpected == pytest.approx(4e-3, rel=1e-12)
-    assert g.p_unexpected == pytest.approx(4e-4, rel=1e-12)
+    assert g.p_unexpected == pytest.approx(1.6e-3, rel=1e-12)  # 4e-4, times 4 statistics
     assert g.p_value == pytest.approx(1.6e-3, rel=1e-12)
     assert not g.fits and g.worst_feature == dg.JUNK
     assert g.note().startswith(
@@ -123,6 +123,27 @@ def test_unexpected_censored_rows_use_markov_bound():
     )
     quiet = dg.pit_test(norm.cdf(z), np.full(400, 20.0), None, cens, np.full(400, 0.5))  # -1 is likely there
     assert quiet.unexpected_censored == 0 and quiet.fits
+
+
+def test_center_statistic_catches_a_scale_mixture():
+    """Most rows scatter less than the model allows and some more (what a Gaussian GPS
+    error fitted to heavy-tailed error leaves): 300 rows at z = +-0.3, 100 at +-1.8. The
+    variance is below 1 (scatter is one-sided) and no row is in the 1 % tails, but 75 % of
+    the scores lie in the central half: (300 - 200) / sqrt(0.25 * 400) = 10, tested with
+    half of ALPHA."""
+    z = np.r_[np.tile([0.3, -0.3], 150), np.tile([1.8, -1.8], 50)]
+    args = (norm.cdf(z), np.full(400, 20.0), None, np.zeros(400, bool), np.zeros(400))
+    g = dg.pit_test(*args, center=True)
+    assert g.center_fraction == 0.75 and g.center_z == pytest.approx(10.0, rel=1e-12)
+    assert g.bins[0].z["scatter"] < 0 and g.bins[0].z["shift"] == pytest.approx(0.0, abs=1e-12)
+    assert g.tests == 5 and g.worst_feature == "center"
+    assert g.p_value == pytest.approx(norm.sf(10.0) / dg.CENTER_WEIGHT, rel=1e-9)
+    assert g.note().startswith(
+        "the pose-error model does not describe this walk: most readings scatter less than the fitted GPS error "
+        "allows and some far more (75 % of the PIT scores in the model's central half, 50 % expected;"
+    )
+    plain = dg.pit_test(*args)  # without GPS error in the fit: not tested
+    assert plain.center_z is None and plain.tests == 4 and plain.fits
 
 
 def test_time_block_variances_widen_correlated_scores():
@@ -176,7 +197,7 @@ def test_pose_error_fit_quiet_when_specified_fires_on_spurious_rows(tmp_path):
     gof = json.loads(text)["goodness_of_fit"]
     assert set(gof) == {
         "test", "p_value", "alpha", "fits", "rows", "lag_seconds", "worst", "statistics_tested", "unexpected_censored",
-        "unexpected_censored_p_value", "unexpected_censored_expected", "bins",
+        "unexpected_censored_p_value", "unexpected_censored_expected", "center_fraction", "center_statistic", "bins",
     }  # fmt: skip
     assert gof["fits"] is False and gof["alpha"] == dg.ALPHA and gof["worst"]["statistic"] == dg.JUNK
     assert gof["rows"] == bad.n_used == sum(b["rows"] for b in gof["bins"])

@@ -50,6 +50,7 @@ from scipy.special import ndtr, ndtri
 
 from .covariance import time_block_meat
 from .likelihood import GROSS_ERROR, Likelihood, Params, Rows
+from .params import BOUNDS
 
 #: Distance bins of the test (m, by the fit's geometry); the last is open.
 BIN_EDGES = (0.0, 5.0, 10.0, 15.0, 25.0, 35.0, math.inf)
@@ -62,6 +63,10 @@ TAIL = 0.01
 TAIL_Z = float(ndtri(1.0 - TAIL / 2.0))
 #: The test says the model does not fit below this (Bonferroni-adjusted) p-value.
 ALPHA = 0.01
+#: The central half of the model's distribution: |z| below this.
+CENTER_Z = float(ndtri(0.75))
+#: The share of ALPHA the ``center`` statistic gets when it is tested (weighted Bonferroni).
+CENTER_WEIGHT = 0.5
 #: Normal scores are clipped to +-Z_CAP (u within 1e-15 of 0 or 1).
 Z_CAP = 8.0
 #: A -1 row is "unexpected" when the model gives it less than this probability.
@@ -134,8 +139,10 @@ class GoodnessOfFit:
     bins: list[BinCheck] = field(default_factory=list)
     unexpected_censored: int = 0  # over all tested rows
     expected_unexpected: float = 0.0  # the model's expected count of such -1 rows
-    p_unexpected: float = 1.0  # the count's p-value (Markov's inequality), before Bonferroni
+    p_unexpected: float = 1.0  # the count's p-value (Markov's inequality), Bonferroni-adjusted like p_value
     tests: int = 1  # statistics the p-value is adjusted for
+    center_fraction: float = float("nan")  # PIT scores in the model's central half (0.5 expected)
+    center_z: float | None = None  # its statistic; None: not tested (no GPS error fitted)
 
     def to_json(self) -> dict:
         return {
@@ -149,6 +156,8 @@ class GoodnessOfFit:
             "statistics_tested": self.tests,
             "unexpected_censored": self.unexpected_censored,
             "unexpected_censored_p_value": self.p_unexpected,
+            "center_fraction": self.center_fraction,
+            "center_statistic": self.center_z,
             "unexpected_censored_expected": self.expected_unexpected,
             "bins": [b.to_json() for b in self.bins],
         }
@@ -158,12 +167,19 @@ class GoodnessOfFit:
         if self.fits:
             return None
         test = f"PIT test p = {self.p_value:.2g}"
-        if self.p_unexpected * self.tests < ALPHA:  # the most specific finding first
+        if self.p_unexpected < ALPHA:  # the most specific finding first
             return (
                 f"the model does not describe this walk: {self.unexpected_censored} rows say 'nothing heard' (d = -1) "
                 f"where it gives that less than {UNEXPECTED_CENSORED:.1%} chance ({self.expected_unexpected:.2g} "
                 f"expected; {test}): spurious -1 rows (a receiver or logger that drops readings), which the model "
                 "lacks and which pull r_en low, or positions metres off at those moments (GPS jumps, multipath)"
+            )
+        if self.worst_feature == "center":
+            return (
+                f"the pose-error model does not describe this walk: most readings scatter less than the fitted GPS "
+                f"error allows and some far more ({100 * self.center_fraction:.0f} % of the PIT scores in the model's "
+                f"central half, 50 % expected; {test}): heavy-tailed GPS error (multipath, jumps of metres) that a "
+                "Gaussian error cannot describe; gps_sigma is a compromise and the standard errors may be off"
             )
         b = self.bins[self.worst_bin]
         where = f"at {b.lo:g}-{b.hi:g} m" if math.isfinite(b.hi) else (f"beyond {b.lo:g} m" if b.lo > 0 else "at every distance")
@@ -216,13 +232,15 @@ def goodness_of_fit(rows: Rows, p: Params, seed: int = 0) -> GoodnessOfFit | Non
     like.choose_regimes(p)
     u, p_cens = pit_values(like, p, rng.random(idx.shape[0]))
     eiv = sub.moments is not None and (p.gps_sigma > 0.0 or p.attitude_sigma > 0.0)
-    return pit_test(u, np.exp(sub.geo.log_r), sub.t if eiv else None, sub.k == -1, p_cens)
+    gps_seen = eiv and p.gps_sigma > 1.05 * BOUNDS["gps_sigma"][0]
+    return pit_test(u, np.exp(sub.geo.log_r), sub.t if eiv else None, sub.k == -1, p_cens, center=gps_seen)
 
 
-def pit_test(u, r, t, censored, p_censored) -> GoodnessOfFit:
+def pit_test(u, r, t, censored, p_censored, center: bool = False) -> GoodnessOfFit:
     """The test of the module docstring from each row's PIT value ``u``, distance ``r``
     (m), time ``t`` (s; None: rows independent, as with exact poses), whether it is a -1
-    and the model's P(d = -1)."""
+    and the model's P(d = -1); with ``center`` the ``center`` statistic too (a fit that
+    sees GPS error)."""
     z = normal_scores(u)
     rare = p_censored < UNEXPECTED_CENSORED
     unexpected = censored & rare
@@ -237,6 +255,9 @@ def pit_test(u, r, t, censored, p_censored) -> GoodnessOfFit:
         sel = which == b
         for f, values in enumerate(per_row):
             cols[sel, b * len(FEATURES) + f] = values[sel]
+    inside = (np.abs(z) < CENTER_Z).astype(np.float64)
+    if center:
+        cols = np.column_stack([cols, inside - 0.5])
     if t is None:
         meat, lag = np.zeros((cols.shape[1], cols.shape[1])), 0.0  # the independent-rows variances below
     else:
@@ -269,9 +290,18 @@ def pit_test(u, r, t, censored, p_censored) -> GoodnessOfFit:
     if p_junk < best[0]:
         best = (p_junk, int(np.bincount(which[unexpected], minlength=len(bins)).argmax()), JUNK)
     tests = len(bins) * len(FEATURES) + 1
-    p_value = min(1.0, best[0] * tests)
+    factor = tests / (1.0 - CENTER_WEIGHT if center else 1.0)
+    p_value = min(1.0, best[0] * factor)
+    center_z = None
+    if center:  # all rows: most inside the central half, a few far out (a scale mixture)
+        var = max(float(meat[-1, -1]), 0.25 * z.shape[0])
+        center_z = float(sums[-1] / math.sqrt(var))
+        p_center = min(1.0, float(ndtr(-center_z)) / CENTER_WEIGHT)
+        if p_center < p_value:
+            p_value, best = p_center, (p_center, best[1], "center")
+        tests += 1
     return GoodnessOfFit(
-        p_unexpected=p_junk, tests=tests,
+        p_unexpected=min(1.0, p_junk * factor), tests=tests, center_fraction=float(inside.mean()), center_z=center_z,
         p_value=p_value, fits=p_value >= ALPHA, rows=int(z.shape[0]), lag_seconds=lag, worst_bin=best[1],
         worst_feature=best[2], bins=checks, unexpected_censored=int(unexpected.sum()), expected_unexpected=expected,
     )  # fmt: skip
