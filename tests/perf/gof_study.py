@@ -24,7 +24,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -33,6 +32,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import calibration_study as cs  # noqa: E402
+from _report import machine  # noqa: E402
 import study_campaigns as sc  # noqa: E402
 
 ROOT = cs.ROOT
@@ -105,18 +105,6 @@ def write_doc(text: str) -> None:
     doc = DOC.read_text()
     a, b = doc.index(BEGIN) + len(BEGIN), doc.index(END)
     DOC.write_text(doc[:a] + "\n" + text + "\n" + doc[b:])
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
 def main(argv=None) -> int:
