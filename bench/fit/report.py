@@ -207,7 +207,8 @@ def markdown(result: FitResult, diag: Diagnostics, png: str | None) -> str:
         "",
         f"* Detected rows inside their bin's 90 % band: {_fmt(inside_all, 3)} (0.9 expected).",
         f"* Randomised PIT values: Kolmogorov-Smirnov distance from uniform {diag.ks:.4f} "
-        f"(5 % critical value {ks_crit:.4f}); deciles "
+        f"(5 % critical value {ks_crit:.4f} for independent rows: with pose error correlated in time it is too "
+        "small, see 'Goodness of fit' below); deciles "
         + ", ".join(f"{h:.3f}" for h in hist)
         + " (0.1 each expected).",
         f"* Observed -1 fraction {np.mean(diag.d == -1):.4f}; model {_weighted(diag.model_cens, diag.n):.4f}.",
