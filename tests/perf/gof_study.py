@@ -57,6 +57,22 @@ def fired(rec: dict) -> bool | None:
     return gof is not None and gof.get("fits") is False
 
 
+#: What the misfit note blames, by its words (bench/fit/diagnostics.py: GoodnessOfFit.note).
+BLAME = (
+    ("say 'nothing heard'", "spurious -1 rows"),
+    ("central half", "heavy-tailed GPS (center)"),
+    ("scatter more", "more scatter"),
+    ("than it predicts", "shift"),
+)
+
+
+def blame(notes: list[str]) -> str:
+    for note in notes:
+        if "does not describe this walk" in note:
+            return next((label for words, label in BLAME if words in note), "other")
+    return "no note"
+
+
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     if n == 0:
         return float("nan"), float("nan")
@@ -86,7 +102,7 @@ def table(records: list[dict]) -> str:
         lo, hi = wilson(len(hits), len(conv))
         blamed: dict[str, int] = {}
         for r in hits:
-            what = ((r["fit"]["goodness_of_fit"] or {}).get("worst") or {}).get("statistic", "?")
+            what = blame(r.get("notes", []))
             blamed[what] = blamed.get(what, 0) + 1
         pct = f"{100 * len(hits) / len(conv):.0f} ({100 * lo:.0f}-{100 * hi:.0f})" if conv else "-"
         out.append(
