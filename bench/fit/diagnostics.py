@@ -15,27 +15,43 @@ normal scores z_i = Phi^-1(u_i) are standard normal: z > 0 is a reading farther 
 model's median, a -1 where the model expects a reading has z near +5.
 
 **The test.** Rows are grouped by distance (the fit's geometry, m: bins of
-:data:`BIN_EDGES`, a bin with fewer than :data:`MIN_BIN_ROWS` rows merged into its
+:data:`BIN_EDGES`, a bin with fewer than :data:`MIN_BIN_ROWS` rows merged into its smaller
 neighbour). In each bin three sums that have mean 0 under the model are formed:
 
-* ``shift``: sum of z (readings systematically longer or shorter than predicted);
-* ``scatter``: sum of z^2 - 1 (more, or less, spread than the model allows);
+* ``shift``: sum of z (readings systematically longer or shorter than predicted; both
+  directions count);
+* ``scatter``: sum of z^2 - 1 (more spread than the model allows; only an excess counts:
+  exact data near the transmitter scatter less than the fit's smallest pose error, a
+  harmless misfit);
 * ``tails``: sum of 1{|z| > 2.576} - 0.01 (more rows in the outer 1 % than the model
   puts there; only an excess counts).
+
+When the fit sees GPS error (gps_sigma above its floor) one more sum over all rows,
+``center``: 1{|z| < 0.674} - 0.5 (only an excess): a Gaussian error fitted to heavy-tailed
+GPS error is a compromise, too wide for most rows and too narrow for a few, so too many
+scores fall in the model's central half.
 
 The pose error is correlated over tens of seconds, so neighbouring rows' z are dependent
 and the independent-rows variance of a sum is too small (a naive KS or chi-square test
 over-rejects). Each sum's variance is the time-block (Newey-West) long-run variance of
 :func:`covariance.time_block_meat`, the one the sandwich standard errors use, but never
-below the independent-rows variance (n, 2n, 0.0099 n). Each sum over the square root of
-its variance is a z statistic; the campaign's p-value is the smallest two-sided (one-sided
-for ``tails``) normal p-value times the number of statistics (Bonferroni), and the model
-is said not to fit when it is below :data:`ALPHA`. Its false-alarm and detection rates
-are measured on independent campaigns (docs/calibration.md, "Does the model fit?";
-``tests/perf/gof_study.py``).
+below the independent-rows variance (n, 2n, 0.0099 n, n / 4); with exact poses (no
+errors-in-variables model) rows are independent and that variance is used. Each sum over
+the square root of its variance is a z statistic with a normal p-value.
 
-Cost: the PIT needs P(d < d_i), P(d = d_i) and, for the -1 rows, P(d = -1): about three
-likelihood evaluations, on a seeded subsample of at most :data:`MAX_ROWS` rows (the test
+Separately, the -1 rows the model gives less than :data:`UNEXPECTED_CENSORED` are
+counted: their count X has mean E (the sum of those rows' P(d = -1)) under the model, and
+P(X >= c) <= E / c (Markov's inequality, whatever the dependence between rows).
+
+The campaign's p-value is a weighted Bonferroni one: ``center``, when tested, gets
+:data:`CENTER_WEIGHT` of the level and the other statistics share the rest equally (p_j
+times their number over the share). The model is said not to fit when it is below
+:data:`ALPHA`; :meth:`GoodnessOfFit.note` then names the finding in words. Its false-alarm
+and detection rates are measured on independent campaigns (docs/calibration.md, "Does the
+model fit?"; ``tests/perf/gof_study.py``).
+
+Cost: the PIT needs P(d < d_i), P(d = d_i) and P(d = -1) (for the -1 rows' PIT and the
+expected count): three likelihood evaluations, on a seeded subsample of at most :data:`MAX_ROWS` rows (the test
 on 1e5 rows would have more power than any campaign needs).
 """
 
