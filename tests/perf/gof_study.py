@@ -36,8 +36,9 @@ from _report import machine  # noqa: E402
 import study_campaigns as sc  # noqa: E402
 
 ROOT = cs.ROOT
-#: Conditions the fit's model describes: no warning of misfit should appear.
-WELL = ("radial-gm", "level-gm", "radial-exact", "level-exact")
+#: Conditions the fit's model describes: no warning of misfit should appear (the first
+#: four the issue's; the other walk shapes of study_campaigns.py with the same error).
+WELL = ("radial-gm", "level-gm", "radial-exact", "level-exact", "spiral-gm", "near-gm", "far-gm", "drone-gm")
 #: Conditions it does not describe, and the check should say so.
 MISFIT = {
     "level-heavy": sc.CONDITIONS["level-heavy"],
