@@ -6,7 +6,9 @@ does not (heavy-tailed GPS error, spurious "nothing heard" rows).
 A run "fires" when the fit converged and its ``goodness_of_fit.fits`` is false (the note
 that names the misfit is then among the notes). The table per condition: runs, converged,
 fired, and the fired fraction with a 95 % Wilson interval: false alarms on the well
-specified conditions, detections on the others. ``--write-doc`` puts the table, with the
+specified conditions, detections on the others; and calibration_study's silent misses
+(converged, |z| > 3, no warning note) with the check's note and, in parentheses, without
+it. ``--write-doc`` puts the table, with the
 date, machine and load, into docs/calibration.md between its ``gof`` markers.
 
 Seeds: ``--tuning`` from 0 (for choosing thresholds); without it from
@@ -84,13 +86,28 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
+MISFIT_NOTE = "does not describe this walk"
+
+
+def silent_misses(records: list[dict], with_note: bool = True) -> dict[str, int]:
+    """calibration_study's silent misses (converged, |z| > 3 for kappa_eq or r_en, no warning
+    note) per condition, counting the check's note as a warning or not."""
+    if not with_note:
+        records = [{**r, "warnings": [w for w in r.get("warnings", []) if MISFIT_NOTE not in w]} for r in records]
+    header, rows = cs.table(records)
+    name, silent = header.index("condition"), header.index("silent")
+    return {row[name]: int(row[silent]) for row in rows}
+
+
 def table(records: list[dict]) -> str:
     by: dict[str, list[dict]] = {}
     for r in records:
         by.setdefault(r["condition"], []).append(r)
+    silent, silent_without = silent_misses(records), silent_misses(records, with_note=False)
     out = [
-        "| condition | model | runs | converged | fired | fired % (95 % interval) | what the note blamed |",
-        "|---|---|---|---|---|---|---|",
+        "| condition | model | runs | converged | fired | fired % (95 % interval) | what the note blamed "
+        "| silent misses (without the note) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     totals = {"well specified": [0, 0], "misspecified": [0, 0]}
     for name in sorted(by, key=lambda n: (n not in WELL, n)):
@@ -109,12 +126,12 @@ def table(records: list[dict]) -> str:
         out.append(
             f"| {name} | {kind} | {len(recs)} | {len(conv)} | {len(hits)} | {pct} | "
             + (", ".join(f"{k} {v}" for k, v in sorted(blamed.items())) or "-")
-            + " |"
+            + f" | {silent.get(name, 0)} ({silent_without.get(name, 0)}) |"
         )
     for kind, (k, n) in totals.items():
         if n:
             lo, hi = wilson(k, n)
-            out.append(f"| **all {kind}** | | | {n} | {k} | {100 * k / n:.0f} ({100 * lo:.0f}-{100 * hi:.0f}) | |")
+            out.append(f"| **all {kind}** | | | {n} | {k} | {100 * k / n:.0f} ({100 * lo:.0f}-{100 * hi:.0f}) | | |")
     return "\n".join(out)
 
 
