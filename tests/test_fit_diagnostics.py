@@ -119,7 +119,7 @@ def test_unexpected_censored_rows_use_markov_bound():
     assert not g.fits and g.worst_feature == dg.JUNK
     assert g.note().startswith(
         "the model does not describe this walk: 10 rows say 'nothing heard' (d = -1) where it gives that less than "
-        "0.1% chance (0.004 expected; PIT test p = 0.0016): spurious -1 rows"
+        "0.1 % chance (0.004 expected; PIT test p = 0.0016): spurious -1 rows"
     )
     quiet = dg.pit_test(norm.cdf(z), np.full(400, 20.0), None, cens, np.full(400, 0.5))  # -1 is likely there
     assert quiet.unexpected_censored == 0 and quiet.fits

@@ -186,7 +186,7 @@ class GoodnessOfFit:
         if self.p_unexpected < ALPHA:  # the most specific finding first
             return (
                 f"the model does not describe this walk: {self.unexpected_censored} rows say 'nothing heard' (d = -1) "
-                f"where it gives that less than {UNEXPECTED_CENSORED:.1%} chance ({self.expected_unexpected:.2g} "
+                f"where it gives that less than {100 * UNEXPECTED_CENSORED:g} % chance ({self.expected_unexpected:.2g} "
                 f"expected; {test}): spurious -1 rows (a receiver or logger that drops readings), which the model "
                 "lacks and which pull r_en low, or positions metres off at those moments (GPS jumps, multipath)"
             )
@@ -210,7 +210,7 @@ class GoodnessOfFit:
         return (
             f"the pose-error model does not describe this walk: readings {where} scatter more than it allows "
             f"(variance of the PIT scores {b.var_z:.2f}, 1 expected; {100 * b.tail_fraction:.1f} % of them in the "
-            f"model's outer {TAIL:.0%}; {test}): heavy-tailed GPS error (multipath, jumps of metres), or readings "
+            f"model's outer {100 * TAIL:g} %; {test}): heavy-tailed GPS error (multipath, jumps of metres), or readings "
             "the model lacks; the standard errors may be too small"
         )
 

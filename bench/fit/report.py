@@ -232,7 +232,7 @@ def gof_markdown(gof: GoodnessOfFit) -> list[str]:
         f"Randomised PIT residuals by distance on {gof.rows} rows, variances from time blocks of "
         f"{gof.lag_seconds:.0f} s (0: rows independent): p = {gof.p_value:.2g} ({gof.tests} statistics, "
         f"Bonferroni; misfit below {ALPHA:g}): {verdict}. -1 rows the model gives less than "
-        f"{UNEXPECTED_CENSORED:.1%}: {gof.unexpected_censored} ({gof.expected_unexpected:.2g} expected).",
+        f"{100 * UNEXPECTED_CENSORED:g} %: {gof.unexpected_censored} ({gof.expected_unexpected:.2g} expected).",
         "",
         "| distance (m) | rows | mean PIT score (0) | variance (1) | in the outer 1 % | unexpected -1 "
         "| shift z | scatter z | tails z |",
