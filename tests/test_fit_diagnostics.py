@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from scipy.stats import norm
 
 sys.path.insert(0, str(Path(__file__).parent / "perf"))
@@ -215,3 +217,34 @@ def test_pose_error_fit_quiet_when_specified_fires_on_spurious_rows(tmp_path):
     assert "**the model does not fit** (see the notes)" in section
     first = gof["bins"][0]
     assert f"| {first['from_m']:g} - {first['to_m']:g} | {first['rows']} | {first['mean_z']:+.3f} |" in section
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    n=st.integers(200, 900),
+    seed=st.integers(0, 2**32 - 1),
+    far=st.floats(1.0, 80.0),
+    with_t=st.booleans(),
+    center=st.booleans(),
+)
+def test_pit_test_is_finite_bounded_and_order_free(n, seed, far, with_t, center):
+    """Any scores, distances, -1 flags and probabilities: p in [0, 1], the verdict is
+    p >= ALPHA, every row in one bin, the JSON finite; with independent rows the result
+    does not depend on the rows' order."""
+    rng = np.random.default_rng(seed)
+    u = rng.random(n) ** rng.uniform(0.3, 3.0)  # from uniform to strongly skewed
+    u[rng.random(n) < 0.01] = rng.choice([0.0, 1.0])  # the clipped ends too
+    r = rng.uniform(0.5, far, n)
+    cens = rng.random(n) < 0.2
+    pc = rng.random(n) ** 6
+    t = np.sort(rng.uniform(0, 2 * n, n)) if with_t else None
+    g = dg.pit_test(u, r, t, cens, pc, center=center)
+    assert 0.0 <= g.p_value <= 1.0 and g.fits == (g.p_value >= dg.ALPHA)
+    assert sum(b.rows for b in g.bins) == n and all(b.rows >= dg.MIN_BIN_ROWS for b in g.bins)
+    json.dumps(g.to_json(), allow_nan=False)
+    assert (g.note() is None) == g.fits
+    if t is None:
+        perm = rng.permutation(n)
+        h = dg.pit_test(u[perm], r[perm], None, cens[perm], pc[perm], center=center)
+        assert h.p_value == pytest.approx(g.p_value, rel=1e-9, abs=1e-300)
+        assert h.worst_feature == g.worst_feature and h.unexpected_censored == g.unexpected_censored
