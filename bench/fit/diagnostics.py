@@ -70,7 +70,7 @@ from .params import BOUNDS
 
 #: Distance bins of the test (m, by the fit's geometry); the last is open.
 BIN_EDGES = (0.0, 5.0, 10.0, 15.0, 25.0, 35.0, math.inf)
-#: A bin with fewer rows is merged into its neighbour.
+#: A bin with fewer rows is merged into its smaller neighbour.
 MIN_BIN_ROWS = 200
 #: At most this many rows (a seeded subsample) go into the PIT test.
 MAX_ROWS = 10000
@@ -220,7 +220,8 @@ class GoodnessOfFit:
 
 
 def _bins(r: NDArray[np.float64]) -> list[tuple[float, float]]:
-    """BIN_EDGES with bins of fewer than MIN_BIN_ROWS rows merged into a neighbour."""
+    """BIN_EDGES with bins of fewer than MIN_BIN_ROWS rows merged into their smaller neighbour
+    (the emptiest first)."""
     edges = list(BIN_EDGES)
     counts = np.histogram(r, bins=np.array(edges[:-1] + [np.inf]))[0].tolist()
     while len(counts) > 1 and min(counts) < MIN_BIN_ROWS:
