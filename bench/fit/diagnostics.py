@@ -234,14 +234,22 @@ def _bins(r: NDArray[np.float64]) -> list[tuple[float, float]]:
     return list(zip(edges[:-1], edges[1:]))
 
 
-def goodness_of_fit(rows: Rows, p: Params, seed: int = 0) -> GoodnessOfFit | None:
-    """The PIT test of ``p`` on ``rows`` (those the fit used, with their pose-error
-    moments); None when there are fewer than MIN_BIN_ROWS rows. With the
-    errors-in-variables model the variances are time-block ones (rows need time stamps);
-    with exact poses the rows are independent."""
+@dataclass
+class PitRows:
+    """What :func:`pit_test` needs, per row of the (subsampled) rows the fit used."""
+
+    u: NDArray[np.float64]  # randomised PIT values
+    r: NDArray[np.float64]  # distance (m, the fit's geometry)
+    t: NDArray[np.float64] | None  # time (s); None: rows independent (exact poses)
+    censored: NDArray[np.bool_]
+    p_censored: NDArray[np.float64]  # the model's P(d = -1)
+    gps_seen: bool  # the fit sees GPS error (gps_sigma above its floor): test ``center``
+
+
+def pit_rows(rows: Rows, p: Params, seed: int = 0) -> PitRows:
+    """The PIT values of ``p`` on ``rows`` (those the fit used, with their pose-error
+    moments), on a seeded subsample of at most MAX_ROWS."""
     n = rows.k.shape[0]
-    if n < MIN_BIN_ROWS:
-        return None
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0x6F1F,)))
     idx = np.sort(rng.choice(n, MAX_ROWS, replace=False)) if n > MAX_ROWS else np.arange(n)
     sub = rows.take(idx)
@@ -250,7 +258,17 @@ def goodness_of_fit(rows: Rows, p: Params, seed: int = 0) -> GoodnessOfFit | Non
     u, p_cens = pit_values(like, p, rng.random(idx.shape[0]))
     eiv = sub.moments is not None and (p.gps_sigma > 0.0 or p.attitude_sigma > 0.0)
     gps_seen = eiv and p.gps_sigma > 1.05 * BOUNDS["gps_sigma"][0]
-    return pit_test(u, np.exp(sub.geo.log_r), sub.t if eiv else None, sub.k == -1, p_cens, center=gps_seen)
+    return PitRows(u, np.exp(sub.geo.log_r), sub.t if eiv else None, sub.k == -1, p_cens, gps_seen)
+
+
+def goodness_of_fit(rows: Rows, p: Params, seed: int = 0) -> GoodnessOfFit | None:
+    """The PIT test of ``p`` on ``rows`` (:func:`pit_rows`); None when there are fewer
+    than MIN_BIN_ROWS rows. With the errors-in-variables model the variances are
+    time-block ones (rows need time stamps); with exact poses the rows are independent."""
+    if rows.k.shape[0] < MIN_BIN_ROWS:
+        return None
+    x = pit_rows(rows, p, seed)
+    return pit_test(x.u, x.r, x.t, x.censored, x.p_censored, center=x.gps_seen)
 
 
 def pit_test(u, r, t, censored, p_censored, center: bool = False) -> GoodnessOfFit:
