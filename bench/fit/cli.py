@@ -277,6 +277,8 @@ def summary(result) -> str:
         )
     status = "converged" if result.converged else f"DID NOT CONVERGE ({result.message})"
     lines.append(f"log-likelihood {result.log_likelihood:.2f}; {status}; {result.iterations} iterations, {result.seconds:.2f} s")
+    if result.goodness_of_fit is not None:
+        lines.append(result.goodness_of_fit.summary())
     lines += [f"note: {n}" for n in result.notes]
     nv = result.naive
     lines.append(f"naive least squares on detected rows only: kappa_eq {nv['kappa_eq']:.6g}, r_en {nv['r_en']:.4g} m")

@@ -23,6 +23,7 @@ from . import parallel
 from .covariance import expected_information, separable, standard_errors
 from .grades import IMU_GRADES
 from .identify import noise_reach
+from .diagnostics import goodness_of_fit
 from .eiv import EIV_POSE_SIGMA, EIV_START, eiv_rows, rule_sigmas, usable
 from .likelihood import FREE_PARAMS, LINEAR, Rows, from_params, rows_from_table, to_params
 from .offset import OFFSET_GAIN, offset_scan
@@ -385,6 +386,9 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
             "r_en is not determined; walk closer or give --gps-sigma / --attitude-sigma"
         )
         notes.insert(0, ok_line)
+    gof = goodness_of_fit(rows, params, options.seed) if ok else None
+    if gof is not None and gof.note() is not None:
+        notes.append(gof.note())
     info = None
     if ok and options.expected_se:
         info = expected_information(like, base, newton_free, theta_n, options.seed)
@@ -413,6 +417,7 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         separable=told_apart,
         n_pose_dropped=n_dropped,
         stamps=stamps,
+        goodness_of_fit=gof,
         n_evals_all_rows=res.full_evals or (n_evals if n <= SUBSAMPLE or "time_offset" in newton_free else 0),
     )
 

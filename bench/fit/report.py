@@ -3,8 +3,9 @@
 :func:`diagnostics` compares the data with the fitted model per distance bin (rows,
 observed and predicted fraction of -1, observed median d against the model's median and
 90 % band from simulating every row's geometry), and computes randomised PIT values
-(u_i = P(d < d_i) + V P(d = d_i), V uniform): if the model is right they are uniform on
-[0, 1] whatever the geometry. :func:`write_report` writes ``report.md`` and, when
+(u_i = P(d < d_i) + V P(d = d_i), V uniform; :func:`diagnostics.pit_values`): if the
+model is right they are uniform on [0, 1] whatever the geometry. The report also shows the
+fit's goodness-of-fit test per distance bin (:mod:`.diagnostics`, ``result.goodness_of_fit``). :func:`write_report` writes ``report.md`` and, when
 matplotlib (the ``plot`` extra) is installed, ``fit.png``.
 """
 
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from .diagnostics import ALPHA, UNEXPECTED_CENSORED, GoodnessOfFit, pit_values
 from .eiv import model_rows
 from .result import FitResult
 from .likelihood import Likelihood, simulate
@@ -72,11 +74,8 @@ def diagnostics(table: Table, result: FitResult, seed: int = 0) -> Diagnostics:
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0xD1A6,)))
     reps = int(min(200, max(4, 400000 // max(len(d), 1))))
     sims = np.stack([simulate(rows.geo, params, rng, spread) for _ in range(reps)], axis=1)  # (n, reps)
-    p_cens = like.prob_censored(params)
     logp = like.logp(params)
-    prob = np.exp(logp)
-    below = like.prob_below(params)
-    pit = np.clip(below + rng.random(len(d)) * prob, 0.0, 1.0)
+    pit, p_cens = pit_values(like, params, rng.random(len(d)))
     ks = _ks_uniform(pit)
 
     n = np.bincount(which, minlength=nb)
@@ -208,15 +207,44 @@ def markdown(result: FitResult, diag: Diagnostics, png: str | None) -> str:
         "",
         f"* Detected rows inside their bin's 90 % band: {_fmt(inside_all, 3)} (0.9 expected).",
         f"* Randomised PIT values: Kolmogorov-Smirnov distance from uniform {diag.ks:.4f} "
-        f"(5 % critical value {ks_crit:.4f}); deciles "
+        f"(5 % critical value {ks_crit:.4f} for independent rows: with pose error correlated in time it is too "
+        "small, see 'Goodness of fit' below); deciles "
         + ", ".join(f"{h:.3f}" for h in hist)
         + " (0.1 each expected).",
         f"* Observed -1 fraction {np.mean(diag.d == -1):.4f}; model {_weighted(diag.model_cens, diag.n):.4f}.",
         "",
+    ]
+    if result.goodness_of_fit is not None:
+        out += gof_markdown(result.goodness_of_fit)
+    out += [
         "How to read this: docs/calibration.md, section 'Reading the report'.",
         "",
     ]
     return "\n".join(out)
+
+
+def gof_markdown(gof: GoodnessOfFit) -> list[str]:
+    """The goodness-of-fit test's section of report.md."""
+    verdict = "no misfit found" if gof.fits else "**the model does not fit** (see the notes)"
+    out = [
+        "## Goodness of fit",
+        "",
+        f"Randomised PIT residuals by distance on {gof.rows} rows, variances from time blocks of "
+        f"{gof.lag_seconds:.0f} s (0: rows independent): p = {gof.p_value:.2g} ({gof.tests} statistics, "
+        f"Bonferroni; misfit below {ALPHA:g}): {verdict}. -1 rows the model gives less than "
+        f"{100 * UNEXPECTED_CENSORED:g} %: {gof.unexpected_censored} ({gof.expected_unexpected:.2g} expected).",
+        "",
+        "| distance (m) | rows | mean PIT score (0) | variance (1) | in the outer 1 % | unexpected -1 "
+        "| shift z | scatter z | tails z |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for b in gof.bins:
+        span = f"{b.lo:g} - {b.hi:g}" if math.isfinite(b.hi) else f"{b.lo:g} -"
+        out.append(
+            f"| {span} | {b.rows} | {b.mean_z:+.3f} | {b.var_z:.3f} | {100 * b.tail_fraction:.1f} % | "
+            f"{b.unexpected_censored} | {b.z['shift']:+.2f} | {b.z['scatter']:+.2f} | {b.z['tails']:+.2f} |"
+        )
+    return out + [""]
 
 
 def _ci(est: float, se: float, log: bool) -> str:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from .diagnostics import GoodnessOfFit
 from .likelihood import Likelihood, Params
 from .table import TimeStamps
 
@@ -76,6 +77,7 @@ class FitResult:
     n_pose_dropped: int = 0  # rows left out: the pose error hides where they were
     n_evals_all_rows: int = 0  # of n_evals, those on all rows (the rest: a subsample's, or the pilot's)
     stamps: TimeStamps | None = None  # duplicated stamps, repeated slots and gaps in t (counted, kept)
+    goodness_of_fit: GoodnessOfFit | None = None  # the PIT test (converged fits with time stamps)
 
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
@@ -113,6 +115,7 @@ class FitResult:
             separable=self.separable,
             rows_dropped_for_pose_error=self.n_pose_dropped,
             time_stamps=None if self.stamps is None else self.stamps.to_json(),
+            goodness_of_fit=None if self.goodness_of_fit is None else self.goodness_of_fit.to_json(),
         )
         return _finite_or_none(out)
 

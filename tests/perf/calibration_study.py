@@ -92,6 +92,8 @@ def run_one(cond: sc.Condition, seed: int, extra: list[str], workdir: Path) -> d
     rec["fit"] = {k: out.get(k) for k in ("kappa_eq", "kappa_eq_se", "r_en", "r_en_se", "gps_sigma", "attitude_sigma", "time_offset", "separable", "fit_seconds", "message")}
     rec["fit"]["gps_sigma_se"] = out.get("gps_sigma_se")
     rec["fit"]["attitude_sigma_se"] = out.get("attitude_sigma_se")
+    gof = out.get("goodness_of_fit") or {}
+    rec["fit"]["goodness_of_fit"] = {k: gof.get(k) for k in ("p_value", "fits", "worst", "unexpected_censored")} if gof else None
     rec["notes"] = out.get("notes", [])
     rec["warnings"] = warning_notes(rec["notes"]) + ([] if out.get("separable", True) else ["not separable"])
     path.unlink(missing_ok=True)
