@@ -17,6 +17,7 @@ from bench.fit.grades import GPS_GRADES, IMU_GRADES
 from bench.fit.identify import MIN_NOISE_ROWS, NoiseReach
 from bench.fit.result import EIV_FREE, FitOptions
 from emulator.receiver.model import ModelParams
+from emulator.scene.reader import load_scene
 from fit_campaign import PoseError, Walk, emulate_campaign
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "perf"))
@@ -55,9 +56,16 @@ def test_near_only_walk_reports_r_en_not_determined(tmp_path, capsys):
     assert out["r_en"] is None and out["r_en_se"] is None and out["separable"] is False
     path = tmp_path / "near.csv"
     table.write_csv(path)
-    assert main(["fit", str(path)]) == 0
+    scene = tmp_path / "near.toml"
+    assert main(["fit", str(path), "--write-scene", str(scene)]) == 0
     text = capsys.readouterr().out
     assert "r_en        = not determined: pose error and EMI noise cannot be told apart (see note)\n" in text
+    # The scene gets no r_en: the emulator's default stays, and a comment says why.
+    model = scene.read_text().split("\n[model]", 1)[1].split("\n[", 1)[0]
+    assert "\nr_en =" not in model
+    assert "# r_en: not determined by this campaign (see the fit's note): the emulator's default stays\n" in model
+    loaded = load_scene(scene)
+    assert loaded.model.r_en == ModelParams().r_en and loaded.model.kappa_eq == res.estimate["kappa_eq"]
 
 
 def test_a_search_that_stopped_converges_after_the_restart():

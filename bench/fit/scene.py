@@ -43,7 +43,11 @@ def model_block(result: FitResult) -> str:
         "moment = 1.0  # only kappa_eq / moment is identifiable from d",
         f"r_inner = {_num(p.r_inner)}",
         f"r_outer = {_num(p.r_outer)}{'  #' + pm('r_outer', ' m') if 'r_outer' in result.free else ''}",
-        f"r_en = {_num(p.r_en)}  #{pm('r_en', ' m')}",
+        (
+            f"r_en = {_num(p.r_en)}  #{pm('r_en', ' m')}"
+            if result.separable
+            else "# r_en: not determined by this campaign (see the fit's note): the emulator's default stays"
+        ),
         f"q = [{', '.join(_num(v) for v in p.q)}]",
     ]
     return "\n".join(line.rstrip() for line in lines) + "\n"
