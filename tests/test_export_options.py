@@ -21,9 +21,17 @@ def rx_true(t):
     return np.array([-10.0 + t, 5.0, 1.0])
 
 
-def write_session(path, origin_in_manifest: bool, arva_delay: float):
+def write_truth(w, k: int) -> None:
+    """Second k's GPS fix and attitude of the walker (rx), on the logger's clock."""
     import datetime as dt
 
+    lat, lon, alt = (float(v) for v in enu_to_geodetic(*rx_true(float(k)), ORIGIN))
+    utc = dt.datetime.fromtimestamp(START_UTC + k, dt.timezone.utc)
+    w.raw("gps-rx", gps_sentences(utc, lat, lon, alt, lat_lon_decimals=9), mono=1000.0 + k, utc=START_UTC + k)
+    w.raw("attitude-rx", pashr_sentence(utc, 90.0, 0.0, 0.0), mono=1000.0 + k, utc=START_UTC + k)
+
+
+def write_session(path, origin_in_manifest: bool, arva_delay: float):
     manifest = {
         "devices": {
             "arva": {"kind": "arva", "url": "x", "role": "rx"},
@@ -36,10 +44,7 @@ def write_session(path, origin_in_manifest: bool, arva_delay: float):
         manifest["origin"] = {"lat": ORIGIN.lat, "lon": ORIGIN.lon, "alt": ORIGIN.alt}
     w = SessionWriter(path, manifest)
     for k in range(SECONDS):
-        lat, lon, alt = (float(v) for v in enu_to_geodetic(*rx_true(float(k)), ORIGIN))
-        utc = dt.datetime.fromtimestamp(START_UTC + k, dt.timezone.utc)
-        w.raw("gps-rx", gps_sentences(utc, lat, lon, alt, lat_lon_decimals=9), mono=1000.0 + k, utc=START_UTC + k)
-        w.raw("attitude-rx", pashr_sentence(utc, 90.0, 0.0, 0.0), mono=1000.0 + k, utc=START_UTC + k)
+        write_truth(w, k)
         # The epoch measured at k arrives arva_delay seconds later (the receiver's latency).
         w.raw("arva", encode_parva(k, 1, 1, 1, 500, 0), mono=1000.0 + k + arva_delay, utc=START_UTC + k + arva_delay)
     w.close()
@@ -94,8 +99,6 @@ def test_origin_from_the_session_from_the_option_and_from_the_first_fix(tmp_path
 
 def write_two_receivers(path):
     """Two receivers on one walker (rx), each its own device: d 500 and 700 cm."""
-    import datetime as dt
-
     manifest = {
         "devices": {
             "arva-a": {"kind": "arva", "url": "x", "role": "rx"},
@@ -108,10 +111,7 @@ def write_two_receivers(path):
     }
     w = SessionWriter(path, manifest)
     for k in range(SECONDS):
-        lat, lon, alt = (float(v) for v in enu_to_geodetic(*rx_true(float(k)), ORIGIN))
-        utc = dt.datetime.fromtimestamp(START_UTC + k, dt.timezone.utc)
-        w.raw("gps-rx", gps_sentences(utc, lat, lon, alt, lat_lon_decimals=9), mono=1000.0 + k, utc=START_UTC + k)
-        w.raw("attitude-rx", pashr_sentence(utc, 90.0, 0.0, 0.0), mono=1000.0 + k, utc=START_UTC + k)
+        write_truth(w, k)
         w.raw("arva-a", encode_parva(k, 1, 1, 1, 500, 0), mono=1000.0 + k, utc=START_UTC + k)
         w.raw("arva-b", encode_parva(k, 1, 1, 1, 700, 0), mono=1000.0 + k, utc=START_UTC + k)
     w.close()
