@@ -219,23 +219,27 @@ class FirmwareLoop:
     ``decisions()`` parses the firmware's JSON lines that carry a ``seq``; ``decision(seq)``
     waits for the one of epoch ``seq``."""
 
-    def __init__(self, board: Board, emu: Emulator) -> None:
+    def __init__(self, board: Board, emu: Emulator, cleanup: Path | None = None) -> None:
         self.board, self.emu = board, emu
+        self._cleanup = cleanup  # a temporary work folder of ours, removed at stop
 
     @classmethod
     def start(cls, firmware, scene=None, clock: str = "step", speed: float = 1.0, workdir=None, machine: str = "mps2-an385", icount: int | None = None) -> "FirmwareLoop":
-        work = Path(workdir) if workdir is not None else None
-        if work is None:
+        if workdir is None:
             import tempfile
 
-            work = Path(tempfile.mkdtemp(prefix="arva-fw-"))
+            work, cleanup = Path(tempfile.mkdtemp(prefix="arva-fw-")), True
+        else:
+            work, cleanup = Path(workdir), False
         board = Board(firmware, work, machine=machine, icount=icount)
         try:
             emu = Emulator.start(scene, clock=clock, speed=speed, workdir=work / "emulator", arva_port=board.uart0)
         except BaseException:
             board.stop()
+            if cleanup:
+                shutil.rmtree(work, ignore_errors=True)
             raise
-        return cls(board, emu)
+        return cls(board, emu, work if cleanup else None)
 
     def decisions(self) -> list[dict]:
         out = []
@@ -261,7 +265,16 @@ class FirmwareLoop:
         return path.read_bytes() if path.exists() else b""
 
     def stop(self) -> None:
+        """Stop the emulator and the board; a temporary work folder (``workdir=None``) goes too."""
         try:
             self.emu.stop()
         finally:
             self.board.stop()
+            if self._cleanup is not None:
+                shutil.rmtree(self._cleanup, ignore_errors=True)
+
+    def __enter__(self) -> "FirmwareLoop":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
