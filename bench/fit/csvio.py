@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from emulator.files import FileRefused, open_regular
 from emulator.frames.rotation import MIN_QUATERNION_NORM
 from firmware_proto.sentences import MAX_ABS_DELTA, MAX_D_CM
 
@@ -29,10 +30,13 @@ MAX_INTEGER = 2**53
 def read_csv(path: str | Path, source: str | None = None) -> Table:
     """Parse and validate a normative CSV file; ``source`` names it in messages."""
     source = str(path) if source is None else source
-    try:
-        raw = Path(path).read_bytes()
-    except IsADirectoryError:
-        raise FitInputError(f"{source}: is a directory, not a CSV file") from None
+    if Path(path).is_dir():
+        raise FitInputError(f"{source}: is a directory, not a CSV file")
+    try:  # a regular file only: /dev/zero or a FIFO would be read for ever
+        with open_regular(path, "CSV file") as f:
+            raw = f.read()
+    except FileRefused as exc:
+        raise FitInputError(f"{source}: {exc.reason}") from None
     except OSError as exc:
         raise FitInputError(f"{source}: cannot read: {exc.strerror or exc}") from None
     return parse_csv(raw, source)
