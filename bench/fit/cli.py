@@ -120,7 +120,7 @@ def _gps_sigma(text: str) -> tuple[float, float]:
     if len(parts) > 2:
         raise argparse.ArgumentTypeError(f"expected H or H,V (metres), got {text!r}")
     h = _gps_metres(parts[0])
-    v = _gps_metres(parts[1]) if len(parts) == 2 else 1.5 * h
+    v = _gps_metres(parts[1]) if len(parts) == 2 else GPS_GRADE_RATIO * h
     if (h == 0) != (v == 0):
         raise argparse.ArgumentTypeError(f"horizontal and vertical must both be 0 or both > 0, got {text!r}")
     return h, v
@@ -219,7 +219,7 @@ def options_from_args(args):
         time_offset=args.time_offset if args.time_offset is not None else 0.0,
         antennas=args.antennas,
         gps_sigma=gps[0] if gps is not None else 0.0,
-        gps_ratio=(gps[1] / gps[0]) if gps is not None and gps[0] > 0 else 1.5,
+        gps_ratio=(gps[1] / gps[0]) if gps is not None and gps[0] > 0 else GPS_GRADE_RATIO,
         attitude_sigma=math.radians(att) if att is not None else 0.0,
     )
     if args.r_outer <= args.r_inner:

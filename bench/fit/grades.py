@@ -12,5 +12,5 @@ from __future__ import annotations
 
 GPS_GRADES = {"consumer": 1.5, "sbas": 0.5, "rtk": 0.02}
 IMU_GRADES = {"consumer": 2.0, "tactical": 0.1}
-#: Vertical / horizontal GPS error of a grade.
+#: Vertical / horizontal GPS error of a grade, and of --gps-sigma H without V.
 GPS_GRADE_RATIO = 1.5
