@@ -222,6 +222,8 @@ class FirmwareLoop:
     def __init__(self, board: Board, emu: Emulator, cleanup: Path | None = None) -> None:
         self.board, self.emu = board, emu
         self._cleanup = cleanup  # a temporary work folder of ours, removed at stop
+        self._decisions: list[dict] = []
+        self._lines_parsed = 0
 
     @classmethod
     def start(cls, firmware, scene=None, clock: str = "step", speed: float = 1.0, workdir=None, machine: str = "mps2-an385", icount: int | None = None) -> "FirmwareLoop":
@@ -242,15 +244,18 @@ class FirmwareLoop:
         return cls(board, emu, work if cleanup else None)
 
     def decisions(self) -> list[dict]:
-        out = []
-        for line in list(self.board.lines):
+        """The JSON lines with a ``seq`` so far; each line is parsed once (the board's
+        lines only grow), so waiting for the n-th decision is not quadratic."""
+        lines = self.board.lines
+        for line in lines[self._lines_parsed : len(lines)]:
+            self._lines_parsed += 1
             try:
                 msg = json.loads(line)
             except ValueError:
                 continue
             if isinstance(msg, dict) and "seq" in msg:
-                out.append(msg)
-        return out
+                self._decisions.append(msg)
+        return list(self._decisions)
 
     def decision(self, seq: int, timeout: float = 10.0) -> dict:
         def seen(lines) -> bool:
