@@ -202,7 +202,7 @@ def test_missing_firmware_is_one_clear_error(tmp_path):
 
 
 def test_a_long_step_loses_no_byte(arva_firmware, firmware):
-    """1000 epochs in one step (55,780 bytes) into a UART QEMU drains at ~10 KB/s: the
+    """1000 epochs in one step (55,780 bytes) into a UART QEMU drains at ~15 KB/s: the
     emulator waits for a reader that keeps reading (STEP_DRAIN_WAIT), nothing is dropped."""
     loop = arva_firmware(firmware, scene={**SEARCH_SCENE, "transmitters": [{"id": 1, "position": [20.0, 0.0, 0.0]}, {"id": 2, "position": [0.0, 25.0, 0.0]}]})
     k = loop.emu.step(1000) - 1

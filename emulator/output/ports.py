@@ -159,7 +159,7 @@ class _FdWriter:
     With ``wait > 0`` (as fast as possible, ``--speed 0``, and the step clock) a full
     buffer is given up to ``wait`` seconds *without progress* to drain: a reader that
     keeps reading loses nothing, however slowly it reads (QEMU hands an emulated UART one
-    byte at a time, ~10 KB/s, so a 1000-epoch step into a firmware's UART takes seconds
+    byte at a time, ~15 KB/s, so a 1000-epoch step into a firmware's UART takes seconds
     and must not lose the bytes past the kernel's ~20 KB buffer); once a wait times out
     the reader is taken to be absent and later writes drop at once (no blocking, no
     queue) until the buffer takes bytes again: any progress means someone reads.

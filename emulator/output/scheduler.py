@@ -40,7 +40,7 @@ FAST_DRAIN_WAIT = 0.05
 #: Under the step clock a reader may pause this long without taking a byte before it is
 #: taken to be absent: nothing is due in real time, and QEMU, reading an emulated UART's
 #: bytes one at a time, pauses for more than 50 ms now and then (a 1000-epoch step into
-#: a firmware lost 13 % of its bytes with 50 ms, none with 1 s: tests/test_firmware_loop.py).
+#: a firmware lost 13 % of its bytes with 50 ms in a one-off run, none with 1 s: tests/test_firmware_loop.py).
 STEP_DRAIN_WAIT = 1.0
 
 

@@ -52,6 +52,25 @@ def one_run(elf: Path, icount: int | None) -> dict:
     return {"whole": t_end - t0, "boot": t_boot - t0, "epochs": t_epochs - t_boot, "lost": lost}
 
 
+def long_step(elf: Path, n: int = 1000) -> tuple[float, int, int]:
+    """One step of ``n`` epochs (two transmitters heard: ~56 bytes an epoch) into the
+    firmware's UART: (wall s until its last decision, bytes offered, bytes lost)."""
+    scene = {**SCENE, "transmitters": [{"id": 1, "position": [20.0, 0.0, 0.0]}, {"id": 2, "position": [0.0, 25.0, 0.0]}],
+             "receiver": {"channels": 2, "position": [0.0, 0.0, 0.0]}}
+    with tempfile.TemporaryDirectory() as work:
+        loop = FirmwareLoop.start(elf, scene, clock="step", workdir=work)
+        try:
+            loop.board.wait_for(lambda lines: len(lines) >= 1)
+            t0 = time.perf_counter()
+            loop.decision(loop.emu.step(n) - 1, timeout=120)
+            wall = time.perf_counter() - t0
+            offered = len(loop.captured())
+            lost = offered - loop.decisions()[-1]["bytes"]
+        finally:
+            loop.stop()
+    return wall, offered, lost
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=10)
@@ -72,8 +91,16 @@ def main(argv=None) -> int:
                 f"{statistics.median(pick('epochs')) * 1000:.0f} / {max(pick('epochs')) * 1000:.0f}",
                 sum(pick("lost")),
             ])
+        steps = [long_step(elf) for _ in range(3)]
     header = ["-icount", "runs", "whole loop s (median / max)", "boot ms (median / max)", "20 epochs ms (median / max)", "bytes lost"]
     table = markdown_table(header, rows)
+    rate = [offered / wall / 1000 for wall, offered, _ in steps]
+    table += (
+        f"\n\nOne step of 1000 epochs ({steps[0][1]:,} bytes) into the firmware's UART, 3 runs: "
+        f"{', '.join(f'{w:.2f}' for w, _, _ in steps)} s to the last decision "
+        f"({min(rate):.1f}-{max(rate):.1f} KB/s: QEMU hands the guest one byte at a time), "
+        f"{sum(lost for _, _, lost in steps)} bytes lost."
+    )
     print(table)
     load = os.getloadavg()[0]
     body = (
