@@ -144,6 +144,11 @@ ERRORS = [
         "spec = 1\n[receiver]\npath = [{ t = 0.0, position = [0, 0, 0], speed = 3 }]\n",
         "s.toml: receiver.path[0].speed: unknown key",
     ),
+    (  # found by test_malformed_inputs' hypothesis: the GPS truth's speed overflowed to inf
+        "spec = 1\n[receiver]\npath = [{ t = 0.0, position = [0, 0, 0] }, { t = 0.5, position = [1.7976931348623157e308, 0, 0] }]\n",
+        "s.toml: receiver.path[1].position: too far from the waypoint before for the time between them "
+        "(the speed is beyond the float range)",
+    ),
     ("spec = 1\ntransmitters = 3\n", "s.toml: transmitters: expected an array of tables ([[transmitters]]), got an integer"),
 ]
 

@@ -145,6 +145,12 @@ class TableReader:
                 raise self.fail(f"{wp_path}.position", "missing")
             times.append(t)
             positions.append(self.vector(wp["position"], f"{wp_path}.position", 3))
+            if len(positions) > 1:  # the segment's speed (GPS truth reports it) must be a float
+                with np.errstate(over="ignore"):
+                    speed = np.abs(np.subtract(positions[-1], positions[-2])) / (times[-1] - times[-2])
+                if not np.all(np.isfinite(speed)):
+                    raise self.fail(f"{wp_path}.position", "too far from the waypoint before for the time between them "
+                                    "(the speed is beyond the float range)")
             orientations.append(self.quaternion(wp.get("orientation", list(IDENTITY)), f"{wp_path}.orientation"))
         return Trajectory(np.array(times), np.array(positions), np.array(orientations))
 
