@@ -21,6 +21,11 @@ from pathlib import Path
 
 from firmware_proto.errors import LinkError
 
+#: The longest a full pty we created waits for a reader not yet seen reading (s): nobody
+#: may be reading it, and a waiting step holds the control channel.
+PTY_FIRST_WAIT = 0.3
+
+
 class Port:
     """Base class of all ports. ``label`` names the stream (``arva``, ``gps:rx`` ...)."""
 
@@ -157,37 +162,60 @@ class _FdWriter:
     """Writes a non-blocking fd like a UART: what does not fit is dropped.
 
     With ``wait > 0`` (as fast as possible, ``--speed 0``, and the step clock) a full
-    buffer is given up to ``wait`` seconds *without progress* to drain: a reader that
-    keeps reading loses nothing, however slowly it reads (QEMU hands an emulated UART one
-    byte at a time, ~15 KB/s, so a 1000-epoch step into a firmware's UART takes seconds
-    and must not lose the bytes past the kernel's ~20 KB buffer); once a wait times out
-    the reader is taken to be absent and later writes drop at once (no blocking, no
-    queue) until the buffer takes bytes again: any progress means someone reads.
-    (Waiting for a whole write to fit instead would keep a present but briefly stalled
-    reader "absent" for good when every write is larger than the buffer.)
+    buffer is given up to ``wait`` s *without progress* to drain: a reader that keeps
+    reading loses nothing, however slowly it reads (QEMU hands an emulated UART one byte
+    at a time, ~15 KB/s, and a pty signals room only once much of its ~20 KB buffer has
+    drained, so a reader can look idle for seconds: tests/perf/bench_firmware_loop.py).
+    Once a wait times out the reader is taken to be absent and later writes drop at once
+    (no blocking, no queue) until the buffer takes bytes again: any progress means
+    someone reads. (Waiting for a whole write to fit instead would keep a present but
+    briefly stalled reader "absent" for good when every write is larger than the buffer.)
+
+    ``first_wait`` caps the wait for a reader not yet seen reading: for a pty we create,
+    which nobody may be reading at all (the wait holds the control channel, whose other
+    clients are answered within a second). A reader is seen when its bytes are gone
+    (``queued()``, the bytes waiting for it, is 0 after a write: it keeps up) or when a
+    full buffer takes bytes again.
     """
 
-    def __init__(self, wait: float = 0.0) -> None:
+    def __init__(self, wait: float = 0.0, first_wait: float | None = None, queued=None) -> None:
         self.wait = wait
+        self.first_wait = first_wait
+        self.queued = queued  # () -> bytes written but not yet read
+        self.reset()
+
+    def reset(self) -> None:
+        """A new device (a re-created pty): no reader seen yet."""
         self.reader_absent = False
+        self.reader_seen = self.first_wait is None
+        self._wrote = False  # bytes went in since the reader was last judged absent
 
     def write(self, fd: int, data: bytes) -> int:
+        if not self.reader_seen and self._wrote and self.queued is not None and self.queued() == 0:
+            self.reader_seen = True  # what we wrote before is gone: someone reads
         done = _write_some(fd, data)
         if done > 0:
-            self.reader_absent = False  # the buffer had room: a reader is taking bytes
+            if self.reader_absent:  # a full buffer took bytes again: someone read it
+                self.reader_seen = True
+            self.reader_absent = False
+            self._wrote = True
         if done == len(data) or self.wait <= 0 or self.reader_absent:
             return done
         poller = select.poll()
         poller.register(fd, select.POLLOUT)
-        deadline = time.monotonic() + self.wait
+        patience = self.wait if self.reader_seen else min(self.wait, self.first_wait)
+        deadline = time.monotonic() + patience
         while done < len(data):
             left = deadline - time.monotonic()
             if left <= 0 or not poller.poll(left * 1000):
                 self.reader_absent = True
+                self.reader_seen = self.first_wait is None
+                self._wrote = False
                 break
             wrote = _write_some(fd, data[done:])
             if wrote > 0:  # the reader took bytes: it is there, give it another `wait`
                 done += wrote
+                self.reader_seen = True
                 deadline = time.monotonic() + self.wait
         return done
 
@@ -216,7 +244,7 @@ class PtyPort(Port):
         self.link = link
         self.disconnects = 0
         self.on_reconnect = None
-        self._writer = _FdWriter()
+        self._writer = _FdWriter(first_wait=PTY_FIRST_WAIT, queued=self.pending)
         self._open()
 
     def set_drain_wait(self, seconds: float) -> None:
@@ -229,6 +257,7 @@ class PtyPort(Port):
         flags = fcntl.fcntl(master, fcntl.F_GETFL)
         fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
         self._master, self._slave = master, slave
+        self._writer.reset()
         self.path = os.ttyname(slave)
         if self.link is not None:
             tmp = self.link.with_name(self.link.name + ".tmp")

@@ -71,6 +71,33 @@ def long_step(elf: Path, n: int = 1000) -> tuple[float, int, int]:
     return wall, offered, lost
 
 
+def longest_stall(elf: Path, lines: int = 4000) -> tuple[float, int]:
+    """Blocking 16-byte writes of ``lines`` $PARVA lines into QEMU's UART0 pty while the
+    firmware reads: (longest single write s, bytes). A write blocks until the pty shows
+    room, so this is how long a reader that keeps reading can look idle (the step clock's
+    drain wait, emulator.output.scheduler.STEP_DRAIN_WAIT, must exceed it)."""
+    import tty
+
+    from emulator.testing.qemu import Board
+
+    data = b"$PARVA,1,1834,45.0,1,0*00\r\n" * lines
+    with tempfile.TemporaryDirectory() as work:
+        board = Board(elf, work)
+        fd = os.open(board.uart0, os.O_RDWR | os.O_NOCTTY)
+        try:
+            tty.setraw(fd)
+            board.wait_for(lambda got: len(got) >= 1)
+            worst, off = 0.0, 0
+            while off < len(data):
+                t = time.perf_counter()
+                off += os.write(fd, data[off:off + 16])
+                worst = max(worst, time.perf_counter() - t)
+        finally:
+            os.close(fd)
+            board.stop()
+    return worst, len(data)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=10)
@@ -92,6 +119,7 @@ def main(argv=None) -> int:
                 sum(pick("lost")),
             ])
         steps = [long_step(elf) for _ in range(3)]
+        stalls = [longest_stall(elf) for _ in range(3)]
     header = ["-icount", "runs", "whole loop s (median / max)", "boot ms (median / max)", "20 epochs ms (median / max)", "bytes lost"]
     table = markdown_table(header, rows)
     rate = [offered / wall / 1000 for wall, offered, _ in steps]
@@ -99,7 +127,10 @@ def main(argv=None) -> int:
         f"\n\nOne step of 1000 epochs ({steps[0][1]:,} bytes) into the firmware's UART, 3 runs: "
         f"{', '.join(f'{w:.2f}' for w, _, _ in steps)} s to the last decision "
         f"({min(rate):.1f}-{max(rate):.1f} KB/s: QEMU hands the guest one byte at a time), "
-        f"{sum(lost for _, _, lost in steps)} bytes lost."
+        f"{sum(lost for _, _, lost in steps)} bytes lost. "
+        f"Writing {stalls[0][1]:,} bytes into the UART's pty while the firmware reads, the longest "
+        f"a write waited for room (the reader looking idle): {', '.join(f'{w:.2f}' for w, _ in stalls)} s "
+        "(the step clock's drain wait, 5 s, must exceed it)."
     )
     print(table)
     load = os.getloadavg()[0]
