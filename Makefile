@@ -1,7 +1,7 @@
 # Single entry point. `make run` and `make test` each create/refresh .venv first.
 # Two install stamps: `make run` installs only the runtime dependencies (the main job
 # needs no extras); `make test`, `make bench` and `make venv` add the dev set (pytest,
-# hypothesis, and the extras the tests exercise: dask, pyarrow, matplotlib, pymavlink).
+# hypothesis, and every extra: hidapi, pyusb, dask, pyarrow, matplotlib, pymavlink).
 PY ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin

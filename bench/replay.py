@@ -1,10 +1,11 @@
 """``arva-bench replay DIR``: every logged device back on its own port, byte for byte,
 with its recorded timing (``--speed X`` times real time; ``0`` as fast as possible).
 
-Ports are created like the emulator's: ``--port pty`` (default) makes one
+Ports are opened by the emulator's own factory (emulator.output.factory), so a port
+spec means what it means to ``arva-emulate``: ``--port pty`` (default) makes one
 pseudo-terminal per device, announced on stdout as ``<device> <path>`` before any data;
-``--device NAME=PORT`` sends one device elsewhere (a path, a URL or ``-``); ``--link
-DIR`` adds stable symlinks. ``rfc2217-server:HOST:PORT`` and ``tcp-server:HOST:PORT``
+``--device NAME=PORT`` sends one device elsewhere (a serial device, a URL, a regular
+file or ``-``); ``--link DIR`` adds stable symlinks (DIR created if missing). ``rfc2217-server:HOST:PORT`` and ``tcp-server:HOST:PORT``
 serve a device to network clients (loopback only unless ``--serve-any-host``; the URL to
 open is announced like a pty; line 115200 8N1 until an RFC 2217 client sets its own). Reads are replayed in the order and at the times the logger
 saw them (its monotonic clock), so interleaving across devices is preserved.
@@ -19,9 +20,10 @@ import sys
 import threading
 from pathlib import Path
 
-from emulator.cli_types import existing_dir, seconds, session_dir, speed
-from emulator.output.net_ports import ServerPort, open_server_port, stderr_notifier
-from emulator.output.ports import Port, PtyPort, SerialPort, StdoutPort
+from emulator.cli_types import output_dir, seconds, session_dir, speed
+from emulator.output.factory import PortOptions, open_port
+from emulator.output.net_ports import ServerPort, stderr_notifier
+from emulator.output.ports import Port, PtyPort
 from emulator.progress import progress
 from firmware_proto.errors import InputError
 
@@ -36,28 +38,15 @@ def register(sub) -> None:
     p.add_argument("--speed", type=speed, default=1.0, metavar="X", help="X times real time; 0 = as fast as possible")
     p.add_argument("--port", default="pty", metavar="PORT", help="default port for every device (default pty)")
     p.add_argument("--device", action="append", default=[], metavar="NAME=PORT", help="one device to its own port")
-    p.add_argument("--link", type=existing_dir, metavar="DIR", help="stable symlinks DIR/<device> to the ptys")
+    p.add_argument("--link", type=output_dir, metavar="DIR", help="stable symlinks DIR/<device> to the ptys (created if missing)")
     p.add_argument("--delay", type=seconds, default=0.0, metavar="S", help="wait S seconds after announcing the ptys")
     p.add_argument("--serve-any-host", action="store_true",
                    help="let rfc2217-server/tcp-server ports listen on non-loopback addresses")
     p.set_defaults(func=run)
 
 
-def _open(name: str, spec: str, link_dir: Path | None, serve_any_host: bool = False) -> Port:
-    server = open_server_port(name, spec, serve_any_host=serve_any_host, notify=stderr_notifier("arva-bench: replay"))
-    if server is not None:
-        return server
-    if spec == "-":
-        return StdoutPort(name)
-    if spec == "pty":
-        return PtyPort(name, None if link_dir is None else link_dir / name)
-    return SerialPort(name, spec)
-
-
 def run(args: argparse.Namespace) -> int:
     check_speed(args.speed, "replay")
-    if args.link is not None and not args.link.is_dir():
-        raise InputError(f"replay: --link {args.link}: not a directory")
     directory = Path(args.session)
     manifest = load_manifest(directory)
     reads = load_reads(directory, manifest.devices)  # every line checked before any port opens
@@ -82,8 +71,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         # Announcements go to stdout, unless a device's data does.
         announce_to = sys.stderr if "-" in ports_for.values() else sys.stdout
+        options = PortOptions(link_dir=args.link, serve_any_host=args.serve_any_host,
+                              notify=stderr_notifier("arva-bench: replay"))
         for name in names:
-            ports[name] = _open(name, ports_for[name], args.link, args.serve_any_host)
+            ports[name] = open_port(name, ports_for[name], options)
             if isinstance(ports[name], (PtyPort, ServerPort)):
                 print(f"{name} {ports[name].path}", file=announce_to, flush=True)
         if args.speed == 0:

@@ -21,8 +21,9 @@ from emulator import __version__
 from emulator.cli_types import OneLineParser, baud_rate, non_negative_int, output_dir, run_main, scene_file, seconds, speed
 from emulator.control import runtime as control_runtime
 from emulator.output.kworkers import raise_workers
-from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, open_server_port, stderr_notifier
-from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, is_file_spec
+from emulator.output.factory import PortOptions, open_port
+from emulator.output.net_ports import LineSettings, ServerPort, is_ephemeral, stderr_notifier
+from emulator.output.ports import Port, PtyPort
 from emulator.scene.reader import default_scene, load_scene
 from emulator.output.realtime import request_realtime
 from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
@@ -123,20 +124,6 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return build_parser().parse_args(argv)
 
 
-def _serial_options(args: argparse.Namespace, url: str) -> dict:
-    opts = {
-        "baudrate": args.baud,
-        "bytesize": args.bytesize,
-        "parity": args.parity,
-        "stopbits": args.stopbits,
-        "rtscts": args.rtscts,
-        "xonxoff": args.xonxoff,
-    }
-    if "://" not in url:
-        opts["exclusive"] = True  # a device another program holds is an error, not a fight
-    return opts
-
-
 def assign_ports(labels: list[str], default: str, overrides: list[tuple[str, str]]) -> dict[str, str]:
     """Map every stream label to a port spec; raise InputError for impossible requests."""
     known = set(labels)
@@ -159,27 +146,16 @@ def assign_ports(labels: list[str], default: str, overrides: list[tuple[str, str
     return ports
 
 
-def open_port(label: str, spec: str, args: argparse.Namespace) -> Port:
-    if spec == "-":
-        return StdoutPort(label)
-    if spec == "pty":
-        link = None
-        if args.link is not None:
-            try:
-                args.link.mkdir(parents=True, exist_ok=True)  # a fresh machine has no DIR yet
-            except FileExistsError:
-                raise InputError(f"--link {args.link}: not a directory") from None
-            except OSError as exc:
-                raise InputError(f"--link {args.link}: cannot create: {exc.strerror or exc}") from None
-            link = args.link / label.replace(":", "-")
-        return PtyPort(label, link)
-    line = LineSettings(args.baud, args.bytesize, args.parity, args.stopbits)
-    server = open_server_port(label, spec, line, args.serve_any_host, stderr_notifier("arva-emulate"))
-    if server is not None:
-        return server
-    if is_file_spec(spec):
-        return FilePort(label, spec)
-    return SerialPort(label, spec, _serial_options(args, spec))
+def port_options(args: argparse.Namespace) -> PortOptions:
+    """The command line's port settings."""
+    return PortOptions(
+        line=LineSettings(args.baud, args.bytesize, args.parity, args.stopbits),
+        rtscts=args.rtscts,
+        xonxoff=args.xonxoff,
+        link_dir=args.link,
+        serve_any_host=args.serve_any_host,
+        notify=stderr_notifier("arva-emulate"),
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -198,9 +174,10 @@ def run(args: argparse.Namespace) -> int:
     announce_to = sys.stderr if "-" in specs.values() else sys.stdout
     announce = _announcer(announce_to)
     ports: dict[str, Port] = {}
+    options = port_options(args)
     try:
         for label in pipe.labels:
-            port = ports[label] = open_port(label, specs[label], args)
+            port = ports[label] = open_port(label, specs[label], options)
             if isinstance(port, (PtyPort, ServerPort)):
                 # Announced before any data, flushed at once: a test harness or a human
                 # reads the path from here and opens it (again after a simulated unplug).

@@ -21,7 +21,6 @@ every path                  no part longer than NAME_MAX (255) bytes, at most PA
 ``input_file``              an existing regular file one can read; ``''`` is refused
                             (``scene_file``: the same, for ``--scene``)
 ``session_dir``             an existing directory
-``existing_dir``            an existing directory one can write to (``--link``)
 ``output_file(suffixes)``   a file that can be created or overwritten: not a
                             directory, in an existing writable directory
 ``output_dir``              an existing writable directory, or one that can be
@@ -299,16 +298,6 @@ def session_dir(text: str) -> Path:
 
 def _writable_dir(path: Path) -> bool:
     return path.is_dir() and os.access(path, os.W_OK | os.X_OK)
-
-
-def existing_dir(text: str) -> Path:
-    """An existing directory one can create entries in (``--link``)."""
-    path = _path(text)
-    if not path.is_dir():
-        _fail(f"{text}: not a directory")
-    if not _writable_dir(path):
-        _fail(f"{text}: directory is not writable")
-    return path
 
 
 def _creatable_file(text: str, suffixes: Sequence[str] | None) -> Path:

@@ -87,3 +87,20 @@ def test_replay_of_a_session_killed_in_its_first_write(tmp_path):
                           capture_output=True, text=True, timeout=30)  # fmt: skip
     assert (proc.returncode, proc.stdout) == (2, "")
     assert proc.stderr == f"arva-bench: replay: {tmp_path / 's'}: no complete read in any device's raw log\n"
+
+
+def test_replay_opens_ports_with_the_emulators_factory(tmp_path):
+    """One port factory (emulator.output.factory): a regular file is a port in replay as
+    in arva-emulate, and --link DIR is created on a fresh machine, as arva-emulate does."""
+    expected = make_session(tmp_path / "s")
+    links = tmp_path / "fresh" / "links"
+    proc = subprocess.run(
+        [sys.executable, "-m", "bench.cli", "replay", str(tmp_path / "s"), "--speed", "0",
+         "--device", f"arva={tmp_path / 'arva.out'}", "--link", str(links)],
+        capture_output=True, text=True, timeout=30,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "arva.out").read_bytes() == expected
+    name, path = proc.stdout.split()
+    assert name == "gps-rx" and links.is_dir() and not (links / "gps-rx").exists()  # removed at close
+    assert proc.stderr == "arva-bench: replay: 15 reads, %d bytes written, 0 bytes dropped\n" % (len(expected) + 30)

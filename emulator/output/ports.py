@@ -55,6 +55,12 @@ class Port:
     def close(self) -> None:
         pass
 
+    def __enter__(self) -> "Port":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
     def _account(self, offered: int, accepted: int) -> int:
         self.bytes_written += accepted
         self.bytes_dropped += offered - accepted
