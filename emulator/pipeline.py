@@ -46,7 +46,7 @@ from emulator.frames.rotation import normalize_quaternions
 from emulator.frames.trajectory import IDENTITY, Trajectory
 from emulator.output.link_faults import FaultyPort, LinkFaultConfig
 from emulator.output.ports import Port
-from emulator.output.scheduler import Route, SceneClock
+from emulator.output.scheduler import Route, SceneClock, epochs_before
 from emulator.output.streams import ArvaStream, EpochSource, Stream
 from emulator.receiver.receiver import Receiver
 from emulator.scene.types import Scene, Transmitter
@@ -245,8 +245,7 @@ class Pipeline:
         t_end = end / first.stream.rate_hz
         for ref in self.upcoming():
             r = self.route(ref.label)
-            # The scheduler's --frames rule: epochs with k / rate < end / rate_0.
-            if ref.k < end * r.stream.rate_hz / first.stream.rate_hz - 1e-9:
+            if ref.k < epochs_before(end, r.stream.rate_hz, first.stream.rate_hz):
                 r.send(1, self.clock)
             elif ref.t > t_end + 1e-9:
                 break

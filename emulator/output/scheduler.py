@@ -59,6 +59,15 @@ class SceneClock:
         return self.t
 
 
+def epochs_before(first_epochs: int, rate_hz: float, first_rate_hz: float) -> int:
+    """How many epochs of a stream at ``rate_hz`` come before the scene time that ends
+    the first stream's ``first_epochs`` epochs: those with k / rate < first_epochs /
+    first_rate (the ``--frames`` rule, used by every clock; 1e-9 guards float ratios)."""
+    if rate_hz == first_rate_hz:
+        return first_epochs
+    return math.ceil(first_epochs * rate_hz / first_rate_hz - 1e-9)
+
+
 @dataclass
 class Route:
     """A stream bound to the port it is written to."""
@@ -138,8 +147,7 @@ class EpochScheduler:
         if frames is not None:
             rate0 = routes[0].stream.rate_hz
             for r in routes:
-                # Epochs with k / rate < frames / rate0; the 1e-9 guards float ratios.
-                r.end_k = frames if r is routes[0] else math.ceil(frames * r.stream.rate_hz / rate0 - 1e-9)
+                r.end_k = epochs_before(frames, r.stream.rate_hz, rate0)
 
     def stop(self) -> None:
         """Ask the run to end after the current epoch (safe from a signal handler)."""

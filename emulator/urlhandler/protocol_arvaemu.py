@@ -63,7 +63,7 @@ class Serial(SerialBase):
         try:
             scene = default_scene() if path in ("", "default") else load_scene(path)
             self._speed = _number(opt, "speed", 1.0, url)
-            self._frames = int(_number(opt, "frames", math.inf, url)) if "frames" in opt else None
+            frames = int(_number(opt, "frames", math.inf, url)) if "frames" in opt else None
             delay = _number(opt, "delay", 0.0, url)
         except InputError as exc:
             raise SerialException(str(exc)) from None
@@ -79,6 +79,7 @@ class Serial(SerialBase):
             self._pipeline.close_sources()
         self._pipeline = Pipeline(scene, [label])
         (self._route,) = self._pipeline.bind({label: BufferPort(label, self._buffer)}, self._speed)
+        self._route.end_k = frames  # one stream: --frames' rule is its epoch count
         self._start = time.monotonic() + delay
 
     # -- reading ----------------------------------------------------------------
@@ -99,15 +100,15 @@ class Serial(SerialBase):
             # Render whole epochs until the request can be met.
             per_epoch = 64 * max(1, route.stream.receiver.channels)
             due = route.next_k + max(1, math.ceil((want - len(self._buffer)) / per_epoch))
-        if self._frames is not None:
-            due = min(due, self._frames)
+        if route.end_k is not None:
+            due = min(due, route.end_k)
         # Written through the pipeline's route: link faults apply, bytes land in _buffer.
         route.send(due - route.next_k, self._pipeline.clock)
 
     def _next_due_in(self) -> float:
         """Seconds until the next epoch is due (inf when the stream has ended)."""
         route = self._route
-        if self._frames is not None and route.next_k >= self._frames:
+        if route.done:
             return math.inf
         if self._speed == 0:
             return 0.0
