@@ -136,6 +136,22 @@ def _sleeper(speed: float):
     return time.sleep if speed > 0 else (lambda _s: None)
 
 
+@dataclass(frozen=True)
+class Pose:
+    """A device's ground truth: ``position`` ENU metres, ``orientation`` [w, x, y, z]
+    body to world, ``enabled`` (transmitters: not silenced)."""
+
+    id: int
+    position: list[float]
+    orientation: list[float]
+    enabled: bool = True
+
+
+def _pose_at(trajectory: Trajectory, t: float) -> tuple[list[float], list[float]]:
+    pos, quat = trajectory.at(np.array([t]))
+    return [float(v) for v in pos[0]], [float(v) for v in quat[0]]
+
+
 class Pipeline:
     """A scene's streams, bound to ports, written epoch by epoch.
 
@@ -318,11 +334,12 @@ class Pipeline:
         self._move_receiver(index, rx, None)
 
     def fault(self, label: str, kind: str, amount: float) -> None:
-        """Inject a fault on stream ``label``'s port now (see
-        :meth:`~emulator.output.link_faults.FaultyPort.inject`): ``disconnect`` for
-        ``amount`` scene seconds, ``stall`` of ``amount`` ms, ``corrupt`` the next
-        ``amount`` bytes. A port without link faults gets a fault-free wrapper first."""
+        """Inject a fault on stream ``label``'s port, starting with its next epoch (at that
+        epoch's scene time; see :meth:`~emulator.output.link_faults.FaultyPort.inject`):
+        ``disconnect`` for ``amount`` scene seconds, ``stall`` of ``amount`` ms, ``corrupt``
+        the next ``amount`` bytes. A port without link faults gets a fault-free wrapper first."""
         r = self.route(label)
+        self.clock.t = r.t_next
         if not isinstance(r.port, FaultyPort):
             info = self.infos[label]
             r.port = FaultyPort(
@@ -330,6 +347,27 @@ class Pipeline:
             )
         r.port.stall_hold = self.stall_hold
         r.port.inject(kind, amount)
+
+    # -- ground truth -------------------------------------------------------------------
+    def receiver_poses(self, t: float) -> list[Pose]:
+        """Each receiver stream's pose at scene time ``t``: the scene path or a pin, the
+        simulated vehicle's, or the autopilot's (MAVLink)."""
+        out = []
+        for info in self.layout:
+            if info.kind != "arva" or info.label not in self.streams:
+                continue
+            src = self.streams[info.label].receiver
+            if isinstance(src, ClosedLoop):
+                pos, quat = src.current_pose()
+            else:
+                pos, quat = _pose_at(src.trajectory, t)
+            out.append(Pose(self.scene.receivers[info.receiver].id, pos, quat))
+        return out
+
+    def transmitter_poses(self, t: float) -> list[Pose]:
+        """Every transmitter's pose at scene time ``t``, by id, with ``enabled``."""
+        return [Pose(tx_id, *_pose_at(tx.trajectory, t), enabled=tx_id not in self.silenced)
+                for tx_id, tx in sorted(self.transmitters.items())]
 
     # -- internals ----------------------------------------------------------------------
     def _t_next(self) -> float:

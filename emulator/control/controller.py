@@ -25,11 +25,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import numpy as np
-
 from firmware_proto.errors import InputError
 
-from emulator.closed_loop.loop import ClosedLoop
 from emulator.output.scheduler import STEP_DRAIN_WAIT, EpochScheduler
 from emulator.pipeline import Pipeline
 
@@ -147,12 +144,8 @@ class Controller:
                 pipe.pin_receiver(index, req.position, req.orientation)
             return self._epoch()
         if isinstance(req, Fault):
-            if req.stream not in pipe.streams:
-                raise ControlError(f"fault: no stream {req.stream!r} (streams: {', '.join(pipe.streams)})")
             amount = {"disconnect": req.seconds, "stall": req.ms, "corrupt": req.count}[req.kind]
-            # The fault starts with the stream's next epoch, at its scene time.
-            pipe.clock.t = pipe.route(req.stream).t_next
-            pipe.fault(req.stream, req.kind, amount)
+            pipe.fault(req.stream, req.kind, amount)  # from the stream's next epoch
             return self._epoch()
         if isinstance(req, Truth):
             t = self._t()
@@ -162,25 +155,11 @@ class Controller:
         raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
 
     def _receivers(self, t: float) -> list[dict]:
-        out = []
-        for info in self.pipe.layout:
-            if info.kind != "arva" or info.label not in self.pipe.streams:
-                continue
-            spec = self.pipe.scene.receivers[info.receiver]
-            src = self.pipe.streams[info.label].receiver
-            if isinstance(src, ClosedLoop):  # the vehicle's pose now, or the autopilot's (MAVLink)
-                pos, quat = src.current_pose()
-            else:
-                pos, quat = _pose(src.trajectory, t)
-            out.append({"id": spec.id, "position": pos, "orientation": quat})
-        return out
+        return [{"id": p.id, "position": p.position, "orientation": p.orientation} for p in self.pipe.receiver_poses(t)]
 
     def _transmitters(self, t: float) -> list[dict]:
-        return [
-            {"id": tx_id, **dict(zip(("position", "orientation"), _pose(tx.trajectory, t))),
-             "enabled": tx_id not in self.pipe.silenced}
-            for tx_id, tx in sorted(self.pipe.transmitters.items())
-        ]
+        return [{"id": p.id, "position": p.position, "orientation": p.orientation, "enabled": p.enabled}
+                for p in self.pipe.transmitter_poses(t)]
 
 
 class StepJob:
@@ -211,8 +190,3 @@ class StepJob:
 
     def abandon(self, why: str) -> dict:
         return error_reply(f"step: {why}: stopped after {self.done} of {self.n} epochs")
-
-
-def _pose(trajectory, t: float) -> tuple[list[float], list[float]]:
-    pos, quat = trajectory.at(np.array([t]))
-    return [float(v) for v in pos[0]], [float(v) for v in quat[0]]

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from firmware_proto.errors import InputError
 
-from emulator.output.link_faults import FaultyPort
+from emulator.output.ports import Port
 from emulator.output.scheduler import EpochScheduler
 from emulator.pipeline import Pipeline
 
@@ -78,24 +78,31 @@ def wanted(args: argparse.Namespace) -> bool:
     return args.control is not None
 
 
+def capture_ports(args: argparse.Namespace, ports: dict[str, Port]) -> tuple[dict[str, Port], list[CapturePort]]:
+    """``--capture DIR``: each device port wrapped so that what it is offered is also
+    appended to ``DIR/<stream>.bytes`` (bound below any link faults: what the device was
+    offered). The ports to bind, and the captures (for :class:`ControlSession` to close)."""
+    if getattr(args, "capture", None) is None:
+        return ports, []
+    captured = {label: CapturePort(port, args.capture / (label.replace(":", "-") + ".bytes")) for label, port in ports.items()}
+    return captured, list(captured.values())
+
+
 class ControlSession:
     """The control channel of one run (see the module docstring)."""
 
-    def __init__(self, args: argparse.Namespace, pipe: Pipeline, scheduler: EpochScheduler, stop: threading.Event) -> None:
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        pipe: Pipeline,
+        scheduler: EpochScheduler,
+        stop: threading.Event,
+        captures: list[CapturePort] = (),
+    ) -> None:
         self.clock = args.clock
         self.scheduler = scheduler
         self.stop = stop
-        self.captures: list[CapturePort] = []
-        if args.capture is not None:
-            for r in pipe.routes:
-                capture = CapturePort(r.port.inner if isinstance(r.port, FaultyPort) else r.port,
-                                      args.capture / (r.stream.label.replace(":", "-") + ".bytes"))
-                # On the device port, below any link faults: what the device was offered.
-                if isinstance(r.port, FaultyPort):
-                    r.port.inner = capture
-                else:
-                    r.port = capture
-                self.captures.append(capture)
+        self.captures = list(captures)
         self.controller = Controller(scheduler, pipe, self.clock)
         self.server = ControlServer(args.control, self.controller.handle, self._quit, any_host=args.control_any_host)
 
