@@ -27,7 +27,7 @@ from emulator.output.ports import Port, PtyPort
 from emulator.progress import progress
 from firmware_proto.errors import InputError
 
-from .ingest.pacer import ReplayPacer, check_speed, load_reads
+from .ingest.pacer import ReplayPacer, load_reads
 from .session import load_manifest
 
 
@@ -46,7 +46,6 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_speed(args.speed, "replay")
     directory = Path(args.session)
     manifest = load_manifest(directory)
     reads = load_reads(directory, manifest.devices)  # every line checked before any port opens

@@ -109,14 +109,23 @@ def real(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fa
     return _named(parse, "number")
 
 
-def speed(text: str) -> float:
-    """A speed: 0 (as fast as possible) or a finite number in [MIN_SPEED, MAX_SPEED]."""
-    value = _parse_float(text)
+def speed_value(value: float, text: str | None = None) -> float:
+    """The one speed rule (every command, replay's pacer, ``arvaemu://?speed=``): 0 (as
+    fast as possible) or a finite number in [MIN_SPEED, MAX_SPEED]; else
+    :class:`InputError` saying so (``text``: the value as the user wrote it)."""
     if value == 0:
         return 0.0
     if not math.isfinite(value) or not MIN_SPEED <= value <= MAX_SPEED:
-        _fail(f"must be 0 (as fast as possible) or within {MIN_SPEED:g}..{MAX_SPEED:g}, got {text}")
-    return value
+        raise InputError(f"must be 0 (as fast as possible) or within {MIN_SPEED:g}..{MAX_SPEED:g}, got {text or value}")
+    return float(value)
+
+
+def speed(text: str) -> float:
+    """``--speed``: :func:`speed_value` of the number written."""
+    try:
+        return speed_value(_parse_float(text), text)
+    except InputError as exc:
+        _fail(str(exc))
 
 
 #: A duration in seconds: finite, in [0, MAX_SECONDS].

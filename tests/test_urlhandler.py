@@ -104,7 +104,9 @@ def test_reader_thread_protocol():
     "url, message",
     [
         ("arvaemu://?sped=1", "arvaemu://?sped=1: unknown option 'sped' (known: delay, frames, receiver, speed)"),
-        ("arvaemu://?speed=-1", "arvaemu://?speed=-1: speed=-1: must be a finite number >= 0"),
+        ("arvaemu://?speed=-1", "arvaemu://?speed=-1: speed=-1: must be 0 (as fast as possible) or within 1e-06..1e+06, got -1"),
+        ("arvaemu://?speed=1e7", "arvaemu://?speed=1e7: speed=1e7: must be 0 (as fast as possible) or within 1e-06..1e+06, got 1e7"),
+        ("arvaemu://?frames=2.5", "arvaemu://?frames=2.5: frames=2.5: expected a whole number"),
         ("arvaemu://?receiver=3", "arvaemu://?receiver=3: receiver=3: no such receiver (ids: [1])"),
         ("arvaemu://nope.toml", "nope.toml: cannot read: No such file or directory"),
     ],

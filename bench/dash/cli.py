@@ -27,7 +27,7 @@ from pathlib import Path
 from emulator.cli_types import baud_rate, output_dir, positive_seconds, probe_creatable_dir, speed
 from firmware_proto.errors import InputError
 
-from ..ingest.pacer import check_speed, load_reads
+from ..ingest.pacer import load_reads
 from ..log import add_truth_arguments, device_arg, device_specs
 from ..logger import DeviceSpec
 from ..preflight import check_sources
@@ -78,7 +78,6 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
 
     if not (args.stale > 0):
         raise InputError(f"dash: --stale {args.stale}: must be > 0")
-    check_speed(args.speed, "dash")
     probe_creatable_dir(Path(args.record_dir), "dash: --record-dir")  # a recording must not fail in the TUI
     sources = list(args.source) or [(DEFAULT_SOURCE, "rx")]
     sessions = [url for url, _ in sources if _is_session(url)]

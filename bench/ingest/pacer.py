@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from emulator.cli_types import speed_value
 from firmware_proto.errors import InputError
 
 from ..session import RawLog, RawRead, session_logs
@@ -27,11 +28,6 @@ def load_reads(directory: str | Path, names: Iterable[str]) -> dict[str, RawLog]
     return {name: log.scan() for name, log in session_logs(directory, names).items()}
 
 
-def check_speed(speed: float, command: str) -> None:
-    if not (0 <= speed < float("inf")):
-        raise InputError(f"{command}: --speed {speed}: must be a finite number >= 0")
-
-
 class ReplayPacer:
     """Delivers reads in the logger's order at their recorded pace.
 
@@ -42,7 +38,7 @@ class ReplayPacer:
     def __init__(self, reads: dict[str, Iterable[RawRead]], speed: float = 1.0, stop: threading.Event | None = None,
                  tick: Callable[[], None] | None = None, tick_interval: float = 0.1) -> None:  # fmt: skip
         self.reads = reads
-        self.speed = speed
+        self.speed = speed_value(speed)  # InputError: the one speed rule (emulator.cli_types)
         self.stop = stop if stop is not None else threading.Event()
         self.tick = tick
         self.tick_interval = tick_interval

@@ -25,6 +25,7 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Tim
 
 from firmware_proto.errors import InputError
 
+from emulator.cli_types import speed_value
 from emulator.output.ports import BufferPort
 from emulator.output.scheduler import Route
 from emulator.pipeline import Pipeline
@@ -62,8 +63,8 @@ class Serial(SerialBase):
         path = parts.netloc + parts.path
         try:
             scene = default_scene() if path in ("", "default") else load_scene(path)
-            self._speed = _number(opt, "speed", 1.0, url)
-            frames = int(_number(opt, "frames", math.inf, url)) if "frames" in opt else None
+            self._speed = _speed(opt, url)
+            frames = _count(opt, "frames", url)
             delay = _number(opt, "delay", 0.0, url)
         except InputError as exc:
             raise SerialException(str(exc)) from None
@@ -198,13 +199,35 @@ class Serial(SerialBase):
         return True
 
 
-def _number(opt: dict, key: str, default: float, url: str) -> float:
+def _speed(opt: dict, url: str) -> float:
+    """``speed=``: the one speed rule of every command (emulator.cli_types.speed_value)."""
+    if "speed" not in opt:
+        return 1.0
+    try:
+        return speed_value(_number(opt, "speed", 1.0, url, signed=True), opt["speed"])
+    except InputError as exc:
+        raise SerialException(f"{url}: speed={opt['speed']}: {exc}") from None
+
+
+def _count(opt: dict, key: str, url: str) -> int | None:
+    """An optional whole number >= 0 (``frames=``)."""
+    if key not in opt:
+        return None
+    value = _number(opt, key, 0.0, url)
+    if value != int(value):
+        raise SerialException(f"{url}: {key}={opt[key]}: expected a whole number")
+    return int(value)
+
+
+def _number(opt: dict, key: str, default: float, url: str, signed: bool = False) -> float:
     if key not in opt:
         return default
     try:
         value = float(opt[key])
     except ValueError:
         raise SerialException(f"{url}: {key}={opt[key]}: expected a number") from None
+    if signed:
+        return value
     if not (math.isfinite(value) and value >= 0):
         raise SerialException(f"{url}: {key}={opt[key]}: must be a finite number >= 0")
     return value
