@@ -76,8 +76,6 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
     """The :class:`~bench.dash.app.DashConfig` of parsed arguments (InputError if unusable)."""
     from .app import DashConfig
 
-    if not (args.stale > 0):
-        raise InputError(f"dash: --stale {args.stale}: must be > 0")
     probe_creatable_dir(Path(args.record_dir), "dash: --record-dir")  # a recording must not fail in the TUI
     sources = list(args.source) or [(DEFAULT_SOURCE, "rx")]
     sessions = [url for url, _ in sources if _is_session(url)]
