@@ -32,7 +32,17 @@ from ..logger import DeviceSpec
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkStatus, TruthPose
 from .recorder import SessionRecorder
 from .state import LinkView, ReceiverState, TruthState
-from .widgets import ChannelTable, DirectionIndicator, GroundTruthPanel, LinkPanel, ReceiverPanel, StatusBar
+from .widgets import (
+    ChannelTable,
+    ChannelView,
+    DirectionIndicator,
+    GroundTruthPanel,
+    LinkPanel,
+    LinksView,
+    ReceiverPanel,
+    StatusBar,
+    TruthView,
+)
 
 HELP = """\
 [b]arva-bench dash[/b]: receivers, ground truth and links, live
@@ -216,19 +226,19 @@ class DashApp(App):
         if panel is None or not panel.children:
             return
         ids = [s[0] for s in rs.slots if s is not None and s[0] >= 0]
-        panel.query_one(ChannelTable).show(rs.slots, self.truth.distances(rs.role, ids), rs.histories())
-        panel.query_one(DirectionIndicator).show(rs.slots)
+        panel.query_one(ChannelTable).view = ChannelView(tuple(rs.slots), self.truth.distances(rs.role, ids), rs.histories())
+        panel.query_one(DirectionIndicator).slots = tuple(rs.slots)
         panel.show(rs.seq, rs.complete, gap, rs.epochs, len(rs.slots))
 
     def _refresh_truth(self) -> None:
-        self.query_one(GroundTruthPanel).show(self.truth.poses, self.truth.roles())
+        self.query_one(GroundTruthPanel).view = TruthView(dict(self.truth.poses), tuple(self.truth.roles()))
         for rs in self.receivers.values():
             if rs.slots:
                 self._refresh_receiver(rs)
 
     def _refresh_links(self) -> None:
         now = self.clock()
-        self.query_one(LinkPanel).show(list(self.links.values()), now, self.config.stale_after)
+        self.query_one(LinkPanel).view = LinksView(tuple(self.links.values()), now, self.config.stale_after)
         for panel in self.query(ReceiverPanel):
             link = self.links.get(panel.device)
             panel.set_class(link is not None and link.stale(now, self.config.stale_after), "-stale")

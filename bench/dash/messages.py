@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from textual.message import Message
 
 
+@dataclass
 class EpochReceived(Message):
     """One receiver epoch: ``slots[k-1]`` is ``(id, d, delta)`` or None (slot lost).
 
@@ -19,70 +20,64 @@ class EpochReceived(Message):
     such records: a source that thins a flood of records (more than the UI can draw)
     still lets the app compute the true rate. None counts this message as one."""
 
-    def __init__(
-        self,
-        device: str,
-        role: str,
-        seq: int,
-        slots: list[tuple[int, int, int] | None],
-        mono: float,
-        complete: bool = True,
-        gap: int = 0,
-        count: int | None = None,
-    ) -> None:
-        super().__init__()
-        self.count = count
-        self.device = device
-        self.role = role
-        self.seq = seq
-        self.slots = [None if s is None else tuple(s) for s in slots]
-        self.mono = mono
-        self.complete = complete
-        self.gap = gap
+    device: str
+    role: str
+    seq: int
+    slots: list[tuple[int, int, int] | None]
+    mono: float
+    complete: bool = True
+    gap: int = 0
+    count: int | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.slots = [None if s is None else tuple(s) for s in self.slots]
 
 
+@dataclass
 class FixReceived(Message):
     """A GPS record (the ``gps`` record dict of :mod:`bench.records`) for ``role``."""
 
-    def __init__(self, device: str, role: str, fix: dict, mono: float, count: int | None = None) -> None:
-        super().__init__()
-        self.count = count
-        self.device = device
-        self.role = role
-        self.fix = fix
-        self.mono = mono
+    device: str
+    role: str
+    fix: dict
+    mono: float
+    count: int | None = None
 
 
+@dataclass
 class AttitudeReceived(Message):
     """A ``$PASHR`` attitude for ``role``: degrees and the ENU quaternion ``[w, x, y, z]``."""
 
-    def __init__(
-        self, device: str, role: str, heading: float, roll: float, pitch: float, q: list[float], mono: float,
-        count: int | None = None,
-    ) -> None:
-        super().__init__()
-        self.count = count
-        self.device = device
-        self.role = role
-        self.heading = heading
-        self.roll = roll
-        self.pitch = pitch
-        self.q = list(q)
-        self.mono = mono
+    device: str
+    role: str
+    heading: float
+    roll: float
+    pitch: float
+    q: list[float]
+    mono: float
+    count: int | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.q = list(self.q)
 
 
+@dataclass
 class TruthPose(Message):
     """A pose known without a sensor: the scene of an ``arvaemu://`` source (``via``
     ``"scene"``). ``position`` in the scene's ENU metres; ``q`` ``[w, x, y, z]``."""
 
-    def __init__(self, role: str, position: tuple[float, float, float], q: tuple[float, ...] | None,
-                 via: str, mono: float) -> None:
-        super().__init__()
-        self.role = role
-        self.position = tuple(float(v) for v in position)
-        self.q = None if q is None else tuple(float(v) for v in q)
-        self.via = via
-        self.mono = mono
+    role: str
+    position: tuple[float, float, float]
+    q: tuple[float, ...] | None
+    via: str
+    mono: float
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.position = tuple(float(v) for v in self.position)
+        self.q = None if self.q is None else tuple(float(v) for v in self.q)
 
 
 @dataclass(frozen=True)
@@ -100,17 +95,15 @@ class LinkCounters:
     last_data_mono: float | None = None
 
 
+@dataclass
 class LinkStatus(Message):
     """The state of one device link: ``state`` is ``connecting``, ``up``, ``down``
     (open failed or lost; retrying), or ``ended`` (a replayed session is over)."""
 
-    def __init__(self, device: str, kind: str, role: str, url: str, state: str, counters: LinkCounters,
-                 reason: str = "") -> None:
-        super().__init__()
-        self.device = device
-        self.kind = kind
-        self.role = role
-        self.url = url
-        self.state = state
-        self.counters = counters
-        self.reason = reason
+    device: str
+    kind: str
+    role: str
+    url: str
+    state: str
+    counters: LinkCounters
+    reason: str = ""

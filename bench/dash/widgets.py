@@ -1,19 +1,49 @@
-"""The dashboard's widgets. Each keeps the data it was last given and renders it with the
+"""The dashboard's widgets. Each holds what it shows in one reactive attribute (a frozen
+dataclass: assigning it repaints the widget, no manual refresh) and renders it with the
 text-art functions of :mod:`bench.dash.render` at its current width; ``plain`` is the
 exact text shown (what the tests compare). Colours and layout are in ``dash.tcss``.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 from rich.text import Text
 from textual.containers import Horizontal
+from textual.reactive import reactive
 from textual.widget import Widget
 from textual.widgets import Static
 
 from . import render
 from .state import LinkView, Pose
+
+
+@dataclass(frozen=True)
+class ChannelView:
+    """A receiver's slots ``(id, d, delta)`` or None, true distances by id (m), and each
+    channel's d history."""
+
+    slots: tuple = ()
+    true_m: dict[int, float] = field(default_factory=dict)
+    histories: dict[int, list] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TruthView:
+    """Poses by role, and the roles in display order."""
+
+    poses: dict[str, Pose] = field(default_factory=dict)
+    roles: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class LinksView:
+    """Every device link, the app clock's ``now`` and the ``--stale`` limit (s)."""
+
+    links: tuple[LinkView, ...] = ()
+    now: float = 0.0
+    stale_after: float = 3.0
 
 
 def _css_id(name: str) -> str:
@@ -44,21 +74,13 @@ class ChannelTable(_TextWidget):
     both devices), and a d-versus-time sparkline per channel (newest epoch on the right)."""
 
     DEFAULT_WIDTH = 50
-
-    def __init__(self, **kwargs) -> None:
-        super().__init__(**kwargs)
-        self.slots: list = []
-        self.true_m: dict[int, float] = {}
-        self.histories: dict[int, list] = {}
-
-    def show(self, slots: list, true_m: dict[int, float], histories: dict[int, list]) -> None:
-        self.slots, self.true_m, self.histories = list(slots), dict(true_m), dict(histories)
-        self.refresh()
+    view: reactive[ChannelView] = reactive(ChannelView, always_update=True)
 
     def lines(self, width: int) -> list[str]:
-        if not self.slots:
+        v = self.view
+        if not v.slots:
             return [render.table_header(width), "waiting for the first epoch"[:width]]
-        return render.channel_rows(self.slots, self.true_m, self.histories, width)
+        return render.channel_rows(list(v.slots), v.true_m, v.histories, width)
 
 
 class DirectionIndicator(_TextWidget):
@@ -67,14 +89,7 @@ class DirectionIndicator(_TextWidget):
     the transmitter, its distance and δ."""
 
     DEFAULT_WIDTH = 26
-
-    def __init__(self, **kwargs) -> None:
-        super().__init__(**kwargs)
-        self.slots: list = []
-
-    def show(self, slots: list) -> None:
-        self.slots = list(slots)
-        self.refresh()
+    slots: reactive[tuple] = reactive(tuple, always_update=True)
 
     def lines(self, width: int) -> list[str]:
         first = self.slots[0] if self.slots else None
@@ -119,18 +134,10 @@ class GroundTruthPanel(_TextWidget):
     quality, surveyed, scene), and attitude (heading, roll, pitch in degrees)."""
 
     DEFAULT_WIDTH = 36
-
-    def __init__(self, **kwargs) -> None:
-        super().__init__(**kwargs)
-        self.poses: dict[str, Pose] = {}
-        self.roles: list[str] = []
-
-    def show(self, poses: dict[str, Pose], roles: list[str]) -> None:
-        self.poses, self.roles = poses, list(roles)
-        self.refresh()
+    view: reactive[TruthView] = reactive(TruthView, always_update=True)
 
     def lines(self, width: int) -> list[str]:
-        return render.truth_lines(self.poses, self.roles, width)
+        return render.truth_lines(self.view.poses, list(self.view.roles), width)
 
 
 class LinkPanel(_TextWidget):
@@ -141,26 +148,19 @@ class LinkPanel(_TextWidget):
     DEFAULT_WIDTH = 40
     COMPONENT_CLASSES: ClassVar[set[str]] = {"link--up", "link--STALE", "link--down", "link--end", "link--wait", "link--header"}
 
-    def __init__(self, **kwargs) -> None:
-        super().__init__(**kwargs)
-        self.links: list[LinkView] = []
-        self.now = 0.0
-        self.stale_after = 3.0
-
-    def show(self, links: list[LinkView], now: float, stale_after: float) -> None:
-        self.links, self.now, self.stale_after = list(links), now, stale_after
-        self.refresh()
+    view: reactive[LinksView] = reactive(LinksView, always_update=True)
 
     def _rows(self, width: int) -> list[tuple[str, str]]:
+        v = self.view
         rows = [(render.LINK_HEADER[:width], "header")]
-        for link in self.links:
-            row, state = render.link_row(link, self.now, self.stale_after)
+        for link in v.links:
+            row, state = render.link_row(link, v.now, v.stale_after)
             rows.append((row[:width], state))
             if state == "down" and link.reason:
                 rows.append((("  " + link.reason)[:width], "down"))
-        if self.links:
+        if v.links:
             rows += [("", "up"), (render.LINK_DETAIL_HEADER[:width], "header")]
-            rows += [(render.link_detail(link, width), "wait") for link in self.links]
+            rows += [(render.link_detail(link, width), "wait") for link in v.links]
         return rows
 
     def lines(self, width: int) -> list[str]:
