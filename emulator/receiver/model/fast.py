@@ -30,7 +30,7 @@ more than ~1e-11 to cancellation), and receiver quaternions whose |q|^2 leaves
 [1e-16, 1e290].
 
 Why numpy and not compiled code (issue 30, docs/architecture.md): a C version of this
-loop was 1.15x this path on the model alone and made no measurable difference on a whole
+loop was 1.15-1.17x this path on the model alone and made no measurable difference on a whole
 ``arva-emulate`` run, at the price of a compiler at install and a second implementation
 to keep bit-identical; it was removed. Fusing these passes with numexpr was measured and
 dropped too (issue 20, 2026-12-01, in-process A/B, CPU time, numexpr 2.14.2 on one
