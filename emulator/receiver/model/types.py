@@ -1,8 +1,9 @@
 """The receiver model's constants and the dataclasses at its boundary (BRIEF 3).
 
-Units: lengths in metres (scene units), ``d`` in centimetres, ``delta`` in degrees, the
-field in scene units (s = kappa |m| / (4 pi r^3) scaled). Frames (BRIEF 2): world = local
-ENU; body x forward, y left, z up; quaternions ``[w, x, y, z]`` rotate body into world.
+Units: lengths in metres, ``d`` in centimetres, ``delta`` in degrees, the field in scene
+units (|h| = s / (4 pi r^3) on the dipole's equator, s = ``ModelParams.moment``). Frames
+(BRIEF 2): world = local ENU; body x forward, y left, z up; quaternions ``[w, x, y, z]``
+rotate body into world; the field is in the receiver (body) frame.
 """
 
 from __future__ import annotations
