@@ -16,17 +16,14 @@ $(BIN)/python:
 	$(PY) -m venv $(VENV) || python3 -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# The optional C kernel of the model (setup.py): a changed source is rebuilt by reinstalling.
-BUILD_INPUTS := pyproject.toml setup.py emulator/receiver/model_kernel.c
-
-# The runtime set only. Rebuilt when pyproject.toml, setup.py or the C kernel changes.
-$(RUN_STAMP): $(BUILD_INPUTS) | $(BIN)/python
+# The runtime set only. Reinstalled when pyproject.toml changes.
+$(RUN_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
 	@touch $(RUN_STAMP)
 
 # The dev set includes the runtime set, so it refreshes the run stamp too (a later
 # `make run` installs nothing).
-$(DEV_STAMP): $(BUILD_INPUTS) | $(BIN)/python
+$(DEV_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	@touch $(DEV_STAMP) $(RUN_STAMP)
 
@@ -63,4 +60,4 @@ bench: $(DEV_STAMP)
 	@for f in tests/perf/bench_*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info emulator/receiver/model_kernel*.so
+	rm -rf $(VENV) build *.egg-info

@@ -1,7 +1,7 @@
 """The batch model's fast path (issue 20) against its general path.
 
 ``measure`` takes a fast path for the ideal 3-antenna receiver with static transmitters
-and no field (emulator/receiver/model.py, "Fast path"); asking for the field takes the
+and no field (emulator/receiver/model/fast.py); asking for the field takes the
 general path (the formulation every golden test was written against) on the same pairs.
 BRIEF 3 lets two correct implementations disagree within ~1e-9 of a rounding or zone
 boundary; the fast path hands such pairs to the general path, so here the integers must
@@ -12,12 +12,18 @@ they share.
 """
 
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from emulator.receiver import model
 from emulator.receiver.model import ModelParams, measure
+from firmware_proto.errors import InputError, PoseError
 
 PARAMS = ModelParams()
 REL = 1e-9
@@ -197,3 +203,150 @@ def test_a_scene_far_from_the_origin_takes_the_general_path_block_by_block(monke
     rx_p = rng.uniform(-60, 60, (3000, 3))
     rx_p[17] += 1e9
     _compare(rx_p, rx_q, tx_p - off, tx_q)
+
+
+# -- ARVA_MODEL_KERNEL (model.KERNEL): "fast" (default) or "general" --------------------
+
+PAPER_TX = np.array([[20, 5, 0], [10, 0, 1], [20, -20, -1], [-6, 5, 0]], dtype=float)
+I = (1.0, 0.0, 0.0, 0.0)
+
+
+def _same(a, b):
+    for x, y in ((a.d, b.d), (a.delta, b.delta), (a.zone, b.zone)):
+        assert x.dtype == y.dtype and x.shape == y.shape
+        differ = x != y
+        assert not differ.any(), f"{int(differ.sum())} pairs differ, e.g. {x[differ][:5]} vs {y[differ][:5]}"
+
+
+def _both(monkeypatch, rx_p, rx_q, tx_p, tx_q, params=PARAMS, threads=1):
+    """KERNEL=fast == KERNEL=general == the general path with the field, pair for pair;
+    returns the fast result."""
+    monkeypatch.setattr(model, "KERNEL", "fast")
+    got = measure(rx_p, rx_q, tx_p, tx_q, params, threads=threads)
+    monkeypatch.setattr(model, "KERNEL", "general")
+    _same(got, measure(rx_p, rx_q, tx_p, tx_q, params, threads=threads))
+    monkeypatch.setattr(model, "KERNEL", "fast")
+    _same(got, measure(rx_p, rx_q, tx_p, tx_q, params, want_field=True))  # never the fast path
+    return got
+
+
+def test_general_switches_the_fast_path_off_and_unknown_names_are_errors(monkeypatch):
+    def no_fast_path(self, first, last):
+        raise AssertionError("the fast path ran")
+
+    monkeypatch.setattr(model.fast.FastPath, "run", no_fast_path)
+    monkeypatch.setattr(model, "KERNEL", "general")
+    assert model.measure_one((0, 0, 0), I, (20, 5, 0)) == (1905, 21)
+    monkeypatch.setattr(model, "KERNEL", "fast")
+    with pytest.raises(AssertionError, match="the fast path ran"):
+        model.measure_one((0, 0, 0), I, (20, 5, 0))
+    for name in ("compiled", "numpy", "auto", "General"):  # the removed C kernel's values too
+        monkeypatch.setattr(model, "KERNEL", name)
+        with pytest.raises(InputError, match=rf"^ARVA_MODEL_KERNEL: must be one of fast, general, got '{name}'$"):
+            measure([[1.0, 2.0, 3.0]], [I], [[0.0, 0.0, 0.0]], [I], want_field=True)  # checked on the general path too
+
+
+def test_the_switch_is_read_from_the_environment():
+    code = "from emulator.receiver import model; print(model.KERNEL, model.measure_one((0, 0, 0), (1, 0, 0, 0), (20, 5, 0)))"
+    for value, out in (("general", "general (1905, 21)"), (None, "fast (1905, 21)")):
+        env = {k: v for k, v in os.environ.items() if k != "ARVA_MODEL_KERNEL"}
+        if value:
+            env["ARVA_MODEL_KERNEL"] = value
+        got = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+        assert (got.returncode, got.stdout.strip()) == (0, out), got.stderr
+
+
+def test_pairs_a_hair_either_side_of_every_boundary_and_the_fold(monkeypatch):
+    # Receivers on the y axis of a transmitter (dxy = r cbrt(kappa_eq), delta 0) a hair
+    # (1e-16 .. 1e-6 relative) either side of 300 cm (inner), 5000 cm (outer), 1234.5 cm
+    # (rounding); yawed receivers a hair either side of delta = 30.5 degrees and of the
+    # fold at 90 degrees.
+    c = math.cbrt(1.542)
+    hairs = np.concatenate([-np.logspace(-16, -6, 41), [0.0], np.logspace(-16, -6, 41)])
+    ys = np.concatenate([b / c * (1 + hairs) for b in (3.0, 50.0, 12.345)])
+    rx_p = np.stack([np.zeros_like(ys), ys, np.zeros_like(ys)], axis=1)
+    rx_q = np.tile(I, (len(ys), 1))
+    yaws = np.concatenate([np.radians(30.5) * (1 + hairs), np.radians(90.0) * (1 + hairs)])
+    rx_p = np.concatenate([rx_p, np.tile([0.0, 20.0, 0.0], (len(yaws), 1))])
+    rx_q = np.concatenate([rx_q, np.stack([np.cos(yaws / 2), 0 * yaws, 0 * yaws, np.sin(yaws / 2)], axis=1)])
+    got = _both(monkeypatch, rx_p, rx_q, [[0.0, 0.0, 0.0]], [I])
+    assert {300, 5000, -1, 1234, 1235} <= set(got.d[:, 0].tolist())
+    assert {-30, -31, 89, -89} <= set(got.delta[:, 0].tolist())
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    rx=st.lists(st.tuples(*[st.floats(-80, 80)] * 3), min_size=1, max_size=12),
+    rq=st.tuples(*[st.floats(-1, 1)] * 4).filter(lambda q: sum(v * v for v in q) > 1e-6),
+    tx=st.lists(st.tuples(*[st.floats(-30, 30)] * 3), min_size=1, max_size=5),
+    tq=st.tuples(*[st.floats(-1, 1)] * 4).filter(lambda q: sum(v * v for v in q) > 1e-6),
+)
+def test_hypothesis_inputs_identical_on_both_paths(rx, rq, tx, tq):
+    with pytest.MonkeyPatch.context() as mp:
+        _both(mp, np.array(rx), np.tile(rq, (len(rx), 1)), np.array(tx), np.tile(tq, (len(tx), 1)))
+
+
+@pytest.mark.parametrize("n, m", [(0, 4), (5, 0), (0, 0)])
+def test_empty_inputs(monkeypatch, n, m):
+    for kernel in model.KERNELS:
+        monkeypatch.setattr(model, "KERNEL", kernel)
+        got = measure(np.zeros((n, 3)), np.tile(I, (n, 1)), np.zeros((m, 3)), np.tile(I, (m, 1)))
+        assert got.d.shape == got.delta.shape == got.zone.shape == (n, m)
+        assert (got.d.dtype, got.delta.dtype, got.zone.dtype) == (np.int64, np.int64, np.int8)
+
+
+def test_huge_and_tiny_coordinates_and_quaternions(monkeypatch):
+    rng = np.random.default_rng(8)
+    rx_p = rng.uniform(-60, 60, (400, 3))
+    rx_q = rng.normal(size=(400, 4))
+    rx_p[3] = (1e300, -1e300, 1e300)  # differences overflow: general path (outer)
+    rx_p[4] = (1.7e308, 0.0, 0.0)
+    rx_p[5] = (1e12 + 10.0, 1e12, 1e12)  # cancellation guard
+    rx_p[6] = PAPER_TX[0] + 1e-30  # r ~ 1e-30
+    rx_p[7] = PAPER_TX[2] + (1e-3, 0.0, 0.0)  # 1 mm: inner, stays fast
+    rx_q[8] *= 1e-8  # |q|^2 ~ 1e-16: general path
+    rx_q[9] *= 1e200  # |q|^2 overflows: general path
+    rx_q[10] *= 3e-9  # norm above 1e-9 (no error), |q|^2 below the fast range
+    got = _both(monkeypatch, rx_p, rx_q, PAPER_TX, [I] * 4)
+    assert got.zone[3].tolist() == [2, 2, 2, 2] and got.zone[4].tolist() == [2, 2, 2, 2]
+    assert (got.d[6, 0], got.delta[6, 0]) == (0, 0)
+    assert (got.d[7, 2], got.delta[7, 2], got.zone[7, 2]) == (0, 0, model.ZONE_INNER)
+
+
+@pytest.mark.parametrize(
+    "rx_q_row, message",
+    [
+        ([1e-10, 0.0, 0.0, 0.0], r"^receiver.orientation: quaternion norm 1e-10 is below 1e-09$"),
+        ([0.0, 0.0, 0.0, 0.0], r"^receiver.orientation: quaternion norm 0 is below 1e-09$"),
+        ([math.nan, 0.0, 0.0, 1.0], r"^receiver.orientation: quaternion has a non-finite component$"),
+        ([1.0, math.inf, 0.0, 0.0], r"^receiver.orientation: quaternion has a non-finite component$"),
+    ],
+)
+def test_bad_quaternions_raise_the_same_errors_on_both_paths(monkeypatch, rx_q_row, message):
+    rx_q = np.tile(I, (50, 1))
+    rx_q[37] = rx_q_row
+    monkeypatch.setattr(model, "CHUNK_PAIRS", 16)
+    for kernel in model.KERNELS:
+        monkeypatch.setattr(model, "KERNEL", kernel)
+        for threads in (1, 2):
+            with pytest.raises(PoseError, match=message):
+                measure(np.full((50, 3), 5.0), rx_q, PAPER_TX, [I] * 4, threads=threads)
+
+
+def test_bad_positions_and_transmitter_quaternions_raise_the_same_errors_on_both_paths(monkeypatch):
+    rx_p = np.full((20, 3), 5.0)
+    rx_p[11, 2] = math.inf
+    for kernel in model.KERNELS:
+        monkeypatch.setattr(model, "KERNEL", kernel)
+        with pytest.raises(PoseError, match=r"^receiver.position: position has a non-finite component$"):
+            measure(rx_p, np.tile(I, (20, 1)), PAPER_TX, [I] * 4)
+        with pytest.raises(PoseError, match=r"^transmitter.orientation: quaternion norm 0 is below 1e-09$"):
+            measure(np.ones((20, 3)), np.tile(I, (20, 1)), PAPER_TX, [I] * 3 + [(0, 0, 0, 0)])
+
+
+def test_strided_fortran_and_big_endian_inputs(monkeypatch):
+    rng = np.random.default_rng(9)
+    rx_p = np.asfortranarray(rng.uniform(-60, 60, (4000, 3)))[::2]  # strided, Fortran order
+    rx_q = rng.normal(size=(4000, 8))[::2, ::2]  # (2000, 4), both axes strided
+    got = _both(monkeypatch, rx_p, rx_q, PAPER_TX.astype(">f8"), [I] * 4)
+    _same(got, measure(np.ascontiguousarray(rx_p), np.ascontiguousarray(rx_q), PAPER_TX, [I] * 4))

@@ -27,7 +27,7 @@ class Params:
     r_outer: float = 50.0
     pose_sigma: float = 0.001
     time_offset: float = 0.0
-    antennas: int = 3  # 2: no z antenna, g_z = 0, so "d3" is dxy (emulator/receiver/model.py)
+    antennas: int = 3  # 2: no z antenna, g_z = 0, so "d3" is dxy (emulator/receiver/model/reference.py)
     gps_sigma: float = 0.0  # horizontal GPS error of the receiver pose (m, per axis)
     gps_ratio: float = 1.5  # vertical / horizontal GPS error
     attitude_sigma: float = 0.0  # attitude error of the receiver (rad, per body axis)

@@ -34,7 +34,7 @@ class Geometry:
 
 
 def geometry(rx_pos, rx_quat, tx_pos, tx_quat) -> Geometry:
-    """r and g for each row (the emulator's formulas, emulator/receiver/model.py). r = 0 gives log r = -inf."""
+    """r and g for each row (the emulator's formulas, emulator/receiver/model/reference.py). r = 0 gives log r = -inf."""
     rr = rotation_components(unit_quaternion_components(rx_quat, "rx_q"))  # (3, 3, N)
     m = x_axis_components(unit_quaternion_components(tx_quat, "tx_q"))  # (3, N)
     diff = (np.asarray(rx_pos, float) - np.asarray(tx_pos, float)).T

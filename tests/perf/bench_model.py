@@ -3,13 +3,13 @@
 Usage: python tests/perf/bench_model.py [--poses N] [--rounds R]
 
 * batch: emulator.receiver.model.measure on N receiver poses x 4 transmitters (pairs/s),
-  its fast path once with the compiled kernel (emulator/receiver/model_kernel.c, when
-  built), once with numpy (``model.KERNEL``, as ARVA_MODEL_KERNEL sets it), and compiled
-  with ``threads=2``;
+  once on its fast path (emulator/receiver/model/fast.py), once on the reference formula
+  alone (``model.KERNEL = "general"``, as ARVA_MODEL_KERNEL=general sets it), and on the
+  fast path with ``threads=2``;
 * C loop: the general formulas in tests/perf/model_loop.c, compiled now with `cc -O3`;
 * Python loop: tests/reference_model.measure per pair (a plain per-sample loop);
-* arva-emulate --speed 0 > /dev/null, whole process, paper scene on a moving path, with
-  each kernel (ARVA_MODEL_KERNEL in its environment).
+* arva-emulate --speed 0 > /dev/null, whole process, paper scene on a moving path, on
+  each path (ARVA_MODEL_KERNEL=fast|general in its environment).
 
 Batches and C loop are timed side by side, alternating, ``--rounds`` times each, best of
 each kept, on this thread's CPU time (time.thread_time) as well as the wall clock: on a
@@ -42,6 +42,9 @@ from _report import ROOT, markdown_table, write_section  # noqa: E402
 from emulator.receiver import model  # noqa: E402
 from emulator.receiver.model import CHUNK_PAIRS, ModelParams, measure  # noqa: E402
 from emulator.frames.rotation import normalize_quaternions, quaternion_matrices  # noqa: E402
+from emulator.output.scheduler import FAST_BATCH  # noqa: E402
+from emulator.receiver.receiver import Receiver  # noqa: E402
+from emulator.scene.reader import load_scene  # noqa: E402
 
 PAPER_TX = np.array([[20, 5, 0], [10, 0, 1], [20, -20, -1], [-6, 5, 0]], dtype=float)
 
@@ -90,7 +93,7 @@ def c_loop(rx_p, rx_q, tx_q):
 
 
 def with_kernel(kernel: str, fn):
-    """fn run with the model's fast path on ``kernel`` ("compiled" or "numpy")."""
+    """fn run with ``model.KERNEL = kernel`` ("fast" or "general")."""
     def run():
         saved, model.KERNEL = model.KERNEL, kernel
         try:
@@ -100,42 +103,14 @@ def with_kernel(kernel: str, fn):
     return run
 
 
-def libm_costs(size: int = 1 << 14) -> dict[str, float] | None:
-    """CPU ns per call of scalar libm sqrt, cbrt and atan(y / x) as the compiled kernel calls
-    them for mid-zone pairs (tests/perf/libm_cost.c, the kernel's flags), or None without cc."""
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        return None
-    lib = Path(tempfile.mkdtemp(prefix="arva-bench-")) / "libm_cost.so"
-    subprocess.run([cc, "-O3", "-std=c99", "-ffp-contract=off", "-fPIC", "-shared", str(HERE / "libm_cost.c"),
-                    "-o", str(lib), "-lm"], check=True)
-    so = ctypes.CDLL(str(lib))
-    dp = ctypes.POINTER(ctypes.c_double)
-    so.libm_pass.argtypes = [ctypes.c_int64, dp, dp, dp, ctypes.c_int]
-    rng = np.random.default_rng(0)
-    x, y = rng.uniform(1.0, 1e4, size), rng.normal(size=size)  # 100 dxy ~ 1..5000 cm: e^(1/2) in this range
-    out = np.empty(size)
-    ptr = lambda a: a.ctypes.data_as(dp)  # noqa: E731
-    reps = 50
-    costs = {}
-    for which, name in enumerate(("sqrt", "cbrt", "atan")):
-        best = best_of(lambda: [so.libm_pass(size, ptr(x), ptr(y), ptr(out), which) for _ in range(reps)], 5,
-                       clock=time.thread_time)
-        costs[name] = best / reps / size * 1e9
-    return costs
-
-
 def side_by_side(rx_p, rx_q, tx_q, rounds: int) -> dict:
-    """Best CPU and wall seconds of the batches (compiled, numpy; 2 threads) and of the C
-    loop, alternating."""
+    """Best CPU and wall seconds of the batches (fast path, general path; fast with 2
+    threads) and of the C loop, alternating."""
     call, note = c_loop(rx_p, rx_q, tx_q)
     one = lambda: measure(rx_p, rx_q, PAPER_TX, tx_q)  # noqa: E731
     two = lambda: measure(rx_p, rx_q, PAPER_TX, tx_q, threads=2)  # noqa: E731
-    runs = {"numpy": with_kernel("numpy", one)}
-    if model.KERNEL_BUILT:
-        runs["compiled"] = with_kernel("compiled", one)
-    fastest = "compiled" if "compiled" in runs else "numpy"
-    runs["2 threads"] = with_kernel(fastest, two)
+    runs = {"fast": with_kernel("fast", one), "general": with_kernel("general", one),
+            "2 threads": with_kernel("fast", two)}
     if call is not None:
         runs["C"] = call
     best = {k: [float("inf"), float("inf")] for k in runs}
@@ -147,19 +122,18 @@ def side_by_side(rx_p, rx_q, tx_q, rounds: int) -> dict:
             c1, w1 = cpu(), time.perf_counter()
             best[name][0] = min(best[name][0], c1 - c0)
             best[name][1] = min(best[name][1], w1 - w0)
-    out = {"note": note, "best": best, "fastest": fastest}
-    ours = {k: runs[k]() for k in ("compiled", "numpy") if k in runs}
-    out["mid"] = float(np.mean(ours["numpy"].zone == 1))
-    out["same"] = all(np.array_equal(getattr(ours["numpy"], f), getattr(o, f))
-                      for o in ours.values() for f in ("d", "delta", "zone"))
+    out = {"note": note, "best": best}
+    ours = {k: runs[k]() for k in ("fast", "general")}
+    out["mid"] = float(np.mean(ours["fast"].zone == 1))
+    out["same"] = all(np.array_equal(getattr(ours["fast"], f), getattr(ours["general"], f))
+                      for f in ("d", "delta", "zone"))
     if call is not None:
         d, delta = call()
-        out["agree"] = float(np.mean((ours["numpy"].d == d) & (ours["numpy"].delta == delta)))
+        out["agree"] = float(np.mean((ours["fast"].d == d) & (ours["fast"].delta == delta)))
     return out
 
 
-#: numpy passes of the batch's common path (the numpy fast path of emulator/receiver/model.py,
-#: ARVA_MODEL_KERNEL=numpy:
+#: numpy passes of the batch's common path (the fast path, emulator/receiver/model/fast.py:
 #: ideal receiver, 3 antennas, static transmitters, no field), counted from the code:
 #: (what, passes per pair, passes per mid-zone pair, priced as). Per-pose work (quaternion
 #: copy, |q|^2, two columns of R, R^T p_r, |p_r|^2: about 50 element passes per pose) is
@@ -224,6 +198,28 @@ def floor_table(batch_ns: float, mid_fraction: float) -> tuple[str, float]:
     return markdown_table(head, rows), total
 
 
+def emulator_batches(frames: int, rate_hz: float, rounds: int) -> dict[str, float]:
+    """Best CPU seconds per pair of ``measure`` on the emulator's own calls: FAST_BATCH
+    epochs of paper_walk.toml (at ``rate_hz``, as bench_emulate runs it) x its 4
+    transmitters, fast and general path alternating, 20 calls per timing."""
+    rx = Receiver(load_scene(ROOT / "emulator" / "scenes" / "paper_walk.toml"))
+    t = np.arange(min(frames, FAST_BATCH)) / rate_hz
+    rx_p, rx_q = rx.trajectory.at(t)
+    tx_p = np.stack([tx.trajectory.positions[0] for tx in rx.transmitters])
+    tx_q = np.stack([tx.trajectory.orientations[0] for tx in rx.transmitters])
+    pairs = len(t) * len(tx_p)
+    calls = 20
+    best = {k: float("inf") for k in model.KERNELS}
+    for _ in range(rounds):
+        for k in best:
+            fn = with_kernel(k, lambda: [measure(rx_p, rx_q, tx_p, tx_q, rx.model) for _ in range(calls)])
+            c0 = time.thread_time()
+            fn()
+            best[k] = min(best[k], (time.thread_time() - c0) / (calls * pairs))
+    mid = float(np.mean(measure(rx_p, rx_q, tx_p, tx_q, rx.model).zone == 1))
+    return {"pairs": pairs, "mid": mid, **best}
+
+
 def bench_python(rx_p, rx_q, count: int):
     t0 = time.perf_counter()
     for i in range(count):
@@ -234,7 +230,7 @@ def bench_python(rx_p, rx_q, count: int):
 
 def bench_emulate(frames: int, rate_hz: float, kernel: str) -> tuple[float, float]:
     """(epochs per CPU second, epochs per wall second) of `arva-emulate --speed 0 > /dev/null`
-    with ARVA_MODEL_KERNEL=``kernel``."""
+    with ARVA_MODEL_KERNEL=``kernel`` ("fast" or "general")."""
     walk = (ROOT / "emulator" / "scenes" / "paper_walk.toml").read_text()
     with tempfile.TemporaryDirectory() as tmp:
         # Same walk, faster epochs, so every one of `frames` epochs is on the moving path.
@@ -280,96 +276,82 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()[0]
     sbs = side_by_side(rx_p, rx_q, tx_q, args.rounds)
     py = bench_python(rx_p, rx_q, args.python_poses)
-    kernels = ["compiled", "numpy"] if model.KERNEL_BUILT else ["numpy"]
+    kernels = list(model.KERNELS)  # fast, general
     emu = {k: bench_emulate(args.frames, args.frames / 350.0, k) for k in kernels}
+    eb = emulator_batches(args.frames, args.frames / 350.0, args.rounds)
     start_cpu = startup_cpu()
     load1 = os.getloadavg()[0]
     pairs = args.poses * len(PAPER_TX)
     best = sbs["best"]
-    fastest = sbs["fastest"]
     rate = {k: (pairs / v[0], pairs / v[1]) for k, v in best.items()}
     c = rate.get("C")
     ns = lambda k: f"{best[k][0] / pairs * 1e9:.1f} ns"  # noqa: E731
     vs_c = lambda k: "-" if c is None else f"{rate[k][0] / c[0]:.2f}x"  # noqa: E731
     api = "batch API `emulator.receiver.model.measure`"
-    rows = []
-    if "compiled" in rate:
-        rows.append([f"{api}, compiled kernel, 1 thread", f"{rate['compiled'][0]:,.0f} pairs/s", ns("compiled"),
-                     f"{rate['compiled'][1]:,.0f} pairs/s", vs_c("compiled"),
-                     f"{args.poses:,} poses x 4 tx; fast path in emulator/receiver/model_kernel.c (the default when built)"])
-    else:
-        rows.append([f"{api}, compiled kernel", "not built", "-", "-", "-", "no C compiler when installed"])
-    rows += [
-        [f"{api}, numpy fast path, 1 thread", f"{rate['numpy'][0]:,.0f} pairs/s", ns("numpy"),
-         f"{rate['numpy'][1]:,.0f} pairs/s", vs_c("numpy"),
-         "ARVA_MODEL_KERNEL=numpy (or no compiler); same integers" + ("" if not sbs["same"] else ", checked here")],
-        [f"same ({fastest}), `threads=2`", f"{rate['2 threads'][0]:,.0f} pairs/s (both threads' CPU)", ns("2 threads"),
+    rows = [
+        [f"{api}, fast path, 1 thread", f"{rate['fast'][0]:,.0f} pairs/s", ns("fast"),
+         f"{rate['fast'][1]:,.0f} pairs/s", vs_c("fast"),
+         f"{args.poses:,} poses x 4 tx; emulator/receiver/model/fast.py (numpy), the default; "
+         f"{rate['fast'][0] / rate['general'][0]:.2f}x the general path (CPU)"],
+        [f"{api}, general path only, 1 thread", f"{rate['general'][0]:,.0f} pairs/s", ns("general"),
+         f"{rate['general'][1]:,.0f} pairs/s", vs_c("general"),
+         "ARVA_MODEL_KERNEL=general: the reference formula (model/reference.py) for every pair; same integers"
+         + ("" if not sbs["same"] else ", checked here")],
+        ["same (fast), `threads=2`", f"{rate['2 threads'][0]:,.0f} pairs/s (both threads' CPU)", ns("2 threads"),
          f"{rate['2 threads'][1]:,.0f} pairs/s", "-",
-         f"wall-clock scaling vs 1 thread: {rate['2 threads'][1] / rate[fastest][1]:.2f}x on 2 shared cores"],
+         f"wall-clock scaling vs 1 thread: {rate['2 threads'][1] / rate['fast'][1]:.2f}x on 2 shared cores"],
         ["plain C loop, `cc -O3`", "skipped" if c is None else f"{c[0]:,.0f} pairs/s", "-" if c is None else ns("C"),
          "-" if c is None else f"{c[1]:,.0f} pairs/s", "-" if c is None else "1.00x",
          sbs["note"] + ("" if c is None else f"; agrees with the batch API on {sbs['agree']:.6%} of pairs")],
         ["per-sample Python loop (tests/reference_model.py)", "-", "-", f"{py:,.0f} pairs/s", "-",
-         f"{args.python_poses:,} poses x 4 tx; the {fastest} batch is {rate[fastest][1] / py:,.0f}x faster (wall)"],
+         f"{args.python_poses:,} poses x 4 tx; the fast batch is {rate['fast'][1] / py:,.0f}x faster (wall)"],
     ]
     for k in kernels:
-        rows.append([f"`arva-emulate --speed 0 > /dev/null`, whole process, {k} kernel", f"{emu[k][0]:,.0f} epochs/s", "-",
+        rows.append([f"{api} on the emulator's calls, {k} path", f"{1 / eb[k]:,.0f} pairs/s", f"{eb[k] * 1e9:.1f} ns", "-", "-",
+                     f"{eb['pairs'] // 4:,} epochs of paper_walk.toml x 4 tx per call (arva-emulate --speed 0's batch), "
+                     f"{eb['mid']:.0%} mid-zone pairs; ARVA_MODEL_KERNEL={k}"])
+    for k in kernels:
+        rows.append([f"`arva-emulate --speed 0 > /dev/null`, whole process, {k} path", f"{emu[k][0]:,.0f} epochs/s", "-",
                      f"{emu[k][1]:,.0f} epochs/s", "-",
                      f"{args.frames:,} epochs, 4 tx, 4 channels, moving path (paper_walk.toml); "
                      f"ARVA_MODEL_KERNEL={k}; CPU = user + sys of the process"])
     table = markdown_table(["what", "per CPU second", "CPU per pair", "per wall second", "vs the C loop (CPU)", "notes"], rows)
     print(table)
-    ratio = lambda k: "n/a" if c is None or k not in rate else f"{rate[k][0] / c[0]:.2f}"  # noqa: E731
-    emu_cpu = emu[kernels[0]][0]
+    ratio = lambda k: "n/a" if c is None else f"{rate[k][0] / c[0]:.2f}"  # noqa: E731
+    emu_cpu = emu["fast"][0]
     targets = (
         f"Measured while other jobs shared the 2 cores (load average {load0:.1f} before, {load1:.1f} after): "
         "the batches and the C loop alternate, best of "
         f"{args.rounds} each, so all see the same machine. "
         "Targets: batch >= 0.5x the C loop (issue 2), >= 2x (issue 20); >= 100x the Python loop; "
         "arva-emulate >= 20,000 epochs/s (issue 2), >= 200,000 (issue 20). "
-        f"Measured: batch/C = {ratio('compiled')} compiled, {ratio('numpy')} numpy (CPU time), "
-        f"batch/Python = {rate[fastest][1] / py:,.0f}, "
-        f"emulate = {emu_cpu:,.0f} epochs per CPU second with the {kernels[0]} kernel "
-        f"({emu[kernels[0]][1]:,.0f} per wall second under this load). "
+        f"Measured: batch/C = {ratio('fast')} fast path, {ratio('general')} general path (CPU time), "
+        f"batch/Python = {rate['fast'][1] / py:,.0f}, "
+        f"emulate = {emu_cpu:,.0f} epochs per CPU second on the fast path "
+        f"({emu['fast'][1]:,.0f} per wall second under this load; {emu['general'][0]:,.0f} per CPU second "
+        "on the general path). "
         f"Of the emulator's {args.frames / emu_cpu:.2f} s of CPU, {start_cpu:.2f} s is starting Python "
         "and importing its modules (numpy and ours; not scipy, whose spatial package alone took ~0.3 s): the process's floor, whatever the epochs cost; "
         f"the epochs themselves run at {args.frames / max(args.frames / emu_cpu - start_cpu, 1e-9):,.0f} per CPU second."
     )
     print(targets)
-    libm = libm_costs()
-    floor, floor_ns = floor_table(best["numpy"][0] / pairs * 1e9, sbs["mid"])
+    floor, floor_ns = floor_table(best["fast"][0] / pairs * 1e9, sbs["mid"])
     print(floor)
     half = (f" 2x needs {best['C'][0] / pairs * 1e9 / 2:.1f} ns per pair (half the C loop's "
             f"{best['C'][0] / pairs * 1e9:.1f} ns)." if "C" in best else "")
     limits = (
-        "**The machine's limit, numpy fast path (the table above).** That batch is a sequence of numpy passes "
+        "**The machine's limit, fast path (the table above).** That batch is a sequence of numpy passes "
         f"over blocks of {CHUNK_PAIRS:,} pairs; the table counts them on the common path (the model's fast path: "
         "ideal receiver, 3 antennas, static transmitters; "
         f"{sbs['mid']:.0%} of these pairs are in the mid zone, the rest outer or inner) and prices "
         "each at its measured cost on a block that stays in cache (same run, same load). Their "
         f"sum, {floor_ns:.1f} ns, is what this formulation can reach in numpy on this machine; the "
         "batch's own time above it is Python's per-call overhead (about 85 numpy calls per block) "
-        "and memory traffic (reading the poses, first touch of the fresh (N, M) outputs).\n\n"
-        "**Compiled kernel.** The same formulation in C (emulator/receiver/model_kernel.c, "
-        "`-O3 -ffp-contract=off`, no -ffast-math, GIL released), in blocks of 16 poses held in L1: per "
-        "pair about 45 multiplies and adds and one division (d = p_r - p_t, a_x, a_y, b_x, b_y, 3 m.d, "
-        "s, G, |G_xy|^2, s^5 / |G_xy|^2) in a branch-free loop the compiler vectorises (SSE2, 2 doubles: "
-        "the portable baseline), then the zone and margin tests; per mid-zone pair, in a loop of "
-        "their own, scalar libm sqrt, cbrt and atan (the numpy row runs SIMD ufuncs for those); "
-        "per pose the rotation's two columns from the unnormalised quaternion. "
-        + ("" if libm is None or "compiled" not in best else
-           f"Those libm calls cost {libm['sqrt']:.1f} + {libm['cbrt']:.1f} + {libm['atan']:.1f} ns "
-           f"(sqrt, cbrt, atan with its division; tests/perf/libm_cost.c, same run): "
-           f"{sbs['mid']:.0%} x {sum(libm.values()):.1f} = {sbs['mid'] * sum(libm.values()):.1f} ns of the "
-           f"compiled batch's {best['compiled'][0] / pairs * 1e9:.1f} ns per pair at least (a tight loop of "
-           "independent calls; amid the kernel's other work they overlap less), the part only faster "
-           "(vectorised) cube roots and arctangents could cut. ")
-        + "What stays "
-        "numpy in that row: the input checks (one sum per array), the fresh (N, M) outputs and the few "
-        "pairs left to the general path (within 1e-8 of a boundary, inner-zone edges, r ~ 0). "
+        "and memory traffic (reading the poses, first touch of the fresh (N, M) outputs). "
         "The C loop (tests/perf/model_loop.c) is the general formulation: scalar libm sqrt and cbrt for "
-        "d3 and again for dxy on every pair, and atan for the mid-zone ones; both batches decide zones "
-        "on (200 dxy)^6 = s^5 / |G_xy|^2 (no root at all for outer pairs), which is why they beat it." + half
+        "d3 and again for dxy on every pair, and atan for the mid-zone ones; the fast path decides zones "
+        "on (200 dxy)^6 = s^5 / |G_xy|^2 (no root at all for outer pairs), which is why it beats it. "
+        "A compiled version of the fast path was measured and removed (issue 30, docs/architecture.md)." + half
     )
     print(limits)
     targets += "\n\n" + floor + "\n\n" + limits
