@@ -59,6 +59,8 @@ from serial.serialutil import (
     to_bytes,
 )
 
+from emulator.urlhandler.virtual_line import VirtualLine
+
 #: pyusb backend passed as ``usb.core.find(backend=...)`` (pyusb's documented seam).
 #: ``None`` lets pyusb pick libusb1, OpenUSB or libusb0, whichever loads; tests put a
 #: fake ``usb.backend.IBackend`` here. ``arva-bench devices`` uses the same one.
@@ -183,7 +185,7 @@ def _packet_size(endpoint) -> int:  # type: ignore[no-untyped-def]
     return max(1, size * (1 + ((endpoint.wMaxPacketSize >> 11) & 3)))
 
 
-class Serial(SerialBase):
+class Serial(VirtualLine, SerialBase):
     """pyserial ``Serial`` for ``usb://`` URLs (see the module docstring)."""
 
     def __init__(self, *args, **kwargs) -> None:
@@ -450,34 +452,6 @@ class Serial(SerialBase):
         self.is_open = False
         self._release()
         self._buffer.clear()
-
-    def _reconfigure_port(self, force_update: bool = False) -> None:
-        pass  # baud rate and framing mean nothing to a USB endpoint
-
-    def _update_rts_state(self) -> None:
-        pass
-
-    def _update_dtr_state(self) -> None:
-        pass
-
-    def _update_break_state(self) -> None:
-        pass
-
-    @property
-    def cts(self) -> bool:
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        return True
-
-    @property
-    def ri(self) -> bool:
-        return False
-
-    @property
-    def cd(self) -> bool:
-        return True
 
 
 def _find_ep(interface, address: int):  # type: ignore[no-untyped-def]

@@ -30,9 +30,10 @@ from emulator.output.ports import BufferPort
 from emulator.output.scheduler import Route
 from emulator.pipeline import Pipeline
 from emulator.scene.reader import default_scene, load_scene
+from emulator.urlhandler.virtual_line import VirtualLine
 
 
-class Serial(SerialBase):
+class Serial(VirtualLine, SerialBase):
     """pyserial ``Serial`` for ``arvaemu://`` URLs (see the module docstring)."""
 
     def __init__(self, *args, **kwargs) -> None:
@@ -172,31 +173,6 @@ class Serial(SerialBase):
             self._pipeline.close_sources()
             self._pipeline = None
         super().close()
-
-    def _reconfigure_port(self, force_update: bool = False) -> None:
-        pass  # nothing to configure: baud rate and framing do not affect an emulated line
-
-    def _update_rts_state(self) -> None:
-        pass
-
-    def _update_dtr_state(self) -> None:
-        pass
-
-    @property
-    def cts(self) -> bool:
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        return True
-
-    @property
-    def ri(self) -> bool:
-        return False
-
-    @property
-    def cd(self) -> bool:
-        return True
 
 
 def _speed(opt: dict, url: str) -> float:

@@ -1,0 +1,36 @@
+"""What a pyserial URL handler without a UART behind it answers for the line itself:
+nothing to configure (baud rate and framing mean nothing to an in-memory line or a USB
+endpoint), RTS/DTR/break accepted and ignored, and the modem lines of a cable that is
+plugged in (CTS, DSR and CD on, RI off). Mixed in before ``serial.SerialBase``."""
+
+from __future__ import annotations
+
+
+class VirtualLine:
+    def _reconfigure_port(self, force_update: bool = False) -> None:
+        pass
+
+    def _update_rts_state(self) -> None:
+        pass
+
+    def _update_dtr_state(self) -> None:
+        pass
+
+    def _update_break_state(self) -> None:
+        pass
+
+    @property
+    def cts(self) -> bool:
+        return True
+
+    @property
+    def dsr(self) -> bool:
+        return True
+
+    @property
+    def ri(self) -> bool:
+        return False
+
+    @property
+    def cd(self) -> bool:
+        return True
