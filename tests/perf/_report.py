@@ -42,6 +42,14 @@ def markdown_table(header: list[str], rows: list[list[object]]) -> str:
     return "\n".join(lines)
 
 
+def publish(name: str, title: str, body: str, script: str, write: bool = True) -> None:
+    """Print ``body``; unless ``write`` is false (``--no-write``), also make it section
+    ``name`` of docs/performance.md (:func:`write_section`)."""
+    print(body)
+    if write:
+        write_section(name, title, body, script)
+
+
 def write_section(name: str, title: str, body: str, script: str) -> None:
     """Replace (or append) section ``name`` of docs/performance.md."""
     today = _dt.date.today().isoformat()

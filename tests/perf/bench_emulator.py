@@ -46,7 +46,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 
-from _report import ROOT, markdown_table, write_section  # noqa: E402
+from _report import ROOT, markdown_table, publish  # noqa: E402
 from emulator.output.kworkers import raise_workers  # noqa: E402
 from emulator.output.realtime import PRIORITY as RT_PRIORITY  # noqa: E402
 from emulator.testing import EmulatorProcess  # noqa: E402
@@ -632,9 +632,7 @@ def main(argv=None) -> int:
         "As fast as possible (target >= 20,000 epochs/s, zero loss):\n\n" + t2 + "\n\nWhat each effect costs "
         "(render time per epoch, 1024-epoch batches, start-up excluded):\n\n" + t3
     )
-    print(body)
-    if not args.no_write:
-        write_section("emulator", "Emulator on a pty", body, "python tests/perf/bench_emulator.py")
+    publish("emulator", "Emulator on a pty", body, "python tests/perf/bench_emulator.py", write=not args.no_write)
     return 0
 
 

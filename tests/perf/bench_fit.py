@@ -26,7 +26,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE.parents[1]))
 
-from _report import machine, markdown_table, write_section  # noqa: E402
+from _report import machine, markdown_table, publish, write_section  # noqa: E402
 
 import bench.fit.special as special  # noqa: E402
 from fit_campaign import emulate_campaign  # noqa: E402
@@ -359,9 +359,7 @@ feel). Fixed Monte Carlo draws per row, even kernel-smoothed, are as slow as the
 distribution and far less accurate: the kernel that makes them smooth also widens the
 noise, so r_en comes out biased.
 """
-    print(body)
-    if not args.no_write:
-        write_section("fit", "Calibration fit", body, "python tests/perf/bench_fit.py")
+    publish("fit", "Calibration fit", body, "python tests/perf/bench_fit.py", write=not args.no_write)
     return 0
 
 

@@ -29,7 +29,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parents[1]))
 sys.path.insert(0, str(HERE.parent))  # tests/: the campaign generator
 
-from _report import markdown_table, write_section  # noqa: E402
+from _report import markdown_table, publish  # noqa: E402
 
 from bench.fit import csvio  # noqa: E402
 from bench_fit import counted_fit, eval_cost  # noqa: E402
@@ -146,9 +146,7 @@ def main(argv=None) -> int:
         + f"plus the checks; that parser alone takes {parse_cpu:.2f} s of CPU here, the floor of "
         f"this route ({parse_cpu / read_cpu:.0%} of the read)."
     )
-    print(body)
-    if not args.no_write:
-        write_section("fit_read", "Reading and fitting 10^5 rows", body, "python tests/perf/bench_fit_read.py")
+    publish("fit_read", "Reading and fitting 10^5 rows", body, "python tests/perf/bench_fit_read.py", write=not args.no_write)
     return 0
 
 

@@ -37,7 +37,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _report import markdown_table, write_section  # noqa: E402
+from _report import markdown_table, publish  # noqa: E402
 
 from bench.session import read_jsonl, read_raw  # noqa: E402
 from emulator.frames.geodesy import Origin, enu_to_geodetic  # noqa: E402
@@ -363,9 +363,7 @@ def main(argv=None) -> int:
         "\n\nDisk per hour of the typical session (raw reads base64 with timestamps plus decoded JSON "
         "lines), logged at 120x for 30 s:\n\n" + t4
     )
-    print(body)
-    if not args.no_write:
-        write_section("logger", "Bench logging", body, "python tests/perf/bench_logger.py")
+    publish("logger", "Bench logging", body, "python tests/perf/bench_logger.py", write=not args.no_write)
     return 0
 
 
