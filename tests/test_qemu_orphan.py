@@ -1,0 +1,50 @@
+"""A test process killed with SIGKILL (a CI job's timeout) leaves no QEMU behind:
+emulator.testing.qemu.Board starts QEMU with PR_SET_PDEATHSIG. Every wait is bounded."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from emulator.testing.qemu import missing_tools
+
+pytestmark = pytest.mark.skipif(bool(missing_tools(("qemu-system-arm", "arm-none-eabi-gcc", "make"))),
+                                reason="firmware in the loop needs qemu-system-arm, gcc-arm-none-eabi and make (make test installs them as root)")
+
+CHILD = """
+import sys, time
+from emulator.testing.qemu import EXAMPLE_FIRMWARE, Board, build_firmware
+board = Board(build_firmware(EXAMPLE_FIRMWARE, sys.argv[1] + "/build"), sys.argv[1] + "/work")
+print(board.proc.pid, flush=True)
+time.sleep(60)
+"""
+
+
+def alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.timeout(120)
+def test_qemu_ends_when_the_test_process_is_killed(tmp_path):
+    child = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        qemu = int(child.stdout.readline())
+        assert alive(qemu)
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while alive(qemu) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not alive(qemu)
+    finally:
+        child.kill()
+        child.wait(timeout=10)
+        if "qemu" in locals() and alive(qemu):
+            os.kill(qemu, signal.SIGKILL)
