@@ -226,6 +226,12 @@ class SessionWriter:
             except OSError:
                 pass  # reported by the next write to that file
 
+    def __enter__(self) -> "SessionWriter":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
     def close(self, **summary) -> None:
         """Record the stop, fsync everything, and finish the manifest."""
         if self.closed:

@@ -217,6 +217,12 @@ class Pipeline:
                 return r
         raise InputError(f"no stream {label!r} (streams: {', '.join(r.stream.label for r in self.routes)})")
 
+    def __enter__(self) -> "Pipeline":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
     def close(self) -> None:
         """Close every bound port and every pose source (MAVLink links)."""
         for r in self.routes:

@@ -121,6 +121,12 @@ class ControlClient:
             raise ControlReplyError(req, str(reply.get("error")))
         return reply
 
+    def __enter__(self) -> "ControlClient":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
     def close(self) -> None:
         self._sock.close()
         if self._transcript is not None:
@@ -232,6 +238,12 @@ class EmulatorProcess:
             self.kill()
             raise
         return rc, self.stderr()
+
+    def __enter__(self) -> "EmulatorProcess":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.kill()
 
     def kill(self) -> None:
         if self.proc.poll() is None:
