@@ -13,7 +13,9 @@ working directory first on ``sys.path``, so a user's repository with its own top
 
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -34,3 +36,17 @@ def module_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
     env = dict(os.environ if base is None else base)
     env["PYTHONPATH"] = SOURCE_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
+
+
+def end_with_parent() -> None:
+    """``preexec_fn`` of a child that must not outlive the test that started it: SIGTERM
+    it when the starting process ends, even by SIGKILL (a CI timeout), with Linux's
+    ``PR_SET_PDEATHSIG``; an orphaned emulator or QEMU would otherwise keep its ptys (a
+    logger reopening a path steals the next run's bytes) or spin a core. Linux ties this
+    to the starting *thread*: start from a thread that outlives the child (the test's own,
+    as the fixtures do). Elsewhere a no-op."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from emulator.child_process import module_command, module_env
+from emulator.child_process import end_with_parent, module_command, module_env
 from firmware_proto.errors import ArvaError
 
 
@@ -153,6 +153,7 @@ class EmulatorProcess:
             stderr=subprocess.PIPE,
             bufsize=0,
             env=module_env(env),
+            preexec_fn=end_with_parent,  # no orphan holding ptys after a killed test run
         )
         self.ports: dict[str, str] = {}
         self.control: str | None = None

@@ -34,10 +34,8 @@ install. See docs/hil_testing.md, "Your firmware in the loop".
 
 from __future__ import annotations
 
-import ctypes
 import json
 import re
-import signal
 import shutil
 import subprocess
 import threading
@@ -46,6 +44,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 import firmware_proto
+
+from emulator.child_process import end_with_parent
 
 from .harness import Emulator, EmulatorError
 
@@ -59,19 +59,6 @@ PACKAGES = {
     "make": "make",
 }
 _REDIRECT = re.compile(r"char device redirected to (\S+) \(label (serial\d+)\)")
-
-
-def _end_with_parent() -> None:
-    """In QEMU's child process before exec: SIGTERM it when the process that started it
-    ends (Linux ``PR_SET_PDEATHSIG``), so a test run killed with SIGKILL (a CI timeout)
-    leaves no emulated board spinning a core. Linux ties this to the starting *thread*:
-    start a Board from a thread that outlives it (the test's own, as the fixture does).
-    Elsewhere a no-op."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 class ToolMissing(EmulatorError):
@@ -136,7 +123,7 @@ class Board:
         self._stop = threading.Event()
         self._out = open(self.workdir / "qemu-stdout.txt", "w")
         self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True, preexec_fn=_end_with_parent)
+                                     text=True, preexec_fn=end_with_parent)
         ptys: dict[str, str] = {}
         deadline = time.monotonic() + timeout
         try:

@@ -1,5 +1,6 @@
-"""A test process killed with SIGKILL (a CI job's timeout) leaves no QEMU behind:
-emulator.testing.qemu.Board starts QEMU with PR_SET_PDEATHSIG. Every wait is bounded."""
+"""A test process killed with SIGKILL (a CI job's timeout) leaves no QEMU and no
+emulator behind: Board and EmulatorProcess start them with PR_SET_PDEATHSIG
+(emulator.child_process.end_with_parent). Every wait is bounded."""
 
 import os
 import signal
@@ -11,7 +12,34 @@ import pytest
 
 from emulator.testing.qemu import missing_tools
 
-pytestmark = pytest.mark.skipif(bool(missing_tools(("qemu-system-arm", "arm-none-eabi-gcc", "make"))),
+EMULATOR_CHILD = """
+import time
+from emulator.testing import EmulatorProcess
+emu = EmulatorProcess("--port", "pty", "--speed", "1")
+print(emu.proc.pid, flush=True)
+time.sleep(60)
+"""
+
+
+def test_the_emulator_ends_when_the_test_process_is_killed(tmp_path):
+    child = subprocess.Popen([sys.executable, "-c", EMULATOR_CHILD], stdout=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        pid = int(child.stdout.readline())
+        assert alive(pid)
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while alive(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not alive(pid)
+    finally:
+        child.kill()
+        child.wait(timeout=10)
+        if "pid" in locals() and alive(pid):
+            os.kill(pid, signal.SIGKILL)
+
+
+needs_qemu = pytest.mark.skipif(bool(missing_tools(("qemu-system-arm", "arm-none-eabi-gcc", "make"))),
                                 reason="firmware in the loop needs qemu-system-arm, gcc-arm-none-eabi and make (make test installs them as root)")
 
 CHILD = """
@@ -31,6 +59,7 @@ def alive(pid: int) -> bool:
         return False
 
 
+@needs_qemu
 @pytest.mark.timeout(120)
 def test_qemu_ends_when_the_test_process_is_killed(tmp_path):
     child = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path)], stdout=subprocess.PIPE, text=True)
