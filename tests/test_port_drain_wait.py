@@ -39,9 +39,10 @@ def test_an_unread_pty_waits_once_then_drops_at_once():
         port.disconnect()
 
 
-def test_a_reader_that_kept_up_loses_nothing_through_a_long_pause():
-    """Seen reading (everything written so far is gone), the reader then pauses 1 s, far
-    longer than PTY_FIRST_WAIT, while the buffer is full: nothing is dropped."""
+def test_a_reader_seen_draining_loses_nothing_through_a_long_pause():
+    """Seen reading (a full buffer drained while the write waited), the reader then
+    pauses 1 s, far longer than PTY_FIRST_WAIT, while the buffer is full again: nothing
+    is dropped."""
     port = PtyPort("arva")
     fd = os.open(port.path, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
     got = bytearray()
@@ -54,19 +55,20 @@ def test_a_reader_that_kept_up_loses_nothing_through_a_long_pause():
             if poller.poll(50):
                 got.extend(os.read(fd, 65536))
 
+    data = CHUNK * 400  # 43,200 bytes: twice the pty's buffer
     try:
         port.set_drain_wait(5.0)
-        port.write(CHUNK)
-        read_for(0.2)  # it keeps up: the next write sees nothing queued
-        assert bytes(got) == CHUNK
-        port.write(CHUNK)  # seen here
-        pause = threading.Timer(1.0, read_for, args=(3.0,))
-        pause.start()
-        data = CHUNK * 400  # 43,200 bytes: twice the pty's buffer
+        reader = threading.Thread(target=read_for, args=(1.5,))
+        reader.start()
+        assert port.write(data) == len(data)  # drained while waiting: the reader is seen
+        reader.join(timeout=10)
+        assert port._writer.reader_seen and bytes(got) == data
+        later = threading.Timer(1.0, read_for, args=(3.0,))  # a 1 s pause, then reading again
+        later.start()
         assert port.write(data) == len(data)
-        pause.join(timeout=10)
+        later.join(timeout=10)
         read_for(0.3)
-        assert bytes(got) == CHUNK * 402 and port.bytes_dropped == 0
+        assert bytes(got) == data * 2 and port.bytes_dropped == 0
     finally:
         os.close(fd)
         port.disconnect()

@@ -179,32 +179,28 @@ class _FdWriter:
 
     ``first_wait`` caps the wait for a reader not yet seen reading: for a pty we create,
     which nobody may be reading at all (the wait holds the control channel, whose other
-    clients are answered within a second). A reader is seen when its bytes are gone
-    (``queued()``, the bytes waiting for it, is 0 after a write: it keeps up) or when a
-    full buffer takes bytes again.
+    clients are answered within a second). A reader is seen when a full buffer takes
+    bytes again. (Not from the pty's queue: the kernel moves written bytes to the reader's
+    side asynchronously, so "nothing queued" right after a write can mean "not moved yet";
+    under load an unread pty looked read and waited the whole 5 s.)
     """
 
-    def __init__(self, wait: float = 0.0, first_wait: float | None = None, queued=None) -> None:
+    def __init__(self, wait: float = 0.0, first_wait: float | None = None) -> None:
         self.wait = wait
         self.first_wait = first_wait
-        self.queued = queued  # () -> bytes written but not yet read
         self.reset()
 
     def reset(self) -> None:
         """A new device (a re-created pty): no reader seen yet."""
         self.reader_absent = False
         self.reader_seen = self.first_wait is None
-        self._wrote = False  # bytes went in since the reader was last judged absent
 
     def write(self, fd: int, data: bytes) -> int:
-        if not self.reader_seen and self._wrote and self.queued is not None and self.queued() == 0:
-            self.reader_seen = True  # what we wrote before is gone: someone reads
         done = _write_some(fd, data)
         if done > 0:
             if self.reader_absent:  # a full buffer took bytes again: someone read it
                 self.reader_seen = True
             self.reader_absent = False
-            self._wrote = True
         if done == len(data) or self.wait <= 0 or self.reader_absent:
             return done
         poller = select.poll()
@@ -216,7 +212,6 @@ class _FdWriter:
             if left <= 0 or not poller.poll(left * 1000):
                 self.reader_absent = True
                 self.reader_seen = self.first_wait is None
-                self._wrote = False
                 break
             wrote = _write_some(fd, data[done:])
             if wrote > 0:  # the reader took bytes: it is there, give it another `wait`
@@ -250,7 +245,7 @@ class PtyPort(Port):
         self.link = link
         self.disconnects = 0
         self.on_reconnect = None
-        self._writer = _FdWriter(first_wait=PTY_FIRST_WAIT, queued=self.pending)
+        self._writer = _FdWriter(first_wait=PTY_FIRST_WAIT)
         self._open()
 
     def set_drain_wait(self, seconds: float) -> None:
