@@ -6,19 +6,19 @@ socket file left by a killed run is replaced, anything else at PATH is an error)
 only to loopback, unless ``any_host``; PORT 0 picks a free port, and the address
 announced says which).
 
-An asyncio event loop in its own thread serves every client (asyncio streams); the
-requests themselves run in one worker thread, one at a time in arrival order, so the
-loop keeps accepting and answering malformed lines while a request waits for the
-scheduler. Several clients may be connected at once (up to :data:`MAX_CLIENTS`); each
-gets exactly one reply per request, in order, on its own connection, and sees the
-changes made by the others (they change one emulator). A long request (a ``step``) is
-returned by the handler as a :class:`Sliced` request, run a slice at a time (a ``step``:
-at most :data:`~emulator.control.controller.STEP_SLICE` epochs); the other clients'
-requests are served between two slices, and its reply is sent once its last slice is
-done. Meanwhile its own client's further requests wait (unread: its socket applies back
-pressure), and other clients' long requests queue behind it. When the server closes (a
-``quit``, SIGTERM) a long request stops after its current slice and its client gets an
-error reply saying how far it got. A line longer than
+An asyncio event loop in its own thread serves every client (asyncio streams). Several
+clients may be connected at once (up to :data:`MAX_CLIENTS`); each gets exactly one
+reply per request, in order, on its own connection, and sees the changes made by the
+others (they change one emulator). Requests are executed one at a time in arrival order,
+in the loop's thread, except a long one (a ``step``): the handler returns it as a
+:class:`Sliced` request, which runs a slice at a time (a ``step``: at most
+:data:`~emulator.control.controller.STEP_SLICE` epochs) in one worker thread, the loop
+serving the other clients' requests between two slices (a request that needs the
+emulator waits for the slice to end: the handler's lock); its reply is sent once its
+last slice is done. Meanwhile its own client's further requests wait (unread: its socket
+applies back pressure), and other clients' long requests queue behind it. When the
+server closes (a ``quit``, SIGTERM) a long request stops after its current slice and its
+client gets an error reply saying how far it got. A line longer than
 :data:`~emulator.control.requests.MAX_LINE`, bytes that are not UTF-8 or JSON, an
 unknown op or an invalid value each get an error reply and change nothing; blank lines
 are ignored. A client that does not read its replies is disconnected once more than
@@ -128,8 +128,10 @@ class ControlServer:
     """Serves ``handle(request) -> reply dict`` on ``address`` (see the module docstring).
 
     ``handle`` returns the reply, or a :class:`Sliced` request to run a slice at a time;
-    it is called in the server's worker thread. ``on_quit`` is called (in the server's
-    thread) once a ``quit`` reply has been sent, or its client has gone.
+    it is called in the server's thread, the slices in its worker thread, at the same
+    time as ``handle`` may be: both guard the state they share with one lock (as
+    :meth:`~emulator.control.controller.Controller.locked` does). ``on_quit`` is called
+    (in the server's thread) once a ``quit`` reply has been sent, or its client has gone.
     """
 
     def __init__(
@@ -313,7 +315,7 @@ class ControlServer:
         if isinstance(request, dict):  # not a request: its error reply
             self._reply(writer, request)
             return True
-        reply = await self._in_worker(lambda: self.handle(request), request)
+        reply = self._execute(lambda: self.handle(request), request)
         if isinstance(reply, Sliced):
             reply = await self._run_sliced(reply)
         self._reply(writer, reply)
@@ -331,13 +333,12 @@ class ControlServer:
         """Run ``job`` a slice at a time (other clients' requests go between two slices)."""
         async with self._one_job:
             while not self._closing:
-                reply = await self._in_worker(job.advance, job)
+                # In the worker: while a slice waits for a slow reader (up to the port's
+                # drain wait), the loop accepts and answers what needs no emulator.
+                reply = await self._loop.run_in_executor(self._worker, self._execute, job.advance, job)
                 if reply is not None:
                     return reply
             return job.abandon("the emulator is stopping")
-
-    async def _in_worker(self, work: Callable[[], dict | Sliced | None], request: object) -> dict | Sliced | None:
-        return await self._loop.run_in_executor(self._worker, self._execute, work, request)
 
     def _execute(self, work: Callable[[], dict | Sliced | None], request: object) -> dict | Sliced | None:
         """``work()`` (the handler, or a slice of a long request), its errors as error replies."""
