@@ -47,22 +47,21 @@ def test_a_model_table_is_replaced_where_it_stands_and_every_comment_stays(tmp_p
     assert load_scene(scene).model.kappa_eq == 1.6
 
 
-def test_dotted_model_keys_become_the_model_table(tmp_path, block):
+@pytest.mark.parametrize(
+    "head, kept",
+    [
+        ("spec = 1\nmodel.kappa_eq = 2.0  # a guess\nseed = 3\nmodel.r_en = 40.0\n", "spec = 1\nseed = 3\n\n"),
+        ('spec = 1\nmodel = { kappa_eq = 2.0, r_en = 40.0 }  # inline\nname = "x"\n', 'spec = 1\nname = "x"\n\n'),
+    ],
+    ids=["dotted keys", "inline table"],
+)
+def test_a_dotted_or_inline_model_becomes_the_model_table(tmp_path, block, head, kept):
     scene = tmp_path / "s.toml"
-    scene.write_text("spec = 1\nmodel.kappa_eq = 2.0  # a guess\nseed = 3\nmodel.r_en = 40.0\n" + TAIL)
+    scene.write_text(head + TAIL)
     assert write_scene(scene, fitted()) == "updated"
-    assert scene.read_text() == "spec = 1\nseed = 3\n\n" + block + TAIL
-    data = tomllib.loads(scene.read_text())
-    assert data["model"] == tomllib.loads(block)["model"] and data["seed"] == 3
+    assert scene.read_text() == kept + block + TAIL
+    assert tomllib.loads(scene.read_text())["model"] == tomllib.loads(block)["model"]
     assert load_scene(scene).model.r_en == 75.0
-
-
-def test_an_inline_model_table_becomes_the_model_table(tmp_path, block):
-    scene = tmp_path / "s.toml"
-    scene.write_text('spec = 1\nmodel = { kappa_eq = 2.0, r_en = 40.0 }  # inline\nname = "x"\n' + TAIL)
-    assert write_scene(scene, fitted()) == "updated"
-    assert scene.read_text() == 'spec = 1\nname = "x"\n\n' + block + TAIL
-    assert load_scene(scene).model.kappa_eq == 1.6
 
 
 def test_a_scene_the_emulator_refuses_is_restored(tmp_path):

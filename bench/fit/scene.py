@@ -91,36 +91,24 @@ def _replace_model(text: str, block: str, path: Path) -> str:
 
 
 def _before_first_table(doc: tomlkit.TOMLDocument, model: Table) -> tomlkit.TOMLDocument:
-    """A copy of ``doc`` with ``model`` inserted before its first table (and before the
-    comments leading into that table), a blank line on either side."""
+    """A copy of ``doc`` with ``model`` inserted before its first table and the comments
+    leading into it, with a blank line on either side."""
+    body = [(k, v) for k, v in doc.body if not isinstance(v, Null)]  # Null: a removed key
+    start = next((i for i, (_, v) in enumerate(body) if isinstance(v, (Table, AoT))), len(body))
+    while start and body[start - 1][0] is None:  # comments and blank lines leading into it
+        start -= 1
+    blank = start
+    while blank < len(body) and isinstance(body[blank][1], Whitespace):
+        blank += 1
+    before = [(None, Whitespace("\n"))] if blank == start and blank else []
+    after = [(None, Whitespace("\n"))] if blank < len(body) else []
     out = tomlkit.document()
     out.parsing(True)  # the items keep their own layout
-    pending: list = []  # comments and blank lines, not yet known to lead into a table
-    for key, item in doc.body:
-        if isinstance(item, Null):  # what a removed key left
-            continue
+    for key, item in body[:blank] + before + [("model", model)] + after + body[blank:]:
         if key is None:
-            pending.append(item)
-            continue
-        if isinstance(item, (Table, AoT)) and model is not None:
-            blank = 0
-            while blank < len(pending) and isinstance(pending[blank], Whitespace):
-                blank += 1
-            for ws in pending[:blank] or ([Whitespace("\n")] if out.body else []):
-                out.add(ws)
-            out.append("model", model)
-            out.add(Whitespace("\n"))
-            pending, model = pending[blank:], None
-        for ws in pending:
-            out.add(ws)
-        pending = []
-        out.append(key, item)
-    for ws in pending:
-        out.add(ws)
-    if model is not None:  # no table: the model comes last
-        if out.body:
-            out.add(Whitespace("\n"))
-        out.append("model", model)
+            out.add(item)
+        else:
+            out.append(key, item)
     out.parsing(False)
     return out
 
