@@ -31,12 +31,12 @@ import asyncio
 import ipaddress
 import logging
 import os
+import queue
 import socket
 import stat
 import threading
 import traceback
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, runtime_checkable
@@ -148,7 +148,7 @@ class ControlServer:
         self.requests = 0
         self.errors = 0
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._worker = ThreadPoolExecutor(1, thread_name_prefix="arva-control-work")
+        self._slices: queue.SimpleQueue = queue.SimpleQueue()  # (future, long request) for the worker; None: stop
         self._stop = asyncio.Event()
         self._one_job = asyncio.Lock()  # long requests run one at a time, in arrival order
         self._clients: set[asyncio.Task] = set()
@@ -187,6 +187,7 @@ class ControlServer:
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._run, args=(sock,), name="arva-control", daemon=True)
         self._thread.start()
+        threading.Thread(target=self._work, name="arva-control-slices", daemon=True).start()
         return bound
 
     def _bind_unix(self, path: str) -> socket.socket:
@@ -232,7 +233,7 @@ class ControlServer:
             if self._thread is not threading.current_thread():
                 self._thread.join(timeout=CLOSE_WAIT_S + 1)
         listener.close()
-        self._worker.shutdown(wait=False)
+        self._slices.put(None)
         if self.address.kind == "unix":
             try:
                 os.unlink(self.address.path)
@@ -335,10 +336,23 @@ class ControlServer:
             while not self._closing:
                 # In the worker: while a slice waits for a slow reader (up to the port's
                 # drain wait), the loop accepts and answers what needs no emulator.
-                reply = await self._loop.run_in_executor(self._worker, self._execute, job.advance, job)
+                done = self._loop.create_future()
+                self._slices.put((done, job))
+                reply = await done
                 if reply is not None:
                     return reply
             return job.abandon("the emulator is stopping")
+
+    def _work(self) -> None:
+        """The worker thread: one slice at a time. A daemon, as the server's thread is: a
+        slice held by a slow reader does not hold up the end of the run."""
+        while (item := self._slices.get()) is not None:
+            done, job = item
+            reply = self._execute(job.advance, job)
+            try:
+                self._loop.call_soon_threadsafe(_settle, done, reply)
+            except RuntimeError:  # the loop has closed: nobody waits for this reply
+                return
 
     def _execute(self, work: Callable[[], dict | Sliced | None], request: object) -> dict | Sliced | None:
         """``work()`` (the handler, or a slice of a long request), its errors as error replies."""
@@ -363,3 +377,8 @@ class ControlServer:
         if writer.transport.get_write_buffer_size() > MAX_OUTBOX:
             log.warning("control: a client does not read its replies; disconnected")
             writer.transport.abort()
+
+
+def _settle(done: asyncio.Future, reply: dict | None) -> None:
+    if not done.cancelled():
+        done.set_result(reply)
