@@ -207,3 +207,35 @@ def test_a_stale_socket_is_replaced_and_a_live_one_refused(tmp_path):
         assert c.reply() == {"ok": True, "op": "status"}
     finally:
         first.server.close()
+
+
+def test_a_slice_that_never_ends_does_not_hold_up_the_exit(tmp_path):
+    """close() gives up on a stuck slice after CLOSE_WAIT_S and the process exits: the
+    slice's worker is a daemon thread (an executor's would be joined at exit)."""
+    import subprocess
+    import sys
+
+    script = f"""
+import socket, threading, time
+from emulator.control.server import ControlServer, control_address
+from emulator.control.requests import Step
+
+class Stuck:
+    def advance(self):
+        threading.Event().wait()  # a port write that never returns
+    def abandon(self, why):
+        return {{"ok": False, "error": why}}
+
+server = ControlServer(control_address("unix:{tmp_path}/c.sock"), lambda req: Stuck(), lambda: None)
+server.start()
+c = socket.socket(socket.AF_UNIX)
+c.connect("{tmp_path}/c.sock")
+c.sendall(b'{{"op": "step", "n": 5}}\\n')
+time.sleep(0.5)
+server.close()
+print("closed", flush=True)
+"""
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30)
+    assert (r.returncode, r.stdout) == (0, "closed\n"), r.stderr
+    assert time.monotonic() - t0 < 10.0
