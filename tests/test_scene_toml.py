@@ -49,3 +49,19 @@ def test_a_scene_with_every_shape():
 def test_values_toml_cannot_carry_are_errors(bad):
     with pytest.raises(ValueError):
         dumps(bad)
+
+
+@pytest.mark.parametrize("name", ["default.toml", "field_walk.toml", "case_study_1.toml"])
+def test_shipped_scenes_round_trip(name):
+    """Real scenes (a datetime, inline-table waypoints, arrays of tables) read back equal."""
+    from importlib import resources
+
+    scene = tomllib.loads(resources.files("emulator").joinpath("scenes", name).read_text())
+    assert tomllib.loads(dumps(scene)) == scene
+
+
+def test_none_and_infinities_are_value_errors_naming_the_value():
+    with pytest.raises(ValueError, match=r"^TOML scene values must be finite, got -inf$"):
+        dumps({"spec": 1, "receivers": [{"path": [{"t": float("-inf")}]}]})
+    with pytest.raises(ValueError, match="NoneType"):
+        dumps({"spec": 1, "model": {"q": [1.0, None]}})

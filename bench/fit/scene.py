@@ -10,17 +10,15 @@ existing file is restored if that fails.
 from __future__ import annotations
 
 import datetime as _dt
-import re
 from pathlib import Path
+
+import tomlkit
+from tomlkit.items import AoT, Comment, Null, Table, Whitespace
 
 from firmware_proto.errors import InputError
 
 from .result import FitResult
 from .table import FitInputError
-
-_HEADER = re.compile(r"^\s*\[{1,2}\s*[^\]]+\]{1,2}\s*(#.*)?$")
-_MODEL = re.compile(r"^\s*\[\s*model\s*\]\s*(#.*)?$")
-_DOTTED = re.compile(r"^\s*model\s*\.")
 
 
 def _num(x: float) -> str:
@@ -66,22 +64,53 @@ def _new_scene(block: str, result: FitResult) -> str:
 
 
 def _replace_model(text: str, block: str, path: Path) -> str:
-    lines = text.splitlines(keepends=True)
-    for i, line in enumerate(lines):
-        if _DOTTED.match(line):
-            raise FitInputError(f"{path}: line {i + 1}: dotted model.* keys; write the model as a [model] table")
-    start = next((i for i, line in enumerate(lines) if _MODEL.match(line)), None)
-    if start is None:
-        first = next((i for i, line in enumerate(lines) if _HEADER.match(line)), len(lines))
-        before = "".join(lines[:first])
-        sep = "" if not before or before.endswith("\n\n") else ("\n" if before.endswith("\n") else "\n\n")
-        return before + sep + block + "\n" + "".join(lines[first:])
-    end = next((j for j in range(start + 1, len(lines)) if _HEADER.match(lines[j])), len(lines))
-    # Keep blank lines and comments that lead into the next table with it.
-    while end > start + 1 and (lines[end - 1].strip() == "" or lines[end - 1].lstrip().startswith("#")):
-        end -= 1
-    tail = "".join(lines[end:])
-    return "".join(lines[:start]) + block + ("\n" + tail.lstrip("\n") if tail else "")
+    """``text`` with its model replaced by ``block``, through tomlkit (every other byte
+    kept). A ``[model]`` table is replaced where it stands (the comments and blank lines
+    leading into the next table stay); a model given as dotted ``model.*`` keys or an
+    inline ``model = {...}`` table is removed and ``block`` inserted before the first
+    table, as when there is no model."""
+    try:
+        doc = tomlkit.parse(text)
+    except tomlkit.exceptions.ParseError as exc:
+        raise FitInputError(f"{path}: the scene would not load: {exc}") from None
+    model = tomlkit.parse(block)["model"]
+    entries = [(k, v) for k, v in doc.body if k is not None and k.key == "model"]
+    if len(entries) == 1 and isinstance(entries[0][1], Table) and not entries[0][1].is_super_table():
+        body = entries[0][1].value.body
+        lead = len(body)
+        while lead and body[lead - 1][0] is None and isinstance(body[lead - 1][1], (Comment, Whitespace)):
+            lead -= 1
+        for _, item in body[lead:]:
+            model.add(item)
+        model.add(Whitespace(""))  # ends in whitespace: tomlkit adds no blank line of its own
+        doc["model"] = model
+        return doc.as_string()
+    if entries:
+        del doc["model"]
+    return _before_first_table(doc, model).as_string()
+
+
+def _before_first_table(doc: tomlkit.TOMLDocument, model: Table) -> tomlkit.TOMLDocument:
+    """A copy of ``doc`` with ``model`` inserted before its first table and the comments
+    leading into it, with a blank line on either side."""
+    body = [(k, v) for k, v in doc.body if not isinstance(v, Null)]  # Null: a removed key
+    start = next((i for i, (_, v) in enumerate(body) if isinstance(v, (Table, AoT))), len(body))
+    while start and body[start - 1][0] is None:  # comments and blank lines leading into it
+        start -= 1
+    blank = start
+    while blank < len(body) and isinstance(body[blank][1], Whitespace):
+        blank += 1
+    before = [(None, Whitespace("\n"))] if blank == start and blank else []
+    after = [(None, Whitespace("\n"))] if blank < len(body) else []
+    out = tomlkit.document()
+    out.parsing(True)  # the items keep their own layout
+    for key, item in body[:blank] + before + [("model", model)] + after + body[blank:]:
+        if key is None:
+            out.add(item)
+        else:
+            out.append(key, item)
+    out.parsing(False)
+    return out
 
 
 def write_scene(path: str | Path, result: FitResult) -> str:

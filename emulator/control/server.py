@@ -6,35 +6,36 @@ socket file left by a killed run is replaced, anything else at PATH is an error)
 only to loopback, unless ``any_host``; PORT 0 picks a free port, and the address
 announced says which).
 
-One thread serves every client with a selector. Several clients may be connected at
-once (up to :data:`MAX_CLIENTS`); each gets exactly one reply per request, in order, on
-its own connection, and sees the changes made by the others (they change one emulator).
-Requests are executed one at a time in arrival order, except a long one (a ``step``):
-the handler returns it as a :class:`Sliced` request, which the thread runs a slice at a
-time (a ``step``: at most :data:`~emulator.control.controller.STEP_SLICE` epochs), serving
-the other clients' requests between two slices; its reply is sent once its last slice is
-done. Meanwhile its own client's further requests wait (unread: its socket applies back
-pressure), and other clients' long requests queue behind it. When the server closes (a
-``quit``, SIGTERM) a long request stops after its current slice and its client gets an
-error reply saying how far it got. A line longer than
+An asyncio event loop in its own thread serves every client (asyncio streams). Several
+clients may be connected at once (up to :data:`MAX_CLIENTS`); each gets exactly one
+reply per request, in order, on its own connection, and sees the changes made by the
+others (they change one emulator). Requests are executed one at a time in arrival order,
+in the loop's thread, except a long one (a ``step``): the handler returns it as a
+:class:`Sliced` request, which runs a slice at a time (a ``step``: at most
+:data:`~emulator.control.controller.STEP_SLICE` epochs) in one worker thread, the loop
+serving the other clients' requests between two slices (a request that needs the
+emulator waits for the slice to end: the handler's lock); its reply is sent once its
+last slice is done. Meanwhile its own client's further requests wait (unread: its socket
+applies back pressure), and other clients' long requests queue behind it. When the
+server closes (a ``quit``, SIGTERM) a long request stops after its current slice and its
+client gets an error reply saying how far it got. A line longer than
 :data:`~emulator.control.requests.MAX_LINE`, bytes that are not UTF-8 or JSON, an
 unknown op or an invalid value each get an error reply and change nothing; blank lines
-are ignored. A client that does not read its replies is disconnected once
+are ignored. A client that does not read its replies is disconnected once more than
 :data:`MAX_OUTBOX` bytes wait for it, so no client can stall the emulator.
 """
 
 from __future__ import annotations
 
-import errno
+import asyncio
 import ipaddress
 import logging
 import os
-import selectors
+import queue
 import socket
 import stat
 import threading
 import traceback
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,11 +50,16 @@ log = logging.getLogger("arva-emulate")
 MAX_CLIENTS = 64
 #: Reply bytes that may wait for a client before it is disconnected.
 MAX_OUTBOX = 1 << 20
+#: How long a ``quit`` reply may take to leave before the run ends anyway, seconds.
+QUIT_FLUSH_S = 2.0
+#: How long :meth:`ControlServer.close` waits for the requests being served (a ``step``:
+#: its current slice) before it gives up on them, seconds.
+CLOSE_WAIT_S = 5.0
 
 
 @runtime_checkable
 class Sliced(Protocol):
-    """A long request, executed a slice at a time by the server's thread."""
+    """A long request, executed a slice at a time by the server's worker thread."""
 
     def advance(self) -> dict | None:
         """Do one slice: the reply once the request is complete, else None. May raise
@@ -118,22 +124,14 @@ def check_host(address: ControlAddress, any_host: bool) -> None:
         )
 
 
-class _Client:
-    def __init__(self, sock: socket.socket) -> None:
-        self.sock = sock
-        self.inbox = bytearray()
-        self.outbox = bytearray()
-        self.discarding = False  # inside an over-long line: drop bytes up to its newline
-        self.quit_after_flush = False
-        self.job: Sliced | None = None  # its long request being served (its other lines wait)
-        self.events = 0  # the selector events it is registered for (0: not registered)
-
-
 class ControlServer:
     """Serves ``handle(request) -> reply dict`` on ``address`` (see the module docstring).
 
-    ``handle`` returns the reply, or a :class:`Sliced` request to run a slice at a time.
-    ``on_quit`` is called once a ``quit`` reply has been sent (or its client has gone).
+    ``handle`` returns the reply, or a :class:`Sliced` request to run a slice at a time;
+    it is called in the server's thread, the slices in its worker thread, at the same
+    time as ``handle`` may be: both guard the state they share with one lock (as
+    :meth:`~emulator.control.controller.Controller.locked` does). ``on_quit`` is called
+    (in the server's thread) once a ``quit`` reply has been sent, or its client has gone.
     """
 
     def __init__(
@@ -147,16 +145,17 @@ class ControlServer:
         self.handle = handle
         self.on_quit = on_quit
         self.any_host = any_host
-        self._sel = selectors.DefaultSelector()
-        self._listener: socket.socket | None = None
-        self._clients: dict[int, _Client] = {}
-        self._wake_r, self._wake_w = os.pipe()
-        self._closing = False
-        self._thread: threading.Thread | None = None
-        self._jobs: deque[_Client] = deque()  # clients whose long request runs (the first) or waits
-        self._ready: deque[_Client] = deque()  # clients with request lines waiting to be served
         self.requests = 0
         self.errors = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._slices: queue.SimpleQueue = queue.SimpleQueue()  # (future, long request) for the worker; None: stop
+        self._stop = asyncio.Event()
+        self._one_job = asyncio.Lock()  # long requests run one at a time, in arrival order
+        self._clients: set[asyncio.Task] = set()
+        self._reading: set[asyncio.Task] = set()  # clients waiting for their next line
+        self._listener: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self._closing = False  # set in the loop: the requests being served are the last
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -182,14 +181,13 @@ class ControlServer:
                 sock.close()
                 raise LinkError(f"--control {a}: cannot listen: {exc.strerror or exc}") from None
             bound = ControlAddress("tcp", host=a.host, port=sock.getsockname()[1])
-        sock.listen(16)
-        sock.setblocking(False)
+        sock.listen(16)  # connections wait in the backlog until the loop runs
         self._listener = sock
         self.bound = bound
-        self._sel.register(sock, selectors.EVENT_READ, None)
-        self._sel.register(self._wake_r, selectors.EVENT_READ, "wake")
-        self._thread = threading.Thread(target=self._serve, name="arva-control", daemon=True)
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._run, args=(sock,), name="arva-control", daemon=True)
         self._thread.start()
+        threading.Thread(target=self._work, name="arva-control-slices", daemon=True).start()
         return bound
 
     def _bind_unix(self, path: str) -> socket.socket:
@@ -225,147 +223,136 @@ class ControlServer:
         return sock
 
     def close(self) -> None:
-        """Stop serving, close every connection, remove the unix socket file."""
-        if self._closing:
+        """Stop serving (a long request after its current slice, its client told how far
+        it got), close every connection, remove the unix socket file."""
+        if self._listener is None:
             return
-        self._closing = True
-        try:
-            os.write(self._wake_w, b"x")
-        except OSError:
-            pass
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5)
-        for c in list(self._clients.values()):
-            self._drop(c)
-        if self._listener is not None:
-            self._listener.close()
-            if self.address.kind == "unix":
-                try:
-                    os.unlink(self.address.path)
-                except OSError:
-                    pass
-        self._sel.close()
-        os.close(self._wake_r)
-        os.close(self._wake_w)
-
-    # --- serving ------------------------------------------------------------------------
-
-    def _serve(self) -> None:
-        while not self._closing:
+        listener, self._listener = self._listener, None
+        if self._thread is not None and self._thread.is_alive():
+            self._loop.call_soon_threadsafe(self._stop.set)
+            if self._thread is not threading.current_thread():
+                self._thread.join(timeout=CLOSE_WAIT_S + 1)
+        listener.close()
+        self._slices.put(None)
+        if self.address.kind == "unix":
             try:
-                events = self._sel.select(timeout=0 if self._jobs or self._ready else 1.0)
-            except OSError:
-                break
-            if any(key.data == "wake" for key, _ in events):
-                break
-            for key, mask in events:
-                if key.data is None:
-                    self._accept()
-                    continue
-                client: _Client = key.data
-                if mask & selectors.EVENT_READ:
-                    self._read(client)
-                if mask & selectors.EVENT_WRITE and client.sock.fileno() >= 0:
-                    self._flush(client)
-            while self._ready:
-                self._serve_inbox(self._ready.popleft())
-            if self._jobs and not self._closing:
-                self._advance()
-        self._abandon_jobs("the emulator is stopping")
-
-    def _advance(self) -> None:
-        """One slice of the first long request; its reply when it is complete."""
-        client = self._jobs[0]
-        reply = self._execute(client.job.advance, client.job)
-        if reply is None:
-            return
-        self._jobs.popleft()
-        client.job = None
-        self._reply(client, reply)
-        if client.sock.fileno() >= 0:
-            self._ready.append(client)  # its lines that waited, then its socket again
-
-    def _abandon_jobs(self, why: str) -> None:
-        """Error replies for the long requests still running or waiting (best effort:
-        nothing blocks, the server is closing)."""
-        while self._jobs:
-            client = self._jobs.popleft()
-            reply = client.job.abandon(why)
-            client.job = None
-            self.errors += 1
-            client.outbox += encode_reply(reply)
-            if client.sock.fileno() >= 0:
-                try:
-                    n = client.sock.send(client.outbox)
-                    del client.outbox[:n]
-                except OSError:
-                    pass
-
-    def _accept(self) -> None:
-        try:
-            sock, _ = self._listener.accept()
-        except OSError:
-            return
-        if len(self._clients) >= MAX_CLIENTS:
-            try:
-                sock.send(encode_reply(error_reply(f"too many control clients (at most {MAX_CLIENTS})")))
+                os.unlink(self.address.path)
             except OSError:
                 pass
-            sock.close()
-            return
-        sock.setblocking(False)
-        client = _Client(sock)
-        self._clients[sock.fileno()] = client
-        self._watch(client)
 
-    def _watch(self, client: _Client) -> None:
-        """Register the client for what it needs: reading (unless its long request runs:
-        its next lines wait in the socket), writing (while replies wait)."""
-        events = (0 if client.job is not None else selectors.EVENT_READ) | (selectors.EVENT_WRITE if client.outbox else 0)
-        if events == client.events or client.sock.fileno() < 0:
-            return
+    # --- serving (in the server's thread) ------------------------------------------------
+
+    def _run(self, sock: socket.socket) -> None:
         try:
-            if client.events == 0:
-                self._sel.register(client.sock, events, client)
-            elif events == 0:
-                self._sel.unregister(client.sock)
+            self._loop.run_until_complete(self._serve(sock))
+        finally:
+            self._loop.close()
+
+    async def _serve(self, sock: socket.socket) -> None:
+        if self.address.kind == "unix":
+            server = await asyncio.start_unix_server(self._client, sock=sock, limit=MAX_LINE)
+        else:
+            server = await asyncio.start_server(self._client, sock=sock, limit=MAX_LINE)
+        await self._stop.wait()
+        self._closing = True
+        server.close()
+        for task in self._reading:
+            task.cancel()
+        if self._clients:  # the others finish the request they serve (a step: its slice)
+            await asyncio.wait(self._clients, timeout=CLOSE_WAIT_S)
+
+    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self._closing:
+            writer.transport.abort()
+            return
+        if len(self._clients) >= MAX_CLIENTS:
+            writer.write(encode_reply(error_reply(f"too many control clients (at most {MAX_CLIENTS})")))
+            writer.close()
+            return
+        task = asyncio.current_task()
+        self._clients.add(task)
+        try:
+            while not self._closing and not writer.is_closing():
+                self._reading.add(task)
+                try:
+                    line = await self._next_line(reader, writer)
+                finally:
+                    self._reading.discard(task)
+                if not await self._serve_line(line, writer):
+                    break
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass  # the client has gone
+        finally:
+            self._clients.discard(task)
+            if self._closing:
+                writer.transport.abort()  # its last reply went as far as the socket took it at once
             else:
-                self._sel.modify(client.sock, events, client)
-        except (KeyError, ValueError, OSError):
-            return
-        client.events = events
+                writer.close()
 
-    def _read(self, client: _Client) -> None:
-        try:
-            data = client.sock.recv(65536)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            data = b""
-        if not data:
-            self._drop(client)
-            return
-        client.inbox += data
-        self._serve_inbox(client)
-
-    def _serve_inbox(self, client: _Client) -> None:
-        """Serve the client's complete lines in order, until one is a long request."""
-        while client.job is None and client.sock.fileno() >= 0 and not client.quit_after_flush:
-            nl = client.inbox.find(b"\n")
-            if nl < 0:
-                if len(client.inbox) > MAX_LINE and not client.discarding:
-                    client.discarding = True
-                    self._reply(client, error_reply(f"request longer than {MAX_LINE} bytes"))
-                if client.discarding:
-                    client.inbox.clear()
-                break
-            line = bytes(client.inbox[:nl])
-            del client.inbox[: nl + 1]
-            if client.discarding:
-                client.discarding = False  # the tail of the over-long line: already answered
+    async def _next_line(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> bytes:
+        """The client's next request line (without its newline); an over-long line is
+        answered as soon as it is seen, then skipped up to its newline; blank lines are
+        skipped. IncompleteReadError once the client has gone."""
+        while True:
+            try:
+                line = await reader.readuntil(b"\n")
+            except asyncio.LimitOverrunError as exc:
+                self._reply(writer, error_reply(f"request longer than {MAX_LINE} bytes"))
+                while True:
+                    await reader.readexactly(exc.consumed)
+                    try:
+                        await reader.readuntil(b"\n")
+                        break
+                    except asyncio.LimitOverrunError as more:
+                        exc = more
                 continue
-            self._serve_line(client, line)
-        self._watch(client)
+            if line.strip():
+                return line[:-1]
+
+    async def _serve_line(self, line: bytes, writer: asyncio.StreamWriter) -> bool:
+        """Serve one request and send its reply; False after a ``quit`` (the client is done)."""
+        self.requests += 1
+        request = self._execute(lambda: parse_request(line), line[:200])
+        if isinstance(request, dict):  # not a request: its error reply
+            self._reply(writer, request)
+            return True
+        reply = self._execute(lambda: self.handle(request), request)
+        if isinstance(reply, Sliced):
+            reply = await self._run_sliced(reply)
+        self._reply(writer, reply)
+        if isinstance(request, Quit) and reply.get("ok"):
+            writer.transport.set_write_buffer_limits(high=0)  # drain() now waits for every byte
+            try:
+                await asyncio.wait_for(writer.drain(), QUIT_FLUSH_S)
+            except (TimeoutError, ConnectionError):
+                pass
+            self.on_quit()
+            return False
+        return True
+
+    async def _run_sliced(self, job: Sliced) -> dict:
+        """Run ``job`` a slice at a time (other clients' requests go between two slices)."""
+        async with self._one_job:
+            while not self._closing:
+                # In the worker: while a slice waits for a slow reader (up to the port's
+                # drain wait), the loop accepts and answers what needs no emulator.
+                done = self._loop.create_future()
+                self._slices.put((done, job))
+                reply = await done
+                if reply is not None:
+                    return reply
+            return job.abandon("the emulator is stopping")
+
+    def _work(self) -> None:
+        """The worker thread: one slice at a time. A daemon, as the server's thread is: a
+        slice held by a slow reader does not hold up the end of the run."""
+        while (item := self._slices.get()) is not None:
+            done, job = item
+            reply = self._execute(job.advance, job)
+            try:
+                self._loop.call_soon_threadsafe(_settle, done, reply)
+            except RuntimeError:  # the loop has closed: nobody waits for this reply
+                return
 
     def _execute(self, work: Callable[[], dict | Sliced | None], request: object) -> dict | Sliced | None:
         """``work()`` (the handler, or a slice of a long request), its errors as error replies."""
@@ -379,66 +366,19 @@ class ControlServer:
             log.error("control: request %r failed:\n%s", request, traceback.format_exc())
             return error_reply(f"internal error: {type(exc).__name__}: {exc}")
 
-    def _serve_line(self, client: _Client, line: bytes) -> None:
-        if not line.strip():
-            return
-        self.requests += 1
-        request = self._execute(lambda: parse_request(line), line[:200])
-        if isinstance(request, dict):  # not a request: its error reply
-            self._reply(client, request)
-            return
-        reply = self._execute(lambda: self.handle(request), request)
-        if isinstance(reply, Sliced):
-            client.job = reply  # run by the serving loop, a slice at a time
-            self._jobs.append(client)
-            return
-        self._reply(client, reply)
-        if isinstance(request, Quit) and reply.get("ok"):
-            client.quit_after_flush = True
-            self._flush(client, block=True)
-            self.on_quit()
-
-    def _reply(self, client: _Client, reply: dict) -> None:
+    def _reply(self, writer: asyncio.StreamWriter, reply: dict) -> None:
         if not reply.get("ok"):
             self.errors += 1
         try:
             line = encode_reply(reply)
         except ValueError as exc:  # a NaN slipped into a reply: say so rather than die
             line = encode_reply(error_reply(f"internal error: reply not JSON: {exc}"))
-        client.outbox += line
-        self._flush(client)
-
-    def _flush(self, client: _Client, block: bool = False) -> None:
-        if client.sock.fileno() < 0:
-            return
-        if block:
-            client.sock.settimeout(2.0)
-        try:
-            while client.outbox:
-                n = client.sock.send(client.outbox)
-                del client.outbox[:n]
-        except (BlockingIOError, InterruptedError):
-            pass
-        except OSError as exc:
-            if exc.errno not in (errno.EAGAIN, errno.EWOULDBLOCK):
-                self._drop(client)
-                return
-        if block:
-            return
-        if len(client.outbox) > MAX_OUTBOX:
+        writer.write(line)
+        if writer.transport.get_write_buffer_size() > MAX_OUTBOX:
             log.warning("control: a client does not read its replies; disconnected")
-            self._drop(client)
-            return
-        self._watch(client)
+            writer.transport.abort()
 
-    def _drop(self, client: _Client) -> None:
-        fd = client.sock.fileno()
-        if fd >= 0:
-            if client.events:
-                try:
-                    self._sel.unregister(client.sock)
-                except (KeyError, ValueError, OSError):
-                    pass
-                client.events = 0
-            self._clients.pop(fd, None)
-        client.sock.close()
+
+def _settle(done: asyncio.Future, reply: dict | None) -> None:
+    if not done.cancelled():
+        done.set_result(reply)
