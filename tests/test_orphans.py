@@ -20,29 +20,7 @@ print(emu.proc.pid, flush=True)
 time.sleep(60)
 """
 
-
-def test_the_emulator_ends_when_the_test_process_is_killed(tmp_path):
-    child = subprocess.Popen([sys.executable, "-c", EMULATOR_CHILD], stdout=subprocess.PIPE, text=True, cwd=tmp_path)
-    try:
-        pid = int(child.stdout.readline())
-        assert alive(pid)
-        child.send_signal(signal.SIGKILL)
-        child.wait(timeout=10)
-        deadline = time.monotonic() + 10
-        while alive(pid) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not alive(pid)
-    finally:
-        child.kill()
-        child.wait(timeout=10)
-        if "pid" in locals() and alive(pid):
-            os.kill(pid, signal.SIGKILL)
-
-
-needs_qemu = pytest.mark.skipif(bool(missing_tools(("qemu-system-arm", "arm-none-eabi-gcc", "make"))),
-                                reason="firmware in the loop needs qemu-system-arm, gcc-arm-none-eabi and make (make test installs them as root)")
-
-CHILD = """
+QEMU_CHILD = """
 import sys, time
 from emulator.testing.qemu import EXAMPLE_FIRMWARE, Board, build_firmware
 board = Board(build_firmware(EXAMPLE_FIRMWARE, sys.argv[1] + "/build"), sys.argv[1] + "/work")
@@ -59,21 +37,33 @@ def alive(pid: int) -> bool:
         return False
 
 
-@needs_qemu
-@pytest.mark.timeout(120)
-def test_qemu_ends_when_the_test_process_is_killed(tmp_path):
-    child = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+def grandchild_outlives_a_killed_parent(code: str, tmp_path) -> bool:
+    """Run ``code`` (it prints the pid of what it starts), SIGKILL it, and say whether
+    that grandchild is still running 10 s later."""
+    child = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)], stdout=subprocess.PIPE, text=True, cwd=tmp_path)
+    pid = None
     try:
-        qemu = int(child.stdout.readline())
-        assert alive(qemu)
+        pid = int(child.stdout.readline())
+        assert alive(pid)
         child.send_signal(signal.SIGKILL)
         child.wait(timeout=10)
         deadline = time.monotonic() + 10
-        while alive(qemu) and time.monotonic() < deadline:
+        while alive(pid) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not alive(qemu)
+        return alive(pid)
     finally:
         child.kill()
         child.wait(timeout=10)
-        if "qemu" in locals() and alive(qemu):
-            os.kill(qemu, signal.SIGKILL)
+        if pid is not None and alive(pid):
+            os.kill(pid, signal.SIGKILL)
+
+
+def test_the_emulator_ends_when_the_test_process_is_killed(tmp_path):
+    assert not grandchild_outlives_a_killed_parent(EMULATOR_CHILD, tmp_path)
+
+
+@pytest.mark.skipif(bool(missing_tools()), reason="firmware in the loop needs qemu-system-arm, gcc-arm-none-eabi "
+                    "and make (make test installs them as root)")
+@pytest.mark.timeout(120)
+def test_qemu_ends_when_the_test_process_is_killed(tmp_path):
+    assert not grandchild_outlives_a_killed_parent(QEMU_CHILD, tmp_path)
