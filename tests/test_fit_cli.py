@@ -42,12 +42,14 @@ def test_summary(campaign, capsys):
     assert lines[0] == f"fit: {campaign}: 1200 rows, 485 with d = -1"
     assert lines[1].startswith("kappa_eq    = 1.54") and lines[1].endswith("   (for transmitter moment s = 1)")
     assert lines[2].startswith("r_en        = ") and lines[2].endswith(" m")
-    # exact poses: the estimated GPS and attitude errors are tiny
-    assert lines[3].startswith("gps_sigma   = ") and lines[3].endswith(" m vertical")
-    assert float(lines[3].split()[2]) < 0.05
-    assert lines[4].startswith("attitude    = ") and float(lines[4].split()[2]) < 0.5
-    assert lines[5].startswith("standard errors: sandwich with time blocks (Newey-West, ")
-    assert "; converged; " in lines[6]
+    # exact poses: no GPS or attitude error is visible (both at their floors), so the
+    # fit is that of exact poses (pose_sigma fitted, the inverse Hessian), and says so
+    assert lines[3] == "pose_sigma  = 0.0001"
+    assert "; converged; " in lines[4]
+    assert lines[6].startswith(
+        "note: no pose error is visible (GPS and attitude error at their floors, 5 mm and 0.05 deg): fitted as exact "
+        "poses (as --gps-sigma 0 --attitude-sigma 0; with the floors r_en was "
+    )
 
 
 def test_summary_with_exact_poses_given(campaign, capsys):
@@ -85,8 +87,9 @@ def test_json_is_one_object_with_the_required_keys(campaign, capsys):
         assert isinstance(obj[key], (int, float)) and math.isfinite(obj[key]), key
     assert (obj["n_rows"], obj["n_censored"], obj["converged"]) == (1200, 485, True)
     assert abs(obj["kappa_eq"] / 1.542 - 1) < 0.01 and abs(obj["r_en"] / 80 - 1) < 0.05
-    assert obj["free"] == ["kappa_eq", "r_en", "gps_sigma", "attitude_sigma"] and obj["separable"] is True
-    assert obj["gps_sigma"] < 0.05 and obj["gps_sigma_vertical"] == pytest.approx(1.5 * obj["gps_sigma"])
+    # exact poses: fitted as such (no pose error visible), the GPS error 0
+    assert obj["free"] == ["kappa_eq", "r_en", "pose_sigma"] and obj["separable"] is True
+    assert obj["gps_sigma"] == 0.0 and obj["gps_sigma_vertical"] == 0.0
 
 
 def test_write_scene_creates_a_scene_the_emulator_loads(campaign, capsys, tmp_path):
