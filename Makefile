@@ -34,7 +34,7 @@ run: $(RUN_STAMP)
 test: $(DEV_STAMP) firmware-tools
 	$(BIN)/python -m pytest -q tests docs/examples
 
-# Firmware in the loop (tests/test_firmware_loop.py) needs QEMU and an Arm cross compiler,
+# Firmware in the loop (tests/emulator/testing/test_firmware_loop.py) needs QEMU and an Arm cross compiler,
 # Debian packages: installed here when one is missing and we are root with apt (CI, a
 # fresh container); otherwise one line says what to install and those tests skip.
 FIRMWARE_PACKAGES := qemu-system-arm gcc-arm-none-eabi libnewlib-arm-none-eabi

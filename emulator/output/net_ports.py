@@ -39,7 +39,7 @@ client (one line through ``notify``, counted in :attr:`ServerPort.clients_cut`);
 counted in :attr:`ServerPort.clients_refused`, the first :data:`NOTIFY_REFUSALS` of them
 reported). A client's line-setting changes are reported up to
 :data:`NOTIFY_SETTING_CHANGES` times; the rest are counted in its ``left`` line. So a
-hostile client costs at most a few hundred kB (tests/test_net_ports_hostile.py measures
+hostile client costs at most a few hundred kB (tests/emulator/output/test_net_ports_hostile.py measures
 the emulator's resident memory).
 
 Counters: :attr:`Port.bytes_written` is the sum over clients of the bytes their UART
@@ -564,7 +564,7 @@ def _counts(client: ServedClient) -> str:
 
 def escape_iac(data: bytes) -> bytes:
     """Telnet IAC escaping of stream data (every 0xFF doubled): what pyserial's
-    ``PortManager.escape`` yields, byte for byte (tests/test_net_ports_hostile.py checks
+    ``PortManager.escape`` yields, byte for byte (tests/emulator/output/test_net_ports_hostile.py checks
     it), in one C-level replace instead of a Python generator per byte (0.14 us instead
     of 123 us per kB, measured 2026-12-05 on the 2-core development machine): this runs
     in the emulator's write, at the epoch's deadline."""

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import serial
+import repo_paths
 
 import bench.cat as cat
 from bench.cli import main
@@ -21,7 +22,7 @@ from firmware_proto.sentences import encode_epoch
 
 EMPTY = (-1, -1, -1)
 CAT = [sys.executable, "-m", "bench.cli", "cat"]
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = repo_paths.ROOT
 ZERO_ERRORS = " ".join(
     f"errors.{k}=0"
     for k in ("BAD_CHECKSUM", "TOO_LONG", "NON_ASCII", "MALFORMED", "OUT_OF_RANGE", "UNKNOWN_SENTENCE", "TRUNCATED")

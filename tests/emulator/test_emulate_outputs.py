@@ -4,12 +4,12 @@ within 82 characters for every accepted lat_lon_decimals, streams to files and s
 
 import datetime as dt
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+import repo_paths
 
 from bench.ground_truth.gps import GpsReader
 from emulator.cli import main
@@ -18,7 +18,7 @@ from emulator.pipeline import scene_streams
 from emulator.scene.reader import load_scene, loads_scene
 from emulator.truth.nmea import gga_sentence, gps_sentences
 
-FIELD_WALK = Path(__file__).resolve().parent.parent / "emulator" / "scenes" / "field_walk.toml"
+FIELD_WALK = repo_paths.SCENES / "field_walk.toml"
 KNOTS = 3600 / 1852
 
 

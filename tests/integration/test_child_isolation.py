@@ -1,7 +1,7 @@
 """Our child processes (the fit's worker, the ``--realtime-workers`` keeper, the HIL
 harness's ``arva-emulate``) import our code, whatever folder the caller runs in: started
 from a folder with its own top-level ``emulator/`` and ``bench/`` packages, they still
-answer (issue 29; the fixture's case is in tests/test_hil_outside.py)."""
+answer (issue 29; the fixture's case is in tests/emulator/testing/test_hil_outside.py)."""
 
 from __future__ import annotations
 

@@ -5,7 +5,9 @@ depends on nothing of ours, emulator never imports bench."""
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+import repo_paths
+
+ROOT = repo_paths.ROOT
 PACKAGES = ("firmware_proto", "emulator", "bench")
 
 

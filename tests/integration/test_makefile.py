@@ -4,11 +4,11 @@
 import shutil
 import subprocess
 import tomllib
-from pathlib import Path
 
 import pytest
+import repo_paths
 
-ROOT = Path(__file__).parents[1]
+ROOT = repo_paths.ROOT
 DEV_ONLY = ("dask", "pyarrow", "matplotlib", "pymavlink", "pytest", "hypothesis")
 
 pytestmark = pytest.mark.skipif(shutil.which("make") is None, reason="needs make")

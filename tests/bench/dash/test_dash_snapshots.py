@@ -1,15 +1,15 @@
 """arva-bench dash at 80x24, as SVG snapshots (pytest-textual-snapshot). Deterministic:
 the data are injected messages, the clock is fixed, no wall-clock text is shown.
-Update after an intended change with ``pytest tests/test_dash_snapshots.py --snapshot-update``
-and look at the SVGs in tests/__snapshots__/."""
+Update after an intended change with ``pytest tests/bench/dash/test_dash_snapshots.py --snapshot-update``
+and look at the SVGs in tests/bench/dash/__snapshots__/."""
 
 from __future__ import annotations
 
 import asyncio
-from pathlib import Path
 
 import pytest
 from dash_helpers import T0, FakeClock, inject, make_app, save_walk_screenshot, walk_app, walk_messages
+import repo_paths
 
 from bench.dash.messages import AttitudeReceived, EpochReceived, FixReceived, LinkCounters, LinkStatus
 from bench.logger import DeviceSpec
@@ -65,5 +65,5 @@ def test_docs_screenshot_is_current(tmp_path):
     """docs/dash.svg is what the app draws now (regenerate: python tests/dash_helpers.py docs/dash.svg)."""
     out = tmp_path / "dash.svg"
     asyncio.run(asyncio.wait_for(save_walk_screenshot(str(out), tmp_path), timeout=30))
-    docs = Path(__file__).resolve().parent.parent / "docs" / "dash.svg"
+    docs = repo_paths.ROOT / "docs" / "dash.svg"
     assert out.read_text() == docs.read_text(), "docs/dash.svg is stale: python tests/dash_helpers.py docs/dash.svg"

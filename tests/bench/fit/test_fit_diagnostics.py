@@ -6,15 +6,15 @@ model describes them, firing on spurious -1 rows), and the JSON fields."""
 import json
 import math
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.stats import norm
+import repo_paths
 
-sys.path.insert(0, str(Path(__file__).parent / "perf"))
+sys.path.insert(0, str(repo_paths.PERF))
 
 import study_campaigns as sc  # noqa: E402
 

@@ -6,7 +6,6 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -19,8 +18,9 @@ from bench.fit.result import EIV_FREE, FitOptions
 from emulator.receiver.model import ModelParams
 from emulator.scene.reader import load_scene
 from fit_campaign import PoseError, Walk, emulate_campaign
+import repo_paths
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "perf"))
+sys.path.insert(0, str(repo_paths.PERF))
 import study_campaigns  # noqa: E402  (the independent generator of the calibration study)
 
 TRUTH = ModelParams(kappa_eq=1.542, r_en=80.0)

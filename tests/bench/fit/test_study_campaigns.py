@@ -3,11 +3,11 @@ of our code, so it must be checked against it once: its own transcription of BRI
 the emulator's integers, and a campaign is a pure function of (condition, seed)."""
 
 import sys
-from pathlib import Path
 
 import numpy as np
+import repo_paths
 
-sys.path.insert(0, str(Path(__file__).parent / "perf"))
+sys.path.insert(0, str(repo_paths.PERF))
 
 import study_campaigns as sc  # noqa: E402
 

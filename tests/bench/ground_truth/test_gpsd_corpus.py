@@ -28,14 +28,14 @@ import random
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from functools import cache
-from pathlib import Path
 
 import pytest
+import repo_paths
 
 from bench.ground_truth import Attitude, GpsFix, GroundTruthReader
 from emulator.frames.attitude import hpr_to_quaternion
 
-CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "gpsd-nmea"
+CORPUS = repo_paths.ROOT.parent / "shared" / "corpus" / "gpsd-nmea"
 LOGS = sorted(p.name for p in CORPUS.glob("*.log")) if CORPUS.is_dir() else []
 MISSING = f"gpsd corpus not found at {CORPUS} (expected ../shared/corpus/gpsd-nmea beside the repo)"
 

@@ -10,9 +10,9 @@ import subprocess
 import sys
 import time
 from functools import reduce
-from pathlib import Path
 
 import pytest
+import repo_paths
 
 from emulator.testing import ControlClient, ControlReplyError, EmulatorProcess, read_lines
 from firmware_proto.sentences import encode_parva
@@ -308,7 +308,7 @@ def test_real_clock_changes_take_effect_from_the_epoch_named(arva_emulator):
 
 
 def test_a_vehicle_borne_receiver_steps_but_cannot_be_pinned(arva_emulator):
-    scene = Path(__file__).parents[1] / "emulator" / "scenes" / "case_study_1.toml"
+    scene = repo_paths.SCENES / "case_study_1.toml"
     emu = arva_emulator(scene=str(scene), clock="step")
     start = emu.truth()["receivers"][0]["position"]
     with pytest.raises(ControlReplyError) as info:

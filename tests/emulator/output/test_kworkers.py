@@ -18,10 +18,11 @@ import time
 from pathlib import Path
 
 import pytest
+import repo_paths
 
 from emulator.output import kworkers
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = repo_paths.ROOT
 EMULATE = Path(sys.executable).with_name("arva-emulate")
 
 

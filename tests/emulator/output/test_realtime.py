@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import repo_paths
 
 from emulator.output import realtime
 
@@ -58,7 +59,7 @@ def test_granted_requests_say_nothing(monkeypatch, no_side_effects):
 
 
 def test_cli_flag_runs_and_emits_the_same_bytes(tmp_path):
-    scene = Path(__file__).resolve().parents[1] / "emulator" / "scenes" / "default.toml"
+    scene = repo_paths.SCENES / "default.toml"
     fast = scene.read_text().replace("rate_hz = 1.0", "rate_hz = 50.0")
     path = tmp_path / "s.toml"
     path.write_text(fast)

@@ -33,7 +33,7 @@ def _near_boundary(field, params: ModelParams) -> np.ndarray:
     """Pairs whose general-path values lie within REL (relative) of a rounding or zone
     boundary: d3 or dxy at r_inner / r_outer, 100 d at x.5, delta at x.5 or +-89.5, or
     atan's fold at +-90 (h_x a nonzero rounding residue: its sign, so delta's, is noise;
-    tests/test_model.py::test_null_cone_component_cancels)."""
+    tests/emulator/receiver/test_model.py::test_null_cone_component_cancels)."""
     def near(v, b):
         return np.abs(v - b) <= REL * np.maximum(np.abs(b), 1.0)
 

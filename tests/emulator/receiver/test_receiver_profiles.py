@@ -3,6 +3,7 @@
 
 import numpy as np
 import pytest
+import repo_paths
 
 from emulator.cli import main as emulate_main
 from emulator.receiver.model import ModelParams
@@ -230,9 +231,8 @@ class TestSceneKeys:
 
 def test_shipped_two_antenna_spike_scene():
     from emulator.scene.reader import load_scene
-    from pathlib import Path
-
-    s = load_scene(Path(__file__).parents[1] / "emulator" / "scenes" / "two_antenna_spike.toml")
+    
+    s = load_scene(repo_paths.SCENES / "two_antenna_spike.toml")
     two, three = (Receiver(s, i).next_batch(13).epochs for i in (0, 1))
     # x = -1.5 .. 1.5 m in 0.25 m steps over a vertical transmitter 2 m deep.
     assert two.d[:, 0].tolist() == [260, 250, 240, 250, 270, 330, -1, 330, 270, 250, 240, 250, 260]  # 0.1 m display

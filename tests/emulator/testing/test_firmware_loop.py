@@ -18,10 +18,11 @@ import re
 from pathlib import Path
 
 import pytest
+import repo_paths
 
 from emulator.testing.qemu import EXAMPLE_FIRMWARE, PACKAGES, Board, build_firmware, missing_tools
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = repo_paths.ROOT
 RATE_HZ = 10.0
 
 _missing = missing_tools()

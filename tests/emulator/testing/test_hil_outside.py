@@ -14,10 +14,9 @@ from pathlib import Path
 
 import pytest
 from foreign_repo import foreign_repository
+import repo_paths
 
 from emulator.testing.scene_toml import dumps
-
-HERE = Path(__file__).parent
 
 FAILING = '''
 def test_fails_after_two_epochs(arva_emulator):
@@ -38,7 +37,7 @@ def run_pytest(folder: Path, *args: str, command: list[str] | None = None) -> su
 
 def outside_scene() -> dict:
     """The SCENE dict of tests/outside/step_session.py."""
-    spec = importlib.util.spec_from_file_location("outside_step_session", HERE / "outside" / "step_session.py")
+    spec = importlib.util.spec_from_file_location("outside_step_session", repo_paths.OUTSIDE / "step_session.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module.SCENE
@@ -46,14 +45,14 @@ def outside_scene() -> dict:
 
 def readme_example() -> str:
     """The README's pytest example, verbatim."""
-    text = (HERE.parent / "README.md").read_text()
+    text = (repo_paths.ROOT / "README.md").read_text()
     section = text[text.index("## Testing your code against the emulator"):]
     return section.split("```python\n", 1)[1].split("```", 1)[0]
 
 
 @pytest.mark.timeout(180)
 def test_step_session_outside_the_repository(tmp_path):
-    (tmp_path / "test_step_session.py").write_text((HERE / "outside" / "step_session.py").read_text())
+    (tmp_path / "test_step_session.py").write_text((repo_paths.OUTSIDE / "step_session.py").read_text())
     (tmp_path / "test_readme.py").write_text(readme_example())
     junit = tmp_path / "junit.xml"
     result = run_pytest(tmp_path, f"--junitxml={junit}", f"--basetemp={tmp_path / 'bt'}")
@@ -132,7 +131,7 @@ def test_the_fixture_passes_in_a_repository_with_its_own_emulator_and_bench_pack
     """Issue 29: the harness started ``python -m emulator.cli`` in the test's working
     directory, so the user's ``emulator/`` hid ours and every test failed."""
     foreign_repository(tmp_path)
-    (tmp_path / "test_step_session.py").write_text((HERE / "outside" / "step_session.py").read_text())
+    (tmp_path / "test_step_session.py").write_text((repo_paths.OUTSIDE / "step_session.py").read_text())
     # Run as a user runs it there: the ``pytest`` command (``python -m pytest`` would put
     # the folder first on the test process's own sys.path, ahead of the plugin).
     result = run_pytest(tmp_path, f"--basetemp={tmp_path / 'bt'}", command=[str(Path(sys.executable).with_name("pytest"))])

@@ -2,10 +2,10 @@
 
 import datetime as dt
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+import repo_paths
 
 from bench.ground_truth import AttitudeReader, GpsReader
 from emulator.frames.attitude import quaternion_to_hpr
@@ -14,7 +14,7 @@ from emulator.scene.reader import load_scene, loads_scene
 from emulator.pipeline import scene_streams
 from firmware_proto.errors import SceneError
 
-FIELD_WALK = Path(__file__).resolve().parents[1] / "emulator" / "scenes" / "field_walk.toml"
+FIELD_WALK = repo_paths.SCENES / "field_walk.toml"
 
 TWO_GPS = """spec = 1
 [origin]
