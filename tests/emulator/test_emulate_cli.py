@@ -4,17 +4,9 @@ import subprocess
 import sys
 
 import pytest
+from scene_builders import one_tx
 
 from emulator.cli import parse_args
-
-ONE_TX = """spec = 1
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[receiver]
-channels = {channels}
-position = [0.0, 0.0, 0.0]
-"""
 
 NOISY = """spec = 1
 seed = {seed}
@@ -41,14 +33,8 @@ def emulate(*args, timeout=60):
     )
 
 
-def scene(tmp_path, text, name="s.toml"):
-    path = tmp_path / name
-    path.write_text(text)
-    return str(path)
-
-
-def test_exact_bytes_one_channel(tmp_path):
-    proc = emulate("--scene", scene(tmp_path, ONE_TX.format(channels=1)), "--port", "-", "--frames", "3", "--speed", "0")
+def test_exact_bytes_one_channel(scene_file):
+    proc = emulate("--scene", scene_file(one_tx(channels=1)), "--port", "-", "--frames", "3", "--speed", "0")
     assert proc.returncode == 0
     assert proc.stdout == (
         b"$PARVA,0,1,1,1,1905,21*5B\r\n"
@@ -58,8 +44,8 @@ def test_exact_bytes_one_channel(tmp_path):
     assert proc.stderr == b"arva-emulate: 3 epochs sent (arva 3), 0 bytes dropped, 0 faults injected\n"
 
 
-def test_exact_bytes_empty_slot(tmp_path):
-    proc = emulate("--scene", scene(tmp_path, ONE_TX.format(channels=2)), "--frames", "1", "--speed", "0")
+def test_exact_bytes_empty_slot(scene_file):
+    proc = emulate("--scene", scene_file(one_tx(channels=2)), "--frames", "1", "--speed", "0")
     assert proc.stdout == b"$PARVA,0,2,1,1,1905,21*58\r\n$PARVA,0,2,2,-1,-1,-1*78\r\n"
 
 
@@ -74,16 +60,16 @@ def test_default_scene_first_epoch():
     )
 
 
-def test_seq_wraps_at_65536(tmp_path):
-    proc = emulate("--scene", scene(tmp_path, ONE_TX.format(channels=1)), "--frames", "65537", "--speed", "0")
+def test_seq_wraps_at_65536(scene_file):
+    proc = emulate("--scene", scene_file(one_tx(channels=1)), "--frames", "65537", "--speed", "0")
     lines = proc.stdout.split(b"\r\n")
     assert len(lines) == 65538 and lines[-1] == b""
     assert lines[65535].startswith(b"$PARVA,65535,") and lines[65536] == b"$PARVA,0,1,1,1,1905,21*5B"
 
 
-def test_seeded_noise_replays_identically_and_seed_matters(tmp_path):
-    a = scene(tmp_path, NOISY.format(seed=7, research="false"), "a.toml")
-    b = scene(tmp_path, NOISY.format(seed=8, research="false"), "b.toml")
+def test_seeded_noise_replays_identically_and_seed_matters(scene_file):
+    a = scene_file(NOISY.format(seed=7, research="false"), "a.toml")
+    b = scene_file(NOISY.format(seed=8, research="false"), "b.toml")
     run = lambda s: emulate("--scene", s, "--frames", "40", "--speed", "0").stdout  # noqa: E731
     first, again, other = run(a), run(a), run(b)
     assert first == again
@@ -91,8 +77,8 @@ def test_seeded_noise_replays_identically_and_seed_matters(tmp_path):
     assert len(first.split(b"\r\n")) == 81
 
 
-def test_research_sentences_follow_their_slot(tmp_path):
-    s = scene(tmp_path, NOISY.format(seed=7, research="true"))
+def test_research_sentences_follow_their_slot(scene_file):
+    s = scene_file(NOISY.format(seed=7, research="true"))
     lines = emulate("--scene", s, "--frames", "40", "--speed", "0").stdout.decode().split("\r\n")[:-1]
     for i, line in enumerate(lines):
         if line.startswith("$PARVH"):
@@ -102,8 +88,8 @@ def test_research_sentences_follow_their_slot(tmp_path):
     assert sum(line.startswith("$PARVH") for line in lines) >= 40
 
 
-def test_chunking_does_not_change_noisy_output(tmp_path):
-    s = scene(tmp_path, NOISY.format(seed=3, research="true"))
+def test_chunking_does_not_change_noisy_output(scene_file):
+    s = scene_file(NOISY.format(seed=3, research="true"))
     outputs = []
     for batch in (4096, 7, 1):
         proc = subprocess.run(
@@ -136,13 +122,13 @@ def test_bad_arguments_exit_2(argv, fragment, capsys):
     assert fragment in capsys.readouterr().err
 
 
-def test_real_time_pacing_is_roughly_real_time(tmp_path):
+def test_real_time_pacing_is_roughly_real_time(scene_file):
     # 3 epochs at 20 Hz scene rate and speed 1: epochs at 0, 50, 100 ms. Loose bound;
     # precise jitter is measured by the benchmark, not asserted here.
-    text = ONE_TX.format(channels=1).replace("spec = 1", "spec = 1\nrate_hz = 20.0")
+    scene = one_tx(rate_hz=20.0, channels=1)
     import time
 
     t0 = time.monotonic()
-    proc = emulate("--scene", scene(tmp_path, text), "--frames", "3", "--speed", "1")
+    proc = emulate("--scene", scene_file(scene), "--frames", "3", "--speed", "1")
     assert proc.returncode == 0 and proc.stdout.count(b"\r\n") == 3
     assert time.monotonic() - t0 >= 0.1

@@ -2,18 +2,17 @@
 order, changing transmitters and receiver poses between epochs, faults on demand."""
 
 import pytest
+from scene_builders import one_tx
 
 from emulator.output.ports import BufferPort
 from emulator.pipeline import EpochRef, Pipeline
 from emulator.receiver.model import measure_one
 from emulator.scene.reader import loads_scene
+from emulator.testing.scene_toml import dumps
 from firmware_proto.errors import InputError
 from firmware_proto.sentences import encode_parva
 
-ONE = (
-    "spec = 1\n[[transmitters]]\nid = 1\nposition = [20.0, 5.0, 0.0]\n"
-    "[receiver]\nchannels = 2\nposition = [0.0, 0.0, 0.0]\n"
-)
+ONE = dumps(one_tx(channels=2))
 TRUTH = (
     "spec = 1\n[origin]\nlat = 46.0\nlon = 7.0\n[ground_truth]\ngps_rate_hz = 2.0\nattitude_rate_hz = 4.0\n"
     "[[transmitters]]\nid = 1\nposition = [20.0, 5.0, 0.0]\n"

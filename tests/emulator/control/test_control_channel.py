@@ -13,16 +13,12 @@ from functools import reduce
 
 import pytest
 import repo_paths
+from scene_builders import one_tx
 
 from emulator.testing import ControlClient, ControlReplyError, EmulatorProcess, read_lines
 from firmware_proto.sentences import encode_parva
 
-ONE = {
-    "spec": 1,
-    "rate_hz": 1.0,
-    "transmitters": [{"id": 1, "position": [20.0, 5.0, 0.0]}],
-    "receiver": {"position": [0.0, 0.0, 0.0]},
-}
+ONE = one_tx(rate_hz=1.0)
 # Every stream kind and every effect but link faults (their own test below).
 EVERYTHING = {
     "spec": 1,
@@ -57,19 +53,11 @@ def quiet(ser, wait=0.3):
     return data == b""
 
 
-def scene_file(tmp_path, scene, name="s.toml"):
-    from emulator.testing.scene_toml import dumps
-
-    path = tmp_path / name
-    path.write_text(dumps(scene))
-    return str(path)
-
-
-def test_step_clock_gives_the_same_bytes_as_a_free_run_on_every_stream(arva_emulator, tmp_path):
+def test_step_clock_gives_the_same_bytes_as_a_free_run_on_every_stream(arva_emulator, scene_file, tmp_path):
     """Two receivers, GPS and attitude streams, noise, pulses, quantize, ground-truth error
     and $PARVH: stepping 7 epochs (in uneven steps) writes exactly what a --speed 0
     --frames 7 run writes, stream by stream."""
-    path = scene_file(tmp_path, EVERYTHING)
+    path = scene_file(EVERYTHING)
     out = tmp_path / "free"
     out.mkdir()
     labels = ["arva:1", "arva:4", "gps:rx1", "gps:tx1", "attitude"]
@@ -219,8 +207,8 @@ def test_several_clients_each_get_their_own_replies_and_see_each_others_changes(
         b.close()
 
 
-def test_step_respects_frames_and_quit_exits_zero(tmp_path):
-    emu = EmulatorProcess("--scene", scene_file(tmp_path, ONE), "--port", "pty", "--clock", "step", "--frames", "3",
+def test_step_respects_frames_and_quit_exits_zero(scene_file, tmp_path):
+    emu = EmulatorProcess("--scene", scene_file(ONE), "--port", "pty", "--clock", "step", "--frames", "3",
                           "--control", f"unix:{tmp_path}/c.sock")
     try:
         c = ControlClient(emu.control, timeout=10)

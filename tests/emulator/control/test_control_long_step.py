@@ -14,17 +14,13 @@ import time
 import weakref
 
 import pytest
+from scene_builders import one_tx
 
 from emulator.control.controller import STEP_SLICE
 from emulator.testing import ControlClient, EmulatorProcess
 from emulator.testing.scene_toml import dumps
 
-ONE = {
-    "spec": 1,
-    "rate_hz": 1.0,
-    "transmitters": [{"id": 1, "position": [20.0, 5.0, 0.0]}],
-    "receiver": {"position": [0.0, 0.0, 0.0]},
-}
+ONE = one_tx(rate_hz=1.0)
 BIG = 1_000_000  # the documented maximum of one step: minutes of work
 
 

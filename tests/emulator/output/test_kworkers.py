@@ -18,11 +18,10 @@ import time
 from pathlib import Path
 
 import pytest
-import repo_paths
+from scene_builders import default_scene_text
 
 from emulator.output import kworkers
 
-ROOT = repo_paths.ROOT
 EMULATE = Path(sys.executable).with_name("arva-emulate")
 
 
@@ -192,11 +191,8 @@ def _raised_workers() -> list[str]:
 
 
 @pytest.fixture
-def scene_20hz(tmp_path):
-    text = (ROOT / "emulator" / "scenes" / "default.toml").read_text()
-    path = tmp_path / "s.toml"
-    path.write_text(text.replace("rate_hz = 1.0", "rate_hz = 20.0"))
-    return path
+def scene_20hz(scene_file):
+    return Path(scene_file(default_scene_text(rate_hz=20.0)))
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux scheduler")

@@ -10,29 +10,9 @@ from functools import reduce
 
 import pytest
 import serial
+from scene_builders import one_tx, two_rx
 
 from emulator.testing import EmulatorProcess, process_rss_kb, read_lines
-
-ONE_TX = """spec = 1
-rate_hz = {rate}
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[receiver]
-position = [0.0, 0.0, 0.0]
-"""
-
-TWO_RX = """spec = 1
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[[receivers]]
-id = 1
-position = [0.0, 0.0, 0.0]
-[[receivers]]
-id = 7
-position = [10.0, 0.0, 0.0]
-"""
 
 
 def parva(seq, d=1905, delta=21, tx=1):
@@ -40,18 +20,8 @@ def parva(seq, d=1905, delta=21, tx=1):
     return b"$%s*%02X\r\n" % (body, reduce(lambda a, b: a ^ b, body, 0))
 
 
-@pytest.fixture
-def scene(tmp_path):
-    def make(text, name="s.toml"):
-        path = tmp_path / name
-        path.write_text(text)
-        return str(path)
-
-    return make
-
-
-def test_exact_sentences_through_a_pty(scene):
-    emu = EmulatorProcess("--scene", scene(ONE_TX.format(rate=20.0)), "--port", "pty", "--frames", "8", "--delay", "1")
+def test_exact_sentences_through_a_pty(scene_file):
+    emu = EmulatorProcess("--scene", scene_file(one_tx(rate_hz=20.0)), "--port", "pty", "--frames", "8", "--delay", "1")
     try:
         with emu.open() as ser:
             assert read_lines(ser, 8) == [parva(k) for k in range(8)]
@@ -62,8 +32,8 @@ def test_exact_sentences_through_a_pty(scene):
         emu.kill()
 
 
-def test_several_receivers_each_on_its_own_pty(scene):
-    emu = EmulatorProcess("--scene", scene(TWO_RX), "--port", "pty", "--speed", "20", "--delay", "1", streams=2)
+def test_several_receivers_each_on_its_own_pty(scene_file):
+    emu = EmulatorProcess("--scene", scene_file(two_rx()), "--port", "pty", "--speed", "20", "--delay", "1", streams=2)
     try:
         assert sorted(emu.ports) == ["arva:1", "arva:7"]
         assert emu.ports["arva:1"] != emu.ports["arva:7"]
@@ -76,9 +46,9 @@ def test_several_receivers_each_on_its_own_pty(scene):
         emu.kill()
 
 
-def test_no_reader_never_blocks_and_memory_stays_flat(scene):
+def test_no_reader_never_blocks_and_memory_stays_flat(scene_file):
     def peak_rss(frames):
-        emu = EmulatorProcess("--scene", scene(ONE_TX.format(rate=1.0)), "--port", "pty", "--frames", str(frames), "--speed", "0")
+        emu = EmulatorProcess("--scene", scene_file(one_tx(rate_hz=1.0)), "--port", "pty", "--frames", str(frames), "--speed", "0")
         peak = 0
         while emu.proc.poll() is None:
             try:
@@ -100,8 +70,8 @@ def test_no_reader_never_blocks_and_memory_stays_flat(scene):
     assert sent - 30_000 < dropped < sent  # only what fits the pty buffer was kept
 
 
-def test_reader_that_reopens_gets_fresh_epochs(scene):
-    emu = EmulatorProcess("--scene", scene(ONE_TX.format(rate=1.0)), "--port", "pty", "--speed", "50")
+def test_reader_that_reopens_gets_fresh_epochs(scene_file):
+    emu = EmulatorProcess("--scene", scene_file(one_tx(rate_hz=1.0)), "--port", "pty", "--speed", "50")
     try:
         with emu.open() as ser:
             line = read_lines(ser, 3)[-1]
@@ -116,10 +86,10 @@ def test_reader_that_reopens_gets_fresh_epochs(scene):
         emu.kill()
 
 
-def test_link_dir_gets_stable_symlinks(scene, tmp_path):
+def test_link_dir_gets_stable_symlinks(scene_file, tmp_path):
     links = tmp_path / "links"
     links.mkdir()
-    emu = EmulatorProcess("--scene", scene(TWO_RX), "--port", "pty", "--link", str(links), "--speed", "1", streams=2)
+    emu = EmulatorProcess("--scene", scene_file(two_rx()), "--port", "pty", "--link", str(links), "--speed", "1", streams=2)
     try:
         assert os.readlink(links / "arva-1") == emu.ports["arva:1"]
         assert os.readlink(links / "arva-7") == emu.ports["arva:7"]
@@ -154,11 +124,11 @@ def test_busy_device_exit_2():
         os.close(slave)
 
 
-def test_writes_to_a_device_path(scene):
+def test_writes_to_a_device_path(scene_file):
     master, slave = pty.openpty()
     path = os.ttyname(slave)
     try:
-        proc = emulate("--scene", scene(ONE_TX.format(rate=1.0)), "--port", path, "--frames", "3", "--speed", "0")
+        proc = emulate("--scene", scene_file(one_tx(rate_hz=1.0)), "--port", path, "--frames", "3", "--speed", "0")
         assert proc.returncode == 0, proc.stderr
         data = os.read(master, 4096)
         assert data == parva(0) + parva(1) + parva(2)
@@ -183,8 +153,8 @@ def test_stream_argument_errors(args, message):
         assert b"expected LABEL=PORT" in proc.stderr
 
 
-def test_two_streams_cannot_share_stdout(scene):
-    proc = emulate("--scene", scene(TWO_RX), "--port", "-", "--frames", "1")
+def test_two_streams_cannot_share_stdout(scene_file):
+    proc = emulate("--scene", scene_file(two_rx()), "--port", "-", "--frames", "1")
     assert proc.returncode == 2
     assert proc.stderr.decode() == (
         "arva-emulate: port -: 2 streams (arva:1, arva:7) cannot share stdout; use --port pty or --stream LABEL=PORT\n"
@@ -207,10 +177,10 @@ position = [0.0, 0.0, 0.0]
 """
 
 
-def test_pty_unplug_and_replug_follows_the_link(scene, tmp_path):
+def test_pty_unplug_and_replug_follows_the_link(scene_file, tmp_path):
     links = tmp_path / "links"
     links.mkdir()
-    emu = EmulatorProcess("--scene", scene(UNPLUG), "--port", "pty", "--link", str(links), "--frames", "25")
+    emu = EmulatorProcess("--scene", scene_file(UNPLUG), "--port", "pty", "--link", str(links), "--frames", "25")
     try:
         with serial.Serial(str(links / "arva"), timeout=2) as ser:
             before = read_lines(ser, 2)

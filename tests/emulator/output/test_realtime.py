@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
-import repo_paths
+from scene_builders import default_scene_text
 
 from emulator.output import realtime
 
@@ -58,13 +58,10 @@ def test_granted_requests_say_nothing(monkeypatch, no_side_effects):
     assert libc.flags == 1
 
 
-def test_cli_flag_runs_and_emits_the_same_bytes(tmp_path):
-    scene = repo_paths.SCENES / "default.toml"
-    fast = scene.read_text().replace("rate_hz = 1.0", "rate_hz = 50.0")
-    path = tmp_path / "s.toml"
-    path.write_text(fast)
+def test_cli_flag_runs_and_emits_the_same_bytes(scene_file):
+    path = scene_file(default_scene_text(rate_hz=50.0))
     exe = Path(sys.executable).with_name("arva-emulate")
-    base = [str(exe), "--scene", str(path), "--port", "-", "--frames", "3"]
+    base = [str(exe), "--scene", path, "--port", "-", "--frames", "3"]
     plain = subprocess.run(base, capture_output=True, timeout=60)
     rt = subprocess.run(base + ["--realtime"], capture_output=True, timeout=60)
     assert rt.returncode == 0 and rt.stdout == plain.stdout

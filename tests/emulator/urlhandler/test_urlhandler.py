@@ -5,21 +5,9 @@ import time
 import pytest
 import serial
 import serial.threaded
+from scene_builders import two_rx
 
 import emulator.urlhandler  # noqa: F401  (registers arvaemu://)
-
-TWO_RX = """spec = 1
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[[receivers]]
-id = 1
-position = [0.0, 0.0, 0.0]
-[[receivers]]
-id = 7
-channels = 2
-position = [10.0, 0.0, 0.0]
-"""
 
 DEFAULT_EPOCH_0 = (
     b"$PARVA,0,4,1,4,761,-62*4C\r\n"
@@ -68,9 +56,8 @@ def test_non_blocking_read_returns_what_is_due():
         assert port.in_waiting == 0
 
 
-def test_receiver_selection(tmp_path):
-    scene = tmp_path / "two.toml"
-    scene.write_text(TWO_RX)
+def test_receiver_selection(scene_file):
+    scene = scene_file(two_rx(channels_7=2), "two.toml")
     with serial.serial_for_url(f"arvaemu://{scene}?receiver=7&speed=0&frames=1", timeout=1) as port:
         data = port.read(1000)
     assert data.splitlines()[1] == b"$PARVA,0,2,2,-1,-1,-1*78"
