@@ -4,6 +4,8 @@ its copy; tests/conftest.py's ``scene_file`` fixture writes one to a file."""
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
+
 import repo_paths
 
 TX_POSITION = [20.0, 5.0, 0.0]  # transmitter 1 of the one-transmitter scenes, metres
@@ -38,3 +40,22 @@ def default_scene_text(rate_hz: float) -> str:
     text = (repo_paths.SCENES / "default.toml").read_text()
     assert "rate_hz = 1.0" in text
     return text.replace("rate_hz = 1.0", f"rate_hz = {rate_hz!r}")
+
+
+FIELD_ORIGIN = (46.5, 8.0, 2500.0)  # lat, lon (degrees), alt (m): the field scenes' origin
+FIELD_START_UTC = datetime(2026, 1, 15, 10, 0, 0, tzinfo=timezone.utc)
+
+
+def field_scene(receiver: dict, ground_truth: dict, **top) -> dict:
+    """Transmitter 1 buried 1 m under FIELD_ORIGIN, one receiver (``receiver``: its table,
+    e.g. gps/attitude flags and a path), the ``[ground_truth]`` table given (rates ...);
+    ``top`` adds top-level keys (seed, rate_hz)."""
+    lat, lon, alt = FIELD_ORIGIN
+    return {
+        "spec": 1,
+        **top,
+        "origin": {"lat": lat, "lon": lon, "alt": alt},
+        "ground_truth": dict(ground_truth),
+        "transmitters": [{"id": 1, "position": [0.0, 0.0, -1.0]}],
+        "receiver": dict(receiver),
+    }

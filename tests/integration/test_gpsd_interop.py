@@ -10,6 +10,7 @@ import subprocess
 import time
 
 import pytest
+from scene_builders import FIELD_START_UTC, field_scene
 
 from emulator.frames.geodesy import Origin, enu_to_geodetic
 from emulator.testing import EmulatorProcess
@@ -17,21 +18,10 @@ from emulator.testing import EmulatorProcess
 GPSD = shutil.which("gpsd") or (shutil.which("gpsd", path="/usr/sbin:/sbin"))
 pytestmark = pytest.mark.skipif(GPSD is None, reason="gpsd not installed (apt-get install gpsd)")
 
-SCENE = """spec = 1
-[origin]
-lat = 46.5
-lon = 8.0
-alt = 2500.0
-[ground_truth]
-start_utc = 2026-01-15T10:00:00Z
-gps_rate_hz = 5.0
-[[transmitters]]
-id = 1
-position = [0.0, 0.0, -1.0]
-[receiver]
-gps = true
-path = [ { t = 0.0, position = [10.0, 20.0, 1.0] }, { t = 100.0, position = [110.0, 20.0, 1.0] } ]
-"""
+SCENE = field_scene(
+    {"gps": True, "path": [{"t": 0.0, "position": [10.0, 20.0, 1.0]}, {"t": 100.0, "position": [110.0, 20.0, 1.0]}]},
+    {"start_utc": FIELD_START_UTC, "gps_rate_hz": 5.0},
+)
 
 
 def free_port():
@@ -41,9 +31,8 @@ def free_port():
 
 
 @pytest.mark.timeout(60)
-def test_gpsd_reports_the_emulated_positions(tmp_path):
-    scene = tmp_path / "gps.toml"
-    scene.write_text(SCENE)
+def test_gpsd_reports_the_emulated_positions(tmp_path, scene_file):
+    scene = scene_file(SCENE, "gps.toml")
     emu = EmulatorProcess("--scene", str(scene), "--port", "pty", "--speed", "1", "--frames", "20", streams=2)
     port = free_port()
     gpsd = subprocess.Popen(

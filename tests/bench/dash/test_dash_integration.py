@@ -17,6 +17,7 @@ import time
 
 import pytest
 from dash_helpers import DEFAULT_SLOTS
+from scene_builders import field_scene
 from emulator.testing import EmulatorProcess
 
 from bench.dash.app import DashApp, DashConfig
@@ -111,37 +112,19 @@ def test_arva_bench_dash_in_a_terminal_records_and_quits(tmp_path):
     assert len(epochs) >= 3 and all(r["slots"] == [list(s) for s in DEFAULT_SLOTS] for r in epochs)
 
 
-SCENE_WITH_TRUTH = """\
-spec = 1
-rate_hz = 1.0
-[origin]
-lat = 46.5
-lon = 8.0
-alt = 2500.0
-[ground_truth]
-gps_rate_hz = 1.0
-attitude_rate_hz = 2.0
-lat_lon_decimals = 7
-[[transmitters]]
-id = 1
-position = [0.0, 0.0, -1.0]
-[receiver]
-channels = 1
-gps = true
-attitude = true
-position = [12.0, 5.0, 1.0]
-orientation = [1.0, 0.0, 0.0, 0.0]
-"""
+SCENE_WITH_TRUTH = field_scene(
+    {"channels": 1, "gps": True, "attitude": True, "position": [12.0, 5.0, 1.0], "orientation": [1.0, 0.0, 0.0, 0.0]},
+    {"gps_rate_hz": 1.0, "attitude_rate_hz": 2.0, "lat_lon_decimals": 7}, rate_hz=1.0,
+)
 
 
 @pytest.mark.timeout(60)
-def test_dash_ground_truth_from_emulated_gps_and_attitude_ptys(tmp_path):
+def test_dash_ground_truth_from_emulated_gps_and_attitude_ptys(tmp_path, scene_file):
     """Receiver, GPS and $PASHR on three ptys; a surveyed transmitter: the true distance
     sqrt(12^2 + 5^2 + 2^2) = 13.15 m appears next to d, and the receiver's ENU pose."""
     from emulator.frames.geodesy import Origin, enu_to_geodetic
 
-    scene = tmp_path / "truth.toml"
-    scene.write_text(SCENE_WITH_TRUTH)
+    scene = scene_file(SCENE_WITH_TRUTH, "truth.toml")
     tx = [float(v) for v in enu_to_geodetic(0.0, 0.0, -1.0, Origin(46.5, 8.0, 2500.0))]
     emu = EmulatorProcess("--scene", str(scene), "--port", "pty", "--speed", "10", streams=3)
     try:

@@ -13,6 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from hypothesis import given
 from hypothesis import strategies as st
+from scene_builders import FIELD_START_UTC, field_scene
 
 from bench.export import export_rows
 from bench.ground_truth.mavlink import MavlinkAttitudeReader
@@ -185,27 +186,11 @@ def test_format_option_is_checked_on_the_command_line(tmp_path):
     assert not (tmp_path / "s").exists()
 
 
-SCENE = """spec = 1
-seed = 4
-rate_hz = 1.0
-[origin]
-lat = 46.5
-lon = 8.0
-alt = 2500.0
-[ground_truth]
-start_utc = 2026-01-15T10:00:00Z
-gps_rate_hz = 1.0
-[[transmitters]]
-id = 1
-position = [0.0, 0.0, -1.0]
-[receiver]
-channels = 1
-gps = true
-path = [
-  { t = 0.0, position = [20.0, -5.0, 1.0] },
-  { t = 100.0, position = [-20.0, 5.0, 1.0] },
-]
-"""
+SCENE = field_scene(
+    {"channels": 1, "gps": True,
+     "path": [{"t": 0.0, "position": [20.0, -5.0, 1.0]}, {"t": 100.0, "position": [-20.0, 5.0, 1.0]}]},
+    {"start_utc": FIELD_START_UTC, "gps_rate_hz": 1.0}, seed=4, rate_hz=1.0,
+)
 
 
 class AutopilotServer:
@@ -239,9 +224,8 @@ class AutopilotServer:
 
 
 @pytest.mark.timeout(90)
-def test_logged_mavlink_attitude_is_the_exported_receiver_attitude(tmp_path):
-    scene = tmp_path / "scene.toml"
-    scene.write_text(SCENE)
+def test_logged_mavlink_attitude_is_the_exported_receiver_attitude(tmp_path, scene_file):
+    scene = scene_file(SCENE, "scene.toml")
     # Yaw 30 deg east of north, pitch 10 deg, as FRD -> NED; our FLU -> ENU is heading 30.
     q_ned = tuple(Rotation.from_euler("ZYX", [30.0, 10.0, 0.0], degrees=True).as_quat(scalar_first=True))
     server = AutopilotServer(q_ned)
