@@ -56,6 +56,7 @@ def json_lines(out: bytes) -> list[dict]:
     return [json.loads(line) for line in out.decode().splitlines()]
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_file_source(tmp_path: Path) -> None:
     path = tmp_path / "rx.nmea"
@@ -66,6 +67,7 @@ def test_file_source(tmp_path: Path) -> None:
     assert proc.stderr.decode() == STREAM_STATS + "\n"
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_stdin_source_and_exact_json_text() -> None:
     data = encode_epoch(9, [(1, 1905, 21)], [(1.25e-05, -2.5e-06, 0.0)])
@@ -76,6 +78,7 @@ def test_stdin_source_and_exact_json_text() -> None:
     )
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_garbage_only_stream_exits_zero_with_everything_counted() -> None:
     data = b"\xff" * 100 + b"$PARVA,1,1*00\r\n" + b"$" + b"A" * 90 + b"\r\n" + b"$PARVA,9"
@@ -91,6 +94,7 @@ def test_garbage_only_stream_exits_zero_with_everything_counted() -> None:
     )
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize(
     ("args", "message"),
@@ -111,6 +115,7 @@ def test_bad_arguments_exit_2_with_one_line(args: list[str], message: str) -> No
     assert proc.stderr.decode() == message + "\n"
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_unreachable_socket_url_exits_2() -> None:
     proc = run_cat(["socket://127.0.0.1:1"])
@@ -187,6 +192,7 @@ def _popen(args: list[str]) -> subprocess.Popen:
     )
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["ctrl_c", "sigterm"])
 def test_live_stream_epochs_appear_without_waiting_and_a_stop_signal_prints_stats(sig: int, status: int) -> None:
@@ -218,6 +224,7 @@ def test_live_stream_epochs_appear_without_waiting_and_a_stop_signal_prints_stat
     assert "epochs_complete=2 epochs_incomplete=1" in err.decode() and "Traceback" not in err.decode()
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_fifo_source(tmp_path: Path) -> None:
     fifo = tmp_path / "rx.fifo"
@@ -236,6 +243,7 @@ def test_fifo_source(tmp_path: Path) -> None:
     assert err.decode() == STREAM_STATS + "\n"
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_closed_stdout_is_not_an_error(tmp_path: Path) -> None:
     path = tmp_path / "big.nmea"
@@ -256,6 +264,7 @@ def test_closed_stdout_is_not_an_error(tmp_path: Path) -> None:
     assert err.startswith("arva-bench: cat: bytes=")
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_emulator_url_end_to_end() -> None:
     """cat reads the emulator's in-process receiver URL (arvaemu://) like any port."""
@@ -265,6 +274,9 @@ def test_emulator_url_end_to_end() -> None:
     assert [o["seq"] for o in out] == [0, 1, 2] and all(o["complete"] for o in out)
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
+@pytest.mark.pty
 @pytest.mark.timeout(60)
 def test_character_device_source_via_pty() -> None:
     """A device path (here a pty slave) is opened with pyserial, like /dev/ttyUSB0."""

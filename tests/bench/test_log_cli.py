@@ -7,6 +7,8 @@ import pytest
 
 from bench.session import read_jsonl, read_manifest
 
+pytestmark = pytest.mark.subprocess
+
 
 def bench(*args, timeout=30):
     return subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True, text=True, timeout=timeout)
@@ -40,6 +42,7 @@ def test_existing_session_is_never_overwritten(tmp_path):
     assert proc.stderr == f"arva-bench: {tmp_path / 's'}: not empty; a session never overwrites another (choose a new --out)\n"
 
 
+@pytest.mark.slow
 def test_unavailable_device_is_recorded_and_the_rest_logs(tmp_path):
     proc = bench("log", "--arva", "arvaemu://?speed=20", "--gps", "/dev/ttyNOPE7", "--out", str(tmp_path / "s"),
                  "--duration", "1.5")

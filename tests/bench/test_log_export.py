@@ -20,6 +20,8 @@ from emulator.testing import EmulatorProcess
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import Epoch
 
+pytestmark = [pytest.mark.slow, pytest.mark.subprocess]
+
 SCENE = """spec = 1
 seed = 9
 rate_hz = 1.0

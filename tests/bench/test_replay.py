@@ -9,6 +9,8 @@ import serial
 
 from bench.session import SessionWriter
 
+pytestmark = pytest.mark.subprocess
+
 
 def make_session(path):
     w = SessionWriter(path, {"devices": {"arva": {"kind": "arva", "url": "x", "role": "rx"},
@@ -22,6 +24,7 @@ def make_session(path):
     return b"".join(arva)
 
 
+@pytest.mark.pty
 @pytest.mark.timeout(30)
 def test_replay_byte_for_byte_with_timing(tmp_path):
     expected = make_session(tmp_path / "s")

@@ -168,6 +168,7 @@ while True:
 """
 
 
+@pytest.mark.subprocess
 def test_sigkill_loses_nothing_before_the_last_second(tmp_path):
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(tmp_path / "s")], stdout=subprocess.PIPE, text=True)
     reported = []

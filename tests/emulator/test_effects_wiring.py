@@ -138,6 +138,7 @@ position = [0.0, 0.0, 0.0]
 """
 
 
+@pytest.mark.subprocess
 def test_link_fault_loss_rate_on_the_wire(tmp_path):
     path = tmp_path / "lossy.toml"
     path.write_text(LOSSY)
@@ -171,6 +172,9 @@ position = [0.0, 0.0, 0.0]
 """
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
+@pytest.mark.pty
 @pytest.mark.timeout(60)
 def test_faulted_stream_through_a_pty_in_real_time_equals_stdout_at_speed_0(tmp_path):
     """The faults a pyserial reader sees on a pty, paced in real time (one write per

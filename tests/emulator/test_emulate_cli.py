@@ -33,6 +33,7 @@ def emulate(*args, timeout=60):
     )
 
 
+@pytest.mark.subprocess
 def test_exact_bytes_one_channel(scene_file):
     proc = emulate("--scene", scene_file(one_tx(channels=1)), "--port", "-", "--frames", "3", "--speed", "0")
     assert proc.returncode == 0
@@ -44,11 +45,13 @@ def test_exact_bytes_one_channel(scene_file):
     assert proc.stderr == b"arva-emulate: 3 epochs sent (arva 3), 0 bytes dropped, 0 faults injected\n"
 
 
+@pytest.mark.subprocess
 def test_exact_bytes_empty_slot(scene_file):
     proc = emulate("--scene", scene_file(one_tx(channels=2)), "--frames", "1", "--speed", "0")
     assert proc.stdout == b"$PARVA,0,2,1,1,1905,21*58\r\n$PARVA,0,2,2,-1,-1,-1*78\r\n"
 
 
+@pytest.mark.subprocess
 def test_default_scene_first_epoch():
     proc = emulate("--port", "-", "--frames", "1", "--speed", "0")
     assert proc.returncode == 0
@@ -60,6 +63,7 @@ def test_default_scene_first_epoch():
     )
 
 
+@pytest.mark.subprocess
 def test_seq_wraps_at_65536(scene_file):
     proc = emulate("--scene", scene_file(one_tx(channels=1)), "--frames", "65537", "--speed", "0")
     lines = proc.stdout.split(b"\r\n")
@@ -67,6 +71,7 @@ def test_seq_wraps_at_65536(scene_file):
     assert lines[65535].startswith(b"$PARVA,65535,") and lines[65536] == b"$PARVA,0,1,1,1,1905,21*5B"
 
 
+@pytest.mark.subprocess
 def test_seeded_noise_replays_identically_and_seed_matters(scene_file):
     a = scene_file(NOISY.format(seed=7, research="false"), "a.toml")
     b = scene_file(NOISY.format(seed=8, research="false"), "b.toml")
@@ -77,6 +82,7 @@ def test_seeded_noise_replays_identically_and_seed_matters(scene_file):
     assert len(first.split(b"\r\n")) == 81
 
 
+@pytest.mark.subprocess
 def test_research_sentences_follow_their_slot(scene_file):
     s = scene_file(NOISY.format(seed=7, research="true"))
     lines = emulate("--scene", s, "--frames", "40", "--speed", "0").stdout.decode().split("\r\n")[:-1]
@@ -88,6 +94,7 @@ def test_research_sentences_follow_their_slot(scene_file):
     assert sum(line.startswith("$PARVH") for line in lines) >= 40
 
 
+@pytest.mark.subprocess
 def test_chunking_does_not_change_noisy_output(scene_file):
     s = scene_file(NOISY.format(seed=3, research="true"))
     outputs = []
@@ -122,6 +129,7 @@ def test_bad_arguments_exit_2(argv, fragment, capsys):
     assert fragment in capsys.readouterr().err
 
 
+@pytest.mark.subprocess
 def test_real_time_pacing_is_roughly_real_time(scene_file):
     # 3 epochs at 20 Hz scene rate and speed 1: epochs at 0, 50, 100 ms. Loose bound;
     # precise jitter is measured by the benchmark, not asserted here.

@@ -123,6 +123,7 @@ def test_streams_to_files_and_stdout(tmp_path, capsysbinary):
     assert capsysbinary.readouterr().out == expected["attitude"]
 
 
+@pytest.mark.pty
 def test_link_dir_is_created(tmp_path, capsys):
     links = tmp_path / "fresh" / "links"
     assert main(["--port", "pty", "--link", str(links), "--frames", "1", "--speed", "0"]) == 0

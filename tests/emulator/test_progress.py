@@ -61,6 +61,8 @@ def test_a_forced_bar_renders_counts_and_note():
     assert "work" in text and "3/4 runs" in text and "12x real time" in text
 
 
+@pytest.mark.subprocess
+@pytest.mark.pty
 @pytest.mark.timeout(120)
 def test_sweep_progress_on_a_terminal_only():
     rc, out_tty, seen = run_with_stderr_on_a_pty(SWEEP)
@@ -73,6 +75,8 @@ def test_sweep_progress_on_a_terminal_only():
     assert piped.stderr.count(b"\n") == 1 and piped.stderr.startswith(b"1 runs, 60 s of scene time in ")
 
 
+@pytest.mark.subprocess
+@pytest.mark.pty
 @pytest.mark.timeout(120)
 def test_replay_progress_on_a_terminal_only(tmp_path):
     w = SessionWriter(tmp_path / "s", {"devices": {"arva": {"kind": "arva", "url": "x", "role": "rx"}}})

@@ -42,6 +42,7 @@ def assert_agree(chunks: list[bytes], expect_fields: bool = False, idle_after: s
     assert c_stats == py_stats
 
 
+@pytest.mark.subprocess
 @given(hostile_streams(), st.data())
 def test_c_agrees_on_hostile_streams(stream: Stream, data: st.DataObject) -> None:
     cuts = data.draw(st.lists(st.integers(0, len(stream.data)), max_size=6).map(sorted))
@@ -136,6 +137,7 @@ def test_c_parvh_encoder_refuses_bad_text() -> None:
     assert c_encode_parvh(1, 1, 1, (b"1" * 30, b"2" * 30, b"3" * 10)) is None  # 90 bytes > 82
 
 
+@pytest.mark.subprocess
 def test_firmware_example_builds_strict_and_runs(tmp_path: Path) -> None:
     exe = tmp_path / "example"
     flags = STRICT + (SANITIZE if sanitizers_work() else [])
@@ -143,6 +145,7 @@ def test_firmware_example_builds_strict_and_runs(tmp_path: Path) -> None:
     assert subprocess.run([str(exe)], timeout=30).returncode == 0
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("config", [[], ["-DARVA_MAX_CHANNELS=4", "-DARVA_WITH_FIELDS=0"]])
 def test_codec_needs_no_floating_point_and_no_library(tmp_path: Path, config: list[str]) -> None:
     """Compiled with the FPU registers forbidden (where the compiler can), and the object

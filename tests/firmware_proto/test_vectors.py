@@ -91,6 +91,7 @@ def test_c_table_is_up_to_date() -> None:
     assert C_TABLE.read_text() == c_table(), "run: python -m firmware_proto.golden c-table firmware_proto/c/vectors.inc"
 
 
+@pytest.mark.subprocess
 @needs_cc
 @pytest.mark.timeout(300)
 def test_c_runner_passes_every_vector() -> None:
@@ -100,6 +101,7 @@ def test_c_runner_passes_every_vector() -> None:
     assert proc.stdout.strip() == f"{len(DECODE)} decode + {len(ENCODE)} encode vectors, 0 failed"
 
 
+@pytest.mark.subprocess
 @needs_cc
 @pytest.mark.timeout(300)
 def test_c_runner_fails_on_a_wrong_vector() -> None:

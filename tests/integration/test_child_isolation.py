@@ -25,6 +25,7 @@ def test_module_command_leaves_the_working_directory_off_sys_path():
     assert module_command("bench.fit.worker", "x") == [sys.executable, "-P", "-m", "bench.fit.worker", "x"]
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_the_fit_worker_answers_from_a_foreign_repository(in_foreign_repository):
     w = Worker()
@@ -36,6 +37,7 @@ def test_the_fit_worker_answers_from_a_foreign_repository(in_foreign_repository)
     assert w.proc.returncode == 0
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_the_keeper_answers_from_a_foreign_repository(in_foreign_repository):
     handle, line = kworkers.raise_workers()

@@ -186,6 +186,8 @@ def _finish(cmd: Command, proc: subprocess.Popen, what: str) -> None:
         assert err.endswith(b"\n") and err.count(b"\n") == 1, f"{what}: not one line on stderr: {text!r}"
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(120 + EXAMPLES * 3 * TIMEOUT_S)
 @settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])  # fmt: skip
@@ -271,6 +273,8 @@ ISSUE_CASES = [
 ]
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_the_issues_examples_are_one_line_errors(inputs):
     root: Path = inputs["root"]
     deep = root / "deep.toml"
@@ -326,6 +330,8 @@ ISSUE_29_PATHS = [
 ]  # fmt: skip
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_long_path_parts_and_endless_files_are_one_line(inputs):
     root: Path = inputs["root"]
     names = {"session": inputs["session"], "csv": inputs["csv"], "tmp": str(root), "long": LONG_PART}
@@ -345,6 +351,7 @@ def test_long_path_parts_and_endless_files_are_one_line(inputs):
         assert (proc.returncode, err.decode()) == (2, expected + "\n"), argv
 
 
+@pytest.mark.subprocess
 def test_fit_outputs_that_cannot_be_written_are_refused_before_the_fit(inputs):
     """``--report /proc/x`` and ``--write-scene /proc/x.toml`` pass the permission bits as
     root; they used to fail only after the fit (its summary already printed)."""

@@ -21,6 +21,7 @@ def dry_run(target: str) -> str:
     return proc.stdout
 
 
+@pytest.mark.subprocess
 def test_make_run_installs_the_runtime_set_only():
     out = dry_run("run")
     assert "pip install --quiet -e .\n" in out
@@ -29,6 +30,7 @@ def test_make_run_installs_the_runtime_set_only():
     assert not [d for d in runtime if d.split(">")[0].split("[")[0] in DEV_ONLY]
 
 
+@pytest.mark.subprocess
 def test_make_test_installs_the_dev_set():
     out = dry_run("test")
     assert "pip install --quiet -e '.[dev]'\n" in out

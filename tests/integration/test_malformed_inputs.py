@@ -95,6 +95,7 @@ def test_every_emitted_stream_can_carry_link_faults():
     assert loads_scene(faulty, "s.toml").effects.link_fault_streams == tuple(labels)
 
 
+@pytest.mark.subprocess
 def test_empty_scene_option_is_an_error_not_the_default_scene():
     p = subprocess.run([sys.executable, "-m", "emulator.cli", "--scene", "", "--frames", "1", "--speed", "0"],
                        capture_output=True, text=True, timeout=60)  # fmt: skip

@@ -7,6 +7,8 @@ from __future__ import annotations
 import pytest
 from noise_sessions import noise_session, peak_rss
 
+pytestmark = [pytest.mark.slow, pytest.mark.subprocess]
+
 
 READERS = {
     "export": lambda d, tmp: ["export", str(d), "--csv", str(tmp / f"{d.name}.csv")],

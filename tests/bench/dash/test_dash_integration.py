@@ -25,6 +25,8 @@ from bench.dash.widgets import ChannelTable, GroundTruthPanel, LinkPanel
 from bench.logger import DeviceSpec
 from bench.session import read_jsonl, read_manifest
 
+pytestmark = [pytest.mark.subprocess, pytest.mark.pty]
+
 EXPECTED_ROWS = [
     "  4    7.61  -62 mid",
     "  2    9.26    0 mid",
@@ -72,6 +74,7 @@ def _drain(fd: int, seconds: float, out: bytearray) -> None:
                 return
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_arva_bench_dash_in_a_terminal_records_and_quits(tmp_path):
     """The command itself on a pseudo-terminal (80x24): r, r records a session from the

@@ -29,6 +29,8 @@ def files(tmp_path_factory):
     return root, garbage, bad_scene, good
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_sources_that_can_never_work_exit_2_before_the_tui(files):
     root, garbage, bad_scene, _ = files
     cases = [
@@ -55,6 +57,7 @@ def test_sources_that_may_work_later_pass(files):
         check_source("arvaemu://?speed=nan")
 
 
+@pytest.mark.subprocess
 def test_log_refuses_them_too_and_creates_no_session(files, tmp_path):
     _, garbage, bad_scene, _ = files
     p = subprocess.run([sys.executable, "-m", "bench.cli", "log", "--arva", "bogus://x", "--out", str(tmp_path / "s"),
@@ -63,6 +66,8 @@ def test_log_refuses_them_too_and_creates_no_session(files, tmp_path):
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_a_missing_path_or_an_unusable_record_dir_is_refused_before_the_screen(tmp_path):
     """Issue 29, item 10: the dashboard started its screen for these and showed a dead panel
     (or failed when r was pressed); now one line, exit 2, before the TUI."""

@@ -123,6 +123,7 @@ def test_write_scene_inserts_a_model_table(campaign, capsys, tmp_path):
     assert load_scene(scene).model.kappa_eq != 1.542 and scene.read_text().index("[model]") < scene.read_text().index("[[transmitters]]")
 
 
+@pytest.mark.slow
 def test_report_markdown(campaign, capsys, tmp_path):
     code, _out, err = run(capsys, campaign, "--report", tmp_path / "rep")
     assert code == 0 and err.startswith(f"arva-bench: fit: wrote {tmp_path / 'rep' / 'report.md'}")
@@ -151,6 +152,7 @@ def test_report_diagnostics_of_a_correct_model(campaign):
     assert np.mean(diag.d == -1) == pytest.approx(np.sum(diag.model_cens[diag.n > 0] * n) / n.sum(), abs=0.02)
 
 
+@pytest.mark.slow
 def test_report_figure(campaign, capsys, tmp_path):
     pytest.importorskip("matplotlib", reason="the report's PNG needs the plot extra (matplotlib)")
     assert run(capsys, campaign, "--report", tmp_path)[0] == 0

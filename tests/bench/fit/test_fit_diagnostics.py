@@ -183,6 +183,7 @@ def test_exact_pose_fit_quiet_when_specified_fires_on_spurious_rows(seed):
     assert len(notes) == 1 and f"{gof.unexpected_censored} rows say 'nothing heard'" in notes[0]
 
 
+@pytest.mark.slow
 def test_pose_error_fit_quiet_when_specified_fires_on_spurious_rows(tmp_path):
     """The default (errors-in-variables) fit, time-block variances: 20-minute level walks
     with Gauss-Markov GPS error, with and without 2 % spurious -1 rows."""

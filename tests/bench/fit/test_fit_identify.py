@@ -37,6 +37,7 @@ def test_noise_reach_thresholds():
     assert not NoiseReach(rows=0, within=0, **at).determined
 
 
+@pytest.mark.slow
 def test_near_only_walk_reports_r_en_not_determined(tmp_path, capsys):
     """A 20-minute walk held at 5-15 m with 1 m GPS error: no row lies where the EMI noise
     shows through the GPS error, so r_en is not determined (JSON null, the note first),
@@ -68,6 +69,7 @@ def test_near_only_walk_reports_r_en_not_determined(tmp_path, capsys):
     assert loaded.model.r_en == ModelParams().r_en and loaded.model.kappa_eq == res.estimate["kappa_eq"]
 
 
+@pytest.mark.slow
 def test_a_search_that_stopped_converges_after_the_restart():
     """The independent study's spiral walk, tuning seed 6 (60 minutes, Gauss-Markov GPS
     1 m / 1.5 m, 2 deg attitude): the first search stops with attitude_sigma a hair above
@@ -147,6 +149,7 @@ def test_no_noise_floor_leaves_r_en_not_determined_and_kappa_eq_fitted(tmp_path,
     assert abs(out["kappa_eq"] / ModelParams().kappa_eq - 1) < 0.01
 
 
+@pytest.mark.slow
 def test_a_search_stopped_at_the_r_en_ceiling_restarts_with_r_en_held_there():
     """The study's near-only walk, tuning seed 16: the first search stops with r_en at its
     ceiling (flat: no noise floor in sight) but not held by the active set; the restart

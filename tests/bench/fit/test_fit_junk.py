@@ -102,6 +102,7 @@ def junk_campaign(tmp_path):
     return path, table
 
 
+@pytest.mark.slow
 def test_duplicated_stamp_gap_and_spurious_minus_ones_fit(capsys, tmp_path):
     path, table = junk_campaign(tmp_path)
     code, out, err = run(capsys, path, "--json")
@@ -201,6 +202,7 @@ def write(table: Table, cells, path) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+@pytest.mark.slow
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(junk=st.lists(JUNK, min_size=1, max_size=3), exact=st.booleans())
 def test_junk_csvs_fit_or_exit_2_with_one_line(junk, exact, capsys, tmp_path):

@@ -296,6 +296,8 @@ def test_pose_error_moves_the_signal_not_the_emi():
 TARGET_ERROR = PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0, attitude_deg=2.0, attitude_tau=30.0)
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_recovery_within_the_targets_on_a_4_hour_campaign():
     """The issue's target: a seeded 4-hour campaign at 1 Hz with Gauss-Markov GPS error
     1 m / 1.5 m (tau 30 s) and 2 deg attitude error, sigmas given (--gps-sigma 1,1.5

@@ -31,6 +31,7 @@ def test_recovers_kappa_within_2_percent_and_r_en_within_10_percent(kappa, r_en)
         assert res.n_rows == 1200 and res.n_censored == int(np.sum(res.n_censored))
 
 
+@pytest.mark.slow
 def test_standard_errors_are_consistent_with_the_spread_over_seeds():
     """Coverage over 20 seeds: if the standard errors were honest, |estimate - truth| / se
     would exceed 2 in ~5 % of fits; P(more than 4 of 20 | p = 0.05) = 0.3 %, so >= 80 %

@@ -19,6 +19,8 @@ from emulator.pipeline import scene_streams
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import Epoch
 
+pytestmark = pytest.mark.slow
+
 SECONDS = 900
 ORIGIN = Origin(46.5, 8.0, 2500.0)
 TX_POS = (0.0, 0.0, -1.0)

@@ -69,6 +69,7 @@ def test_the_scan_locates_the_offset_and_scores_it():
     assert (again.offset, again.gain, again.rows) == (scan.offset, scan.gain, scan.rows)
 
 
+@pytest.mark.slow
 def test_freeing_the_offset_at_zero_does_not_move_kappa_eq():
     """The track the offset moves along holds the shrunk (expected true) positions, as
     the geometry at offset 0 does. With the logged positions there any offset but 0 took

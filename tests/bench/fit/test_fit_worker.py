@@ -51,6 +51,7 @@ def _points(p: Params, n: int = 5) -> list[Params]:
     ]  # fmt: skip
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("block", [0, 1000])
 def test_worker_log_p_is_bit_for_bit_this_process(table, worker, block):
     rows = model_rows(table, AT)
@@ -70,6 +71,7 @@ def test_worker_log_p_is_bit_for_bit_this_process(table, worker, block):
     assert worker.cpu() > 0.0
 
 
+@pytest.mark.subprocess
 def test_worker_reports_an_unknown_likelihood_and_goes_on(table, worker):
     like = Likelihood(model_rows(table, AT))
     like.choose_regimes(AT)
@@ -80,6 +82,7 @@ def test_worker_reports_an_unknown_likelihood_and_goes_on(table, worker):
     assert worker.results(1)[0].tobytes() == like.logp(AT).tobytes()
 
 
+@pytest.mark.subprocess
 def test_worker_ends_with_its_input():
     w = Worker()
     w.close()
@@ -110,6 +113,8 @@ def with_worker(monkeypatch):
     return monkeypatch
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_fit_with_the_worker_is_the_fit_without_it(small, with_worker):
     table, reference = small
     sent = []
@@ -124,6 +129,7 @@ def test_fit_with_the_worker_is_the_fit_without_it(small, with_worker):
     assert (fitted.n_evals, fitted.n_evals_all_rows) == (reference.n_evals, reference.n_evals_all_rows)
 
 
+@pytest.mark.subprocess
 def test_a_failing_worker_leaves_the_fit_unchanged(small, with_worker):
     table, reference = small
     calls = []
@@ -177,6 +183,7 @@ def _in_child():
     return os.getpid(), w.owner, w.results(1)[0]
 
 
+@pytest.mark.subprocess
 def test_a_forked_child_starts_its_own_worker(table, with_worker):
     import multiprocessing
     import os
@@ -196,6 +203,7 @@ def test_a_forked_child_starts_its_own_worker(table, with_worker):
     assert mine.results(1)[0].tobytes() == first.tobytes()
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(120)  # without the answer timeout: a hang
 def test_a_worker_that_stops_answering_is_killed_after_the_timeout(table, worker, monkeypatch):
     like = Likelihood(model_rows(table, AT))
@@ -210,6 +218,8 @@ def test_a_worker_that_stops_answering_is_killed_after_the_timeout(table, worker
     assert worker.proc.wait(timeout=10) == -signal.SIGKILL
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(120)  # without the answer timeout: a hang
 def test_a_hung_worker_leaves_the_fit_unchanged(small, with_worker):
     table, reference = small

@@ -173,6 +173,7 @@ def bench(*args):
     return subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True, text=True, timeout=60)
 
 
+@pytest.mark.subprocess
 def test_format_option_is_checked_on_the_command_line(tmp_path):
     p = bench("log", "--arva", "loop://", "--gps", "loop://,format=mavlink", "--out", str(tmp_path / "s"))
     assert p.returncode == 2 and p.stdout == ""
@@ -223,6 +224,8 @@ class AutopilotServer:
         self.sock.close()
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(90)
 def test_logged_mavlink_attitude_is_the_exported_receiver_attitude(tmp_path, scene_file):
     scene = scene_file(SCENE, "scene.toml")
@@ -266,6 +269,7 @@ def test_logged_mavlink_attitude_is_the_exported_receiver_attitude(tmp_path, sce
     np.testing.assert_allclose(q, np.broadcast_to(expected, q.shape), atol=1e-6)
 
 
+@pytest.mark.subprocess
 def test_without_the_extra_log_says_install_it_and_creates_nothing(tmp_path):
     from without_extra import run_without
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+import pytest
 
 from bench.export import export_rows
 from bench.ingest.reader import Device, DeviceSpec, Listener, Notifier
@@ -247,6 +248,7 @@ def test_a_port_without_a_descriptor_is_read_in_chunks_by_its_thread():
     assert sentences == 50 * 4 and len(got.reads) < sentences  # several sentences per read
 
 
+@pytest.mark.pty
 def test_reopening_keeps_what_the_os_buffered():
     master, slave = os.openpty()
     try:

@@ -25,6 +25,7 @@ def exact(rows):
     return [tuple(None if isinstance(v, float) and math.isnan(v) else v for v in r.values()) for r in rows]
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(900)  # ~10 s alone; the per-run reference is the slow half
 @pytest.mark.parametrize("strategy", ["receiver_only", "flux_reverse", "flux"])
 def test_batch_rows_equal_per_run_rows(strategy):
@@ -41,6 +42,7 @@ def test_batch_rows_equal_per_run_rows(strategy):
     assert len({r["t_end_s"] for r in reference}) > 10
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_batch_equals_per_run_on_a_dem_with_range_noise():
     """The case-study scenes: a DEM terrain, 2 cm range noise, a 4 m take-off, no strips
@@ -64,6 +66,7 @@ def test_batch_equals_per_run_on_a_dem_with_range_noise():
     assert sum(bool(b.located) for b in batch) >= 12
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_sweep_engines_give_the_same_rows():
     """Mixed batches: every strategy and two gains in one BatchLoop."""
@@ -81,6 +84,7 @@ def test_batch_refuses_what_it_does_not_batch():
         BatchLoop([])
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_the_receiver_class_passes_through():
     """A 2-antenna receiver (ModelParams.antennas) in the batch: the same rows as per run,

@@ -94,6 +94,7 @@ def test_orientation_matters_start_behind_the_dipole_never_grows():
     assert dist.max() <= dist[0] + 1e-9 and r.located
 
 
+@pytest.mark.slow
 def test_plots_like_figs_8_to_11(tmp_path, capsys):
     assert main(["--controllers", "flux", "--out", str(tmp_path)]) == 0
     for case in CASES:
@@ -103,6 +104,7 @@ def test_plots_like_figs_8_to_11(tmp_path, capsys):
     assert "| 4 | flux | 8.77 | 20.05 (20.0) | 2.285 | 55.0 | 0.697 | 1.21 |" in table
 
 
+@pytest.mark.subprocess
 def test_closed_loop_stream_on_stdout_matches_the_in_process_port():
     """The closed-loop receiver's $PARVA goes out through the scheduler (batches of 4096
     epochs) and the arvaemu:// port (epoch by epoch) byte for byte, and says what the
@@ -124,6 +126,7 @@ def test_closed_loop_stream_on_stdout_matches_the_in_process_port():
     assert d[0] == 945 and max(d) > 2000 and all(0 <= v <= 300 for v in d[-20:])
 
 
+@pytest.mark.subprocess
 def test_plots_without_matplotlib_say_which_extra_before_flying(tmp_path):
     from without_extra import run_without
 

@@ -189,6 +189,7 @@ def test_before_any_message_epochs_use_the_start_pose():
 
 
 # --------------------------------------------------------------------------- serial
+@pytest.mark.pty
 def test_pose_over_a_serial_line():
     """A telemetry radio on a serial port: pymavlink reads our pty's slave side."""
     master, slave = os.openpty()
@@ -209,6 +210,7 @@ def test_pose_over_a_serial_line():
         os.close(slave)
 
 
+@pytest.mark.subprocess
 def test_without_the_extra_the_emulator_says_install_it(tmp_path):
     from without_extra import run_without
 
@@ -235,6 +237,8 @@ def test_serial_link_baud_comes_from_the_scene():
         loads_scene(flux + "mavlink_baud = 9600\n", "ext.toml")
 
 
+@pytest.mark.subprocess
+@pytest.mark.pty
 def test_truth_reports_the_mavlink_pose_the_stream_uses(arva_emulator):
     """Issue 29: ``truth`` reported the start pose of a receiver driven by MAVLink while
     its epochs used the autopilot's pose."""

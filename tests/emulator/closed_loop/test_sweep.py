@@ -42,6 +42,7 @@ def test_burials_are_seeded_and_in_range():
     assert abs(mz.mean()) < 0.1 and abs(np.abs(mz).mean() - 0.5) < 0.06
 
 
+@pytest.mark.slow
 def test_small_sweep_summary_is_exact(local):
     assert [len(local.rows), local.scene_s] == [39, 5977.0]  # 3 strategies x 13 transmitters
     s = {row["strategy"]: row for row in local.summary}
@@ -55,17 +56,22 @@ def test_small_sweep_summary_is_exact(local):
     assert local.speedup > 200
 
 
+@pytest.mark.slow
 def test_rerun_gives_the_same_summary(local):
     again = sweep(CONFIG, workers=1)
     assert same(again.rows, local.rows) and same(again.summary, local.summary)
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_process_pool_gives_the_same_rows(local):
     pooled = sweep(CONFIG, workers=2)
     assert pooled.executor == "process pool x2"
     assert same(pooled.rows, local.rows)
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(180)
 def test_dask_local_cluster_gives_the_same_rows(local):
     """Worker processes, as on a real cluster: the config and the chunks are pickled to
@@ -97,6 +103,7 @@ def test_summary_of_nothing_found():
     assert "| s | 1 | 0.2 | 1 | 1 | 0.0 % |" in summary_table([s])
 
 
+@pytest.mark.subprocess
 def test_command_line(tmp_path):
     out = tmp_path / "sweep.csv"
     proc = subprocess.run(
@@ -123,6 +130,7 @@ def test_parquet_table_has_the_csv_columns_and_values(local, tmp_path):
     assert same(table.to_pylist(), [{k: r[k] for k in COLUMNS} for r in local.rows])
 
 
+@pytest.mark.subprocess
 def test_bad_output_is_refused_before_the_sweep_runs(tmp_path):
     def run(*args):
         return subprocess.run([sys.executable, "-m", "emulator.closed_loop.sweep", "--n", "1000000", *args],
@@ -175,6 +183,8 @@ def test_summary_has_tails(local):
     assert "| t locate p99 [95 % CI] / max [s] | error p99 [95 % CI] [m] |" in summary_table(local.summary)
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 def test_command_line_engines_give_the_same_table():
     def run(*args):
         return subprocess.run([sys.executable, "-m", "emulator.closed_loop.sweep", "--n", "2", "--seed", "4",

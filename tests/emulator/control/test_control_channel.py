@@ -18,6 +18,8 @@ from scene_builders import one_tx
 from emulator.testing import ControlClient, ControlReplyError, EmulatorProcess, read_lines
 from firmware_proto.sentences import encode_parva
 
+pytestmark = pytest.mark.subprocess
+
 ONE = one_tx(rate_hz=1.0)
 # Every stream kind and every effect but link faults (their own test below).
 EVERYTHING = {
@@ -82,6 +84,8 @@ def test_step_clock_gives_the_same_bytes_as_a_free_run_on_every_stream(arva_emul
         assert (captured / f"{name}.bytes").read_bytes() == expected, label
 
 
+@pytest.mark.slow
+@pytest.mark.pty
 def test_nothing_between_steps_and_every_stream_in_scene_time_order(arva_emulator):
     emu = arva_emulator(scene=EVERYTHING, clock="step")
     sers = {label: emu.open(label, timeout=5.0) for label in ("arva:1", "arva:4", "gps:rx1", "attitude")}
@@ -160,6 +164,7 @@ def test_tcp_loopback_and_any_host():
         emu.stop()
 
 
+@pytest.mark.pty
 def test_garbage_gets_one_error_reply_each_and_changes_nothing(arva_emulator):
     emu = arva_emulator(scene=ONE, clock="step")
     c = emu.client
@@ -223,6 +228,7 @@ def test_step_respects_frames_and_quit_exits_zero(scene_file, tmp_path):
         emu.kill()
 
 
+@pytest.mark.pty
 def test_unplug_in_scene_time_re_announces_the_pty(arva_emulator):
     emu = arva_emulator(scene=ONE, clock="step")
     first_pty = emu.process.ports["arva"]
@@ -249,6 +255,7 @@ def test_unplug_in_scene_time_re_announces_the_pty(arva_emulator):
     assert captured == b"".join(parva(k) for k in (0, 1, 4, 5))
 
 
+@pytest.mark.pty
 def test_stall_and_corrupt_in_scene_time(arva_emulator):
     emu = arva_emulator(scene=ONE, clock="step")
     with emu.open(timeout=5) as ser:
@@ -266,6 +273,8 @@ def test_stall_and_corrupt_in_scene_time(arva_emulator):
         assert len(got) == len(sent) and got[4:] == sent[4:] and all(x != y for x, y in zip(got[:4], sent[:4]))
 
 
+@pytest.mark.slow
+@pytest.mark.pty
 def test_real_clock_pause_resume_skips_missed_epochs(arva_emulator):
     emu = arva_emulator(scene=dict(ONE, rate_hz=10.0), clock="real", speed=1.0)
     with emu.open(timeout=5) as ser:
@@ -284,6 +293,8 @@ def test_real_clock_pause_resume_skips_missed_epochs(arva_emulator):
     assert emu.stop() == 0
 
 
+@pytest.mark.slow
+@pytest.mark.pty
 def test_real_clock_changes_take_effect_from_the_epoch_named(arva_emulator):
     emu = arva_emulator(scene=dict(ONE, rate_hz=20.0), clock="real", speed=1.0)
     with emu.open(timeout=5) as ser:
@@ -315,6 +326,7 @@ def test_a_bad_scene_is_a_clear_error_from_the_fixture(arva_emulator):
     assert str(info.value).endswith(".toml: colour: unknown key")
 
 
+@pytest.mark.pty
 def test_set_receiver_by_id_pins_that_receiver_only(arva_emulator):
     scene = {
         "spec": 1,
@@ -332,6 +344,8 @@ def test_set_receiver_by_id_pins_that_receiver_only(arva_emulator):
         assert read_lines(b, 1) == [parva(1)]
 
 
+@pytest.mark.slow
+@pytest.mark.pty
 def test_real_clock_stall_holds_bytes_in_scene_time_and_loses_none(arva_emulator):
     emu = arva_emulator(scene=dict(ONE, rate_hz=10.0), clock="real", speed=1.0)
     with emu.open(timeout=5) as ser:

@@ -20,6 +20,8 @@ from emulator.control.controller import STEP_SLICE
 from emulator.testing import ControlClient, EmulatorProcess
 from emulator.testing.scene_toml import dumps
 
+pytestmark = pytest.mark.subprocess
+
 ONE = one_tx(rate_hz=1.0)
 BIG = 1_000_000  # the documented maximum of one step: minutes of work
 
@@ -102,6 +104,7 @@ def test_quit_from_another_client_ends_a_big_step(tmp_path):
         emu.kill()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(60)
 def test_sliced_steps_queue_keep_their_order_and_write_the_free_run_bytes(tmp_path):
     """Client a pipelines a step of many slices and a status; client b's step, sent while

@@ -118,6 +118,7 @@ ops = st.sampled_from(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(op=ops, fields=st.dictionaries(
     st.sampled_from(["id", "n", "position", "orientation", "enabled", "path", "stream", "kind", "seconds", "ms", "bytes", "x"]),

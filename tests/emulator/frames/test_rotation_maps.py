@@ -10,6 +10,7 @@ import sys
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from emulator.frames.rotation import (
@@ -115,6 +116,7 @@ def test_waypoints_are_hit_and_held():
     np.testing.assert_allclose(q[2], [0.0, 0.0, 0.0, 1.0], atol=TOL)
 
 
+@pytest.mark.subprocess
 def test_the_emulator_imports_no_scipy():
     """arva-emulate's start-up: importing scipy.spatial alone cost ~0.3 s of CPU."""
     code = "import sys, emulator.cli; print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'))"

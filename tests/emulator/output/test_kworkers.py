@@ -170,6 +170,7 @@ def test_serve_raises_new_workers_until_stdin_closes_then_restores(tmp_path):
     assert sched.threads == {576: [OTHER, 0, 0], 18817: [OTHER, 0, 0], 23924: [OTHER, -20, 0], 777: [OTHER, 0, 0]}
 
 
+@pytest.mark.subprocess
 def test_cli_needs_realtime():
     done = subprocess.run([str(EMULATE), "--realtime-workers", "--port", "-", "--frames", "1"],
                           capture_output=True, text=True, timeout=60)
@@ -195,6 +196,7 @@ def scene_20hz(scene_file):
     return Path(scene_file(default_scene_text(rate_hz=20.0)))
 
 
+@pytest.mark.subprocess
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux scheduler")
 def test_real_run_raises_the_workers_and_puts_them_back_even_after_sigkill(scene_20hz):
     """On this host: raised while the emulator runs, back at SCHED_OTHER after SIGKILL;
@@ -228,6 +230,7 @@ def test_real_run_raises_the_workers_and_puts_them_back_even_after_sigkill(scene
         emu.stderr.close()
 
 
+@pytest.mark.subprocess
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux scheduler")
 def test_real_run_to_the_end_emits_the_same_bytes_and_restores(scene_20hz):
     base = [str(EMULATE), "--scene", str(scene_20hz), "--port", "-", "--frames", "4"]
@@ -240,6 +243,7 @@ def test_real_run_to_the_end_emits_the_same_bytes_and_restores(scene_20hz):
     assert _raised_workers() == []
 
 
+@pytest.mark.subprocess
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux scheduler")
 def test_without_the_permission_one_line_names_the_worker_and_the_run_goes_on(scene_20hz):
     drop = []
@@ -259,6 +263,7 @@ def test_without_the_permission_one_line_names_the_worker_and_the_run_goes_on(sc
     assert _raised_workers() == []
 
 
+@pytest.mark.subprocess
 def test_a_keeper_that_dies_at_start_is_one_line_naming_its_exit_status(monkeypatch):
     monkeypatch.setattr(kworkers.sys, "executable", "/bin/false")
     handle, line = kworkers.raise_workers()

@@ -153,6 +153,7 @@ def test_uart_line_never_carries_more_than_fifo_plus_rate(steps, baud):
         assert carried <= UART_FIFO_BYTES + clock.t * baud / 10 + 1e-6
 
 
+@pytest.mark.subprocess
 def test_loopback_only_unless_allowed():
     proc = subprocess.run(
         [*EMULATE, "--port", "rfc2217-server:0.0.0.0:0", "--frames", "1", "--speed", "0"],
@@ -174,6 +175,8 @@ def test_loopback_only_unless_allowed():
 # --- served emulator ------------------------------------------------------------------
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_rfc2217_clients_read_exactly_the_stdout_sentences():
     expected = reference("--frames", "10")
@@ -200,6 +203,8 @@ def test_rfc2217_clients_read_exactly_the_stdout_sentences():
     assert "10 epochs sent (arva 10), 0 bytes dropped" in err
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_a_baud_too_low_for_the_stream_drops_what_the_uart_cannot_carry():
     # As fast as possible, 100 epochs go out in one write: a 1200 baud line takes its
@@ -216,6 +221,8 @@ def test_a_baud_too_low_for_the_stream_drops_what_the_uart_cannot_carry():
     assert f"{UART_FIFO_BYTES} bytes sent, {dropped} dropped (line 1200 8N1)" in err
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_client_changing_the_baud_mid_stream():
     # 20 epochs/s of ~107 bytes (about 2140 bytes/s): fine at 115200 baud, too much for
@@ -250,6 +257,8 @@ def test_client_changing_the_baud_mid_stream():
     assert received[:3000] == expected[len(head) : len(head) + 3000]
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_tcp_server_with_a_plain_socket():
     expected = reference("--frames", "10")
@@ -264,6 +273,7 @@ def test_tcp_server_with_a_plain_socket():
     assert f"{len(expected)} bytes sent, 0 dropped (line 115200 8N1)" in finish(proc)
 
 
+@pytest.mark.subprocess
 def test_a_fixed_port_is_the_one_served_and_a_busy_one_is_an_error():
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -281,6 +291,8 @@ def test_a_fixed_port_is_the_one_served_and_a_busy_one_is_an_error():
         port.close()
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_a_vanished_client_costs_nothing():
     expected = reference("--frames", "40")
@@ -296,6 +308,7 @@ def test_a_vanished_client_costs_nothing():
     assert f"40 epochs sent (arva 40), {len(expected)} bytes dropped" in err
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_several_streams_each_get_their_own_free_port():
     scene = "emulator/scenes/field_walk.toml"
@@ -315,6 +328,8 @@ def test_several_streams_each_get_their_own_free_port():
 # --- served replay ---------------------------------------------------------------------
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_replayed_session_served_over_rfc2217(tmp_path):
     expected = reference("--frames", "10")

@@ -102,6 +102,8 @@ HOSTILE = {
 }
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(90)
 def test_hostile_clients_cost_the_emulator_at_most_8_mb_each():
     emu = EmulatorProcess("--port", "rfc2217-server:127.0.0.1:0", "--speed", "1")
@@ -128,6 +130,7 @@ def test_hostile_clients_cost_the_emulator_at_most_8_mb_each():
         emu.kill()
 
 
+@pytest.mark.slow
 def test_at_most_max_clients_are_served_and_refusals_are_counted():
     lines: list[str] = []
     port = ServerPort("arva", parse_server_spec("rfc2217-server:127.0.0.1:0"), notify=lines.append)

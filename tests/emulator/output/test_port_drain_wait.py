@@ -8,7 +8,11 @@ import select
 import threading
 import time
 
+import pytest
+
 from emulator.output.ports import PTY_FIRST_WAIT, PtyPort
+
+pytestmark = pytest.mark.pty
 
 CHUNK = b"$PARVA,1,1834,45.0,1,0*00\r\n" * 4  # 108 bytes
 
@@ -23,6 +27,7 @@ def fill(port: PtyPort) -> int:
             return total
 
 
+@pytest.mark.slow
 def test_an_unread_pty_waits_once_then_drops_at_once():
     port = PtyPort("arva")
     try:
@@ -39,6 +44,7 @@ def test_an_unread_pty_waits_once_then_drops_at_once():
         port.disconnect()
 
 
+@pytest.mark.slow
 def test_a_reader_that_kept_up_loses_nothing_through_a_long_pause():
     """Seen reading (everything written so far is gone), the reader then pauses 1 s, far
     longer than PTY_FIRST_WAIT, while the buffer is full: nothing is dropped."""

@@ -9,6 +9,7 @@ from emulator.output.ports import FilePort, PtyPort, SerialPort, StdoutPort
 from firmware_proto.errors import InputError
 
 
+@pytest.mark.pty
 def test_each_spec_kind(tmp_path):
     assert type(open_port("arva", "-")) is StdoutPort
     with open_port("gps:rx", "pty", PortOptions(link_dir=tmp_path / "l")) as pty:

@@ -14,12 +14,15 @@ from scene_builders import one_tx, two_rx
 
 from emulator.testing import EmulatorProcess, process_rss_kb, read_lines
 
+pytestmark = pytest.mark.subprocess
+
 
 def parva(seq, d=1905, delta=21, tx=1):
     body = f"PARVA,{seq},1,1,{tx},{d},{delta}".encode()
     return b"$%s*%02X\r\n" % (body, reduce(lambda a, b: a ^ b, body, 0))
 
 
+@pytest.mark.pty
 def test_exact_sentences_through_a_pty(scene_file):
     emu = EmulatorProcess("--scene", scene_file(one_tx(rate_hz=20.0)), "--port", "pty", "--frames", "8", "--delay", "1")
     try:
@@ -32,6 +35,7 @@ def test_exact_sentences_through_a_pty(scene_file):
         emu.kill()
 
 
+@pytest.mark.pty
 def test_several_receivers_each_on_its_own_pty(scene_file):
     emu = EmulatorProcess("--scene", scene_file(two_rx()), "--port", "pty", "--speed", "20", "--delay", "1", streams=2)
     try:
@@ -70,6 +74,7 @@ def test_no_reader_never_blocks_and_memory_stays_flat(scene_file):
     assert sent - 30_000 < dropped < sent  # only what fits the pty buffer was kept
 
 
+@pytest.mark.pty
 def test_reader_that_reopens_gets_fresh_epochs(scene_file):
     emu = EmulatorProcess("--scene", scene_file(one_tx(rate_hz=1.0)), "--port", "pty", "--speed", "50")
     try:
@@ -111,6 +116,7 @@ def test_missing_device_exit_2():
     assert proc.stderr == b"arva-emulate: port /dev/ttyNOPE0: no such device\n"
 
 
+@pytest.mark.pty
 def test_busy_device_exit_2():
     master, slave = pty.openpty()
     path = os.ttyname(slave)
@@ -124,6 +130,7 @@ def test_busy_device_exit_2():
         os.close(slave)
 
 
+@pytest.mark.pty
 def test_writes_to_a_device_path(scene_file):
     master, slave = pty.openpty()
     path = os.ttyname(slave)
@@ -177,6 +184,7 @@ position = [0.0, 0.0, 0.0]
 """
 
 
+@pytest.mark.pty
 def test_pty_unplug_and_replug_follows_the_link(scene_file, tmp_path):
     links = tmp_path / "links"
     links.mkdir()

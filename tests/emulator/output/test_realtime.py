@@ -10,6 +10,8 @@ from scene_builders import default_scene_text
 
 from emulator.output import realtime
 
+pytestmark = pytest.mark.subprocess
+
 
 class FakeLibc:
     def __init__(self, result: int) -> None:

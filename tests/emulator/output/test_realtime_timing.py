@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from emulator.output.scheduler import EpochScheduler, Route
 
@@ -69,6 +70,7 @@ def test_every_epoch_is_written_at_its_deadline_even_after_a_slow_first_render()
     assert np.all(end >= start)
 
 
+@pytest.mark.subprocess
 def test_timing_log_option_writes_one_line_per_epoch(tmp_path):
     log = tmp_path / "timing.csv"
     run = subprocess.run(
@@ -85,6 +87,7 @@ def test_timing_log_option_writes_one_line_per_epoch(tmp_path):
     assert np.all(start >= deadline) and np.all(end >= start)
 
 
+@pytest.mark.subprocess
 def test_timing_log_to_an_unwritable_path_is_an_input_error(tmp_path):
     bad = tmp_path / "missing" / "timing.csv"
     run = subprocess.run(

@@ -246,6 +246,7 @@ def test_general_switches_the_fast_path_off_and_unknown_names_are_errors(monkeyp
             measure([[1.0, 2.0, 3.0]], [I], [[0.0, 0.0, 0.0]], [I], want_field=True)  # checked on the general path too
 
 
+@pytest.mark.subprocess
 def test_the_switch_is_read_from_the_environment():
     code = "from emulator.receiver import model; print(model.KERNEL, model.measure_one((0, 0, 0), (1, 0, 0, 0), (20, 5, 0)))"
     for value, out in (("general", "general (1905, 21)"), (None, "fast (1905, 21)")):

@@ -173,6 +173,7 @@ def test_toml_syntax_and_encoding_errors(tmp_path):
         load_scene(tmp_path / "nope.toml")
 
 
+@pytest.mark.subprocess
 @pytest.mark.parametrize("text, message", ERRORS[:4] + ERRORS[19:20])
 def test_cli_exit_2_one_line_nothing_on_stdout(tmp_path, text, message):
     path = tmp_path / "s.toml"

@@ -90,6 +90,7 @@ SEARCH_SCENE = {
 }
 
 
+@pytest.mark.subprocess
 def test_build_prints_size_and_stack(firmware):
     log = (firmware.parent / "build.log").read_text()
     size = re.search(r"^\s*(\d+)\s+(\d+)\s+(\d+)\s+\d+\s+[0-9a-f]+\s+\S*search_fw.elf$", log, re.M)
@@ -100,6 +101,8 @@ def test_build_prints_size_and_stack(firmware):
     assert stack is not None and int(stack.group(1)) < 1024, log
 
 
+@pytest.mark.subprocess
+@pytest.mark.pty
 def test_acquires_keeps_target_and_locates(arva_firmware, firmware):
     loop = arva_firmware(firmware, scene=SEARCH_SCENE)
     boot = loop.board.wait_for(lambda lines: len(lines) >= 1)[0]
@@ -127,6 +130,8 @@ def test_acquires_keeps_target_and_locates(arva_firmware, firmware):
     assert len(got) == k + 1  # one decision per epoch, none missing
 
 
+@pytest.mark.subprocess
+@pytest.mark.pty
 def test_survives_unplug_and_corrupted_burst(arva_firmware, firmware):
     loop = arva_firmware(firmware, scene={**SEARCH_SCENE, "transmitters": [{"id": 1, "position": [8.0, 0.0, 0.0]}]})
     emu = loop.emu
@@ -178,6 +183,9 @@ NOISY_SCENE = {  # EMI noise on, seeded: readings scatter near the range limit
 }
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
+@pytest.mark.pty
 @pytest.mark.parametrize("scene", [None, WALK_SCENE, NOISY_SCENE], ids=["default", "walk", "noisy"])
 def test_decisions_equal_reference_on_scenes(arva_firmware, firmware, scene):
     loop = arva_firmware(firmware, scene=scene)
@@ -188,6 +196,8 @@ def test_decisions_equal_reference_on_scenes(arva_firmware, firmware, scene):
         assert {d["state"] for d in got} == {"no_signal", "coarse", "fine", "located"}
 
 
+@pytest.mark.subprocess
+@pytest.mark.pty
 def test_icount_gives_the_same_decisions(arva_firmware, firmware):
     loop = arva_firmware(firmware, scene=WALK_SCENE, icount=4)
     settle(loop, 60)
@@ -202,6 +212,9 @@ def test_missing_firmware_is_one_clear_error(tmp_path):
         Board(tmp_path / "no-such.elf", tmp_path / "work")
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
+@pytest.mark.pty
 def test_a_long_step_loses_no_byte(arva_firmware, firmware):
     """1000 epochs in one step (55,780 bytes) into a UART QEMU drains at ~15 KB/s: the
     emulator waits for a reader that keeps reading (STEP_DRAIN_WAIT), nothing is dropped."""
@@ -225,6 +238,8 @@ def test_firmware_misbehaves(arva_firmware, tmp_path):
 '''
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(120)
 def test_a_failing_firmware_test_keeps_its_artefacts(tmp_path):
     """Outside this repository, with only the installed plugin: the report names the

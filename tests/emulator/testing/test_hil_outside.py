@@ -50,6 +50,8 @@ def readme_example() -> str:
     return section.split("```python\n", 1)[1].split("```", 1)[0]
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(180)
 def test_step_session_outside_the_repository(tmp_path):
     (tmp_path / "test_step_session.py").write_text((repo_paths.OUTSIDE / "step_session.py").read_text())
@@ -69,6 +71,7 @@ def test_step_session_outside_the_repository(tmp_path):
     assert not list((tmp_path / "bt").rglob("control-transcript.txt"))
 
 
+@pytest.mark.subprocess
 @pytest.mark.timeout(120)
 def test_a_failing_test_keeps_the_streams_and_the_transcript(tmp_path):
     (tmp_path / "test_fails.py").write_text(FAILING)
@@ -101,6 +104,8 @@ def test_on_the_bench(arva_emulator):
 '''
 
 
+@pytest.mark.subprocess
+@pytest.mark.pty
 @pytest.mark.timeout(120)
 def test_arva_port_sends_the_first_receiver_to_a_device(tmp_path, monkeypatch):
     """--arva-port DEVICE: the stream goes to the device (here one end of a pty pair
@@ -126,6 +131,8 @@ def test_arva_port_sends_the_first_receiver_to_a_device(tmp_path, monkeypatch):
                           b"$PARVA,3,1,1,1,1905,21*58\r\n")
 
 
+@pytest.mark.slow
+@pytest.mark.subprocess
 @pytest.mark.timeout(180)
 def test_the_fixture_passes_in_a_repository_with_its_own_emulator_and_bench_packages(tmp_path):
     """Issue 29: the harness started ``python -m emulator.cli`` in the test's working

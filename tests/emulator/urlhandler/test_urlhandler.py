@@ -24,6 +24,7 @@ def test_default_scene_as_fast_as_read():
     assert data.count(b"\r\n") == 8 and data.endswith(b"$PARVA,1,4,4,3,2808,-72*7C\r\n")
 
 
+@pytest.mark.subprocess
 def test_same_bytes_as_the_command_line():
     import subprocess
     import sys
