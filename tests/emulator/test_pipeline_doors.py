@@ -2,6 +2,7 @@
 ``arvaemu://`` over seeded scenes with every effect on (noise, pulses, quantize,
 $PARVH, link faults with loss, corruption, splits, stalls and outages)."""
 
+import pytest
 import serial
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -66,6 +67,7 @@ def read_url(url: str) -> bytes:
     return bytes(out)
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(text=scenes(), frames=st.integers(1, 30))
 def test_arva_emulate_and_arvaemu_give_identical_bytes(tmp_path_factory, capsysbinary, text, frames):

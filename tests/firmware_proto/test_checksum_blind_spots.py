@@ -106,6 +106,7 @@ EXPECTED_SENTENCES = {
 EXPECTED_EPOCHS = ((6, 2908), (4, 2906))
 
 
+@pytest.mark.slow
 def test_checksum_blind_spots_are_measured(stream):
     data, truth = stream
     n_sentences = data.count(b"\n")

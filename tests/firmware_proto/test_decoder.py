@@ -192,6 +192,7 @@ def test_hostile_stream_ground_truth(stream: Stream, data: st.DataObject) -> Non
     check_byte_accounting(stream.data, events, dec)
 
 
+@pytest.mark.slow
 @given(hostile_streams(), st.data())
 def test_result_does_not_depend_on_chunking(stream: Stream, data: st.DataObject) -> None:
     whole, dec1 = feed_all([stream.data], stream.expect_fields)

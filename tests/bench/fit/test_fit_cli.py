@@ -35,6 +35,7 @@ def table_with(n=80, **changes) -> Table:
     return Table.from_mapping("x", cols)
 
 
+@pytest.mark.slow
 def test_summary(campaign, capsys):
     code, out, err = run(capsys, campaign)
     assert code == 0 and err == ""
@@ -77,6 +78,7 @@ def test_pose_error_options_reject_bad_values(campaign, capsys, argv, why):
     assert exc.value.code == 2 and out == "" and err.splitlines()[-1].endswith(why)
 
 
+@pytest.mark.slow
 def test_json_is_one_object_with_the_required_keys(campaign, capsys):
     code, out, err = run(capsys, campaign, "--json")
     assert code == 0 and err == "" and out.count("\n") == 1
@@ -89,6 +91,7 @@ def test_json_is_one_object_with_the_required_keys(campaign, capsys):
     assert obj["gps_sigma"] < 0.05 and obj["gps_sigma_vertical"] == pytest.approx(1.5 * obj["gps_sigma"])
 
 
+@pytest.mark.slow
 def test_write_scene_creates_a_scene_the_emulator_loads(campaign, capsys, tmp_path):
     scene = tmp_path / "fitted.toml"
     code, out, err = run(capsys, campaign, "--json", "--write-scene", scene)
@@ -99,6 +102,7 @@ def test_write_scene_creates_a_scene_the_emulator_loads(campaign, capsys, tmp_pa
     assert s.model.moment == 1.0 and s.effects.noise
 
 
+@pytest.mark.slow
 def test_write_scene_replaces_only_the_model_table(campaign, capsys, tmp_path):
     from importlib import resources
 
@@ -116,6 +120,7 @@ def test_write_scene_replaces_only_the_model_table(campaign, capsys, tmp_path):
     assert abs(model["kappa_eq"] / 1.542 - 1) < 0.01 and load_scene(scene).name == "field-walk"
 
 
+@pytest.mark.slow
 def test_write_scene_inserts_a_model_table(campaign, capsys, tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text('spec = 1\n\n[[transmitters]]\nid = 1\nposition = [0.0, 0.0, 0.0]\n\n[receiver]\nchannels = 1\nposition = [5.0, 0.0, 0.0]\n')
@@ -161,6 +166,7 @@ def test_report_figure(campaign, capsys, tmp_path):
     assert "![d versus true distance](fit.png)" in (tmp_path / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_report_without_matplotlib(campaign, capsys, tmp_path, monkeypatch):
     import builtins
 
@@ -240,6 +246,7 @@ def test_no_convergence_exits_1_and_writes_no_scene(capsys, tmp_path):
     assert not (tmp_path / "s.toml").exists()
 
 
+@pytest.mark.slow
 def test_stdin(campaign, capsys, monkeypatch):
     import io
     import sys
@@ -249,6 +256,7 @@ def test_stdin(campaign, capsys, monkeypatch):
     assert code == 0 and json.loads(out)["source"] == "<stdin>"
 
 
+@pytest.mark.slow
 def test_session_directory_goes_through_the_export(campaign, capsys, tmp_path, monkeypatch):
     from bench import export
     from bench.fit.csvio import read_csv

@@ -123,6 +123,7 @@ def test_arbitrary_text_only_raises_input_errors(text):
         assert str(exc).startswith("fit: fuzz.csv: ") and "\n" not in str(exc)
 
 
+@pytest.mark.slow
 @settings(max_examples=300)
 @given(st.lists(st.lists(cell, min_size=17, max_size=21), min_size=1, max_size=4), st.booleans())
 def test_near_valid_rows_only_raise_input_errors(rows, crlf):

@@ -72,6 +72,7 @@ def test_on_a_clean_campaign_the_dropout_goes_to_its_floor():
         assert res.se[name] == pytest.approx(plain.se[name], rel=0.01), name
 
 
+@pytest.mark.slow
 def test_the_command_line_fits_it(capsys, tmp_path):
     table = emulate_campaign(30, TRUTH, seed=3)
     spurious(table)

@@ -159,6 +159,7 @@ def campaigns():
     return [usable(rows_from_table(emulate_campaign(20, ModelParams(), seed=seed))) for seed in range(3)]
 
 
+@pytest.mark.slow
 @settings(max_examples=12, deadline=None)
 @given(st.integers(0, 2), st.floats(-0.01, 0.01), st.floats(-0.3, 0.3), st.floats(math.log(1e-4), math.log(0.02)))
 def test_logp_grad_matches_differences_of_the_likelihood(campaigns, which, dk, dr, log_sigma):

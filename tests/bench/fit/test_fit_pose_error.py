@@ -247,6 +247,7 @@ def test_signal_error_cdf_matches_fine_quadrature(log_t, log_gamma, s3):
 
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None)
 @given(
     st.floats(-1.0, 3.0),  # log t at the bin's middle
@@ -337,6 +338,7 @@ def test_common_height_rows_are_each_rows_share_in_the_shrunk_mean():
     assert with_common_height(scores, np.arange(4.0), None, None)[0] is scores
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_common_height_influence_predicts_how_the_fit_moves(seed, monkeypatch):
     """The covariance's linearised influence of the common height, A^-1 dS/dh (kappa_eq

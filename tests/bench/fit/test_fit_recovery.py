@@ -92,6 +92,7 @@ def test_pose_sigma_is_estimated_when_the_poses_are_noisy():
     assert fixed.log_likelihood < res.log_likelihood - 100  # exact poses do not fit these data
 
 
+@pytest.mark.slow
 def test_optional_parameters():
     # r_outer: the receiver shows at most 40 m.
     res = fit_table(emulate_campaign(20, ModelParams(r_outer=40.0), seed=1), FitOptions(free=("kappa_eq", "r_en", "r_outer", "pose_sigma")))

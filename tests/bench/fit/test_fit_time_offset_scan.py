@@ -33,6 +33,7 @@ def campaign(offset: float, minutes: float = 30, seed: int = 1):
     return emulate_campaign(minutes, TRUTH, seed=seed, pose_error=pe)
 
 
+@pytest.mark.slow
 def test_a_one_second_offset_is_found_and_fitted():
     res = fit_table(campaign(1.0), GIVEN)
     assert res.converged

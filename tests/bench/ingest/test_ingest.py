@@ -173,6 +173,7 @@ def test_the_reference_export_has_every_epoch():
 sizes = st.lists(st.one_of(st.integers(1, 8), st.integers(9, 120), st.integers(121, 2000)), min_size=1, max_size=12)
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(arva=sizes, gps=sizes, att=sizes)
 def test_the_export_is_the_same_however_the_reads_are_cut(arva, gps, att):

@@ -12,6 +12,7 @@ from pathlib import Path
 from hostile_streams import chunkings, hostile_streams, split
 from hypothesis import given, settings
 from hypothesis import strategies as st
+import pytest
 
 from bench.dash.messages import LinkStatus
 from bench.dash.sources import DeviceFeed
@@ -43,6 +44,7 @@ def session_bytes(directory) -> int:
     return sum(p.stat().st_size for p in directory.iterdir())
 
 
+@pytest.mark.slow
 def test_four_reads_of_dollars_in_one_second_are_ten_records_and_one_sum(tmp_path):
     noise = b"$" * CHUNK
     summary = log_noise(tmp_path / "s", [(100.0 + 0.25 * k, noise) for k in range(4)])
@@ -109,6 +111,7 @@ def test_a_read_is_fed_in_bounded_slices():
     assert max(sizes) == FEED_SLICE and sum(sizes) == 10 * FEED_SLICE + 7
 
 
+@pytest.mark.slow
 def test_the_dashboard_counts_every_error_of_a_sampled_stream():
     posted = []
     feed = DeviceFeed(DeviceSpec("arva", "arva", "x", "rx", baudrate=FAST), posted.append)
@@ -129,6 +132,7 @@ def test_the_stop_event_reports_the_sum(tmp_path):
 
 
 
+@pytest.mark.slow
 @settings(max_examples=30, deadline=None)
 @given(hostile_streams(max_epochs=6), st.integers(0, 20000), st.booleans(), st.data())
 def test_any_hostile_stream_with_a_flood_logs_every_intact_epoch_and_counts_every_error(stream, flood, first, data):

@@ -142,6 +142,7 @@ def test_json(machine, capsys):
     assert err == UDEV + "\n"
 
 
+@pytest.mark.slow
 def test_the_urls_open_the_devices(machine, capsys):
     _, out, _ = run(capsys, "--json")
     urls = {(row["kind"], row["description"]): row["url"] for row in json.loads(out)}

@@ -191,6 +191,7 @@ def _same_rows(batch, alone):
         assert np.array_equal(got, want), f.name
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_the_array_decisions_of_a_run_do_not_depend_on_its_batch(seed):
     """flux_epoch, rx_epoch and rx_arrive on B runs at once leave each run in the state

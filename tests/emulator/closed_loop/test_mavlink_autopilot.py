@@ -131,6 +131,7 @@ mavlink_origin = [5.0, 0.0, 0.0]
 """
 
 
+@pytest.mark.slow
 def test_an_ardupilot_like_autopilot_is_greeted_asked_and_ridden():
     port = free_udp_port()
     stream = arva_stream(loads_scene(EXTERNAL.format(port=port), "ext.toml"), 0)

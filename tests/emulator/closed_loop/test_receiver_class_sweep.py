@@ -19,6 +19,7 @@ def test_the_class_reaches_the_receiver_and_burials_stay_the_same():
         assert s2.seed == s3.seed
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "antennas, flux_located, ro_error_median, ro_t_median",
     [(3, 0.5, 0.282308, 290.9), (2, 0.0, 0.898737, 283.75)],

@@ -251,6 +251,7 @@ _values = st.recursive(
 _keys = st.sampled_from(sorted(GOOD) + ["moment", "extra"])
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(changes=st.dictionaries(_keys, _values, max_size=4), drop=st.sets(st.sampled_from(sorted(GOOD)), max_size=2))
 def test_any_document_is_a_profile_or_one_scene_error(changes, drop):

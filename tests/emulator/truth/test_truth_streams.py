@@ -100,6 +100,7 @@ def test_labels_with_several_gps_devices_and_rates():
     assert max(len(line) + 2 for line in lines) <= 82  # NMEA 0183's limit, CR LF included
 
 
+@pytest.mark.slow
 def test_ground_truth_error_bias_dropout_and_seed():
     fx = "[effects]\nground_truth_error = true\n[ground_truth_error]\ngps_bias_m = [1.0, -2.0, 0.5]\ngps_dropout = 0.25\n"
     scene = loads_scene(TWO_GPS.format(effects=fx), "e.toml")
