@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 RUN_STAMP := $(VENV)/.installed-run
 DEV_STAMP := $(VENV)/.installed-dev
 
-.PHONY: run test bench clean venv firmware-tools
+.PHONY: run test test-fast bench clean venv firmware-tools
 
 venv: $(DEV_STAMP)
 
@@ -31,10 +31,17 @@ $(DEV_STAMP): pyproject.toml | $(BIN)/python
 run: $(RUN_STAMP)
 	$(BIN)/arva-emulate --port - --frames 10 --speed 0
 
+# The import layers first (pyproject.toml's [tool.importlinter]), then the whole suite.
 test: $(DEV_STAMP) firmware-tools
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q tests docs/examples
 
-# Firmware in the loop (tests/test_firmware_loop.py) needs QEMU and an Arm cross compiler,
+# The unit layer only: no test marked slow (> 1 s), subprocess or pty (markers in
+# pyproject.toml): 1486 tests in 66 s (docs/architecture.md#tests); `make test` before a merge.
+test-fast: $(DEV_STAMP)
+	$(BIN)/python -m pytest -q -m "not slow and not subprocess and not pty" tests docs/examples
+
+# Firmware in the loop (tests/emulator/testing/test_firmware_loop.py) needs QEMU and an Arm cross compiler,
 # Debian packages: installed here when one is missing and we are root with apt (CI, a
 # fresh container); otherwise one line says what to install and those tests skip.
 FIRMWARE_PACKAGES := qemu-system-arm gcc-arm-none-eabi libnewlib-arm-none-eabi

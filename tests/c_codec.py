@@ -1,6 +1,6 @@
 """Build the C codec with the system compiler and drive it from Python (ctypes).
 
-Used by tests/test_vectors.py, tests/test_c_codec.py and tests/perf/bench_decoder.py.
+Used by tests/firmware_proto/test_vectors.py, tests/firmware_proto/test_c_codec.py and tests/perf/bench_decoder.py.
 Builds go to a fresh temporary directory once per process.
 """
 

@@ -1,6 +1,6 @@
 """Sessions full of line noise, and the peak memory of a command reading one (issue 29).
 
-Shared by tests/test_line_noise.py (small sizes) and tests/perf/noise_cost.py (the 60 MB
+Shared by tests/bench/ingest/test_line_noise.py (small sizes) and tests/perf/noise_cost.py (the 60 MB
 figures of docs/reliability.md). A noise session is what ``arva-bench log`` writes for a
 receiver whose line carries ``noise`` bytes of ``$`` in 64 KiB reads at 115200 Bd, with a
 valid epoch after every read, a GPS and an attitude unit on the receiver and a surveyed

@@ -302,7 +302,7 @@ def signal_error_bin(log_t_mid, delta, log_gamma, s3) -> NDArray[np.float64]:
     scale, where C = E[G] varies on a scale of s3 in log t (the smoothing over Z) when
     gamma >= 1 and of ~ s3 gamma near t = 1 when gamma < 1 (the band |gamma' - 1| < t <
     gamma' + 1 is that narrow): hence the min(1, gamma). Measured against fine quadrature
-    (tests/test_fit_pose_error.py): within 2e-4 of P; on the 1e5-row pose-error bench
+    (tests/bench/fit/test_fit_pose_error.py): within 2e-4 of P; on the 1e5-row pose-error bench
     (1 cm bins, w ~ 0.01) within 8e-5 of the two-CDF value on every row. Same rules
     (3-point Gauss-Hermite, pieces between the kinks, blend) as :func:`signal_error_cdf`;
     t dG/dt is 0 where G is 0 or 1, so there is no tail term."""

@@ -7,7 +7,7 @@ no GIL, ~1.7x). :class:`Worker` starts ``python -m bench.fit.worker`` once per
 process, sends it a likelihood's rows and regimes once (per pass: when the regimes are
 chosen again) and then batches of parameter points; it returns each point's per-row log
 P, computed by the same code on the same arrays: the same floats as an evaluation in the
-fit's own process (tests/test_fit_worker.py checks them bit for bit).
+fit's own process (tests/bench/fit/test_fit_worker.py checks them bit for bit).
 
 Protocol (pickle, over the child's stdin / stdout): ``("like", token, cls, rows,
 regimes, block)`` keeps a likelihood (the last :data:`KEEP` shipped), ``("eval", token,

@@ -33,7 +33,7 @@ clock, the receiver's epochs carry no time at all, and the export interpolates e
 device on one clock, the logger's; the sentence times stay in the records (``time``)
 for whoever wants them. Consequence: however the bytes of a stream are cut into reads,
 a record gets the same stamp as long as each read is stamped at its last byte's arrival
-and never spans a silence (tested in tests/test_ingest.py with reads of 1 byte to many
+and never spans a silence (tested in tests/bench/ingest/test_ingest.py with reads of 1 byte to many
 sentences).
 """
 

@@ -34,7 +34,7 @@ the same numpy code on a larger array, and so is the noise's mapping into the ba
 one assumption IEEE does not guarantee is that numpy's vectorised ``cbrt``, ``arctan``
 and ``einsum`` give an element the same result whatever the length of the array around
 it (numpy's SIMD loops treat an array's tail with the same kernel). That holds for the
-numpy on which ``tests/test_batch_loop.py`` runs: it checks that rows, times, errors and
+numpy on which ``tests/emulator/closed_loop/test_batch_loop.py`` runs: it checks that rows, times, errors and
 path lengths are identical for seeded burials with noise on, so a numpy where it does
 not hold fails that test rather than drifting silently.
 

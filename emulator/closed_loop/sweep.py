@@ -18,7 +18,7 @@ burial-bootstrap 95 % intervals, :func:`bootstrap_tail`).
 Engines: ``batch`` (default) flies the runs of a task (a chunk of the task list, any
 strategies and gains) together with :class:`~emulator.closed_loop.batch.BatchLoop`; ``run`` flies them one by
 one with :class:`~emulator.closed_loop.loop.ClosedLoop`, the reference. Both give the
-same rows, bit for bit (``tests/test_batch_loop.py``).
+same rows, bit for bit (``tests/emulator/closed_loop/test_batch_loop.py``).
 
 Command line (``python -m emulator.closed_loop.sweep``; console script ``arva-sweep``)::
 

@@ -33,7 +33,7 @@ The transformation is not unique within ~43 km of the earth's centre (inside the
 of the meridian ellipse); results there are a valid but arbitrary solution. No earthly
 use comes near it.
 
-Accuracy (tested in ``tests/test_geodesy.py``): geodetic -> ECEF -> geodetic returns the
+Accuracy (tested in ``tests/emulator/frames/test_geodesy.py``): geodetic -> ECEF -> geodetic returns the
 latitude to < 1e-9 deg and the height to < 1e-6 m at every latitude including +-90,
 for heights from -5,000 km to 40,000 km.
 """

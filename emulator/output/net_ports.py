@@ -39,7 +39,7 @@ client (one line through ``notify``, counted in :attr:`ServerPort.clients_cut`);
 counted in :attr:`ServerPort.clients_refused`, the first :data:`NOTIFY_REFUSALS` of them
 reported). A client's line-setting changes are reported up to
 :data:`NOTIFY_SETTING_CHANGES` times; the rest are counted in its ``left`` line. So a
-hostile client costs at most a few hundred kB (tests/test_net_ports_hostile.py measures
+hostile client costs at most a few hundred kB (tests/emulator/output/test_net_ports_hostile.py measures
 the emulator's resident memory).
 
 Counters: :attr:`Port.bytes_written` is the sum over clients of the bytes their UART

@@ -88,7 +88,7 @@ def stream_labels(n_receivers: int, receivers_truth: list[tuple[int, bool, bool]
     when several devices stream the same kind). ``*_truth`` are (id, gps, attitude).
 
     ``emulator.pipeline.stream_layout`` names its streams the same way
-    (tests/test_scene_limits.py checks that they agree).
+    (tests/integration/test_malformed_inputs.py checks that they agree).
     """
     several = n_receivers > 1
     labels = [f"arva:{rid}" if several else "arva" for rid, _, _ in receivers_truth]

@@ -2,7 +2,7 @@
  * example.c - how firmware uses the codec (docs/protocol.md walks through it).
  * Transmit side: encode an epoch into a UART buffer. Receive side: feed whatever bytes
  * arrived and handle the events. No malloc, no stdio, no floating point.
- * Built and run by tests/test_c_codec.py; exit status 0 when the round trip works.
+ * Built and run by tests/firmware_proto/test_c_codec.py; exit status 0 when the round trip works.
  */
 #include "arva_codec.h"
 

@@ -1,5 +1,5 @@
 """A firmware team's test, run from a folder outside this repository with only the
-installed package (tests/test_hil_outside.py copies it to a temporary folder and runs
+installed package (tests/emulator/testing/test_hil_outside.py copies it to a temporary folder and runs
 pytest there): the ``arva_emulator`` fixture in step mode, transmitters moved, added,
 silenced and removed, the receiver pinned, and exactly the model's sentences read epoch
 by epoch, with nothing emitted between steps."""

@@ -135,7 +135,7 @@ def main(argv=None) -> int:
     print(table)
     load = os.getloadavg()[0]
     body = (
-        "The whole firmware-in-the-loop cycle of `tests/test_firmware_loop.py`: QEMU (`-M mps2-an385`) "
+        "The whole firmware-in-the-loop cycle of `tests/emulator/testing/test_firmware_loop.py`: QEMU (`-M mps2-an385`) "
         "started with the example firmware, the emulator started on its UART0 (step clock), "
         "the firmware's boot line read, 20 epochs stepped one at a time with each decision read "
         "back from UART1, both stopped. Target: the whole loop <= 5 s on 2 cores; 0 bytes lost. "

@@ -117,7 +117,7 @@ def main(argv=None) -> int:
         f"(seed {args.seed}; 80 m x 80 m, 1-4 transmitters, EMI noise on, 1800 s budget, lawnmower then "
         f"the strategy), {args.n:,} burials per strategy for the batch engine and {args.n_run} for the "
         "per-run engine (`--engine run`, the reference, which gives the same rows: "
-        "tests/test_batch_loop.py). \"Per CPU-s\": scene-seconds per CPU-second of the process(es) "
+        "tests/emulator/closed_loop/test_batch_loop.py). \"Per CPU-s\": scene-seconds per CPU-second of the process(es) "
         "that flew them, the engine's own cost. The process pool and Dask run one batch per worker "
         "(`arva-sweep`'s chunking); Dask: a `LocalCluster` of 1 or 2 worker processes with one "
         "thread each, warmed up by a tiny sweep first. Runs drop out of a batch as they finish, so "

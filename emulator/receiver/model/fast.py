@@ -20,7 +20,7 @@ found from s alone (|g| <= 2). Rounding and zone tests thus happen on different 
 equivalent expressions, good to ~1e-11 (relative); a pair within 1e-8 of a zone or
 rounding boundary (or 1e-6 degrees of atan's fold at +-90) is handed to the general
 path, so the integers are the general path's for every pair
-(tests/test_model_fast.py: millions of random pairs, hairs from each boundary).
+(tests/emulator/receiver/test_model_fast.py: millions of random pairs, hairs from each boundary).
 
 Pairs where this formulation could lose accuracy go to the general path, pair by pair
 (so the result of a pair never depends on its block): s outside [1e-50, 1e50] (r = 0,
