@@ -3,6 +3,8 @@ managers: leaving the block closes them (issue 30, doors)."""
 
 import json
 
+import pytest
+
 from bench.session import SessionWriter
 from emulator.output.ports import BufferPort
 from emulator.pipeline import Pipeline
@@ -27,6 +29,8 @@ def test_pipeline_closes_its_ports():
     assert buffer.startswith(b"$PARVA,0,")
 
 
+@pytest.mark.subprocess
+@pytest.mark.pty
 def test_emulator_process_and_control_client(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text(dumps({"spec": 1, "transmitters": [{"id": 1, "position": [20.0, 0.0, 0.0]}],

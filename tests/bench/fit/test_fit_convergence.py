@@ -4,17 +4,22 @@ search that stops is finished by scipy's L-BFGS-B (stages.fallback)."""
 
 import re
 import sys
-from pathlib import Path
 
 import numpy as np
+import pytest
 
 from bench.fit import stages
 from bench.fit.csvio import parse_csv
 from bench.fit.estimate import fit, fit_once
 from bench.fit.result import EIV_FREE, FitOptions
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "perf"))
+import repo_paths
+
+sys.path.insert(0, str(repo_paths.PERF))
 import study_campaigns  # noqa: E402  (the independent generator of the calibration study)
+
+
+pytestmark = pytest.mark.slow  # each test fits a study campaign (2-14 s)
 
 
 def study_table(condition: str, seed: int):
@@ -83,7 +88,7 @@ def test_a_stopped_exact_pose_search_is_finished_by_scipy(monkeypatch):
 
 def test_a_stopped_pose_error_search_is_finished_by_scipy():
     """Spiral walk, 1 m GPS and 2 deg attitude error, tuning seed 6: Newton stops ("no step
-    decreases", attitude_sigma a hair above its floor; tests/test_fit_identify.py shows it
+    decreases", attitude_sigma a hair above its floor; tests/bench/fit/test_fit_identify.py shows it
     with the fallback off). L-BFGS-B takes attitude_sigma to its bound and Newton from
     there converges in the first search, no restart needed; the intervals cover the truth."""
     camp, table = study_table("spiral-gm", 6)

@@ -76,7 +76,7 @@ def test_a_search_that_stopped_converges_after_the_restart(monkeypatch):
     (before this restart: exit 1); from there with the sigma on its bound it converges,
     and kappa_eq and r_en cover the truth. (scipy's L-BFGS-B after a stopped Newton,
     stages.fallback, now finishes this search itself: it is switched off here to test the
-    restart; tests/test_fit_convergence.py tests it.)"""
+    restart; tests/bench/fit/test_fit_convergence.py tests it.)"""
     from bench.fit import stages
 
     monkeypatch.setattr(stages, "fallback", lambda source, free, res, options, tol, **kw: res)

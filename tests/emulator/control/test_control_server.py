@@ -7,7 +7,6 @@ requests, and quit. Every read has a timeout."""
 from __future__ import annotations
 
 import json
-import logging
 import socket
 import threading
 import time
@@ -209,6 +208,8 @@ def test_a_stale_socket_is_replaced_and_a_live_one_refused(tmp_path):
         first.server.close()
 
 
+@pytest.mark.subprocess
+@pytest.mark.slow
 def test_a_slice_that_never_ends_does_not_hold_up_the_exit(tmp_path):
     """close() gives up on a stuck slice after CLOSE_WAIT_S and the process exits: the
     slice's worker is a daemon thread (an executor's would be joined at exit)."""

@@ -12,6 +12,9 @@ import pytest
 
 from emulator.testing.qemu import missing_tools
 
+pytestmark = pytest.mark.subprocess
+
+
 EMULATOR_CHILD = """
 import time
 from emulator.testing import EmulatorProcess
