@@ -180,7 +180,7 @@ def _speed(opt: dict, url: str) -> float:
     if "speed" not in opt:
         return 1.0
     try:
-        return speed_value(_number(opt, "speed", 1.0, url, signed=True), opt["speed"])
+        return speed_value(_float(opt, "speed", url), opt["speed"])
     except InputError as exc:
         raise SerialException(f"{url}: speed={opt['speed']}: {exc}") from None
 
@@ -195,15 +195,18 @@ def _count(opt: dict, key: str, url: str) -> int | None:
     return int(value)
 
 
-def _number(opt: dict, key: str, default: float, url: str, signed: bool = False) -> float:
+def _number(opt: dict, key: str, default: float, url: str) -> float:
+    """An optional finite number >= 0 (``delay=``)."""
     if key not in opt:
         return default
-    try:
-        value = float(opt[key])
-    except ValueError:
-        raise SerialException(f"{url}: {key}={opt[key]}: expected a number") from None
-    if signed:
-        return value
+    value = _float(opt, key, url)
     if not (math.isfinite(value) and value >= 0):
         raise SerialException(f"{url}: {key}={opt[key]}: must be a finite number >= 0")
     return value
+
+
+def _float(opt: dict, key: str, url: str) -> float:
+    try:
+        return float(opt[key])
+    except ValueError:
+        raise SerialException(f"{url}: {key}={opt[key]}: expected a number") from None
