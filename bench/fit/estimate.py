@@ -263,13 +263,11 @@ def exact_if_invisible(table: Table, options: FitOptions, res: FitResult) -> tup
             "(+0.4 % on tilted walks); --gps-sigma 0 --attitude-sigma 0 fits exact poses",
         )
         return res, options
+    before = f"; with the floors r_en was {res.estimate['r_en']:.5g}" if "r_en" in res.estimate else ""
     exact.notes.insert(
         0,
         f"no pose error is visible (GPS and attitude error at their floors, {floors}): fitted as exact poses "
-        f"(as --gps-sigma 0 --attitude-sigma 0; with the floors r_en was {res.estimate['r_en']:.5g})"
-        if "r_en" in res.estimate
-        else f"no pose error is visible (GPS and attitude error at their floors, {floors}): fitted as exact poses "
-        "(as --gps-sigma 0 --attitude-sigma 0)",
+        f"(as --gps-sigma 0 --attitude-sigma 0{before})",
     )
     return exact, exact_options
 
