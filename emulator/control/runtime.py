@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import argparse
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from firmware_proto.errors import InputError
 
-from emulator.output.ports import Port
+from emulator.output.ports import Port, file_name
 from emulator.output.scheduler import EpochScheduler
 from emulator.pipeline import Pipeline
 
@@ -84,7 +84,7 @@ def capture_ports(args: argparse.Namespace, ports: dict[str, Port]) -> tuple[dic
     offered). The ports to bind, and the captures (for :class:`ControlSession` to close)."""
     if getattr(args, "capture", None) is None:
         return ports, []
-    captured = {label: CapturePort(port, args.capture / (label.replace(":", "-") + ".bytes")) for label, port in ports.items()}
+    captured = {label: CapturePort(port, args.capture / (file_name(label) + ".bytes")) for label, port in ports.items()}
     return captured, list(captured.values())
 
 
@@ -97,7 +97,7 @@ class ControlSession:
         pipe: Pipeline,
         scheduler: EpochScheduler,
         stop: threading.Event,
-        captures: list[CapturePort] = (),
+        captures: Sequence[CapturePort] = (),
     ) -> None:
         self.clock = args.clock
         self.scheduler = scheduler

@@ -16,7 +16,7 @@ from pathlib import Path
 from firmware_proto.errors import InputError
 
 from emulator.output.net_ports import LineSettings, open_server_port
-from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, is_file_spec
+from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, file_name, is_file_spec
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ def link_path(link_dir: Path | None, label: str) -> Path | None:
         raise InputError(f"--link {link_dir}: not a directory") from None
     except OSError as exc:
         raise InputError(f"--link {link_dir}: cannot create: {exc.strerror or exc}") from None
-    return link_dir / label.replace(":", "-")
+    return link_dir / file_name(label)
 
 
 def open_port(label: str, spec: str, options: PortOptions | None = None) -> Port:

@@ -26,6 +26,12 @@ from firmware_proto.errors import LinkError
 PTY_FIRST_WAIT = 0.3
 
 
+def file_name(label: str) -> str:
+    """A stream label as a file name (``gps:rx`` -> ``gps-rx``): the name of its ``--link``
+    symlink and of its ``--capture`` file."""
+    return label.replace(":", "-")
+
+
 class Port:
     """Base class of all ports. ``label`` names the stream (``arva``, ``gps:rx`` ...)."""
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from emulator.child_process import end_with_parent, module_command, module_env
+from emulator.output.ports import file_name
 from firmware_proto.errors import ArvaError
 
 
@@ -339,7 +340,7 @@ class Emulator:
             raise
         ports = {}
         for label, path in status["streams"].items():
-            link = links / label.replace(":", "-")
+            link = links / file_name(label)
             ports[label] = str(link) if path != "-" and os.path.islink(link) else path
         # The socket's folder always goes at stop; a temporary work folder of ours too.
         cleanup = [sock_dir] + ([work] if workdir is None else [])
