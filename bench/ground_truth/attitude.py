@@ -27,7 +27,7 @@ from pynmeagps import NMEAMessage
 from emulator.frames.attitude import hpr_to_quaternion
 
 from .lines import SentenceReader
-from .nmea import PLAIN_NUMBER, FieldError, parse_checked, sentence_type, time_of_day
+from .nmea import PLAIN_NUMBER, FieldError, sentence_type, time_of_day
 
 @dataclass(frozen=True, slots=True)
 class Attitude:
@@ -73,23 +73,16 @@ def _flag(raw: str) -> int | None:
 class AttitudeReader(SentenceReader):
     """``feed(bytes) -> list[Attitude]``; never raises on data, memory bounded."""
 
-    def handle_line(self, line: bytes) -> Attitude | None:
-        """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted)."""
+    def accepts(self, line: bytes) -> bool:
         fields = line.split(b",", 4)
-        if sentence_type(line) != b"PASHR" or len(fields) < 4 or fields[3] != b"T":
-            self.stats["ignored"] += 1
-            return None
-        msg = parse_checked(line, self.stats)
-        if msg is None:
-            return None
-        try:
-            att = self._pashr(msg)
-        except (FieldError, ValueError, TypeError):
-            self.stats["malformed"] += 1
-            return None
+        return sentence_type(line) == b"PASHR" and len(fields) >= 4 and fields[3] == b"T"
+
+    def decode(self, msg: NMEAMessage, line: bytes) -> Attitude:
+        return self._pashr(msg)
+
+    def count(self, att: Attitude) -> None:
         self.stats["pashr"] += 1
         self.stats["attitudes"] += 1
-        return att
 
     def _pashr(self, msg: NMEAMessage) -> Attitude:
         # We read the raw fields: pynmeagps types them (DE/IN) but we want a strict

@@ -44,7 +44,7 @@ from datetime import date, datetime, time
 from pynmeagps import NMEAMessage
 
 from .lines import SentenceReader
-from .nmea import PLAIN_NUMBER, FieldError, parse_checked, sentence_type, talker_of, time_of_day, typed_value
+from .nmea import PLAIN_NUMBER, FieldError, sentence_type, talker_of, time_of_day, typed_value
 
 _DATE = re.compile(r"\d{6}\Z")
 _LAT = re.compile(r"\d{4}(\.\d+)?\Z")
@@ -127,28 +127,21 @@ class GpsReader(SentenceReader):
     get the RMC date; ``stats`` may be shared too.
     """
 
-    def handle_line(self, line: bytes) -> GpsFix | None:
-        """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted)."""
+    def accepts(self, line: bytes) -> bool:
+        return sentence_type(line) in (b"GGA", b"RMC", b"GLL", b"ZDA") and line[1:3].isalpha()
+
+    def decode(self, msg: NMEAMessage, line: bytes) -> GpsFix | None:
         kind = sentence_type(line)
-        if kind not in (b"GGA", b"RMC", b"GLL", b"ZDA") or not line[1:3].isalpha():
-            self.stats["ignored"] += 1
+        if kind == b"ZDA":
+            self._zda(msg)
             return None
-        msg = parse_checked(line, self.stats)
-        if msg is None:
-            return None
-        try:
-            if kind == b"ZDA":
-                self._zda(msg)
-                return None
-            fix = self._gga(msg, line) if kind == b"GGA" else self._rmc(msg, line) if kind == b"RMC" else self._gll(msg, line)
-        except (FieldError, ValueError, TypeError):
-            self.stats["malformed"] += 1
-            return None
+        return self._gga(msg, line) if kind == b"GGA" else self._rmc(msg, line) if kind == b"RMC" else self._gll(msg, line)
+
+    def count(self, fix: GpsFix) -> None:
         self.stats[fix.sentence.lower()] += 1
         self.stats["fixes"] += 1
         if fix.lat is None:
             self.stats["no_position"] += 1
-        return fix
 
     def _gga(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0 time, 1-4 lat N lon E, 5 quality, 6 sats, 7 hdop, 8 alt, 9 M, 10 sep, 11 M

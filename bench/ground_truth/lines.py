@@ -22,6 +22,10 @@ from __future__ import annotations
 import re
 from collections import Counter
 
+from pynmeagps import NMEAMessage
+
+from .nmea import FieldError, parse_checked
+
 DEFAULT_MAX_LINE = 256
 
 _EOL = re.compile(rb"[\r\n]")
@@ -141,4 +145,32 @@ class SentenceReader:
         return out
 
     def handle_line(self, line: bytes):
+        """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted):
+        ``ignored`` if :meth:`accepts` refuses it, the reason of :func:`.nmea.parse_checked`,
+        ``malformed`` if :meth:`decode` refuses a field; a record is counted by :meth:`count`."""
+        if not self.accepts(line):
+            self.stats["ignored"] += 1
+            return None
+        msg = parse_checked(line, self.stats)
+        if msg is None:
+            return None
+        try:
+            rec = self.decode(msg, line)
+        except (FieldError, ValueError, TypeError):
+            self.stats["malformed"] += 1
+            return None
+        if rec is not None:
+            self.count(rec)
+        return rec
+
+    def accepts(self, line: bytes) -> bool:
+        """Whether this reader reads ``line`` (a sentence it knows)."""
         raise NotImplementedError
+
+    def decode(self, msg: NMEAMessage, line: bytes):
+        """The record of a checked sentence, or None (a sentence that only updates state);
+        :class:`.nmea.FieldError` (or ValueError, TypeError) for a field it refuses."""
+        raise NotImplementedError
+
+    def count(self, rec) -> None:
+        """Count a record read (``stats``)."""
