@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import logging
 import sys
 from collections.abc import Sequence
 
@@ -43,14 +42,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    def parse() -> argparse.Namespace:
-        args = parse_args(argv)
-        logging.basicConfig(
-            level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-bench: %(message)s"
-        )
-        return args
-
-    return run_main("arva-bench", parse, lambda args: args.func(args))
+    return run_main("arva-bench", lambda: parse_args(argv), lambda args: args.func(args))
 
 
 if __name__ == "__main__":  # pragma: no cover

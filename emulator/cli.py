@@ -268,15 +268,8 @@ def _stop_on_signals(stop: threading.Event) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    def parse() -> argparse.Namespace:
-        args = parse_args(argv)
-        logging.basicConfig(
-            level=logging.WARNING - 10 * args.verbose, stream=sys.stderr, format="arva-emulate: %(message)s"
-        )
-        return args
-
     # SceneError bare: exactly FILE: key.path: reason, the form editors jump to.
-    return run_main("arva-emulate", parse, run, bare_scene_errors=True)
+    return run_main("arva-emulate", lambda: parse_args(argv), run, bare_scene_errors=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

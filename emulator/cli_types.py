@@ -48,6 +48,7 @@ enough for any real use, small enough that no accepted value overflows or hangs.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import sys
@@ -461,6 +462,9 @@ def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[
       ``PROG: PATH: REASON``, status 2; a closed stdout (``| head``) ends quietly, status 0.
     - Ctrl-C (:class:`KeyboardInterrupt`): ``PROG: interrupted``, status 130.
 
+    Logging goes to stderr as ``PROG: MESSAGE``, at WARNING less 10 per ``-v`` of the
+    parsed ``verbose`` count (a command without ``-v``: WARNING).
+
     Anything else is a bug and keeps its traceback. An :class:`OSError` of an argument's
     type (a path the system refuses to look at) is reported as at run time.
     """
@@ -469,6 +473,9 @@ def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[
     except OSError as exc:
         print(f"{prog}: {one_line(_os_error_line(exc))}", file=sys.stderr, flush=True)
         return 2
+    logging.basicConfig(
+        level=logging.WARNING - 10 * getattr(args, "verbose", 0), stream=sys.stderr, format=f"{prog}: %(message)s"
+    )
     try:
         return int(run(args) or 0)
     except SceneError as exc:
