@@ -41,22 +41,20 @@ class SessionRecorder(SessionListener):
         self._error = value
 
     def on_read(self, device: Device, read: Read) -> None:
-        with self._lock:
-            if self.closed:
-                return
-            self._devices[device.spec.name] = device
-            try:
-                super().on_read(device, read)
-            except LinkError:
-                pass  # kept in error; the dashboard goes on
+        self._pass_on(device, super().on_read, read)
 
     def on_link(self, device: Device, event: LinkEvent) -> None:
+        self._pass_on(device, super().on_link, event)
+
+    def _pass_on(self, device: Device, handler, item) -> None:
+        """The log's handler of ``item`` while recording; a disk error stays in ``error``
+        and the dashboard goes on."""
         with self._lock:
             if self.closed:
                 return
             self._devices[device.spec.name] = device
             try:
-                super().on_link(device, event)
+                handler(device, item)
             except LinkError:
                 pass
 
