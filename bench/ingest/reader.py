@@ -303,11 +303,7 @@ class Notifier:
                         self._io_close(sel, ports, p, "end of file (the device closed)")
                         continue
                     work.put(("read", p, data, mono, utc))
-                while True:
-                    try:
-                        item = self._io_inbox.get_nowait()
-                    except queue.Empty:
-                        break
+                for item in _drained(self._io_inbox):
                     if item[0] == "open":
                         p = item[1]
                         ports[:] = [q for q in ports if not q.closed]  # ports read by threads close themselves
@@ -333,11 +329,7 @@ class Notifier:
 
     def _close_unclaimed(self) -> None:
         """Ports the opener handed over after the I/O thread stopped."""
-        while True:
-            try:
-                item = self._io_inbox.get_nowait()
-            except queue.Empty:
-                return
+        for item in _drained(self._io_inbox):
             if item[0] == "open":
                 item[1].close()
 
@@ -507,3 +499,12 @@ class Notifier:
                 self._unavailable.pop(dev, None)
                 self._io_inbox.put(("open", _Port(dev, port)))
                 self._wake()
+
+
+def _drained(q: queue.Queue):
+    """The items waiting in ``q`` now, without blocking."""
+    while True:
+        try:
+            yield q.get_nowait()
+        except queue.Empty:
+            return
