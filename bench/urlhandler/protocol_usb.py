@@ -59,7 +59,7 @@ from serial.serialutil import (
     to_bytes,
 )
 
-from emulator.urlhandler.virtual_line import VirtualLine
+from emulator.output.virtual_line import VirtualLine
 
 #: pyusb backend passed as ``usb.core.find(backend=...)`` (pyusb's documented seam).
 #: ``None`` lets pyusb pick libusb1, OpenUSB or libusb0, whichever loads; tests put a

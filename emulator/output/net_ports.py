@@ -69,6 +69,7 @@ from firmware_proto.errors import InputError, LinkError
 
 from emulator.cli_types import BAUD_LIMITS
 from emulator.output.ports import Port
+from emulator.output.virtual_line import VirtualLine
 
 #: Transmit FIFO of every emulated UART, bytes (the Linux serial core's xmit buffer).
 UART_FIFO_BYTES = 4096
@@ -217,13 +218,13 @@ class UartLine:
             self._level = 0.0
 
 
-class _ClientUart(SerialBase):
+class _ClientUart(VirtualLine, SerialBase):
     """The serial-port object pyserial's PortManager configures for one client.
 
     Setting baud rate, data bits, parity or stop bits (an RFC 2217 SET_* request) goes
     through pyserial's own validation, then :data:`BAUD_LIMITS`; a refused value makes
     the PortManager restore and report the previous one, as a real port's server does.
-    Modem lines read as a present device: CTS, DSR and CD on, RI off.
+    Modem lines read as a present device (:class:`VirtualLine`): CTS, DSR and CD on, RI off.
     """
 
     def __init__(self, settings: LineSettings, on_change: Callable[[LineSettings], None], on_purge) -> None:
@@ -248,18 +249,6 @@ class _ClientUart(SerialBase):
 
     def line_settings(self) -> LineSettings:
         return LineSettings(self._baudrate, self._bytesize, self._parity, self._stopbits)
-
-    def _update_dtr_state(self) -> None:
-        pass
-
-    def _update_rts_state(self) -> None:
-        pass
-
-    def _update_break_state(self) -> None:
-        pass
-
-    cts = dsr = cd = property(lambda self: True)
-    ri = property(lambda self: False)
 
     def reset_input_buffer(self) -> None:  # data from the device not yet sent to the client
         self._on_purge()

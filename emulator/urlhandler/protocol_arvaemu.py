@@ -30,7 +30,7 @@ from emulator.output.ports import BufferPort
 from emulator.output.scheduler import Route
 from emulator.pipeline import Pipeline
 from emulator.scene.reader import default_scene, load_scene
-from emulator.urlhandler.virtual_line import VirtualLine
+from emulator.output.virtual_line import VirtualLine
 
 
 class Serial(VirtualLine, SerialBase):

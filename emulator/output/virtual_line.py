@@ -1,7 +1,9 @@
 """What a pyserial URL handler without a UART behind it answers for the line itself:
 nothing to configure (baud rate and framing mean nothing to an in-memory line or a USB
 endpoint), RTS/DTR/break accepted and ignored, and the modem lines of a cable that is
-plugged in (CTS, DSR and CD on, RI off). Mixed in before ``serial.SerialBase``."""
+plugged in (CTS, DSR and CD on, RI off). Mixed in before ``serial.SerialBase``: by the
+URL handlers (``arvaemu://``, ``usb://``) and by each network client's emulated UART
+(:mod:`emulator.output.net_ports`, which configures its line itself)."""
 
 from __future__ import annotations
 
