@@ -28,15 +28,20 @@ from emulator.output.streams import Stream
 from emulator.frames.trajectory import Trajectory
 
 
-class GpsStream(Stream):
-    kind = "gps"
+class _TruthStream(Stream):
+    """A device's ground truth at the scene's ``ground_truth`` rate for this ``kind``
+    (``gps_rate_hz`` / ``attitude_rate_hz``), with its ``ground_truth_error`` (or None)."""
 
     def __init__(self, scene: Scene, trajectory: Trajectory, label: str, error: GroundTruthError | None) -> None:
-        super().__init__(label, scene.ground_truth.gps_rate_hz)
+        super().__init__(label, getattr(scene.ground_truth, f"{self.kind}_rate_hz"))
         self.trajectory = trajectory
         self.origin = scene.origin
         self.spec = scene.ground_truth
         self.error = error
+
+
+class GpsStream(_TruthStream):
+    kind = "gps"
 
     def render(self, k0: int, count: int) -> bytes:
         t = (k0 + np.arange(count, dtype=np.float64)) / self.rate_hz
@@ -65,14 +70,8 @@ class GpsStream(Stream):
         return b"".join(out)
 
 
-class AttitudeStream(Stream):
+class AttitudeStream(_TruthStream):
     kind = "attitude"
-
-    def __init__(self, scene: Scene, trajectory: Trajectory, label: str, error: GroundTruthError | None) -> None:
-        super().__init__(label, scene.ground_truth.attitude_rate_hz)
-        self.trajectory = trajectory
-        self.spec = scene.ground_truth
-        self.error = error
 
     def render(self, k0: int, count: int) -> bytes:
         t = (k0 + np.arange(count, dtype=np.float64)) / self.rate_hz
