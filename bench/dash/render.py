@@ -102,22 +102,20 @@ def channel_rows(
 ARC_SAMPLES = 2  # arc points per degree: enough for a continuous arc of dots
 
 
-def _line_char(delta: float) -> str:
+def _by_angle(delta: float, chars: str) -> str:
+    """The character of ``chars`` (ahead, ahead-left, ahead-right, left, right) nearest
+    the direction ``delta`` degrees (positive: to the left)."""
     a = abs(delta)
-    if a < 22.5:
-        return "│"
-    if a < 67.5:
-        return "╲" if delta > 0 else "╱"
-    return "─"
+    i = 0 if a < 22.5 else 1 if a < 67.5 else 3
+    return chars[i if i == 0 else i + (delta <= 0)]
+
+
+def _line_char(delta: float) -> str:
+    return _by_angle(delta, "│╲╱──")
 
 
 def _head_char(delta: float) -> str:
-    a = abs(delta)
-    if a < 22.5:
-        return "↑"
-    if a < 67.5:
-        return "↖" if delta > 0 else "↗"
-    return "←" if delta > 0 else "→"
+    return _by_angle(delta, "↑↖↗←→")
 
 
 def dial(delta: int | None, marks: Sequence[tuple[int, int]] = (), radius: int = 5, width: int = 26) -> list[str]:
