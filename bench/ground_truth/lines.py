@@ -137,12 +137,7 @@ class SentenceReader:
         return self._lines.pending
 
     def _handle(self, lines: list[bytes]) -> list:
-        out = []
-        for line in lines:
-            rec = self.handle_line(line)
-            if rec is not None:
-                out.append(rec)
-        return out
+        return [rec for rec in map(self.handle_line, lines) if rec is not None]
 
     def handle_line(self, line: bytes):
         """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted):

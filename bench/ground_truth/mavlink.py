@@ -62,12 +62,7 @@ class MavlinkAttitudeReader:
             self.stats["malformed"] += 1
             self._drop_pending()  # resynchronise on the next frame
             return []
-        out = []
-        for msg in messages:
-            att = self._handle(msg)
-            if att is not None:
-                out.append(att)
-        return out
+        return [att for att in map(self._handle, messages) if att is not None]
 
     def flush(self) -> list[Attitude]:
         """At end of input: a frame still pending is incomplete; it is counted, not read."""

@@ -21,18 +21,5 @@ class VirtualLine:
     def _update_break_state(self) -> None:
         pass
 
-    @property
-    def cts(self) -> bool:
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        return True
-
-    @property
-    def ri(self) -> bool:
-        return False
-
-    @property
-    def cd(self) -> bool:
-        return True
+    cts = dsr = cd = property(lambda self: True)
+    ri = property(lambda self: False)
