@@ -48,6 +48,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from datetime import datetime, timedelta, timezone
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -284,26 +285,22 @@ def gps_sentences(
     alt: float,
     *,
     velocity_enu: ArrayLike | None = None,
-    geoid_sep: float = 0.0,
     quality: int = 1,
-    sats: int = 12,
-    hdop: float = 0.8,
     talker: str = "GP",
     lat_lon_decimals: int = 7,
-    short: bool = False,
+    **gga_options: Any,
 ) -> bytes:
     """RMC then GGA for one epoch, the order u-blox receivers use: a reader starting on
     this stream dates the GGA with the RMC's date at once. The RMC's FAA mode follows
-    ``quality`` (2 -> D, 4 -> R, 5 -> F, 6 -> E, ...); ``velocity_enu`` None means at rest."""
+    ``quality`` (2 -> D, 4 -> R, 5 -> F, 6 -> E, ...); ``velocity_enu`` None means at rest.
+    ``gga_options``: the GGA's other options (``geoid_sep``, ``sats``, ``hdop``, ``short``: see
+    :func:`gga_sentence`)."""
     mode = {0: "N", 2: "D", 4: "R", 5: "F", 6: "E", 7: "M", 8: "S"}.get(quality, "A")
     rmc = rmc_sentence(
         utc, lat, lon, velocity_enu=velocity_enu if velocity_enu is not None else (0.0, 0.0),
         valid=quality != 0, mode=mode, talker=talker, lat_lon_decimals=lat_lon_decimals,
     )
-    gga = gga_sentence(
-        utc, lat, lon, alt, geoid_sep=geoid_sep, quality=quality, sats=sats, hdop=hdop,
-        talker=talker, lat_lon_decimals=lat_lon_decimals, short=short,
-    )
+    gga = gga_sentence(utc, lat, lon, alt, quality=quality, talker=talker, lat_lon_decimals=lat_lon_decimals, **gga_options)
     return rmc + gga
 
 
