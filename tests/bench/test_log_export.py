@@ -20,7 +20,7 @@ from emulator.testing import EmulatorProcess
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import Epoch
 
-pytestmark = [pytest.mark.slow, pytest.mark.subprocess]
+pytestmark = [pytest.mark.slow, pytest.mark.subprocess, pytest.mark.timing]
 
 SCENE = """spec = 1
 seed = 9
