@@ -21,6 +21,7 @@ from emulator.closed_loop.mavlink import (  # noqa: E402
     frd_ned_to_flu_enu,
 )
 from emulator.pipeline import arva_stream  # noqa: E402
+from scene_builders import external_mavlink_text  # noqa: E402
 from emulator.receiver.model import measure_one  # noqa: E402
 from emulator.scene.reader import loads_scene  # noqa: E402
 from firmware_proto.sentences import encode_parva  # noqa: E402
@@ -118,23 +119,10 @@ def test_no_warning_when_both_halves_arrive(caplog):
     assert caplog.records == [] and src.warned is None
 
 
-EXTERNAL = """spec = 1
-[[transmitters]]
-id = 1
-position = [15.0, 0.0, 0.0]
-[receiver]
-channels = 1
-[receiver.vehicle]
-controller = "external_mavlink"
-mavlink = "udpin:127.0.0.1:{port}"
-mavlink_origin = [5.0, 0.0, 0.0]
-"""
-
-
 @pytest.mark.slow
 def test_an_ardupilot_like_autopilot_is_greeted_asked_and_ridden():
     port = free_udp_port()
-    stream = arva_stream(loads_scene(EXTERNAL.format(port=port), "ext.toml"), 0)
+    stream = arva_stream(loads_scene(external_mavlink_text(port), "ext.toml"), 0)
     src = stream.receiver.pose_source.start()
     ap = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
     try:
