@@ -9,10 +9,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from emulator.receiver.model import ZONE_INNER, ZONE_MID, ZONE_OUTER
-
 
 def quat_matrix(q):
     w, x, y, z = q
@@ -93,16 +89,3 @@ def delta_near_boundary(delta, eps=1e-6):
     t = delta - 0.5 if delta >= 0 else delta + 0.5
     return abs(t - round(t)) < eps or abs(abs(delta) - 89.5) < eps or abs(abs(delta) - 90.0) < eps
 
-
-def assert_one_reading_in_range(m) -> None:
-    """The model's measurement ``m`` of one pair (emulator.receiver.model.measure with
-    ``want_field=True``) is what a receiver can show: a finite field, and (d cm, delta deg)
-    within its zone's range (BRIEF 3: -1/-1 outside r_outer, delta 0 inside r_inner)."""
-    d, delta, zone = int(m.d[0, 0]), int(m.delta[0, 0]), int(m.zone[0, 0])
-    assert np.all(np.isfinite(m.field))
-    if zone == ZONE_OUTER:
-        assert (d, delta) == (-1, -1)
-    elif zone == ZONE_INNER:
-        assert 0 <= d <= 300 and delta == 0
-    else:
-        assert zone == ZONE_MID and 300 <= d <= 5000 and -89 <= delta <= 89

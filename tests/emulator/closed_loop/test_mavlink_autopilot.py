@@ -4,11 +4,9 @@ what SET_MESSAGE_INTERVAL asks for. pymavlink-encoded messages over UDP loopback
 
 import logging
 import math
-import socket
 import time
 
 import pytest
-from scipy.spatial.transform import Rotation
 
 pytest.importorskip("pymavlink")
 from pymavlink import mavutil  # noqa: E402
@@ -21,22 +19,11 @@ from emulator.closed_loop.mavlink import (  # noqa: E402
     frd_ned_to_flu_enu,
 )
 from emulator.pipeline import arva_stream  # noqa: E402
+from mavlink_helpers import free_udp_port, ned_quaternion  # noqa: E402
 from scene_builders import external_mavlink_text  # noqa: E402
 from emulator.receiver.model import measure_one  # noqa: E402
 from emulator.scene.reader import loads_scene  # noqa: E402
 from firmware_proto.sentences import encode_parva  # noqa: E402
-
-
-def free_udp_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-def ned_quaternion(yaw_deg, pitch_deg=0.0, roll_deg=0.0):
-    return Rotation.from_euler("ZYX", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_quat(scalar_first=True)
 
 
 def decoded(*encoded):

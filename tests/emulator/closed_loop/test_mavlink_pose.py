@@ -20,25 +20,12 @@ from emulator.closed_loop.mavlink import MavlinkPoseSource, Pose, frd_ned_to_flu
 from emulator.receiver.model import measure_one  # noqa: E402
 from emulator.scene.reader import loads_scene  # noqa: E402
 from emulator.pipeline import arva_stream  # noqa: E402
+from mavlink_helpers import free_udp_port, ned_quaternion  # noqa: E402
 from scene_builders import external_mavlink_text  # noqa: E402
 from firmware_proto.sentences import encode_parva  # noqa: E402
 
 T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # NED -> ENU
 F = np.diag([1.0, -1.0, -1.0])  # FLU -> FRD
-
-
-def free_udp_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-def ned_quaternion(yaw_deg, pitch_deg=0.0, roll_deg=0.0):
-    """[w, x, y, z] of FRD -> NED for aerospace yaw (from north, clockwise), pitch, roll."""
-    r = Rotation.from_euler("ZYX", [yaw_deg, pitch_deg, roll_deg], degrees=True)
-    return r.as_quat(scalar_first=True)
 
 
 # --------------------------------------------------------------------------- frames

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+import model_properties as props
 import reference_model as ref
 from emulator.receiver.model import ZONE_INNER, ZONE_OUTER, ModelParams, measure, measure_one
 from emulator.receiver.noise import NoiseEffect
@@ -186,18 +187,8 @@ def test_even_in_p(p, rx_q, tx_q):
 @PROPERTY
 @given(direction=vec, rx_q=quat, tx_q=quat)
 def test_d_is_monotone_along_a_ray(direction, rx_q, tx_q):
-    norm = math.hypot(*direction)
-    assume(norm > 1e-3)
-    t = np.geomspace(1e-3, 200, 400)
-    pts = np.outer(t, np.array(direction) / norm)
-    m = measure(pts, np.tile(rx_q, (len(t), 1)), [ORIGIN], [tx_q], TWO)
-    d = m.d[:, 0]
-    outer = m.zone[:, 0] == ZONE_OUTER
-    if outer.any():
-        first = int(np.argmax(outer))
-        assert outer[first:].all(), "once out of range along a ray, always out of range"
-        d = d[:first]
-    assert np.all(np.diff(d) >= 0)
+    assume(math.hypot(*direction) > 1e-3)
+    props.assert_d_monotone_along_a_ray(direction, rx_q, tx_q, TWO)
 
 
 @PROPERTY
@@ -229,4 +220,4 @@ def test_any_finite_input_gives_in_range_integers(rx_p, rx_q, tx_p, tx_q, noise,
     except PoseError as exc:
         assert exc.field in ("receiver.orientation", "transmitter.orientation")
         return
-    ref.assert_one_reading_in_range(m)
+    props.assert_one_reading_in_range(m)
