@@ -7,8 +7,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from emulator.receiver.model import ZONE_INNER, ZONE_MID, ZONE_OUTER, ModelParams, measure
+from firmware_proto.errors import PoseError
 
 
 def assert_one_reading_in_range(m) -> None:
@@ -39,3 +41,13 @@ def assert_d_monotone_along_a_ray(direction, rx_q, tx_q, params: ModelParams = M
         assert outer[first:].all(), "once out of range along a ray, always out of range"
         d = d[:first]
     assert np.all(np.diff(d) >= 0)
+
+
+def assert_the_smallest_bad_norm_is_named(**kw) -> None:
+    """20 receiver poses, two with quaternions below the 1e-09 norm floor (poses 13 and
+    17): measure (``kw``: its options) names the smaller norm, whatever block it lies in."""
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (20, 1))
+    q[13] = [1e-12, 0, 0, 0]
+    q[17] = [1e-15, 0, 0, 0]
+    with pytest.raises(PoseError, match=r"receiver.orientation: quaternion norm 1e-15 is below 1e-09"):
+        measure(np.full((20, 3), 5.0), q, [[0.0, 0.0, 0.0]], [[1.0, 0.0, 0.0, 0.0]], **kw)
