@@ -88,4 +88,3 @@ def delta_near_boundary(delta, eps=1e-6):
         return False
     t = delta - 0.5 if delta >= 0 else delta + 0.5
     return abs(t - round(t)) < eps or abs(abs(delta) - 89.5) < eps or abs(abs(delta) - 90.0) < eps
-
