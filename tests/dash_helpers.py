@@ -3,6 +3,9 @@ default scene's epoch as the emulator sends it."""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import AsyncIterator
+
 from bench.dash.app import DashApp, DashConfig
 from bench.dash.messages import EpochReceived, LinkCounters, LinkStatus, TruthPose
 from bench.logger import DeviceSpec
@@ -50,6 +53,21 @@ async def inject(pilot, messages) -> None:
     for msg in messages:
         pilot.app.post_message(msg)
     await pilot.pause()
+
+
+@contextlib.asynccontextmanager
+async def running_app(tmp_path, messages, size=(80, 24), **kw) -> AsyncIterator[tuple[DashApp, object]]:
+    """``make_app(tmp_path, **kw)`` running headless at ``size`` with ``messages`` injected:
+    yields (app, pilot)."""
+    app = make_app(tmp_path, **kw)
+    async with app.run_test(size=size) as pilot:
+        await inject(pilot, messages)
+        yield app, pilot
+
+
+def shown(app, widget) -> list[str]:
+    """The lines the app's ``widget`` (a widget class) shows."""
+    return app.query_one(widget).plain.splitlines()
 
 
 #: A walk past the default scene's transmitters: (receiver position, yaw in degrees, slots),

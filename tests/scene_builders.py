@@ -7,6 +7,7 @@ from __future__ import annotations
 from datetime import datetime, timezone
 
 import repo_paths
+from emulator.testing.scene_toml import dumps
 
 TX_POSITION = [20.0, 5.0, 0.0]  # transmitter 1 of the one-transmitter scenes, metres
 
@@ -23,6 +24,16 @@ def one_tx(rate_hz: float | None = None, channels: int | None = None) -> dict:
     return scene
 
 
+def link_faults_scene(seed: int, rate_hz: float | None = None, **faults: float) -> dict:
+    """one_tx() with the link-fault effect on; ``faults`` are its ``[link_faults]`` keys
+    (loss, corrupt, disconnect_every_s ...), drawn from ``seed``."""
+    scene = one_tx(rate_hz)
+    scene["seed"] = seed
+    scene["effects"] = {"link_faults": True}
+    scene["link_faults"] = dict(faults)
+    return scene
+
+
 def two_rx(channels_7: int | None = None) -> dict:
     """Transmitter 1 at TX_POSITION, receivers 1 at the origin and 7 at (10, 0, 0) m."""
     seven: dict = {"id": 7, "position": [10.0, 0.0, 0.0]}
@@ -33,6 +44,28 @@ def two_rx(channels_7: int | None = None) -> dict:
         "transmitters": [{"id": 1, "position": list(TX_POSITION)}],
         "receivers": [{"id": 1, "position": [0.0, 0.0, 0.0]}, seven],
     }
+
+
+def vehicle_scene_text(vehicle: str, tx_position=TX_POSITION, channels: int = 2, seed: int | None = None) -> str:
+    """TOML text: transmitter 1 at ``tx_position``, a receiver of ``channels`` channels
+    moved by the vehicle whose ``[receiver.vehicle]`` table holds the TOML lines
+    ``vehicle``. That table comes last: a test may append keys to it."""
+    scene: dict = {"spec": 1}
+    if seed is not None:
+        scene["seed"] = seed
+    scene["transmitters"] = [{"id": 1, "position": list(tx_position)}]
+    scene["receiver"] = {"channels": channels}
+    return dumps(scene) + f"[receiver.vehicle]\n{vehicle}\n"
+
+
+def external_mavlink_text(port: int) -> str:
+    """TOML text: transmitter 1 at (15, 0, 0) m, a 1-channel receiver whose pose an
+    autopilot sends over MAVLink to udpin:127.0.0.1:``port`` (its local origin at
+    (5, 0, 0) m of the scene); ``[receiver.vehicle]`` last, as in vehicle_scene_text."""
+    return vehicle_scene_text(
+        f'controller = "external_mavlink"\nmavlink = "udpin:127.0.0.1:{port}"\nmavlink_origin = [5.0, 0.0, 0.0]',
+        tx_position=[15.0, 0.0, 0.0], channels=1,
+    )
 
 
 def default_scene_text(rate_hz: float) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
@@ -10,6 +11,7 @@ import subprocess
 import sys
 import termios
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -56,15 +58,20 @@ def json_lines(out: bytes) -> list[dict]:
     return [json.loads(line) for line in out.decode().splitlines()]
 
 
+def assert_whole_stream(returncode: int, out: bytes, err: bytes) -> None:
+    """cat read STREAM to its end: exit 0, its JSON lines, its statistics line."""
+    assert returncode == 0
+    assert json_lines(out) == STREAM_JSON
+    assert err.decode() == STREAM_STATS + "\n"
+
+
 @pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_file_source(tmp_path: Path) -> None:
     path = tmp_path / "rx.nmea"
     path.write_bytes(STREAM)
     proc = run_cat([str(path)])
-    assert proc.returncode == 0
-    assert json_lines(proc.stdout) == STREAM_JSON
-    assert proc.stderr.decode() == STREAM_STATS + "\n"
+    assert_whole_stream(proc.returncode, proc.stdout, proc.stderr)
 
 
 @pytest.mark.subprocess
@@ -180,8 +187,10 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def _popen(args: list[str]) -> subprocess.Popen:
-    return subprocess.Popen(
+@contextlib.contextmanager
+def running(args: list[str]) -> Iterator[subprocess.Popen]:
+    """cat with ``args``, its three pipes open; killed on the way out if still running."""
+    proc = subprocess.Popen(
         CAT + args,
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
@@ -190,14 +199,19 @@ def _popen(args: list[str]) -> subprocess.Popen:
         env={**os.environ, "PYTHONPATH": str(ROOT)},
         preexec_fn=_default_sigint,
     )
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
 
 
 @pytest.mark.subprocess
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)], ids=["ctrl_c", "sigterm"])
 def test_live_stream_epochs_appear_without_waiting_and_a_stop_signal_prints_stats(sig: int, status: int) -> None:
-    proc = _popen(["-"])
-    try:
+    with running(["-"]) as proc:
         assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
         proc.stdin.write(encode_epoch(5, [(1, 1905, 21)]))
         proc.stdin.flush()
@@ -214,10 +228,6 @@ def test_live_stream_epochs_appear_without_waiting_and_a_stop_signal_prints_stat
         time.sleep(0.3)
         proc.send_signal(sig)
         out, err = proc.communicate(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
     assert proc.returncode == status
     assert json.loads(out) == {"seq": 7, "complete": False, "slots": [[1, 1903, 21], None]}
     assert err.decode().startswith("arva-bench: cat: bytes=")
@@ -229,18 +239,11 @@ def test_live_stream_epochs_appear_without_waiting_and_a_stop_signal_prints_stat
 def test_fifo_source(tmp_path: Path) -> None:
     fifo = tmp_path / "rx.fifo"
     os.mkfifo(fifo)
-    proc = _popen([str(fifo)])
-    try:
+    with running([str(fifo)]) as proc:
         with open(fifo, "wb") as w:  # blocks until cat opened the read side
             w.write(STREAM)
         out, err = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
-    assert proc.returncode == 0
-    assert json_lines(out) == STREAM_JSON
-    assert err.decode() == STREAM_STATS + "\n"
+    assert_whole_stream(proc.returncode, out, err)
 
 
 @pytest.mark.subprocess
@@ -248,17 +251,12 @@ def test_fifo_source(tmp_path: Path) -> None:
 def test_closed_stdout_is_not_an_error(tmp_path: Path) -> None:
     path = tmp_path / "big.nmea"
     path.write_bytes(b"".join(encode_epoch(s % 65536, [(1, s % 1000, 0)]) for s in range(20000)))
-    proc = _popen([str(path)])
-    try:
+    with running([str(path)]) as proc:
         assert proc.stdout is not None and proc.stderr is not None
         assert json.loads(_read_line(proc.stdout, 10))["seq"] == 0
         proc.stdout.close()
         proc.wait(timeout=20)
         err = proc.stderr.read().decode()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
     assert proc.returncode == 0
     assert "Traceback" not in err and "BrokenPipe" not in err
     assert err.startswith("arva-bench: cat: bytes=")

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from scene_builders import FIELD_START_UTC, field_scene
 
 from bench.export import COLUMNS, export_rows
 from bench.session import read_jsonl, read_manifest, read_raw
@@ -17,38 +18,32 @@ from emulator.frames.geodesy import Origin, enu_to_geodetic
 from emulator.scene.reader import loads_scene
 from emulator.pipeline import scene_streams
 from emulator.testing import EmulatorProcess
+from emulator.testing.scene_toml import dumps
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import Epoch
 
-pytestmark = [pytest.mark.slow, pytest.mark.subprocess]
+pytestmark = [pytest.mark.slow, pytest.mark.subprocess, pytest.mark.timing]
 
-SCENE = """spec = 1
-seed = 9
-rate_hz = 1.0
-[origin]
-lat = 46.5
-lon = 8.0
-alt = 2500.0
-[ground_truth]
-start_utc = 2026-01-15T10:00:00Z
-gps_rate_hz = 1.0
-attitude_rate_hz = 1.0
-lat_lon_decimals = 7
-[effects]
-noise = true
-{effects}
-[[transmitters]]
-id = 1
-position = [0.0, 0.0, -1.0]
-[receiver]
-channels = 1
-gps = true
-attitude = true
-path = [
-  {{ t = 0.0, position = [30.0, -10.0, 1.0], orientation = [0.7071067811865476, 0.0, 0.0, 0.7071067811865476] }},
-  {{ t = 100.0, position = [-20.0, 10.0, 1.5], orientation = [0.0, 0.0, 0.0, 1.0] }},
+#: The receiver's walk: 100 s from (30, -10, 1) m facing north to (-20, 10, 1.5) m facing west.
+WALK = [
+    {"t": 0.0, "position": [30.0, -10.0, 1.0], "orientation": [0.7071067811865476, 0.0, 0.0, 0.7071067811865476]},
+    {"t": 100.0, "position": [-20.0, 10.0, 1.5], "orientation": [0.0, 0.0, 0.0, 1.0]},
 ]
-"""
+
+
+def log_scene(link_faults: dict | None = None) -> dict:
+    """Transmitter 1 buried under the field origin, the receiver walking with GPS and
+    attitude at 1 Hz, noise on; ``link_faults``: the [link_faults] table, the effect on."""
+    receiver = {"channels": 1, "gps": True, "attitude": True, "path": WALK}
+    truth = {"start_utc": FIELD_START_UTC, "gps_rate_hz": 1.0, "attitude_rate_hz": 1.0, "lat_lon_decimals": 7}
+    scene = field_scene(receiver, truth, seed=9, rate_hz=1.0)
+    scene["effects"] = {"noise": True}
+    if link_faults is not None:
+        scene["effects"]["link_faults"] = True
+        scene["link_faults"] = link_faults
+    return scene
+
+
 ORIGIN = Origin(46.5, 8.0, 2500.0)
 SPEED = 20.0
 
@@ -66,9 +61,9 @@ def start_logger(ports, out, duration=None, extra=()):
     return subprocess.Popen([*cmd, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def run_emulator(tmp_path, frames, effects="", link=None, speed=SPEED, **kw):
+def run_emulator(tmp_path, frames, link_faults=None, link=None, speed=SPEED, **kw):
     scene = tmp_path / "scene.toml"
-    scene.write_text(SCENE.format(effects=effects))
+    scene.write_text(dumps(log_scene(link_faults)))
     args = ["--scene", str(scene), "--port", "pty", "--speed", str(speed), "--frames", str(frames), "--delay", "1.5"]
     if link is not None:
         args += ["--link", str(link)]
@@ -163,8 +158,8 @@ def test_sigkill_mid_run_keeps_everything_before_the_last_second(tmp_path):
 def test_unplugged_receiver_is_retried_and_resumes(tmp_path):
     links = tmp_path / "links"
     links.mkdir()
-    faults = '\nlink_faults = true\n[link_faults]\ndisconnect_every_s = 60.0\ndisconnect_s = 10.0\nstreams = ["arva"]\n'
-    emu, _ = run_emulator(tmp_path, 120, effects=faults.replace("\nlink_faults", "link_faults", 1), link=links)
+    faults = {"disconnect_every_s": 60.0, "disconnect_s": 10.0, "streams": ["arva"]}
+    emu, _ = run_emulator(tmp_path, 120, link_faults=faults, link=links)
     out = tmp_path / "session"
     try:
         ports = {k: str(links / k.replace(":", "-")) for k in emu.ports}
@@ -188,8 +183,7 @@ def test_unplugged_receiver_is_retried_and_resumes(tmp_path):
 
 @pytest.mark.timeout(90)
 def test_corrupt_bytes_are_kept_and_flagged(tmp_path):
-    faults = "link_faults = true\n[link_faults]\ncorrupt = 0.01\nstreams = [\"arva\"]\n"
-    emu, _ = run_emulator(tmp_path, 80, effects=faults)
+    emu, _ = run_emulator(tmp_path, 80, link_faults={"corrupt": 0.01, "streams": ["arva"]})
     out = tmp_path / "session"
     try:
         logger = start_logger(emu.ports, out, duration=7.0)

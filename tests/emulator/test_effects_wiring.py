@@ -10,7 +10,9 @@ import pytest
 from emulator.receiver.receiver import Receiver
 from emulator.scene.reader import default_scene, loads_scene
 from emulator.pipeline import scene_streams
+from emulator.testing.scene_toml import dumps
 from firmware_proto.errors import SceneError
+from scene_builders import link_faults_scene
 
 PAPER = (
     "spec = 1\n"
@@ -124,18 +126,7 @@ def test_per_transmitter_pulse_keys_need_pulses():
         paper(tx1="pulse_period_ms = 1000.0")
 
 
-LOSSY = """spec = 1
-seed = 3
-[effects]
-link_faults = true
-[link_faults]
-loss = 0.02
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[receiver]
-position = [0.0, 0.0, 0.0]
-"""
+LOSSY = dumps(link_faults_scene(3, loss=0.02))
 
 
 @pytest.mark.subprocess
@@ -156,20 +147,7 @@ def test_link_fault_loss_rate_on_the_wire(tmp_path):
     assert f"{lost} bytes dropped, {lost} faults injected".encode() in a.stderr
 
 
-FAULTY = """spec = 1
-seed = 3
-rate_hz = 100.0
-[effects]
-link_faults = true
-[link_faults]
-loss = 0.02
-corrupt = 0.01
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[receiver]
-position = [0.0, 0.0, 0.0]
-"""
+FAULTY = dumps(link_faults_scene(3, rate_hz=100.0, loss=0.02, corrupt=0.01))
 
 
 @pytest.mark.slow

@@ -10,12 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 import repo_paths
+from scene_builders import one_tx
 
 from bench.ground_truth.gps import GpsReader
 from emulator.cli import main
 from emulator.frames.trajectory import Trajectory
 from emulator.pipeline import scene_streams
 from emulator.scene.reader import load_scene, loads_scene
+from emulator.testing.scene_toml import dumps
 from emulator.truth.nmea import gga_sentence, gps_sentences
 
 FIELD_WALK = repo_paths.SCENES / "field_walk.toml"
@@ -94,20 +96,14 @@ def test_scene_gps_stream_within_82_characters(decimals):
     assert len(lines) == 40 and max(len(line) + 2 for line in lines) <= 82
 
 
-TRUTH = """spec = 1
-[origin]
-lat = 46.5
-lon = 8.0
-[ground_truth]
-attitude_rate_hz = 2.0
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[receiver]
-position = [0.0, 0.0, 0.0]
-gps = true
-attitude = true
-"""
+def truth_scene() -> str:
+    """one_tx() with an origin, the receiver's GPS and attitude streams (attitude at 2 Hz)."""
+    scene = one_tx()
+    scene["receiver"].update(gps=True, attitude=True)
+    return dumps({**scene, "origin": {"lat": 46.5, "lon": 8.0}, "ground_truth": {"attitude_rate_hz": 2.0}})
+
+
+TRUTH = truth_scene()
 
 
 def test_streams_to_files_and_stdout(tmp_path, capsysbinary):

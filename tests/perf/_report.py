@@ -58,14 +58,35 @@ def write_section(name: str, title: str, body: str, script: str) -> None:
         f"Measured {today} on {machine()} by `{script}`.\n\n{body.strip()}\n"
         f"<!-- END {name} -->\n"
     )
-    text = PERFORMANCE_MD.read_text() if PERFORMANCE_MD.exists() else _HEADER
-    pattern = re.compile(rf"<!-- BEGIN {re.escape(name)} -->.*?<!-- END {re.escape(name)} -->\n", re.S)
+    replace_section(PERFORMANCE_MD, name, block, header=_HEADER)
+
+
+def stamped_block(name: str, body: str, script: str, verb: str = "Measured") -> str:
+    """``body`` between the markers of section ``name``, closed by a line stamping the date,
+    machine, commit and ``script`` (the docs/accuracy.md and docs/model.md sections)."""
+    return (
+        f"<!-- BEGIN {name} -->\n{body.strip()}\n\n"
+        f"_{verb} {_dt.date.today().isoformat()} on {machine()}, commit {git_revision()}, by `{script}`._\n"
+        f"<!-- END {name} -->\n"
+    )
+
+
+def replace_section(path: Path, name: str, block: str, before: tuple[str, ...] = (), header: str = "") -> None:
+    """Replace ``<!-- BEGIN name -->...<!-- END name -->`` in ``path`` by ``block``; when
+    missing, insert it before the first of the sections ``before`` present, else append it
+    (to ``header`` when ``path`` does not exist yet). Nothing else changes."""
+    text = path.read_text() if path.exists() else header
+    pattern = re.compile(rf"<!-- BEGIN {re.escape(name)} -->.*?<!-- END {re.escape(name)} -->\n?", re.S)
+    later = [s for s in before if f"<!-- BEGIN {s} -->" in text]
     if pattern.search(text):
         text = pattern.sub(lambda _m: block, text)
+    elif later:
+        at = text.index(f"<!-- BEGIN {later[0]} -->")
+        text = text[:at] + block + "\n" + text[at:]
     else:
         text = text.rstrip("\n") + "\n\n" + block
-    PERFORMANCE_MD.parent.mkdir(parents=True, exist_ok=True)
-    PERFORMANCE_MD.write_text(text)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
 
 
 def git_revision() -> str:

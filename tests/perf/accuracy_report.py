@@ -19,10 +19,8 @@ Every number in those sections is measured by this command; plots go to docs/img
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import math
 import pickle
-import re
 import subprocess
 import sys
 import time
@@ -32,16 +30,16 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
+sys.path[:0] = [str(HERE.parents[1]), str(HERE.parent), str(HERE)]  # the repository, tests/, tests/perf
 
-from _report import ROOT, git_revision, machine, markdown_table  # noqa: E402
+from _report import ROOT, markdown_table, replace_section, stamped_block  # noqa: E402
 
 from emulator.closed_loop.case_study import load_case  # noqa: E402
 from emulator.closed_loop.loop import ClosedLoop  # noqa: E402
 from emulator.receiver.model import measure  # noqa: E402
 from emulator.receiver.receiver import Receiver  # noqa: E402
 from emulator.scene.reader import loads_scene  # noqa: E402
+from emulator.testing.scene_toml import dumps  # noqa: E402
 from emulator.closed_loop.sweep import SweepConfig, SweepResult, summarize, summary_table, sweep, write_table  # noqa: E402
 from emulator.frames.trajectory import Trajectory  # noqa: E402
 from emulator.progress import progress  # noqa: E402
@@ -70,53 +68,35 @@ fit issue), which `python tests/perf/accuracy_report.py` runs when it exists.
 <!-- END calibration -->
 """
 
-WALK = """spec = 1
-seed = 4
-rate_hz = 1.0
-[model]
-r_en = 80.0
-[effects]
-noise = {noise}
-pulses = {pulses}
-quantize = {quantize}
-research_sentences = {research}
-{tables}
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[[transmitters]]
-id = 2
-position = [10.0, 0.0, 1.0]
-[[transmitters]]
-id = 3
-position = [20.0, -20.0, -1.0]
-[[transmitters]]
-id = 4
-position = [-6.0, 5.0, 0.0]
-[receiver]
-channels = 4
-path = [
-  {{ t = 0.0, position = [-30.0, -40.0, 1.0], orientation = [0.7071067811865476, 0.0, 0.0, 0.7071067811865476] }},
-  {{ t = 80.0, position = [-30.0, 40.0, 1.0], orientation = [0.7071067811865476, 0.0, 0.0, 0.7071067811865476] }},
-  {{ t = 90.0, position = [-10.0, 40.0, 1.0], orientation = [0.7071067811865476, 0.0, 0.0, -0.7071067811865476] }},
-  {{ t = 170.0, position = [-10.0, -40.0, 1.0], orientation = [0.7071067811865476, 0.0, 0.0, -0.7071067811865476] }},
-  {{ t = 180.0, position = [10.0, -40.0, 1.0], orientation = [0.7071067811865476, 0.0, 0.0, 0.7071067811865476] }},
-  {{ t = 260.0, position = [10.0, 40.0, 1.0], orientation = [0.7071067811865476, 0.0, 0.0, 0.7071067811865476] }},
-]
-"""
+#: The walk of section (a): the paper's four transmitters (m, the scene frame), the receiver
+#: 1 m up on three north-south legs at 1 m/s (t in s), facing along its leg.
+WALK_TRANSMITTERS = ([20.0, 5.0, 0.0], [10.0, 0.0, 1.0], [20.0, -20.0, -1.0], [-6.0, 5.0, 0.0])
+_NORTH = [0.7071067811865476, 0.0, 0.0, 0.7071067811865476]
+_SOUTH = [0.7071067811865476, 0.0, 0.0, -0.7071067811865476]
+WALK_PATH = (
+    (0.0, [-30.0, -40.0, 1.0], _NORTH), (80.0, [-30.0, 40.0, 1.0], _NORTH),
+    (90.0, [-10.0, 40.0, 1.0], _SOUTH), (170.0, [-10.0, -40.0, 1.0], _SOUTH),
+    (180.0, [10.0, -40.0, 1.0], _NORTH), (260.0, [10.0, 40.0, 1.0], _NORTH),
+)
 
 
 def walk_scene(noise=False, pulses=False, quantize=False, research=False, static=False):
-    tables = ""
+    """The walk (or, ``static``, its first position held), with the effects named on."""
+    scene: dict = {
+        "spec": 1, "seed": 4, "rate_hz": 1.0, "model": {"r_en": 80.0},
+        "effects": {"noise": noise, "pulses": pulses, "quantize": quantize, "research_sentences": research},
+        "transmitters": [{"id": k, "position": p} for k, p in enumerate(WALK_TRANSMITTERS, 1)],
+        "receiver": {"channels": 4},
+    }
     if pulses:
-        tables += "[pulses]\nperiod_ms = [700.0, 1300.0]\npulse_ms = 100.0\n"
+        scene["pulses"] = {"period_ms": [700.0, 1300.0], "pulse_ms": 100.0}
     if quantize:
-        tables += '[quantize]\nprofile = "leds5"\n'
-    b = lambda v: "true" if v else "false"  # noqa: E731
-    text = WALK.format(noise=b(noise), pulses=b(pulses), quantize=b(quantize), research=b(research), tables=tables)
+        scene["quantize"] = {"profile": "leds5"}
     if static:
-        text = re.sub(r"path = \[.*?\n\]\n", "position = [-30.0, -40.0, 1.0]\n", text, flags=re.S)
-    return loads_scene(text, "<accuracy walk>")
+        scene["receiver"]["position"] = list(WALK_PATH[0][1])
+    else:
+        scene["receiver"]["path"] = [{"t": t, "position": p, "orientation": q} for t, p, q in WALK_PATH]
+    return loads_scene(dumps(scene), "<accuracy walk>")
 
 
 def best_of(fn, repeat=3):
@@ -306,6 +286,11 @@ def plot_fidelity(effects, paths, path: Path):
     plt.close(fig)
 
 
+def captioned_table(caption: str, header: list[str], rows: list[list[object]]) -> list[str]:
+    """The lines of a paragraph ``caption`` followed by its table, each closed by a blank line."""
+    return [caption, "", markdown_table(header, rows), ""]
+
+
 def section_fidelity(n_epochs: int, n_float: int) -> str:
     effects = fidelity_effects(n_epochs)
     floats = fidelity_float(n_float)
@@ -358,23 +343,19 @@ def section_fidelity(n_epochs: int, n_float: int) -> str:
         "",
         markdown_table(["pose source", "time per epoch"], [[n, f"{us:.2f} µs"] for n, us in paths]),
         "",
-        "**Path interpolation fidelity**: the case-4 flight (flux follower, 60 s, positions at "
-        "10 Hz) resampled as waypoints every N seconds and interpolated linearly, as a scene "
-        "`path` does, versus the exact positions, at the 1 Hz epochs:",
-        "",
-        markdown_table(
+        *captioned_table(
+            "**Path interpolation fidelity**: the case-4 flight (flux follower, 60 s, positions at "
+            "10 Hz) resampled as waypoints every N seconds and interpolated linearly, as a scene "
+            "`path` does, versus the exact positions, at the 1 Hz epochs:",
             ["waypoint every", "largest position error", "epochs with a different d", "largest d change"],
             [[f"{s} s", f"{e:.3f} m", f"{100 * c:.1f} %", f"{m} cm"] for s, e, c, m in waypoints],
         ),
-        "",
-        "**Closed-loop control rate** (case 1, flux follower, 1 Hz receiver; the vehicle and "
-        "the height hold step at the control rate):",
-        "",
-        markdown_table(
+        *captioned_table(
+            "**Closed-loop control rate** (case 1, flux follower, 1 Hz receiver; the vehicle and "
+            "the height hold step at the control rate):",
             ["control rate", "wall time per epoch", "located at", "horizontal error"],
             [[f"{r:g} Hz", f"{us:.0f} µs", f"{t:.1f} s", f"{e:.3f} m"] for r, us, t, e in rates],
         ),
-        "",
         "![model fidelity versus time per epoch](img/accuracy_fidelity.png)",
     ]
     return "\n".join(parts)
@@ -516,25 +497,8 @@ def section_search(n: int, v_max, k_c, seed: int, cache: Path | None = None) -> 
 # --------------------------------------------------------------------------- the file
 def write_section(name: str, body: str) -> None:
     """Replace section ``name`` of docs/accuracy.md, or insert it in SECTIONS order."""
-    today = _dt.date.today().isoformat()
-    block = (
-        f"<!-- BEGIN {name} -->\n{body.strip()}\n\n"
-        f"_Measured {today} on {machine()}, commit {git_revision()}, by `{SCRIPT}`._\n"
-        f"<!-- END {name} -->\n"
-    )
-    text = ACCURACY_MD.read_text() if ACCURACY_MD.exists() else HEADER
-    pattern = re.compile(rf"<!-- BEGIN {re.escape(name)} -->.*?<!-- END {re.escape(name)} -->\n?", re.S)
-    if pattern.search(text):
-        text = pattern.sub(lambda _m: block, text)
-    else:
-        later = [s for s in SECTIONS[SECTIONS.index(name) + 1 :] if f"<!-- BEGIN {s} -->" in text]
-        if later:
-            at = text.index(f"<!-- BEGIN {later[0]} -->")
-            text = text[:at] + block + "\n" + text[at:]
-        else:
-            text = text.rstrip("\n") + "\n\n" + block
-    ACCURACY_MD.parent.mkdir(parents=True, exist_ok=True)
-    ACCURACY_MD.write_text(text)
+    later = SECTIONS[SECTIONS.index(name) + 1 :]
+    replace_section(ACCURACY_MD, name, stamped_block(name, body, SCRIPT), before=later, header=HEADER)
 
 
 def calibration() -> str:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import re
 import sys
 import time
 from pathlib import Path
@@ -23,11 +22,9 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
-sys.path.insert(0, str(HERE.parents[1]))
+sys.path[:0] = [str(HERE.parents[1]), str(HERE.parent), str(HERE)]  # the repository, tests/, tests/perf
 
-from _report import ROOT, git_revision, machine, markdown_table  # noqa: E402
+from _report import ROOT, git_revision, machine, markdown_table, replace_section, stamped_block  # noqa: E402
 
 from fit_campaign import Walk, emulate_campaign  # noqa: E402
 from bench.fit import fit_table  # noqa: E402
@@ -152,21 +149,6 @@ def plot(results) -> bool:
     return True
 
 
-def replace_section(path: Path, name: str, block: str, before: str | None = None, header: str = "") -> None:
-    """Replace ``<!-- BEGIN name -->...<!-- END name -->`` in ``path``; insert it (before
-    section ``before`` if present, else at the end) when missing. Nothing else changes."""
-    text = path.read_text() if path.exists() else header
-    pattern = re.compile(rf"<!-- BEGIN {re.escape(name)} -->.*?<!-- END {re.escape(name)} -->\n?", re.S)
-    if pattern.search(text):
-        text = pattern.sub(lambda _m: block, text)
-    elif before and f"<!-- BEGIN {before} -->" in text:
-        at = text.index(f"<!-- BEGIN {before} -->")
-        text = text[:at] + block + "\n" + text[at:]
-    else:
-        text = text.rstrip("\n") + "\n\n" + block
-    path.write_text(text)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=16, help="campaigns per length (default 16)")
@@ -213,10 +195,8 @@ Both shrink like 1/sqrt(minutes) (dotted lines in the plot). The table above ass
         return 0
     today = _dt.date.today().isoformat()
     stamp = f"_Measured {today} on {machine()}, commit {git_revision()}, by `{SCRIPT}`._"
-    replace_section(
-        ACCURACY_MD, "calibration", f"<!-- BEGIN calibration -->\n{body.strip()}\n\n{stamp}\n<!-- END calibration -->\n",
-        before="search", header="# What accuracy costs in time\n",
-    )
+    replace_section(ACCURACY_MD, "calibration", stamped_block("calibration", body, SCRIPT), before=("search",),
+                    header="# What accuracy costs in time\n")
     cover = markdown_table(
         ["minutes", "rms of (estimate - truth) / se: kappa_eq", "r_en", "within 1.96 se: kappa_eq", "r_en", "mean error: kappa_eq", "r_en"],
         [[r["minutes"], f"{r['rmsz'][0]:.2f}", f"{r['rmsz'][1]:.2f}", f"{100 * r['cover'][0]:.0f} %", f"{100 * r['cover'][1]:.0f} %",

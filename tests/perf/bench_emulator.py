@@ -43,8 +43,7 @@ import numpy as np
 import serial
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
+sys.path[:0] = [str(HERE.parents[1]), str(HERE.parent), str(HERE)]  # the repository, tests/, tests/perf
 
 from _report import ROOT, markdown_table, publish  # noqa: E402
 from emulator.output.kworkers import raise_workers  # noqa: E402

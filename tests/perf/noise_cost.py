@@ -24,7 +24,7 @@ import tty
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))
+sys.path[:0] = [str(HERE.parents[1]), str(HERE.parent)]  # the repository before tests/ (tests/emulator has no __init__.py)
 
 from noise_sessions import peak_rss  # noqa: E402
 

@@ -24,8 +24,6 @@ level (yaw does not change |h| or |h_xy|).
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
-import re
 import sys
 import time
 from pathlib import Path
@@ -33,10 +31,9 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
+sys.path[:0] = [str(HERE.parents[1]), str(HERE.parent), str(HERE)]  # the repository, tests/, tests/perf
 
-from _report import ROOT, git_revision, machine, markdown_table  # noqa: E402
+from _report import ROOT, markdown_table, replace_section, stamped_block  # noqa: E402
 
 from emulator.receiver.model import ModelParams, measure  # noqa: E402
 
@@ -149,20 +146,6 @@ def plot(result: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_doc_section(path: Path, name: str, body: str, script: str) -> None:
-    """Replace the ``<!-- BEGIN name -->`` .. ``<!-- END name -->`` block of ``path``
-    (appended when missing), stamped with date, machine, commit and script."""
-    block = (
-        f"<!-- BEGIN {name} -->\n{body.strip()}\n\n"
-        f"_Generated {_dt.date.today().isoformat()} on {machine()}, commit {git_revision()}, by `{script}`._\n"
-        f"<!-- END {name} -->\n"
-    )
-    text = path.read_text()
-    pattern = re.compile(rf"<!-- BEGIN {re.escape(name)} -->.*?<!-- END {re.escape(name)} -->\n?", re.S)
-    text = pattern.sub(lambda _m: block, text) if pattern.search(text) else text.rstrip("\n") + "\n\n" + block
-    path.write_text(text)
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--orientations", type=int, default=200)
@@ -194,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{table}\n\n![pinpointing offset versus depth](img/pinpoint_study.png)\n\n"
         f"Run time {wall:.0f} s (measured while other jobs shared the 2 cores)."
     )
-    write_doc_section(MODEL_MD, "pinpoint", body, SCRIPT)
+    replace_section(MODEL_MD, "pinpoint", stamped_block("pinpoint", body, SCRIPT, verb="Generated"))
     return 0
 
 

@@ -18,7 +18,7 @@ and their _se against 1.542 and 80. Scratch tool, ~10 s per 4-hour seed and mode
 import sys, json, math, time
 import os
 from pathlib import Path
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parents[2]), str(Path(__file__).resolve().parents[1])]  # the repository, tests/
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation

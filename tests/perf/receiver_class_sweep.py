@@ -18,11 +18,9 @@ from dataclasses import replace
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
+sys.path[:0] = [str(HERE.parents[1]), str(HERE.parent), str(HERE)]  # the repository, tests/, tests/perf
 
-from _report import ROOT, markdown_table  # noqa: E402
-from pinpoint_study import write_doc_section  # noqa: E402
+from _report import ROOT, markdown_table, replace_section, stamped_block  # noqa: E402
 
 from emulator.closed_loop.sweep import SweepConfig, sweep, write_table  # noqa: E402
 
@@ -99,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         "antenna (its `$PARVH` h_z is 0), so |h_xy|/|h| = 1 everywhere and the follower never settles: "
         "eq. 10 as written needs a 3-antenna receiver."
     )
-    write_doc_section(ACCURACY_MD, "receiver_class", body, SCRIPT)
+    replace_section(ACCURACY_MD, "receiver_class", stamped_block("receiver_class", body, SCRIPT, verb="Generated"))
     return 0
 
 

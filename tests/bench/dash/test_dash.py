@@ -10,7 +10,7 @@ import json
 import time
 
 import pytest
-from dash_helpers import DEFAULT_SLOTS, T0, FakeClock, default_scene_messages, inject, make_app
+from dash_helpers import DEFAULT_SLOTS, T0, FakeClock, default_scene_messages, inject, make_app, running_app, shown
 
 from bench.cli import parse_args
 from bench.dash import render
@@ -114,11 +114,8 @@ def test_zone_of_a_reported_slot():
 
 def test_channel_table_rows_and_dial_from_one_epoch(tmp_path):
     async def go():
-        app = make_app(tmp_path)
-        async with app.run_test(size=(80, 24)) as pilot:
-            await inject(pilot, [EpochReceived("arva", "rx", 7, DEFAULT_SLOTS, T0)])
-            table = app.query_one(ChannelTable)
-            assert table.plain.splitlines() == [
+        async with running_app(tmp_path, [EpochReceived("arva", "rx", 7, DEFAULT_SLOTS, T0)]) as (app, _):
+            assert shown(app, ChannelTable) == [
                 " id     d m   δ° zone   true m  err m  d(t)        ",
                 "  4    7.61  -62 mid         —      —             ▄",
                 "  2    9.26    0 mid         —      —             ▄",
@@ -181,12 +178,11 @@ def test_links_rate_errors_and_stale_after_a_clock_advance(tmp_path):
                             dropped_bytes=57, last_data_mono=T0 + 4)  # fmt: skip
 
     async def go():
-        app = make_app(tmp_path, clock=clock)
-        async with app.run_test(size=(80, 24)) as pilot:
-            await inject(pilot, [EpochReceived("arva", "rx", k, DEFAULT_SLOTS, T0 + k) for k in range(5)]
-                         + [LinkStatus("arva", "arva", "rx", "/dev/ttyUSB0", "up", counters)])  # fmt: skip
+        messages = [EpochReceived("arva", "rx", k, DEFAULT_SLOTS, T0 + k) for k in range(5)]
+        async with running_app(tmp_path, [*messages, LinkStatus("arva", "arva", "rx", "/dev/ttyUSB0", "up", counters)],
+                               clock=clock) as (app, pilot):
             links = app.query_one(LinkPanel)
-            assert links.plain.splitlines() == [
+            assert shown(app, LinkPanel) == [
                 "device   link  ep/s cks gap  last  drop",
                 "arva     up     1.0   2   1  0.4s    57",
                 "",

@@ -226,6 +226,7 @@ class AutopilotServer:
 
 @pytest.mark.slow
 @pytest.mark.subprocess
+@pytest.mark.timing
 @pytest.mark.timeout(90)
 def test_logged_mavlink_attitude_is_the_exported_receiver_attitude(tmp_path, scene_file):
     scene = scene_file(SCENE, "scene.toml")

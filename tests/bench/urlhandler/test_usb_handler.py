@@ -1,7 +1,9 @@
 """The usb:// pyserial URL handler, over a fake pyusb backend (pyusb's own code runs)."""
 
+import contextlib
 import threading
 import time
+from collections.abc import Iterator
 
 import pytest
 import serial
@@ -91,28 +93,34 @@ def test_read_size_keeps_the_rest_of_a_packet(devices):
         assert read_all(port) == EPOCH[64:]
 
 
-def test_in_waiting_polls_without_blocking(devices):
+@contextlib.contextmanager
+def polled(devices, timeout: float) -> Iterator[tuple[object, serial.SerialBase]]:
+    """(fake receiver, its usb:// port opened with ``timeout``); on the way out, checks
+    that every transfer was a short poll (POLL_MS), never a blocking one."""
     dev = devices(receiver())
-    with serial.serial_for_url("usb://1234:5678", timeout=1) as port:
+    with serial.serial_for_url("usb://1234:5678", timeout=timeout) as port:
+        yield dev, port
+    assert {ms for _, _, ms in dev.reads} == {protocol_usb.POLL_MS}
+
+
+def test_in_waiting_polls_without_blocking(devices):
+    with polled(devices, timeout=1) as (dev, port):
         t0 = time.monotonic()
         assert port.in_waiting == 0
         assert time.monotonic() - t0 < 0.25  # a blocking transfer would take timeout_ms = 1 s
         dev.feed(EPOCH)
         assert port.in_waiting == len(EPOCH)
         assert port.read(len(EPOCH)) == EPOCH
-    assert {ms for _, _, ms in dev.reads} == {protocol_usb.POLL_MS}
 
 
 def test_non_blocking_read_returns_at_once(devices):
-    dev = devices(receiver())
-    with serial.serial_for_url("usb://1234:5678", timeout=0) as port:
+    with polled(devices, timeout=0) as (dev, port):
         t0 = time.monotonic()
         assert port.read(100) == b""
         assert time.monotonic() - t0 < 0.25  # a blocking transfer would take timeout_ms = 1 s
         dev.feed(EPOCH)
         assert port.read(1000) == EPOCH  # everything already there, still at once
         assert time.monotonic() - t0 < 0.5
-    assert {ms for _, _, ms in dev.reads} == {protocol_usb.POLL_MS}
 
 
 def test_read_timeout_is_respected(devices):

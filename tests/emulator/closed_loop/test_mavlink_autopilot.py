@@ -4,11 +4,9 @@ what SET_MESSAGE_INTERVAL asks for. pymavlink-encoded messages over UDP loopback
 
 import logging
 import math
-import socket
 import time
 
 import pytest
-from scipy.spatial.transform import Rotation
 
 pytest.importorskip("pymavlink")
 from pymavlink import mavutil  # noqa: E402
@@ -21,21 +19,11 @@ from emulator.closed_loop.mavlink import (  # noqa: E402
     frd_ned_to_flu_enu,
 )
 from emulator.pipeline import arva_stream  # noqa: E402
+from mavlink_helpers import free_udp_port, ned_quaternion  # noqa: E402
+from scene_builders import external_mavlink_text  # noqa: E402
 from emulator.receiver.model import measure_one  # noqa: E402
 from emulator.scene.reader import loads_scene  # noqa: E402
 from firmware_proto.sentences import encode_parva  # noqa: E402
-
-
-def free_udp_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-def ned_quaternion(yaw_deg, pitch_deg=0.0, roll_deg=0.0):
-    return Rotation.from_euler("ZYX", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_quat(scalar_first=True)
 
 
 def decoded(*encoded):
@@ -118,23 +106,10 @@ def test_no_warning_when_both_halves_arrive(caplog):
     assert caplog.records == [] and src.warned is None
 
 
-EXTERNAL = """spec = 1
-[[transmitters]]
-id = 1
-position = [15.0, 0.0, 0.0]
-[receiver]
-channels = 1
-[receiver.vehicle]
-controller = "external_mavlink"
-mavlink = "udpin:127.0.0.1:{port}"
-mavlink_origin = [5.0, 0.0, 0.0]
-"""
-
-
 @pytest.mark.slow
 def test_an_ardupilot_like_autopilot_is_greeted_asked_and_ridden():
     port = free_udp_port()
-    stream = arva_stream(loads_scene(EXTERNAL.format(port=port), "ext.toml"), 0)
+    stream = arva_stream(loads_scene(external_mavlink_text(port), "ext.toml"), 0)
     src = stream.receiver.pose_source.start()
     ap = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
     try:

@@ -20,24 +20,12 @@ from emulator.closed_loop.mavlink import MavlinkPoseSource, Pose, frd_ned_to_flu
 from emulator.receiver.model import measure_one  # noqa: E402
 from emulator.scene.reader import loads_scene  # noqa: E402
 from emulator.pipeline import arva_stream  # noqa: E402
+from mavlink_helpers import free_udp_port, ned_quaternion  # noqa: E402
+from scene_builders import external_mavlink_text  # noqa: E402
 from firmware_proto.sentences import encode_parva  # noqa: E402
 
 T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # NED -> ENU
 F = np.diag([1.0, -1.0, -1.0])  # FLU -> FRD
-
-
-def free_udp_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-def ned_quaternion(yaw_deg, pitch_deg=0.0, roll_deg=0.0):
-    """[w, x, y, z] of FRD -> NED for aerospace yaw (from north, clockwise), pitch, roll."""
-    r = Rotation.from_euler("ZYX", [yaw_deg, pitch_deg, roll_deg], degrees=True)
-    return r.as_quat(scalar_first=True)
 
 
 # --------------------------------------------------------------------------- frames
@@ -143,22 +131,9 @@ def test_wait_times_out_on_a_silent_link():
         assert time.monotonic() - t0 < 1.0  # reads block at most 0.2 s
 
 
-EXTERNAL = """spec = 1
-[[transmitters]]
-id = 1
-position = [15.0, 0.0, 0.0]
-[receiver]
-channels = 1
-[receiver.vehicle]
-controller = "external_mavlink"
-mavlink = "udpin:127.0.0.1:{port}"
-mavlink_origin = [5.0, 0.0, 0.0]
-"""
-
-
 def test_receiver_rides_along_the_autopilot():
     port = free_udp_port()
-    scene = loads_scene(EXTERNAL.format(port=port), "ext.toml")
+    scene = loads_scene(external_mavlink_text(port), "ext.toml")
     stream = arva_stream(scene, 0)
     src = stream.receiver.pose_source.start()
     out = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1)
@@ -178,7 +153,7 @@ def test_receiver_rides_along_the_autopilot():
 
 
 def test_before_any_message_epochs_use_the_start_pose():
-    scene = loads_scene(EXTERNAL.format(port=free_udp_port()), "ext.toml")
+    scene = loads_scene(external_mavlink_text(free_udp_port()), "ext.toml")
     stream = arva_stream(scene, 0)
     try:
         # The vehicle's start pose: (0, 0) at r_s = 1 m, yaw 0 -> 15.03 m from the dipole.
@@ -215,7 +190,7 @@ def test_without_the_extra_the_emulator_says_install_it(tmp_path):
     from without_extra import run_without
 
     scene = tmp_path / "ext.toml"
-    scene.write_text(EXTERNAL.format(port=free_udp_port()))
+    scene.write_text(external_mavlink_text(free_udp_port()))
     p = run_without("pymavlink", "emulator.cli:main", ["--scene", str(scene), "--port", "-", "--frames", "2", "--speed", "0"])
     assert (p.returncode, p.stdout) == (2, "")
     assert p.stderr.splitlines()[-1] == (
@@ -226,13 +201,13 @@ def test_without_the_extra_the_emulator_says_install_it(tmp_path):
 def test_serial_link_baud_comes_from_the_scene():
     from firmware_proto.errors import SceneError
 
-    scene = loads_scene(EXTERNAL.format(port=14551) + "mavlink_baud = 921600\n", "ext.toml")
+    scene = loads_scene(external_mavlink_text(14551) + "mavlink_baud = 921600\n", "ext.toml")
     stream = arva_stream(scene, 0)
     assert stream.receiver.pose_source.baud == 921600
-    assert loads_scene(EXTERNAL.format(port=14551), "ext.toml").receivers[0].vehicle.mavlink_baud == 57600
+    assert loads_scene(external_mavlink_text(14551), "ext.toml").receivers[0].vehicle.mavlink_baud == 57600
     with pytest.raises(SceneError, match=r"ext.toml: receiver.vehicle.mavlink_baud: must be in 50..12000000, got 7$"):
-        loads_scene(EXTERNAL.format(port=14551) + "mavlink_baud = 7\n", "ext.toml")
-    flux = EXTERNAL.format(port=14551).replace('"external_mavlink"', '"flux"').split("mavlink = ")[0]
+        loads_scene(external_mavlink_text(14551) + "mavlink_baud = 7\n", "ext.toml")
+    flux = external_mavlink_text(14551).replace('"external_mavlink"', '"flux"').split("mavlink = ")[0]
     with pytest.raises(SceneError, match=r'receiver.vehicle.mavlink_baud: only with controller = "external_mavlink"$'):
         loads_scene(flux + "mavlink_baud = 9600\n", "ext.toml")
 
@@ -243,7 +218,7 @@ def test_truth_reports_the_mavlink_pose_the_stream_uses(arva_emulator):
     """Issue 29: ``truth`` reported the start pose of a receiver driven by MAVLink while
     its epochs used the autopilot's pose."""
     port = free_udp_port()
-    emu = arva_emulator(scene=tomllib.loads(EXTERNAL.format(port=port)), clock="step")
+    emu = arva_emulator(scene=tomllib.loads(external_mavlink_text(port)), clock="step")
     start = emu.truth()["receivers"][0]
     assert start["position"] == [0.0, 0.0, 1.0]  # the vehicle's start pose, before any message
     assert emu.step(1) == 1  # the first epoch opens the link

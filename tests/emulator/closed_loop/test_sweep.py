@@ -43,6 +43,7 @@ def test_burials_are_seeded_and_in_range():
 
 
 @pytest.mark.slow
+@pytest.mark.timing  # the speed-up over real time
 def test_small_sweep_summary_is_exact(local):
     assert [len(local.rows), local.scene_s] == [39, 5977.0]  # 3 strategies x 13 transmitters
     s = {row["strategy"]: row for row in local.summary}

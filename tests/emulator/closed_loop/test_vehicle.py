@@ -9,6 +9,7 @@ from emulator.closed_loop.loop import ClosedLoop
 from emulator.scene.reader import loads_scene
 from emulator.closed_loop.vehicle import UAV, FlatTerrain, GridTerrain, RangeSensor
 from firmware_proto.errors import SceneError
+from scene_builders import vehicle_scene_text
 
 
 # --------------------------------------------------------------------------- terrain
@@ -111,20 +112,13 @@ def test_range_sensor_noise_is_seeded_white_and_unbiased():
 
 
 # --------------------------------------------------------------------------- scenes
-VEHICLE = """spec = 1
-seed = 3
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[receiver]
-channels = 2
-[receiver.vehicle]
-{body}
-"""
+def vehicle_text(body: str) -> str:
+    """Transmitter 1, a 2-channel receiver on a vehicle whose table is ``body``, seed 3."""
+    return vehicle_scene_text(body, seed=3)
 
 
 def vehicle_scene(body, source="v.toml"):
-    return loads_scene(VEHICLE.format(body=body), source)
+    return loads_scene(vehicle_text(body), source)
 
 
 def test_vehicle_defaults_and_start_pose():
@@ -137,7 +131,7 @@ def test_vehicle_defaults_and_start_pose():
 
 
 def test_scene_without_vehicle_has_none():
-    s = loads_scene(VEHICLE.format(body="").replace("[receiver.vehicle]\n", "position = [0, 0, 0]\n"), "n.toml")
+    s = loads_scene(vehicle_text("").replace("[receiver.vehicle]\n", "position = [0, 0, 0]\n"), "n.toml")
     assert s.receiver.vehicle is None
 
 
@@ -167,7 +161,7 @@ def test_vehicle_errors_name_the_key(body, message):
 
 @pytest.mark.parametrize("key, line", [("position", "position = [0, 0, 0]"), ("gps", "gps = true")])
 def test_receiver_with_vehicle_rejects_its_own_pose_and_gps(key, line):
-    text = VEHICLE.format(body="").replace("channels = 2\n", f"channels = 2\n{line}\n")
+    text = vehicle_text("").replace("channels = 2\n", f"channels = 2\n{line}\n")
     with pytest.raises(SceneError, match=rf"receiver\.{key}: not allowed with receiver\.vehicle"):
         loads_scene(text, "v.toml")
 
@@ -177,7 +171,7 @@ def test_dem_path_is_relative_to_the_scene_file(tmp_path):
     np.save(tmp_path / "dem.npy", z)
     scene_file = tmp_path / "s.toml"
     scene_file.write_text(
-        VEHICLE.format(body='terrain = "dem.npy"\nterrain_origin = [-1, -1]\nterrain_spacing = [1, 1]')
+        vehicle_text('terrain = "dem.npy"\nterrain_origin = [-1, -1]\nterrain_spacing = [1, 1]')
     )
     from emulator.scene.reader import load_scene
 
@@ -185,7 +179,7 @@ def test_dem_path_is_relative_to_the_scene_file(tmp_path):
     assert s.receiver.vehicle.terrain.height(0.3, 0.3) == 7.0
     assert s.receiver.trajectory.positions[0].tolist() == [0.0, 0.0, 8.0]
     missing = tmp_path / "m.toml"
-    missing.write_text(VEHICLE.format(body='terrain = "nope.csv"\nterrain_origin = [0, 0]\nterrain_spacing = [1, 1]'))
+    missing.write_text(vehicle_text('terrain = "nope.csv"\nterrain_origin = [0, 0]\nterrain_spacing = [1, 1]'))
     with pytest.raises(SceneError, match=r"receiver\.vehicle\.terrain: cannot read '.*nope\.csv'"):
         load_scene(missing)
 
@@ -196,10 +190,11 @@ def test_height_hold_converges_to_r_s_over_a_slope(tmp_path):
     np.save(tmp_path / "dem.npy", g.z)
     f = tmp_path / "s.toml"
     f.write_text(
-        VEHICLE.format(
-            body='start = [-8.0, 0.0]\nstart_height = 4.0\nr_s = 1.5\nrange_sigma_m = 0.01\n'
-            'terrain = "dem.npy"\nterrain_origin = [-10, -5]\nterrain_spacing = [2, 1]'
-        ).replace("position = [20.0, 5.0, 0.0]", "position = [200.0, 0.0, 0.0]")  # out of range: hover
+        vehicle_scene_text(
+            'start = [-8.0, 0.0]\nstart_height = 4.0\nr_s = 1.5\nrange_sigma_m = 0.01\n'
+            'terrain = "dem.npy"\nterrain_origin = [-10, -5]\nterrain_spacing = [2, 1]',
+            tx_position=[200.0, 0.0, 0.0], seed=3,  # out of range: hover
+        )
     )
     from emulator.scene.reader import load_scene
 

@@ -2,6 +2,7 @@
 real sockets, the step clock on real ptys, faults in scene time. Emulators are started
 with the arva plugin's fixture or the harness library; every read has a timeout."""
 
+import contextlib
 import json
 import os
 import socket
@@ -9,6 +10,7 @@ import stat
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from functools import reduce
 
 import pytest
@@ -273,6 +275,16 @@ def test_stall_and_corrupt_in_scene_time(arva_emulator):
         assert len(got) == len(sent) and got[4:] == sent[4:] and all(x != y for x, y in zip(got[:4], sent[:4]))
 
 
+@contextlib.contextmanager
+def real_clock_reader(arva_emulator, rate_hz: float) -> Iterator[tuple[object, object]]:
+    """(emulator, its pty) for ONE at ``rate_hz`` on the real clock at 1x, once the first
+    two epochs have been read."""
+    emu = arva_emulator(scene=dict(ONE, rate_hz=rate_hz), clock="real", speed=1.0)
+    with emu.open(timeout=5) as ser:
+        read_lines(ser, 2)
+        yield emu, ser
+
+
 @pytest.mark.slow
 @pytest.mark.pty
 def test_real_clock_pause_resume_skips_missed_epochs(arva_emulator):
@@ -296,9 +308,7 @@ def test_real_clock_pause_resume_skips_missed_epochs(arva_emulator):
 @pytest.mark.slow
 @pytest.mark.pty
 def test_real_clock_changes_take_effect_from_the_epoch_named(arva_emulator):
-    emu = arva_emulator(scene=dict(ONE, rate_hz=20.0), clock="real", speed=1.0)
-    with emu.open(timeout=5) as ser:
-        read_lines(ser, 2)
+    with real_clock_reader(arva_emulator, 20.0) as (emu, ser):
         k = emu.set_transmitter(1, position=[10.0, 0.0, 0.0])
         lines = read_lines(ser, 40)
         by_seq = {int(line.split(b",")[1]): line for line in lines}
@@ -347,9 +357,7 @@ def test_set_receiver_by_id_pins_that_receiver_only(arva_emulator):
 @pytest.mark.slow
 @pytest.mark.pty
 def test_real_clock_stall_holds_bytes_in_scene_time_and_loses_none(arva_emulator):
-    emu = arva_emulator(scene=dict(ONE, rate_hz=10.0), clock="real", speed=1.0)
-    with emu.open(timeout=5) as ser:
-        read_lines(ser, 2)
+    with real_clock_reader(arva_emulator, 10.0) as (emu, ser):
         k = emu.fault("stall", ms=600)
         t_fault = time.monotonic()
         arrivals = []

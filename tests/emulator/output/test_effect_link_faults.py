@@ -79,6 +79,16 @@ def payloads(count, size, seed=0):
     return [rng.integers(0, 256, size, dtype=np.uint8).tobytes() for _ in range(count)]
 
 
+def send_a_megabyte(cfg, seed):
+    """A faulty port (``cfg``, ``seed``) after 1000 writes of 1000 random bytes:
+    (port, the port beneath it, the writes)."""
+    port, inner, _ = make(cfg, seed=seed)
+    data = payloads(1000, 1000)
+    for d in data:
+        port.write(d)
+    return port, inner, data
+
+
 def within_5_sigma(k, n, p):
     return abs(k - n * p) <= 5 * math.sqrt(n * p * (1 - p))
 
@@ -183,10 +193,7 @@ def is_subsequence(small, big):
 
 def test_loss_rate_and_order_preserved():
     p = 0.03
-    port, inner, _ = make(LinkFaultConfig(loss=p), seed=2)
-    data = payloads(1000, 1000)
-    for d in data:
-        port.write(d)
+    port, inner, data = send_a_megabyte(LinkFaultConfig(loss=p), seed=2)
     n = 1_000_000
     assert within_5_sigma(port.bytes_lost, n, p)
     assert len(inner.received) + port.bytes_lost == n and accounted(port)
@@ -197,10 +204,7 @@ def test_loss_rate_and_order_preserved():
 
 def test_corruption_rate_and_every_corrupted_byte_changes():
     p = 0.01
-    port, inner, _ = make(LinkFaultConfig(corrupt=p), seed=3)
-    data = payloads(1000, 1000)
-    for d in data:
-        port.write(d)
+    port, inner, data = send_a_megabyte(LinkFaultConfig(corrupt=p), seed=3)
     sent = np.frombuffer(b"".join(data), np.uint8)
     got = np.frombuffer(inner.received, np.uint8)
     assert got.size == sent.size
@@ -216,9 +220,7 @@ def test_corruption_rate_and_every_corrupted_byte_changes():
 
 
 def test_loss_and_corruption_together():
-    port, inner, _ = make(LinkFaultConfig(loss=0.1, corrupt=0.02), seed=4)
-    for d in payloads(1000, 1000):
-        port.write(d)
+    port, inner, _ = send_a_megabyte(LinkFaultConfig(loss=0.1, corrupt=0.02), seed=4)
     n = 1_000_000
     assert within_5_sigma(port.bytes_lost, n, 0.1)
     kept = n - port.bytes_lost

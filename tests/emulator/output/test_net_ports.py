@@ -4,6 +4,7 @@ line settings honoured by an emulated UART."""
 
 from __future__ import annotations
 
+import functools
 import select
 import socket
 import struct
@@ -32,13 +33,6 @@ from firmware_proto.errors import InputError
 EMULATE = [sys.executable, "-m", "emulator.cli"]
 
 
-def reference(*args: str) -> bytes:
-    """What ``--port -`` prints for the same scene and frames."""
-    proc = subprocess.run([*EMULATE, "--port", "-", "--speed", "0", *args], capture_output=True, timeout=60)
-    assert proc.returncode == 0, proc.stderr
-    return proc.stdout
-
-
 def start(cmd: list[str], announcements: int = 1, timeout: float = 20.0):
     """Start ``cmd``; return it and ``{label: url}`` from its announcement lines."""
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0)
@@ -62,6 +56,30 @@ def read_exactly(read, n: int, timeout: float = 20.0) -> bytes:
         assert time.monotonic() < deadline, f"got {len(got)} of {n} bytes"
         got += read(n - len(got))
     return got
+
+
+@functools.cache
+def reference(*args: str) -> bytes:
+    """What ``--port -`` prints for the same scene and frames (run once per argument list)."""
+    proc = subprocess.run([*EMULATE, "--port", "-", "--speed", "0", *args], capture_output=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout
+
+
+def serve(kind: str, frames: int, speed: str = "0", delay: str = "5") -> tuple[bytes, subprocess.Popen, str]:
+    """The default scene's first ``frames`` epochs as ``--port -`` prints them, an emulator
+    serving them on a ``kind`` (rfc2217-server, tcp-server) port of 127.0.0.1 after
+    ``delay`` seconds (for the clients to connect), and the URL it announced."""
+    expected = reference("--frames", str(frames))
+    proc, urls = start([*EMULATE, "--port", f"{kind}:127.0.0.1:0", "--frames", str(frames), "--speed", speed,
+                        "--delay", delay])
+    return expected, proc, urls["arva"]
+
+
+def host_port(url: str) -> tuple[str, int]:
+    """(host, port) of a ``socket://`` or ``rfc2217://`` URL."""
+    host, port = url.split("://", 1)[1].rsplit(":", 1)
+    return host, int(port)
 
 
 def finish(proc, timeout: float = 20.0) -> str:
@@ -179,13 +197,11 @@ def test_loopback_only_unless_allowed():
 @pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_rfc2217_clients_read_exactly_the_stdout_sentences():
-    expected = reference("--frames", "10")
-    proc, urls = start([*EMULATE, "--port", "rfc2217-server:127.0.0.1:0", "--frames", "10", "--speed", "0",
-                        "--delay", "5"])
-    assert urls["arva"].startswith("rfc2217://127.0.0.1:")
+    expected, proc, url = serve("rfc2217-server", 10)
+    assert url.startswith("rfc2217://127.0.0.1:")
     # Two clients at once, one at 9600 baud (1070 bytes fit its 4 KB FIFO): both get it all.
-    with serial.serial_for_url(urls["arva"], baudrate=9600, timeout=2) as a, \
-            serial.serial_for_url(urls["arva"], baudrate=115200, timeout=2) as b:
+    with serial.serial_for_url(url, baudrate=9600, timeout=2) as a, \
+            serial.serial_for_url(url, baudrate=115200, timeout=2) as b:
         # Read both as the data comes: pyserial's client refuses to read what it buffered
         # once the server has closed (the emulator does at its last frame).
         got = {a: b"", b: b""}
@@ -209,10 +225,8 @@ def test_rfc2217_clients_read_exactly_the_stdout_sentences():
 def test_a_baud_too_low_for_the_stream_drops_what_the_uart_cannot_carry():
     # As fast as possible, 100 epochs go out in one write: a 1200 baud line takes its
     # FIFO's worth at once and drops the rest, as a device's UART would.
-    expected = reference("--frames", "100")
-    proc, urls = start([*EMULATE, "--port", "rfc2217-server:127.0.0.1:0", "--frames", "100", "--speed", "0",
-                        "--delay", "5"])
-    with serial.serial_for_url(urls["arva"], baudrate=1200, timeout=2) as s:
+    expected, proc, url = serve("rfc2217-server", 100)
+    with serial.serial_for_url(url, baudrate=1200, timeout=2) as s:
         got = read_exactly(s.read, UART_FIFO_BYTES)
     assert got == expected[:UART_FIFO_BYTES]
     err = finish(proc)
@@ -228,11 +242,9 @@ def test_client_changing_the_baud_mid_stream():
     # 20 epochs/s of ~107 bytes (about 2140 bytes/s): fine at 115200 baud, too much for
     # 1200 (120 bytes/s), where the UART's FIFO fills and then bytes drop.
     frames = 80
-    expected = reference("--frames", str(frames))
-    proc, urls = start([*EMULATE, "--port", "rfc2217-server:127.0.0.1:0", "--frames", str(frames),
-                        "--speed", "20", "--delay", "5"])
+    expected, proc, url = serve("rfc2217-server", frames, speed="20")
     received = b""
-    with serial.serial_for_url(urls["arva"], baudrate=115200, timeout=1.0) as s:
+    with serial.serial_for_url(url, baudrate=115200, timeout=1.0) as s:
         head = read_exactly(s.read, len(b"".join(expected.splitlines(keepends=True)[:8])))  # 2 epochs
         assert head == expected[: len(head)]
         s.baudrate = 1200
@@ -261,11 +273,8 @@ def test_client_changing_the_baud_mid_stream():
 @pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_tcp_server_with_a_plain_socket():
-    expected = reference("--frames", "10")
-    proc, urls = start([*EMULATE, "--port", "tcp-server:127.0.0.1:0", "--frames", "10", "--speed", "0",
-                        "--delay", "5"])
-    host, port = urls["arva"].removeprefix("socket://").rsplit(":", 1)
-    with socket.create_connection((host, int(port)), timeout=5) as sock:
+    expected, proc, url = serve("tcp-server", 10)
+    with socket.create_connection(host_port(url), timeout=5) as sock:
         sock.settimeout(15)  # longer than the emulator's --delay 5: the first bytes come after it
         got = read_exactly(sock.recv, len(expected))
         assert sock.recv(1) == b""  # the emulator closes the connection when it ends
@@ -295,11 +304,8 @@ def test_a_fixed_port_is_the_one_served_and_a_busy_one_is_an_error():
 @pytest.mark.subprocess
 @pytest.mark.timeout(60)
 def test_a_vanished_client_costs_nothing():
-    expected = reference("--frames", "40")
-    proc, urls = start([*EMULATE, "--port", "tcp-server:127.0.0.1:0", "--frames", "40", "--speed", "20",
-                        "--delay", "3"])
-    host, port = urls["arva"].removeprefix("socket://").rsplit(":", 1)
-    sock = socket.create_connection((host, int(port)), timeout=5)
+    expected, proc, url = serve("tcp-server", 40, speed="20", delay="3")
+    sock = socket.create_connection(host_port(url), timeout=5)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
     sock.close()  # reset, gone before the first epoch
     err = finish(proc)  # the run ends on time (finish() waits 20 s at most)
@@ -350,9 +356,8 @@ def test_replayed_session_served_over_rfc2217(tmp_path):
 def test_a_malformed_rfc2217_request_disconnects_that_client_only():
     lines: list[str] = []
     port = ServerPort("arva", parse_server_spec("rfc2217-server:127.0.0.1:0"), notify=lines.append)
-    host, number = port.path.removeprefix("rfc2217://").rsplit(":", 1)
     try:
-        with socket.create_connection((host, int(number)), timeout=5) as sock:
+        with socket.create_connection(host_port(port.path), timeout=5) as sock:
             sock.settimeout(5)
             # IAC SB COM-PORT-OPTION SET-BAUDRATE with one byte instead of four, IAC SE
             sock.sendall(b"\xff\xfa\x2c\x01\x00\xff\xf0")

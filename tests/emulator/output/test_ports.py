@@ -10,7 +10,7 @@ from functools import reduce
 
 import pytest
 import serial
-from scene_builders import one_tx, two_rx
+from scene_builders import link_faults_scene, one_tx, two_rx
 
 from emulator.testing import EmulatorProcess, process_rss_kb, read_lines
 
@@ -168,20 +168,7 @@ def test_two_streams_cannot_share_stdout(scene_file):
     )
 
 
-UNPLUG = """spec = 1
-seed = 1
-rate_hz = 10.0
-[effects]
-link_faults = true
-[link_faults]
-disconnect_every_s = 1.0
-disconnect_s = 0.3
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[receiver]
-position = [0.0, 0.0, 0.0]
-"""
+UNPLUG = link_faults_scene(1, rate_hz=10.0, disconnect_every_s=1.0, disconnect_s=0.3)
 
 
 @pytest.mark.pty

@@ -8,8 +8,9 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+import model_properties as props
 import reference_model as ref
-from emulator.receiver.model import ZONE_INNER, ZONE_MID, ZONE_OUTER, ModelParams, measure, measure_one
+from emulator.receiver.model import ZONE_INNER, ZONE_OUTER, ModelParams, measure, measure_one
 from emulator.receiver.noise import NoiseEffect
 from firmware_proto.errors import InputError, PoseError
 
@@ -186,18 +187,8 @@ def test_even_in_p(p, rx_q, tx_q):
 @PROPERTY
 @given(direction=vec, rx_q=quat, tx_q=quat)
 def test_d_is_monotone_along_a_ray(direction, rx_q, tx_q):
-    norm = math.hypot(*direction)
-    assume(norm > 1e-3)
-    t = np.geomspace(1e-3, 200, 400)
-    pts = np.outer(t, np.array(direction) / norm)
-    m = measure(pts, np.tile(rx_q, (len(t), 1)), [ORIGIN], [tx_q], TWO)
-    d = m.d[:, 0]
-    outer = m.zone[:, 0] == ZONE_OUTER
-    if outer.any():
-        first = int(np.argmax(outer))
-        assert outer[first:].all(), "once out of range along a ray, always out of range"
-        d = d[:first]
-    assert np.all(np.diff(d) >= 0)
+    assume(math.hypot(*direction) > 1e-3)
+    props.assert_d_monotone_along_a_ray(direction, rx_q, tx_q, TWO)
 
 
 @PROPERTY
@@ -229,11 +220,4 @@ def test_any_finite_input_gives_in_range_integers(rx_p, rx_q, tx_p, tx_q, noise,
     except PoseError as exc:
         assert exc.field in ("receiver.orientation", "transmitter.orientation")
         return
-    d, delta, zone = int(m.d[0, 0]), int(m.delta[0, 0]), int(m.zone[0, 0])
-    assert np.all(np.isfinite(m.field))
-    if zone == ZONE_OUTER:
-        assert (d, delta) == (-1, -1)
-    elif zone == ZONE_INNER:
-        assert 0 <= d <= 300 and delta == 0
-    else:
-        assert zone == ZONE_MID and 300 <= d <= 5000 and -89 <= delta <= 89
+    props.assert_one_reading_in_range(m)

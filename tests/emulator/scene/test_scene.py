@@ -9,16 +9,11 @@ import pytest
 
 from emulator.receiver.receiver import Receiver
 from emulator.scene.reader import default_scene, load_scene, loads_scene
+from emulator.testing.scene_toml import dumps
 from firmware_proto.errors import SceneError
+from scene_builders import one_tx
 
-MINIMAL = """
-spec = 1
-[[transmitters]]
-id = 1
-position = [20.0, 5.0, 0.0]
-[receiver]
-position = [0.0, 0.0, 0.0]
-"""
+MINIMAL = dumps(one_tx())  # transmitter 1, the receiver at the origin, nothing else
 
 
 def test_minimal_scene_defaults():
