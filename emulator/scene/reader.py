@@ -1,10 +1,11 @@
 """Scene files (BRIEF 5): versioned TOML describing transmitters, a receiver and effects.
 
-Validation is strict, in the pyvisa-sim manner: every key is known, every value has its
-type, length and range checked (:class:`~emulator.scene.tables.TableReader`), and the
-first problem raises :class:`SceneError` whose text is ``FILE: key.path: reason`` (one
-line, naming the exact key). The result is a :class:`~emulator.scene.types.Scene`; the
-scene types are also importable from here.
+Validation is strict, in the pyvisa-sim manner: the document is converted to the schema
+structs of :mod:`emulator.scene.tables` (every key known, every value's type, length and
+range checked), then the rules across keys are checked here (ids unique, waypoint times
+increasing, quaternions normalisable, effects enabled for their tables...). The first
+problem raises :class:`SceneError` whose text is ``FILE: key.path: reason`` (one line,
+naming the exact key). The result is a :class:`~emulator.scene.types.Scene`.
 """
 
 from __future__ import annotations
@@ -13,84 +14,38 @@ import datetime as _dt
 import math
 import tomllib
 from dataclasses import replace
-
 from importlib import resources
 from pathlib import Path
-from typing import Any
 
+import msgspec
 import numpy as np
 
-from firmware_proto.errors import InputError, SceneError
-from firmware_proto.sentences import MAX_CHANNELS, MAX_D_CM, MAX_ID
+from firmware_proto.errors import InputError, PoseError, SceneError
+from firmware_proto.sentences import MAX_D_CM
 
 from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
 from emulator.files import MAX_TOML_BYTES, FileRefused, read_regular
 from emulator.frames.geodesy import Origin
-from emulator.frames.trajectory import Trajectory
+from emulator.frames.rotation import normalize_quaternions
+from emulator.frames.trajectory import IDENTITY, Trajectory
 from emulator.output.link_faults import LinkFaultConfig
-from emulator.receiver.model import ANTENNAS, ModelParams
+from emulator.receiver.model import ModelParams
 from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
-from emulator.scene.limits import EFFECT_PARAM_LIMITS, MAX_CONTROL_STEPS_PER_EPOCH, MIN_Q, MODEL_LIMITS, stream_labels
-from emulator.scene.tables import TableReader, type_name
-from emulator.scene.types import (
-    SPEC_VERSION,
-    Effects,
-    GroundTruthSpec,
-    ReceiverSpec,
-    Scene,
-    Transmitter,
-)
+from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_Q, MIN_WAYPOINT_DT_S, MODEL_LIMITS, stream_labels
+from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint
+from emulator.scene.types import SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter
+from emulator.schema import Int, type_name
 from emulator.truth.error import GroundTruthErrorConfig
 
 DEFAULT_SCENE = "default.toml"
-
-
-_TOP_KEYS = {
-    "spec", "seed", "rate_hz", "name", "description", "model", "effects", "transmitters", "receiver", "receivers",
-    "pulses", "quantize", "ground_truth_error", "link_faults", "origin", "ground_truth",
-}
-
-_MODEL_KEYS = {"kappa_eq", "moment", "r_inner", "r_outer", "r_en", "q"}
-_EFFECT_KEYS = {"noise", "research_sentences", "pulses", "quantize", "ground_truth_error", "link_faults"}
-_TX_KEYS = {"id", "position", "orientation", "path", "pulse_period_ms", "pulse_phase_ms", "gps", "attitude"}
-
-# Parameter tables of the effects: key -> kind ("number", "integer", "string",
-# ("vector", n), "strings"). Ranges are checked by each effect's config class.
-_EFFECT_PARAMS: dict[str, dict[str, object]] = {
-    "pulses": {"period_ms": ("vector", 2), "pulse_ms": "number", "drift_ppm": "number", "overlap": "string"},
-    "quantize": {
-        "profile": "string",
-        "delta_step_deg": "integer",
-        "d_step_cm": "integer",
-        "d_far_cm": "integer",
-        "d_step_far_cm": "integer",
-    },
-    "ground_truth_error": {
-        "gps_sigma_m": ("vector", 3),
-        "gps_bias_m": ("vector", 3),
-        "gps_dropout": "number",
-        "attitude_sigma_deg": "number",
-    },
-    "link_faults": {
-        "loss": "number",
-        "corrupt": "number",
-        "split": "number",
-        "stall": "number",
-        "stall_ms": "number",
-        "disconnect_every_s": "number",
-        "disconnect_s": "number",
-        "streams": "strings",
-    },
-}
 _EFFECT_CONFIGS = {
     "pulses": PulseConfig,
     "quantize": QuantizeConfig,
     "ground_truth_error": GroundTruthErrorConfig,
     "link_faults": LinkFaultConfig,
 }
-_RX_KEYS = {"id", "channels", "position", "orientation", "path", "gps", "attitude", "vehicle", "antennas", "profile"}
 
 
 def parse_scene(data: dict, source: str) -> Scene:
@@ -98,72 +53,44 @@ def parse_scene(data: dict, source: str) -> Scene:
     rd = TableReader(source)
     if "spec" not in data:
         raise rd.fail("spec", f"missing (this program reads spec = {SPEC_VERSION})")
-    spec = rd.integer(data, "spec", "spec", None, 1, 2**31)
+    spec = rd.convert(data["spec"], Int(1, 2**31), "spec")
     if spec > SPEC_VERSION:
         raise rd.fail("spec", f"version {spec} is newer than this program supports ({SPEC_VERSION})")
-    rd.known_keys(data, "", _TOP_KEYS)
-    seed = rd.integer(data, "seed", "seed", 0, 0, 2**63 - 1)
-    profiles = _profiles(rd, data)
-    rate_hz = rd.rate(data, "rate_hz", "rate_hz", 1.0 if "rate_hz" in data else _profile_rate(rd, profiles))
-    name = data.get("name", "")
-    if not isinstance(name, str):
-        raise rd.fail("name", f"expected a string, got {type_name(name)}")
-    if not isinstance(data.get("description", ""), str):
-        raise rd.fail("description", f"expected a string, got {type_name(data['description'])}")
-
-    m = rd.table(data, "model", "model", _MODEL_KEYS)
-    defaults = ModelParams()
-    q = tuple(rd.vector(m["q"], "model.q", 3)) if "q" in m else defaults.q
-    for i, qi in enumerate(q):
-        if not 0 < qi <= 1:
-            raise rd.fail(f"model.q[{i}]", f"must be in (0, 1], got {qi:g}")
-        if qi < MIN_Q:
-            raise rd.fail(f"model.q[{i}]", f"must be >= {MIN_Q:g}, got {qi:g}")
-    values = {
-        k: rd.number(m, k, f"model.{k}", getattr(defaults, k), positive=True, limits=MODEL_LIMITS[k])
-        for k in sorted(_MODEL_KEYS - {"q"})
-    }
+    doc: SceneTable = rd.convert(data, SceneTable, "")
+    rx_tables = [(r, f"receivers[{i}]") for i, r in enumerate(doc.receivers or [])] or (
+        [(doc.receiver, "receiver")] if doc.receiver else []
+    )
+    profiles = _profiles(rd, rx_tables)
+    rate_hz = doc.rate_hz if doc.rate_hz is not None else _profile_rate(rd, profiles)
+    model_keys = _given(doc.model)
     try:
-        model = ModelParams(q=q, **values)
+        model = ModelParams(**model_keys)
     except InputError as exc:
         raise rd.fail("model", str(exc)) from None
 
-    e = rd.table(data, "effects", "effects", _EFFECT_KEYS)
-    enabled = {k: rd.boolean(e, k, f"effects.{k}", False) for k in sorted(_EFFECT_KEYS)}
-
-    raw_txs = data.get("transmitters", [])
-    if not isinstance(raw_txs, list):
-        raise rd.fail("transmitters", f"expected an array of tables ([[transmitters]]), got {type_name(raw_txs)}")
     transmitters = []
     pulse_periods: dict[int, float] = {}
     pulse_phases: dict[int, float] = {}
     seen: dict[int, int] = {}
-    for i, tx in enumerate(raw_txs):
+    for i, tx in enumerate(doc.transmitters):
         path = f"transmitters[{i}]"
-        if not isinstance(tx, dict):
-            raise rd.fail(path, f"expected a table, got {type_name(tx)}")
-        rd.known_keys(tx, path, _TX_KEYS)
-        tx_id = rd.integer(tx, "id", f"{path}.id", None, 0, MAX_ID)
-        if tx_id in seen:
-            raise rd.fail(f"{path}.id", f"duplicate id {tx_id} (also transmitters[{seen[tx_id]}].id)")
-        seen[tx_id] = i
-        transmitters.append(
-            Transmitter(
-                tx_id,
-                rd.trajectory(tx, path),
-                rd.boolean(tx, "gps", f"{path}.gps", False),
-                rd.boolean(tx, "attitude", f"{path}.attitude", False),
-            )
-        )
+        if tx.id in seen:
+            raise rd.fail(f"{path}.id", f"duplicate id {tx.id} (also transmitters[{seen[tx.id]}].id)")
+        seen[tx.id] = i
+        transmitters.append(Transmitter(tx.id, _trajectory(rd, tx, path), tx.gps, tx.attitude))
         for key, target in (("pulse_period_ms", pulse_periods), ("pulse_phase_ms", pulse_phases)):
-            if key in tx:
-                if not enabled["pulses"]:
+            if getattr(tx, key) is not None:
+                if not doc.effects.pulses:
                     raise rd.fail(f"{path}.{key}", "given but effects.pulses is not enabled")
-                target[tx_id] = rd.number(tx, key, f"{path}.{key}", None)
+                target[tx.id] = getattr(tx, key)
     transmitters.sort(key=lambda tx: tx.id)
-    effects = _effects(rd, data, enabled, pulse_periods, pulse_phases)
+    effects = _effects(rd, doc, pulse_periods, pulse_phases)
 
-    receivers = _receivers(rd, data, rate_hz, profiles, m, "quantize" in e)
+    if doc.receiver is not None and doc.receivers is not None:
+        raise rd.fail("receivers", "give either [receiver] or [[receivers]], not both")
+    if not rx_tables:
+        raise rd.fail("receiver", "missing table")
+    receivers = _receivers(rd, rx_tables, rate_hz, profiles, model_keys, doc.effects.quantize is not None)
     for rx in receivers:
         quantize = effects.quantize if rx.display is None else rx.display
         if quantize is not None:
@@ -177,13 +104,53 @@ def parse_scene(data: dict, source: str) -> Scene:
         for i, label in enumerate(effects.link_fault_streams):
             if label not in labels:
                 raise rd.fail(f"link_faults.streams[{i}]", f"no stream {label!r} in this scene (streams: {', '.join(labels)})")
-    origin, ground_truth = _ground_truth(rd, data, transmitters, receivers)
+    origin, ground_truth = _ground_truth(rd, doc, transmitters, receivers)
     if effects.ground_truth_error is not None and not any(d.gps or d.attitude for d in (*transmitters, *receivers)):
         raise rd.fail("effects.ground_truth_error", "no device has gps or attitude streams to apply it to")
     return Scene(
-        source, spec, seed, rate_hz, receivers[0].model or model, effects, tuple(transmitters), receivers, name,
+        source, spec, doc.seed, rate_hz, receivers[0].model or model, effects, tuple(transmitters), receivers, doc.name,
         origin, ground_truth,
     )
+
+
+def _given(table: msgspec.Struct) -> dict:
+    """The keys a table gives (None: not given)."""
+    return {k: v for k, v in msgspec.structs.asdict(table).items() if v is not None}
+
+
+def _quaternion(rd: TableReader, q: tuple[float, ...], path: str) -> list[float]:
+    try:
+        return normalize_quaternions(q, path).tolist()
+    except PoseError as exc:
+        raise rd.fail(path, exc.reason) from None
+
+
+def _trajectory(rd: TableReader, pose: Posed, path: str) -> Trajectory:
+    if pose.path is not None:
+        if pose.position is not None or pose.orientation is not None:
+            raise rd.fail(f"{path}.path", "give either position/orientation or path, not both")
+        return _waypoints(rd, pose.path, f"{path}.path")
+    if pose.position is None:
+        raise rd.fail(f"{path}.position", "missing")
+    return Trajectory.static(pose.position, _quaternion(rd, pose.orientation or IDENTITY, f"{path}.orientation"))
+
+
+def _waypoints(rd: TableReader, waypoints: list[Waypoint], path: str) -> Trajectory:
+    times = np.array([wp.t for wp in waypoints])
+    positions = np.array([wp.position for wp in waypoints])
+    for i in range(1, len(waypoints)):
+        t, before = times[i], times[i - 1]
+        if not t > before:
+            raise rd.fail(f"{path}[{i}].t", f"times must increase strictly, {t:g} follows {before:g}")
+        if t - before < MIN_WAYPOINT_DT_S:
+            raise rd.fail(f"{path}[{i}].t", f"must be at least {MIN_WAYPOINT_DT_S:g} s after {before:g}, got {t:g}")
+        with np.errstate(over="ignore"):  # the segment's speed (GPS truth reports it) must be a float
+            speed = np.abs(positions[i] - positions[i - 1]) / (t - before)
+        if not np.all(np.isfinite(speed)):
+            raise rd.fail(f"{path}[{i}].position", "too far from the waypoint before for the time between them "
+                          "(the speed is beyond the float range)")
+    orientations = [_quaternion(rd, wp.orientation, f"{path}[{i}].orientation") for i, wp in enumerate(waypoints)]
+    return Trajectory(times, positions, np.array(orientations))
 
 
 def _check_quantized_range(rd: TableReader, model: ModelParams, cfg: QuantizeConfig) -> None:
@@ -208,21 +175,16 @@ def _check_model_limits(rd: TableReader, model: ModelParams) -> None:
             raise rd.fail(f"model.q[{i}]", f"must be >= {MIN_Q:g}, got {qi:g}")
 
 
-def _ground_truth(rd: TableReader, data: dict, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
+def _ground_truth(rd: TableReader, doc: SceneTable, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
     """``[origin]`` (geodetic, for GPS) and ``[ground_truth]`` (stream settings)."""
-    o = rd.table(data, "origin", "origin", {"lat", "lon", "alt"})
     origin = None
-    if o:
-        values = {k: rd.number(o, k, f"origin.{k}", 0.0 if k == "alt" else None) for k in ("lat", "lon", "alt")}
+    if doc.origin is not None:
         try:
-            origin = Origin(**values)
+            origin = Origin(doc.origin.lat, doc.origin.lon, doc.origin.alt)
         except InputError as exc:
             raise SceneError(rd.source, "", str(exc)) from None
-    g = rd.table(
-        data, "ground_truth", "ground_truth", {"start_utc", "gps_rate_hz", "attitude_rate_hz", "talker", "lat_lon_decimals"}
-    )
-    defaults = GroundTruthSpec()
-    start = g.get("start_utc", defaults.start_utc)
+    g = doc.ground_truth
+    start = GroundTruthSpec().start_utc if g.start_utc is None else g.start_utc
     if isinstance(start, str):
         try:
             start = _dt.datetime.fromisoformat(start.replace("Z", "+00:00"))
@@ -232,27 +194,15 @@ def _ground_truth(rd: TableReader, data: dict, transmitters, receivers) -> tuple
         raise rd.fail("ground_truth.start_utc", f"expected a date-time, got {type_name(start)}")
     if start.tzinfo is None:
         raise rd.fail("ground_truth.start_utc", "needs a time zone (e.g. 2026-01-15T10:00:00Z)")
-    talker = g.get("talker", defaults.talker)
-    if not (isinstance(talker, str) and len(talker) == 2 and talker.isalpha() and talker.isupper()):
-        raise rd.fail("ground_truth.talker", f"expected two upper-case letters (GP, GN, ...), got {talker!r}")
-    spec = GroundTruthSpec(
-        start.astimezone(_dt.timezone.utc),
-        rd.rate(g, "gps_rate_hz", "ground_truth.gps_rate_hz", defaults.gps_rate_hz),
-        rd.rate(g, "attitude_rate_hz", "ground_truth.attitude_rate_hz", defaults.attitude_rate_hz),
-        talker,
-        rd.integer(g, "lat_lon_decimals", "ground_truth.lat_lon_decimals", defaults.lat_lon_decimals, 4, 7),
-    )
+    spec = GroundTruthSpec(start.astimezone(_dt.timezone.utc), g.gps_rate_hz, g.attitude_rate_hz, g.talker, g.lat_lon_decimals)
     if origin is None:
-        for rx in receivers:
-            if rx.gps:
-                raise rd.fail("origin", f"missing table: receiver {rx.id} has gps = true, which needs a geodetic origin")
-        for tx in transmitters:
-            if tx.gps:
-                raise rd.fail("origin", f"missing table: transmitter {tx.id} has gps = true, which needs a geodetic origin")
+        for kind, device in [("receiver", rx) for rx in receivers] + [("transmitter", tx) for tx in transmitters]:
+            if device.gps:
+                raise rd.fail("origin", f"missing table: {kind} {device.id} has gps = true, which needs a geodetic origin")
     return origin, spec
 
 
-def _effects(rd: TableReader, data: dict, enabled: dict[str, bool], periods: dict, phases: dict) -> Effects:
+def _effects(rd: TableReader, doc: SceneTable, periods: dict, phases: dict) -> Effects:
     """Each enabled effect's config from its own table (``[pulses]``, ``[quantize]`` ...).
 
     A parameter table for an effect that is not enabled is an error: a scene that sets
@@ -260,72 +210,30 @@ def _effects(rd: TableReader, data: dict, enabled: dict[str, bool], periods: dic
     """
     configs: dict[str, object] = {}
     streams: tuple[str, ...] = ()
-    for name, schema in _EFFECT_PARAMS.items():
-        table = rd.table(data, name, name, set(schema))
-        if table and not enabled[name]:
+    for name, config in _EFFECT_CONFIGS.items():
+        table, enabled = getattr(doc, name), bool(getattr(doc.effects, name))
+        if table is not None and not enabled:
             raise rd.fail(name, f"parameters given but effects.{name} is not enabled")
-        if not enabled[name]:
+        if not enabled:
             continue
-        kwargs = {key: _param(rd, table, key, f"{name}.{key}", kind) for key, kind in schema.items() if key in table}
+        kwargs = _given(table) if table is not None else {}
         if name == "link_faults":
             streams = tuple(kwargs.pop("streams", ()))
         if name == "pulses":
             kwargs.update(periods_ms=periods, phases_ms=phases)
         try:
-            configs[name] = _EFFECT_CONFIGS[name](**kwargs)
+            configs[name] = config(**kwargs)
         except InputError as exc:
             raise SceneError(rd.source, "", str(exc)) from None
-    return Effects(
-        noise=enabled["noise"],
-        research_sentences=enabled["research_sentences"],
-        link_fault_streams=streams,
-        **configs,
-    )
+    return Effects(doc.effects.noise, doc.effects.research_sentences, link_fault_streams=streams, **configs)
 
 
-def _param(rd: TableReader, table: dict, key: str, path: str, kind: object):
-    limits = EFFECT_PARAM_LIMITS.get(path)
-    if kind == "number":
-        return rd.number(table, key, path, None, limits=limits)
-    if kind == "integer":
-        return rd.integer(table, key, path, None, -(2**31), 2**31)
-    if kind == "string":
-        value = table[key]
-        if not isinstance(value, str):
-            raise rd.fail(path, f"expected a string, got {type_name(value)}")
-        return value
-    if kind == "strings":
-        value = table[key]
-        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            raise rd.fail(path, "expected an array of strings")
-        return value
-    values = rd.vector(table[key], path, kind[1])
-    if limits is not None:
-        for i, v in enumerate(values):
-            if not limits[0] <= v <= limits[1]:
-                raise rd.fail(f"{path}[{i}]", f"must be within [{limits[0]:.10g}, {limits[1]:.10g}], got {v:g}")
-    return tuple(values)
-
-
-def _receiver_tables(data: dict) -> list[tuple[Any, str]]:
-    """The raw receiver tables with their key paths (unchecked; :func:`_receivers` checks)."""
-    if "receivers" in data and isinstance(data["receivers"], list):
-        return [(r, f"receivers[{i}]") for i, r in enumerate(data["receivers"])]
-    return [(data.get("receiver"), "receiver")]
-
-
-def _profiles(rd: TableReader, data: dict) -> list[ReceiverProfile | None]:
+def _profiles(rd: TableReader, rx_tables: list[tuple[ReceiverTable, str]]) -> list[ReceiverProfile | None]:
     """Each receiver's profile (``profile = "NAME"``), None where it names none."""
     out: list[ReceiverProfile | None] = []
-    for table, path in _receiver_tables(data):
-        name = table.get("profile") if isinstance(table, dict) else None
-        if name is None:
-            out.append(None)
-            continue
-        if not isinstance(name, str):
-            raise rd.fail(f"{path}.profile", f"expected a string, got {type_name(name)}")
+    for table, path in rx_tables:
         try:
-            out.append(load_profile(name))
+            out.append(None if table.profile is None else load_profile(table.profile))
         except InputError as exc:
             raise rd.fail(f"{path}.profile", str(exc)) from None
     return out
@@ -341,19 +249,11 @@ def _profile_rate(rd: TableReader, profiles: list[ReceiverProfile | None]) -> fl
     return next(iter(rates), 1.0)
 
 
-def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, m: dict, r: dict, path: str) -> ModelParams:
+def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, model_keys: dict, r: ReceiverTable) -> ModelParams:
     """Defaults, then the profile, then the scene's ``[model]`` keys, then ``antennas``."""
     base = profile.model if profile is not None else ModelParams()
-    values = {
-        k: rd.number(m, k, f"model.{k}", None, positive=True, limits=MODEL_LIMITS[k])
-        for k in sorted(_MODEL_KEYS - {"q"})
-        if k in m
-    }
-    if "q" in m:
-        values["q"] = tuple(rd.vector(m["q"], "model.q", 3))
-    values["antennas"] = rd.integer(r, "antennas", f"{path}.antennas", base.antennas, min(ANTENNAS), max(ANTENNAS))
     try:
-        model = replace(base, **values)
+        model = replace(base, **model_keys, antennas=base.antennas if r.antennas is None else r.antennas)
     except InputError as exc:
         raise rd.fail("model", str(exc)) from None
     _check_model_limits(rd, model)
@@ -362,69 +262,44 @@ def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, m: dict, r
 
 def _receivers(
     rd: TableReader,
-    data: dict,
-    rate_hz: float = 1.0,
-    profiles: list[ReceiverProfile | None] | None = None,
-    model_keys: dict | None = None,
-    scene_sets_quantize: bool = False,
+    tables: list[tuple[ReceiverTable, str]],
+    rate_hz: float,
+    profiles: list[ReceiverProfile | None],
+    model_keys: dict,
+    scene_sets_quantize: bool,
 ) -> tuple[ReceiverSpec, ...]:
     """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port).
 
     A receiver's ``profile`` gives its class, channels, model constants and display;
     the scene's own keys (``channels``, ``antennas``, ``[model]``, ``effects.quantize``)
     override it."""
-    if "receiver" in data and "receivers" in data:
-        raise rd.fail("receivers", "give either [receiver] or [[receivers]], not both")
-    if "receivers" not in data:
-        tables = [(rd.table(data, "receiver", "receiver", _RX_KEYS, required=True), "receiver")]
-    else:
-        raw = data["receivers"]
-        if not isinstance(raw, list) or not raw:
-            raise rd.fail("receivers", "expected a non-empty array of tables ([[receivers]])")
-        tables = []
-        for i, r in enumerate(raw):
-            if not isinstance(r, dict):
-                raise rd.fail(f"receivers[{i}]", f"expected a table, got {type_name(r)}")
-            rd.known_keys(r, f"receivers[{i}]", _RX_KEYS)
-            tables.append((r, f"receivers[{i}]"))
     out: list[ReceiverSpec] = []
     seen: dict[int, str] = {}
-    for i, (r, path) in enumerate(tables):
-        rx_id = rd.integer(r, "id", f"{path}.id", i + 1, 0, MAX_ID)
+    for i, ((r, path), profile) in enumerate(zip(tables, profiles)):
+        rx_id = i + 1 if r.id is None else r.id
         if rx_id in seen:
             raise rd.fail(f"{path}.id", f"duplicate id {rx_id} (also {seen[rx_id]}.id)")
         seen[rx_id] = path
-        profile = profiles[i] if profiles else None
-        channels = rd.integer(r, "channels", f"{path}.channels", profile.channels if profile else 1, 1, MAX_CHANNELS)
-        model = _receiver_model(rd, profile, model_keys or {}, r, path)
+        channels = r.channels if r.channels is not None else profile.channels if profile else 1
+        model = _receiver_model(rd, profile, model_keys, r)
         display = profile.display if profile is not None and not scene_sets_quantize else None
-        vehicle = _vehicle(rd, r, path, rate_hz) if "vehicle" in r else None
-        out.append(
-            ReceiverSpec(
-                rx_id,
-                channels,
-                rd.trajectory(r, path) if vehicle is None else _start_pose(vehicle),
-                rd.boolean(r, "gps", f"{path}.gps", False),
-                rd.boolean(r, "attitude", f"{path}.attitude", False),
-                vehicle,
-                model,
-                display,
-                profile.name if profile is not None else "",
-            )
-        )
+        vehicle = _vehicle(rd, r, path, rate_hz) if r.vehicle is not None else None
+        trajectory = _trajectory(rd, r, path) if vehicle is None else _start_pose(vehicle)
+        out.append(ReceiverSpec(rx_id, channels, trajectory, r.gps, r.attitude, vehicle, model, display,
+                                profile.name if profile else ""))
     return tuple(out)
 
 
-def _vehicle(rd: TableReader, r: dict, path: str, rate_hz: float) -> VehicleSpec:
+def _vehicle(rd: TableReader, r: ReceiverTable, path: str, rate_hz: float) -> VehicleSpec:
     """``[receiver.vehicle]``: the receiver rides on a vehicle (emulator.closed_loop.vehicle)."""
     for key in ("position", "orientation", "path", "gps", "attitude"):
-        if key in r:
+        if getattr(r, key) not in (None, False):
             why = "its pose comes from the vehicle" if key in ("position", "orientation", "path") else (
                 "ground-truth streams are not emulated for a vehicle yet"
             )
             raise rd.fail(f"{path}.{key}", f"not allowed with {path}.vehicle: {why}")
     source = Path(rd.source)
-    vehicle = parse_vehicle(rd, r["vehicle"], f"{path}.vehicle", source.parent if source.is_file() else None)
+    vehicle = parse_vehicle(rd, r.vehicle, f"{path}.vehicle", source.parent if source.is_file() else None)
     ratio = vehicle.control_rate_hz / rate_hz
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
         raise rd.fail(

@@ -1,31 +1,158 @@
-"""Strict typed access to decoded TOML tables, for scene files and the tables inside them.
+"""The scene file's tables as schema structs (:mod:`emulator.schema`): every key, its type,
+length and range, written once. :mod:`emulator.scene.reader` converts a decoded TOML
+document to :class:`SceneTable` and builds the scene from it; receiver profiles share the
+model, display and rate rules. Units: metres, seconds, Hz; quaternions ``[w, x, y, z]``.
 
-Every value is checked for type, length and range, and the first problem raises
-:class:`~firmware_proto.errors.SceneError` whose text is ``FILE: key.path: reason`` (one
-line, naming the exact key). :mod:`emulator.scene.reader` reads whole scenes with it;
-other parts of a scene (a vehicle table, :func:`emulator.closed_loop.vehicle.parse_vehicle`)
-read their own table with the same rules through this public interface.
+:class:`TableReader` is typed access to a raw TOML table with the same rules, for the
+parts of a scene that read their own table (:func:`emulator.closed_loop.vehicle.parse_vehicle`).
+Every error is :class:`~firmware_proto.errors.SceneError`: ``FILE: key.path: reason``.
 """
 
 from __future__ import annotations
 
-import math
-from typing import Any
+from typing import Annotated, Any
 
-import numpy as np
+import msgspec
 
-from firmware_proto.errors import PoseError, SceneError
+from firmware_proto.errors import SceneError
+from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
 
-from emulator.frames.rotation import normalize_quaternions
-from emulator.frames.trajectory import IDENTITY, Trajectory
-from emulator.scene.limits import MIN_WAYPOINT_DT_S
+from emulator.frames.trajectory import IDENTITY
+from emulator.receiver.model import ANTENNAS
+from emulator.scene.limits import MIN_Q, MODEL_LIMITS
+from emulator.schema import MAX_FLOAT, Finite, Int, Number, SchemaError, Strict, Text, Vector2, Vector3, Vector4, convert
 
-#: Stream rates a scene may ask for, Hz: one epoch per 1000 s up to 10 kHz.
+#: Stream rates a scene may ask for, Hz: one epoch per 1000 s up to 10 kHz (epoch k is
+#: at k / rate: a rate of 1e-320 Hz would put epoch 1 beyond any float).
 RATE_LIMITS_HZ = (1e-3, 1e4)
+Rate = Number(*RATE_LIMITS_HZ, unit="Hz")
+Id = Int(0, MAX_ID)
+Int32 = Int(-(2**31), 2**31)  # ranges checked by the effect's config class
+Q = Number(MIN_Q, 1.0)
+
+
+class Waypoint(Strict):
+    t: Finite
+    position: Vector3
+    orientation: Vector4 = IDENTITY
+
+
+class Posed(Strict):
+    """A device's pose: ``position`` (+ ``orientation``) or a ``path`` of waypoints."""
+
+    position: Vector3 | None = None
+    orientation: Vector4 | None = None
+    path: Annotated[list[Waypoint], msgspec.Meta(min_length=1)] | None = None
+    gps: bool = False  # emit an emulated GPS stream for this device
+    attitude: bool = False  # emit an emulated $PASHR attitude stream
+
+
+class TransmitterTable(Posed, kw_only=True):
+    id: Id
+    pulse_period_ms: Finite | None = None
+    pulse_phase_ms: Finite | None = None
+
+
+class ReceiverTable(Posed):
+    id: Id | None = None
+    channels: Int(1, MAX_CHANNELS) | None = None
+    vehicle: dict | None = None  # emulator.closed_loop.vehicle reads it
+    antennas: Int(min(ANTENNAS), max(ANTENNAS)) | None = None
+    profile: str | None = None
+
+
+#: ``[model]``: None = the profile's or the default value.
+ModelTable = msgspec.defstruct(
+    "ModelTable", [(k, Number(*lims) | None, None) for k, lims in MODEL_LIMITS.items()] + [("q", tuple[Q, Q, Q] | None, None)],
+    bases=(Strict,), module=__name__,
+)
+
+
+class EffectsTable(Strict):
+    noise: bool = False
+    research_sentences: bool = False
+    pulses: bool = False
+    quantize: bool | None = None  # None: not given (a receiver profile's display applies)
+    ground_truth_error: bool = False
+    link_faults: bool = False
+
+
+class PulsesTable(Strict):
+    period_ms: Vector2 | None = None
+    pulse_ms: Finite | None = None
+    drift_ppm: Finite | None = None
+    overlap: str | None = None
+
+
+class QuantizeTable(Strict):
+    profile: str | None = None
+    delta_step_deg: Int32 | None = None
+    d_step_cm: Int32 | None = None
+    d_far_cm: Int32 | None = None
+    d_step_far_cm: Int32 | None = None
+
+
+# The effects' own config classes check the low ends; these close the top (a stall is a
+# real pause at speed > 0: 1e308 ms hung; outages are scene time but a day is plenty; GPS
+# errors beyond 10 km mean nothing: 1.8e308 overflowed the noise draw).
+GpsSigma = Number(0.0, 1e4, unit="")
+GpsBias = Number(-1e4, 1e4, unit="")
+
+
+class GroundTruthErrorTable(Strict):
+    gps_sigma_m: tuple[GpsSigma, GpsSigma, GpsSigma] | None = None
+    gps_bias_m: tuple[GpsBias, GpsBias, GpsBias] | None = None
+    gps_dropout: Finite | None = None
+    attitude_sigma_deg: Finite | None = None
+
+
+class LinkFaultsTable(Strict):
+    loss: Finite | None = None
+    corrupt: Finite | None = None
+    split: Finite | None = None
+    stall: Finite | None = None
+    stall_ms: Number(0.0, 60_000.0) | None = None
+    disconnect_every_s: Number(0.0, 86_400.0) | None = None
+    disconnect_s: Number(0.0, 86_400.0) | None = None
+    streams: list[str] | None = None  # stream labels the faults apply to (none: all)
+
+
+class OriginTable(Strict):
+    lat: Finite
+    lon: Finite
+    alt: Finite = 0.0
+
+
+class GroundTruthTable(Strict):
+    start_utc: Any = None  # a TOML date-time or an ISO 8601 string (the reader checks it)
+    gps_rate_hz: Rate = 1.0
+    attitude_rate_hz: Rate = 10.0
+    talker: Text("^[A-Z]{2}$", "two upper-case letters (GP, GN, ...)") = "GP"
+    #: Decimals of arc-minutes in GGA/RMC (5 = 1.9 cm, 7 = 0.2 mm).
+    lat_lon_decimals: Int(4, 7) = 5
+
+
+class SceneTable(Strict):
+    spec: Int(1, 2**31)
+    seed: Int(0, 2**63 - 1) = 0
+    rate_hz: Rate | None = None
+    name: str = ""
+    description: str = ""
+    model: ModelTable = ModelTable()
+    effects: EffectsTable = EffectsTable()
+    transmitters: list[TransmitterTable] = []
+    receiver: ReceiverTable | None = None
+    receivers: Annotated[list[ReceiverTable], msgspec.Meta(min_length=1)] | None = None
+    pulses: PulsesTable | None = None
+    quantize: QuantizeTable | None = None
+    ground_truth_error: GroundTruthErrorTable | None = None
+    link_faults: LinkFaultsTable | None = None
+    origin: OriginTable | None = None
+    ground_truth: GroundTruthTable = GroundTruthTable()
 
 
 class TableReader:
-    """Typed access to a TOML table that reports errors as ``FILE: key.path: reason``."""
+    """Typed access to a raw TOML table, errors as ``FILE: key.path: reason``."""
 
     def __init__(self, source: str) -> None:
         self.source = source
@@ -33,140 +160,39 @@ class TableReader:
     def fail(self, key: str, reason: str) -> SceneError:
         return SceneError(self.source, key, reason)
 
-    def table(self, data: dict, key: str, path: str, allowed: set[str], required: bool = False) -> dict:
-        value = data.get(key)
-        if value is None:
-            if required:
-                raise self.fail(path, "missing table")
-            return {}
-        if not isinstance(value, dict):
-            raise self.fail(path, f"expected a table, got {type_name(value)}")
-        self.known_keys(value, path, allowed)
-        return value
+    def convert(self, value: Any, type_: Any, path: str) -> Any:
+        """``value`` as ``type_`` (:func:`emulator.schema.convert`), errors under ``path``."""
+        try:
+            return convert(value, type_)
+        except SchemaError as exc:
+            raise self.fail(join_key(path, exc.key).replace(".[", "["), exc.reason) from None
 
     def known_keys(self, data: dict, path: str, allowed: set[str]) -> None:
         for key in data:
             if key not in allowed:
                 raise self.fail(join_key(path, key), "unknown key")
 
-    def integer(self, data: dict, key: str, path: str, default: int | None, lo: int, hi: int) -> int:
+    def _get(self, data: dict, key: str, path: str, default: Any) -> Any:
         value = data.get(key, default)
         if value is None:
             raise self.fail(path, "missing")
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(path, f"expected an integer, got {type_name(value)}")
-        if not lo <= value <= hi:
-            raise self.fail(path, f"must be in {lo}..{hi}, got {value}")
         return value
 
-    def rate(self, data: dict, key: str, path: str, default: float) -> float:
-        """A stream rate in Hz within :data:`RATE_LIMITS_HZ` (epoch k is at k / rate: a
-        rate of 1e-320 Hz would put epoch 1 beyond any float)."""
-        value = self.number(data, key, path, default, positive=True)
-        lo, hi = RATE_LIMITS_HZ
-        if not lo <= value <= hi:
-            raise self.fail(path, f"must be within [{lo:g}, {hi:g}] Hz, got {value:g}")
-        return value
+    def integer(self, data: dict, key: str, path: str, default: int | None, lo: int, hi: int) -> int:
+        return self.convert(self._get(data, key, path, default), Int(lo, hi), path)
 
     def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False,
                limits: tuple[float, float] | None = None) -> float:
-        """A finite number; ``positive``: > 0; ``limits`` (lo, hi): within [lo, hi]
-        (with ``positive`` and lo = 0: within (0, hi]). See :mod:`emulator.scene.limits`."""
-        value = data.get(key, default)
-        if value is None:
-            raise self.fail(path, "missing")
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(path, f"expected a number, got {type_name(value)}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise self.fail(path, f"must be finite, got {value}")
-        if positive and not value > 0:
-            raise self.fail(path, f"must be > 0, got {value:g}")
-        if limits is not None and value < limits[0]:
-            raise self.fail(path, f"must be >= {limits[0]:.10g}, got {value:g}")
-        if limits is not None and value > limits[1]:
-            raise self.fail(path, f"must be <= {limits[1]:.10g}, got {value:g}")
-        return value
+        """A finite number; ``positive``: > 0 (with ``limits`` (0, hi): within (0, hi])."""
+        lo, hi = limits or (0.0 if positive else -MAX_FLOAT, MAX_FLOAT)
+        return float(self.convert(self._get(data, key, path, default), Number(lo, hi, positive=positive), path))
 
     def boolean(self, data: dict, key: str, path: str, default: bool) -> bool:
-        value = data.get(key, default)
-        if not isinstance(value, bool):
-            raise self.fail(path, f"expected true or false, got {type_name(value)}")
-        return value
+        return self.convert(data.get(key, default), bool, path)
 
     def vector(self, value: Any, path: str, length: int) -> list[float]:
-        if not isinstance(value, list):
-            raise self.fail(path, f"expected an array of {length} numbers, got {type_name(value)}")
-        if len(value) != length:
-            raise self.fail(path, f"expected {length} numbers, got {len(value)}")
-        out = []
-        for i, v in enumerate(value):
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise self.fail(f"{path}[{i}]", f"expected a number, got {type_name(v)}")
-            if not math.isfinite(v):
-                raise self.fail(f"{path}[{i}]", f"must be finite, got {v}")
-            out.append(float(v))
-        return out
-
-    def quaternion(self, value: Any, path: str) -> list[float]:
-        q = self.vector(value, path, 4)
-        try:
-            return normalize_quaternions(q, path).tolist()
-        except PoseError as exc:
-            raise self.fail(path, exc.reason) from None
-
-    def trajectory(self, data: dict, path: str) -> Trajectory:
-        has_static = "position" in data or "orientation" in data
-        if "path" in data:
-            if has_static:
-                raise self.fail(join_key(path, "path"), "give either position/orientation or path, not both")
-            return self._path(data["path"], join_key(path, "path"))
-        if "position" not in data:
-            raise self.fail(join_key(path, "position"), "missing")
-        position = self.vector(data["position"], join_key(path, "position"), 3)
-        orientation = self.quaternion(data.get("orientation", list(IDENTITY)), join_key(path, "orientation"))
-        return Trajectory.static(position, orientation)
-
-    def _path(self, value: Any, path: str) -> Trajectory:
-        if not isinstance(value, list) or not value:
-            raise self.fail(path, "expected a non-empty array of waypoint tables")
-        times, positions, orientations = [], [], []
-        for i, wp in enumerate(value):
-            wp_path = f"{path}[{i}]"
-            if not isinstance(wp, dict):
-                raise self.fail(wp_path, f"expected a table, got {type_name(wp)}")
-            self.known_keys(wp, wp_path, {"t", "position", "orientation"})
-            t = self.number(wp, "t", f"{wp_path}.t", None)
-            if times and not t > times[-1]:
-                raise self.fail(f"{wp_path}.t", f"times must increase strictly, {t:g} follows {times[-1]:g}")
-            if times and t - times[-1] < MIN_WAYPOINT_DT_S:
-                raise self.fail(f"{wp_path}.t", f"must be at least {MIN_WAYPOINT_DT_S:g} s after {times[-1]:g}, got {t:g}")
-            if "position" not in wp:
-                raise self.fail(f"{wp_path}.position", "missing")
-            times.append(t)
-            positions.append(self.vector(wp["position"], f"{wp_path}.position", 3))
-            if len(positions) > 1:  # the segment's speed (GPS truth reports it) must be a float
-                with np.errstate(over="ignore"):
-                    speed = np.abs(np.subtract(positions[-1], positions[-2])) / (times[-1] - times[-2])
-                if not np.all(np.isfinite(speed)):
-                    raise self.fail(f"{wp_path}.position", "too far from the waypoint before for the time between them "
-                                    "(the speed is beyond the float range)")
-            orientations.append(self.quaternion(wp.get("orientation", list(IDENTITY)), f"{wp_path}.orientation"))
-        return Trajectory(np.array(times), np.array(positions), np.array(orientations))
+        return list(self.convert(value, tuple[(Finite,) * length], path))
 
 
 def join_key(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else key
-
-
-def type_name(value: Any) -> str:
-    return {
-        bool: "a boolean",
-        int: "an integer",
-        float: "a number",
-        str: "a string",
-        list: "an array",
-        dict: "a table",
-    }.get(type(value), type(value).__name__)
-
-
+    return f"{path}.{key}" if path and key else path or key

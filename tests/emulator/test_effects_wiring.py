@@ -109,7 +109,7 @@ def test_pulses_seeded_replay():
         ("[effects]\npulses = true\n[pulses]\nwidth = 50\n", "p.toml: pulses.width: unknown key"),
         ("[effects]\nquantize = true\n[quantize]\nprofile = 5\n", "p.toml: quantize.profile: expected a string, got an integer"),
         ("[effects]\nlink_faults = true\n[link_faults]\nloss = 1.5\n", None),
-        ("[effects]\nlink_faults = true\n[link_faults]\nstreams = [1]\n", "p.toml: link_faults.streams: expected an array of strings"),
+        ("[effects]\nlink_faults = true\n[link_faults]\nstreams = [1]\n", "p.toml: link_faults.streams[0]: expected a string, got an integer"),
     ],
 )
 def test_effect_table_errors(extra, message):
