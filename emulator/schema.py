@@ -13,6 +13,8 @@ order, quaternion norms) stay with the callers, after the conversion.
 
 from __future__ import annotations
 
+import datetime
+import json
 import math
 import re
 import sys
@@ -26,7 +28,7 @@ from firmware_proto.errors import InputError
 MAX_FLOAT = sys.float_info.max
 
 
-class Strict(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+class Strict(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
     """Base of every schema struct: an unknown key is an error naming it."""
 
 
@@ -55,6 +57,11 @@ def Text(pattern: str, hint: str) -> Any:
     return Annotated[str, msgspec.Meta(pattern=pattern, extra={"hint": hint})]
 
 
+def Hinted(type_: Any, hint: str) -> Any:
+    """``type_`` whose errors say ``expected HINT, got ...`` (units, layout)."""
+    return Annotated[type_, msgspec.Meta(extra={"hint": hint})]
+
+
 Finite = Number()
 Vector2 = tuple[Finite, Finite]
 Vector3 = tuple[Finite, Finite, Finite]
@@ -62,7 +69,7 @@ Vector4 = tuple[Finite, Finite, Finite, Finite]
 
 #: How a value's type is named in an error (the ``object`` entry is the caller's word).
 TYPE_NAMES = {bool: "a boolean", int: "an integer", float: "a number", str: "a string", list: "an array",
-              dict: "a table", type(None): "null"}
+              dict: "a table", type(None): "null", datetime.datetime: "a date-time"}
 _EXPECTED = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string",
              "array": "an array", "object": "a table", "datetime": "a date-time", "null": "null"}
 _AT = re.compile(r"\.([^.\[]+)|\[(\d+)\]")
@@ -136,24 +143,29 @@ def _child(node: Any, value: Any, part: str | int) -> Any:
 def _reason(text: str, value: Any, node: Any, table: str) -> str:
     node, extra = _unwrap(node, value)
     numbers = isinstance(node, mi.TupleType) and all(isinstance(_unwrap(t)[0], mi.FloatType) for t in node.item_types)
-    if "hint" in extra:
-        return f"expected {extra['hint']}, got {value!r}"
+    hint = extra.get("hint")
     m = re.fullmatch(r"Expected `([^`]+)`, got `[^`]+`", text)
     if m:
-        names = [_EXPECTED.get(n, n) for n in m[1].split(" | ") if n != "null"]
-        expected = " or ".join(names).replace("a table", table)
+        expected = " or ".join(_EXPECTED.get(n, n) for n in m[1].split(" | ") if n != "null").replace("a table", table)
         if numbers:
             expected = f"an array of {len(node.item_types)} numbers"
         elif isinstance(node, mi.ListType) and isinstance(_unwrap(node.item_type)[0], mi.StructType):
             expected = "an array of tables"
-        return f"expected {expected}, got {type_name(value, table)}"
+        return f"expected {hint or expected}, got {type_name(value, table)}"
     m = re.fullmatch(r"Expected `array` of length (\d+), got (\d+)", text)
     if m:
-        return f"expected {m[1]} {'numbers' if numbers else 'values'}, got {m[2]}"
+        return f"expected {hint or m[1] + (' numbers' if numbers else ' values')}, got {m[2]}"
     if text.startswith("Expected `array` of length >="):
         return "expected a non-empty array"
+    if hint:
+        return f"expected {hint}, got {value!r}"
     if isinstance(node, mi.LiteralType):
-        return f"must be one of {', '.join(map(str, node.values))}, got {value!r}"
+        shown = json.dumps(value, default=str)[:40]
+        if len(node.values) == 1:
+            return f"must be {json.dumps(node.values[0])}, got {shown}"
+        return f"must be one of {', '.join(map(str, node.values))}, got {shown}"
+    if text == "Number out of range":  # JSON: beyond the float range
+        return f"must be finite, got {value if isinstance(value, float) else 'a huge integer'}"
     if isinstance(node, (mi.IntType, mi.FloatType)) and isinstance(value, (int, float)):
         return _out_of_range(value, node, extra)
     return text[:1].lower() + text[1:]
@@ -168,7 +180,7 @@ def _out_of_range(value: float, node: Any, extra: dict) -> str:
         return f"must be in {lo}..{hi}, got {value}"
     if "unit" in extra:
         unit = f" {extra['unit']}" if extra["unit"] else ""
-        return f"must be within [{lo:.10g}, {hi:.10g}]{unit}, got {value:g}"
+        return f"must be within {'(' if node.gt is not None else '['}{lo:.10g}, {hi:.10g}]{unit}, got {value:g}"
     if node.gt is not None and not value > node.gt:
         return f"must be > {node.gt:.10g}, got {value:g}"
     if lo is not None and value < lo:

@@ -30,21 +30,8 @@ from firmware_proto.errors import InputError
 from emulator.output.scheduler import STEP_DRAIN_WAIT, EpochScheduler
 from emulator.pipeline import Pipeline
 
-from emulator.control.requests import (
-    ControlError,
-    Fault,
-    Pause,
-    Quit,
-    RemoveTransmitter,
-    Request,
-    Resume,
-    SetReceiver,
-    SetTransmitter,
-    Status,
-    Step,
-    Truth,
-    error_reply,
-)
+from emulator.control import requests as rq
+from emulator.control.requests import ControlError, Request, error_reply
 
 CLOCKS = ("real", "step")
 #: Most epochs (of the first stream, with every other stream's epochs due meanwhile) a
@@ -71,7 +58,7 @@ class Controller:
 
     def handle(self, req: Request) -> dict | StepJob:
         """The reply; for a ``step``, a :class:`StepJob` that the server runs a slice at a time."""
-        if isinstance(req, Step):
+        if isinstance(req, rq.Step):
             return StepJob(self, req.n)
         return self.locked(req.op, lambda: {"ok": True, **self._dispatch(req)})
 
@@ -114,7 +101,7 @@ class Controller:
 
     def _dispatch(self, req: Request) -> dict:
         sch, pipe = self.scheduler, self.pipe
-        if isinstance(req, Status):
+        if isinstance(req, rq.Status):
             return {
                 "epoch": sch.next_epoch,
                 "t": self._t(),
@@ -122,35 +109,35 @@ class Controller:
                 "paused": sch.paused,
                 "streams": {r.stream.label: r.port.path or "-" for r in sch.routes},
             }
-        if isinstance(req, (Pause, Resume)):
+        if isinstance(req, (rq.Pause, rq.Resume)):
             if self.clock != "real":
                 raise ControlError(f"{req.op}: the step clock emits only on step (pause/resume are for --clock real)")
-            sch.pause() if isinstance(req, Pause) else sch.resume()
+            sch.pause() if isinstance(req, rq.Pause) else sch.resume()
             return self._epoch()
-        if isinstance(req, SetTransmitter):
+        if isinstance(req, rq.SetTransmitter):
             pipe.set_transmitter(req.id, req.position, req.orientation, req.enabled)
             return self._epoch()
-        if isinstance(req, RemoveTransmitter):
+        if isinstance(req, rq.RemoveTransmitter):
             if req.id not in pipe.transmitters:
                 known = ", ".join(map(str, sorted(pipe.transmitters))) or "none"
                 raise ControlError(f"remove_transmitter: no transmitter {req.id} (ids: {known})")
             pipe.remove_transmitter(req.id)
             return self._epoch()
-        if isinstance(req, SetReceiver):
+        if isinstance(req, rq.SetReceiver):
             index = self._receiver_index(req.id, "set_receiver")
             if req.resume_path:
                 pipe.release_receiver(index)
             else:
                 pipe.pin_receiver(index, req.position, req.orientation)
             return self._epoch()
-        if isinstance(req, Fault):
+        if isinstance(req, rq.Fault):
             amount = {"disconnect": req.seconds, "stall": req.ms, "corrupt": req.count}[req.kind]
             pipe.fault(req.stream, req.kind, amount)  # from the stream's next epoch
             return self._epoch()
-        if isinstance(req, Truth):
+        if isinstance(req, rq.Truth):
             t = self._t()
             return {**self._epoch(), "t": t, "receivers": self._receivers(t), "transmitters": self._transmitters(t)}
-        if isinstance(req, Quit):
+        if isinstance(req, rq.Quit):
             return {}
         raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
 
