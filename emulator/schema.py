@@ -88,6 +88,11 @@ def convert(data: Any, type_: Any, table: str = "a table") -> Any:
         raise explain(str(exc), data, type_, table) from None
 
 
+def given(table: msgspec.Struct) -> dict:
+    """The fields a table gives (None: not given), as keyword arguments."""
+    return {k: v for k, v in msgspec.structs.asdict(table).items() if v is not None}
+
+
 def explain(message: str, data: Any, type_: Any, table: str = "a table") -> SchemaError:
     """msgspec's ``REASON - at `$.PATH``` about ``data`` as ``type_``, in our words."""
     text, _, at = message.partition(" - at `$")

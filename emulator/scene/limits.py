@@ -41,18 +41,6 @@ MODEL_LIMITS: dict[str, tuple[float, float]] = {
     "moment": STRENGTH_LIMITS,
 }
 
-#: Effect parameters the effects' own checks leave open at the top: (lo, hi) per key.
-#: A stall is a real pause at speed > 0 (1e308 ms hung); outages are scene time but
-#: a day is plenty; GPS errors beyond 10 km overflow nothing but mean nothing either
-#: (1.8e308 overflowed the noise draw).
-EFFECT_PARAM_LIMITS: dict[str, tuple[float, float]] = {
-    "link_faults.stall_ms": (0.0, 60_000.0),
-    "link_faults.disconnect_every_s": (0.0, 86_400.0),
-    "link_faults.disconnect_s": (0.0, 86_400.0),
-    "ground_truth_error.gps_sigma_m": (0.0, 1e4),
-    "ground_truth_error.gps_bias_m": (-1e4, 1e4),
-}
-
 #: Shortest step between two waypoint times (s): interpolation divides by it (0, 5e-324
 #: overflowed).
 MIN_WAYPOINT_DT_S = 1e-6

@@ -12,19 +12,17 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
-import tomllib
 from dataclasses import replace
+from functools import partial
 from importlib import resources
 from pathlib import Path
 
-import msgspec
 import numpy as np
 
 from firmware_proto.errors import InputError, PoseError, SceneError
 from firmware_proto.sentences import MAX_D_CM
 
 from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
-from emulator.files import MAX_TOML_BYTES, FileRefused, read_regular
 from emulator.frames.geodesy import Origin
 from emulator.frames.rotation import normalize_quaternions
 from emulator.frames.trajectory import IDENTITY, Trajectory
@@ -34,9 +32,9 @@ from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
 from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_Q, MIN_WAYPOINT_DT_S, MODEL_LIMITS, stream_labels
-from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint
+from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint, toml_document, toml_file
 from emulator.scene.types import SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter
-from emulator.schema import Int, type_name
+from emulator.schema import given, type_name
 from emulator.truth.error import GroundTruthErrorConfig
 
 DEFAULT_SCENE = "default.toml"
@@ -51,22 +49,15 @@ _EFFECT_CONFIGS = {
 def parse_scene(data: dict, source: str) -> Scene:
     """Validate a decoded TOML document; ``source`` names it in error messages."""
     rd = TableReader(source)
-    if "spec" not in data:
-        raise rd.fail("spec", f"missing (this program reads spec = {SPEC_VERSION})")
-    spec = rd.convert(data["spec"], Int(1, 2**31), "spec")
-    if spec > SPEC_VERSION:
-        raise rd.fail("spec", f"version {spec} is newer than this program supports ({SPEC_VERSION})")
+    spec = rd.version(data, "spec", SPEC_VERSION)
     doc: SceneTable = rd.convert(data, SceneTable, "")
     rx_tables = [(r, f"receivers[{i}]") for i, r in enumerate(doc.receivers or [])] or (
         [(doc.receiver, "receiver")] if doc.receiver else []
     )
     profiles = _profiles(rd, rx_tables)
     rate_hz = doc.rate_hz if doc.rate_hz is not None else _profile_rate(rd, profiles)
-    model_keys = _given(doc.model)
-    try:
-        model = ModelParams(**model_keys)
-    except InputError as exc:
-        raise rd.fail("model", str(exc)) from None
+    model_keys = given(doc.model)
+    model = rd.build("model", ModelParams, **model_keys)
 
     transmitters = []
     pulse_periods: dict[int, float] = {}
@@ -111,11 +102,6 @@ def parse_scene(data: dict, source: str) -> Scene:
         source, spec, doc.seed, rate_hz, receivers[0].model or model, effects, tuple(transmitters), receivers, doc.name,
         origin, ground_truth,
     )
-
-
-def _given(table: msgspec.Struct) -> dict:
-    """The keys a table gives (None: not given)."""
-    return {k: v for k, v in msgspec.structs.asdict(table).items() if v is not None}
 
 
 def _quaternion(rd: TableReader, q: tuple[float, ...], path: str) -> list[float]:
@@ -179,10 +165,7 @@ def _ground_truth(rd: TableReader, doc: SceneTable, transmitters, receivers) -> 
     """``[origin]`` (geodetic, for GPS) and ``[ground_truth]`` (stream settings)."""
     origin = None
     if doc.origin is not None:
-        try:
-            origin = Origin(doc.origin.lat, doc.origin.lon, doc.origin.alt)
-        except InputError as exc:
-            raise SceneError(rd.source, "", str(exc)) from None
+        origin = rd.build("", Origin, **given(doc.origin))
     g = doc.ground_truth
     start = GroundTruthSpec().start_utc if g.start_utc is None else g.start_utc
     if isinstance(start, str):
@@ -216,15 +199,12 @@ def _effects(rd: TableReader, doc: SceneTable, periods: dict, phases: dict) -> E
             raise rd.fail(name, f"parameters given but effects.{name} is not enabled")
         if not enabled:
             continue
-        kwargs = _given(table) if table is not None else {}
+        kwargs = given(table) if table is not None else {}
         if name == "link_faults":
             streams = tuple(kwargs.pop("streams", ()))
         if name == "pulses":
             kwargs.update(periods_ms=periods, phases_ms=phases)
-        try:
-            configs[name] = config(**kwargs)
-        except InputError as exc:
-            raise SceneError(rd.source, "", str(exc)) from None
+        configs[name] = rd.build("", config, **kwargs)
     return Effects(doc.effects.noise, doc.effects.research_sentences, link_fault_streams=streams, **configs)
 
 
@@ -252,10 +232,8 @@ def _profile_rate(rd: TableReader, profiles: list[ReceiverProfile | None]) -> fl
 def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, model_keys: dict, r: ReceiverTable) -> ModelParams:
     """Defaults, then the profile, then the scene's ``[model]`` keys, then ``antennas``."""
     base = profile.model if profile is not None else ModelParams()
-    try:
-        model = replace(base, **model_keys, antennas=base.antennas if r.antennas is None else r.antennas)
-    except InputError as exc:
-        raise rd.fail("model", str(exc)) from None
+    antennas = base.antennas if r.antennas is None else r.antennas
+    model = rd.build("model", partial(replace, base), **model_keys, antennas=antennas)
     _check_model_limits(rd, model)
     return model
 
@@ -324,26 +302,11 @@ def _start_pose(vehicle: VehicleSpec) -> Trajectory:
 
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file. Every failure is a one-line :class:`SceneError`."""
-    source = str(path)
-    try:
-        raw = read_regular(path, MAX_TOML_BYTES, "scene file")
-    except FileRefused as exc:
-        raise SceneError(source, "", exc.reason) from None
-    return loads_scene(raw, source)
+    return parse_scene(toml_file(path, "scene file"), str(path))
 
 
 def loads_scene(raw: bytes | str, source: str) -> Scene:
-    try:
-        text = raw.decode("utf-8") if isinstance(raw, bytes) else raw
-    except UnicodeDecodeError as exc:
-        raise SceneError(source, "", f"not UTF-8 text (byte offset {exc.start})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(source, "", f"TOML syntax: {exc}") from None
-    except RecursionError:  # tomllib recurses once per nesting level
-        raise SceneError(source, "", "TOML nested too deeply") from None
-    return parse_scene(data, source)
+    return parse_scene(toml_document(raw, source), source)
 
 
 def default_scene() -> Scene:

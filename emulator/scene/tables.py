@@ -10,13 +10,17 @@ Every error is :class:`~firmware_proto.errors.SceneError`: ``FILE: key.path: rea
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
 
 import msgspec
 
-from firmware_proto.errors import SceneError
+from firmware_proto.errors import InputError, SceneError
 from firmware_proto.sentences import MAX_CHANNELS, MAX_ID
 
+from emulator.files import MAX_TOML_BYTES, FileRefused, read_regular
 from emulator.frames.trajectory import IDENTITY
 from emulator.receiver.model import ANTENNAS
 from emulator.scene.limits import MIN_Q, MODEL_LIMITS
@@ -29,6 +33,7 @@ Rate = Number(*RATE_LIMITS_HZ, unit="Hz")
 Id = Int(0, MAX_ID)
 Int32 = Int(-(2**31), 2**31)  # ranges checked by the effect's config class
 Q = Number(MIN_Q, 1.0)
+T = TypeVar("T")
 
 
 class Waypoint(Strict):
@@ -61,11 +66,15 @@ class ReceiverTable(Posed):
     profile: str | None = None
 
 
-#: ``[model]``: None = the profile's or the default value.
-ModelTable = msgspec.defstruct(
-    "ModelTable", [(k, Number(*lims) | None, None) for k, lims in MODEL_LIMITS.items()] + [("q", tuple[Q, Q, Q] | None, None)],
-    bases=(Strict,), module=__name__,
-)
+def _model_table(name: str, keys) -> type:
+    """A ``[model]`` table of ``keys`` (None: the profile's or the default value)."""
+    fields = [(k, Number(*MODEL_LIMITS[k]) | None, None) for k in keys] + [("q", tuple[Q, Q, Q] | None, None)]
+    return msgspec.defstruct(name, fields, bases=(Strict,), module=__name__)
+
+
+ModelTable = _model_table("ModelTable", MODEL_LIMITS)
+#: A receiver profile's ``[model]``: the transmitter's moment is not a receiver's.
+ProfileModelTable = _model_table("ProfileModelTable", [k for k in MODEL_LIMITS if k != "moment"])
 
 
 class EffectsTable(Strict):
@@ -92,7 +101,7 @@ class QuantizeTable(Strict):
     d_step_far_cm: Int32 | None = None
 
 
-# The effects' own config classes check the low ends; these close the top (a stall is a
+# The effects' own config classes check the low ends; these close the top (issue 16) (a stall is a
 # real pause at speed > 0: 1e308 ms hung; outages are scene time but a day is plenty; GPS
 # errors beyond 10 km mean nothing: 1.8e308 overflowed the noise draw).
 GpsSigma = Number(0.0, 1e4, unit="")
@@ -167,6 +176,22 @@ class TableReader:
         except SchemaError as exc:
             raise self.fail(join_key(path, exc.key).replace(".[", "["), exc.reason) from None
 
+    def build(self, key: str, factory: Callable[..., T], **kwargs: Any) -> T:
+        """``factory(**kwargs)``, its :class:`InputError` (a check across keys) named by ``key``."""
+        try:
+            return factory(**kwargs)
+        except InputError as exc:
+            raise self.fail(key, str(exc)) from None
+
+    def version(self, data: dict, key: str, newest: int) -> int:
+        """The document's format version ``key``: present, an integer, at most ``newest``."""
+        if key not in data:
+            raise self.fail(key, f"missing (this program reads {key} = {newest})")
+        version = self.convert(data[key], Int(1, 2**31), key)
+        if version > newest:
+            raise self.fail(key, f"version {version} is newer than this program supports ({newest})")
+        return version
+
     def known_keys(self, data: dict, path: str, allowed: set[str]) -> None:
         for key in data:
             if key not in allowed:
@@ -196,3 +221,23 @@ class TableReader:
 
 def join_key(path: str, key: str) -> str:
     return f"{path}.{key}" if path and key else path or key
+
+
+def toml_document(raw: bytes | str, source: str) -> dict:
+    """A decoded TOML document (scene, profile); what is wrong with its text as one line."""
+    try:
+        return tomllib.loads(raw.decode("utf-8") if isinstance(raw, bytes) else raw)
+    except UnicodeDecodeError as exc:
+        raise SceneError(source, "", f"not UTF-8 text (byte offset {exc.start})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(source, "", f"TOML syntax: {exc}") from None
+    except RecursionError:  # tomllib recurses once per nesting level
+        raise SceneError(source, "", "TOML nested too deeply") from None
+
+
+def toml_file(path: str | Path, what: str) -> dict:
+    """:func:`toml_document` of a regular file (``what``: "scene file", "profile file")."""
+    try:
+        return toml_document(read_regular(path, MAX_TOML_BYTES, what), str(path))
+    except FileRefused as exc:
+        raise SceneError(str(path), "", exc.reason) from None
