@@ -101,9 +101,9 @@ class QuantizeTable(Strict):
     d_step_far_cm: Int32 | None = None
 
 
-# The effects' own config classes check the low ends; these close the top (issue 16) (a stall is a
-# real pause at speed > 0: 1e308 ms hung; outages are scene time but a day is plenty; GPS
-# errors beyond 10 km mean nothing: 1.8e308 overflowed the noise draw).
+# The effects' own config classes check the low ends; these close the top (issue 16): a
+# stall is a real pause at speed > 0 (1e308 ms hung); outages are scene time but a day is
+# plenty; GPS errors beyond 10 km mean nothing (1.8e308 overflowed the noise draw).
 GpsSigma = Number(0.0, 1e4, unit="")
 GpsBias = Number(-1e4, 1e4, unit="")
 
