@@ -33,12 +33,20 @@ import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal, TypeVar
 
+import msgspec
+
+from emulator.cli_types import BAUD_LIMITS
 from emulator.files import open_regular
+from emulator.schema import Int, Number, SchemaError, Text, convert, join_key, type_name
 from firmware_proto.errors import InputError, LinkError
+
+from .records import FORMATS, KINDS
 
 MANIFEST = "manifest.json"
 EVENTS = "events.jsonl"
+T = TypeVar("T")
 FORMAT = "arva-session"
 FORMAT_VERSION = 2
 #: Bytes of padding kept after the manifest's text (see SessionWriter._write_manifest).
@@ -218,13 +226,17 @@ class SessionWriter:
             self.sync()
 
     def sync(self) -> None:
+        self._each_file(_AppendFile.sync)  # an error is reported by the next write to that file
+
+    def _each_file(self, action) -> None:
+        """``action(file)`` on every open file; an OSError leaves the others to do."""
         with self._files_lock:
             files = list(self._files.values())
         for f in files:
             try:
-                f.sync()
+                action(f)
             except OSError:
-                pass  # reported by the next write to that file
+                pass
 
     def __enter__(self) -> "SessionWriter":
         return self
@@ -243,13 +255,7 @@ class SessionWriter:
             pass  # the disk is full: the manifest rewrite below may still fit
         self._stop.set()
         self._syncer.join(timeout=5)
-        with self._files_lock:
-            files = list(self._files.values())
-        for f in files:
-            try:
-                f.close()
-            except OSError:
-                pass
+        self._each_file(_AppendFile.close)
         with self._manifest_lock:
             self.manifest["stop_utc"] = utc_iso()
             if summary:
@@ -264,86 +270,49 @@ class SessionWriter:
 
 
 # -- the manifest, typed ---------------------------------------------------------------
-def _kind_of(value) -> str:
-    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null",
-            int: "an integer", float: "a number"}.get(type(value), type(value).__name__)
-
-
-def _number(obj: dict, key: str, where: str, lo: float = -math.inf, hi: float = math.inf, default=None) -> float:
-    if key not in obj:
-        if default is not None:
-            return default
-        raise ValueError(f"{where}: missing {key!r}")
-    v = obj[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
-        raise ValueError(f"{where}.{key}: expected a finite number in [{lo:g}, {hi:g}], got {json.dumps(v)}")
-    return float(v)
-
-
-def _object(value, where: str) -> dict:
-    if not isinstance(value, dict):
-        raise ValueError(f"{where}: expected an object, got {_kind_of(value)}")
-    return value
-
-
-@dataclass(frozen=True)
-class DeviceEntry:
+class DeviceEntry(msgspec.Struct, frozen=True):
     """One logged device: its ``<name>.raw`` holds the reads. ``baudrate`` (bit/s, 8N1) is
     the link's, used by the stamp rule (:mod:`bench.ingest.stamp`)."""
 
-    kind: str
+    kind: Literal[KINDS]
     url: str = ""
-    role: str = "rx"
-    baudrate: int = 115200
+    role: Text(r"\A(rx|rx\d+|tx\d+)\Z", "rx, rx<ID> or tx<ID>") = "rx"
+    baudrate: Int(*BAUD_LIMITS) = 115200
     format: str | None = None
 
-    @classmethod
-    def from_json(cls, name: str, obj, where: str) -> DeviceEntry:
-        from .records import FORMATS, KINDS
 
-        if not name or "/" in name or "\\" in name or name.startswith("."):
-            raise ValueError(f"{where}: {name!r} is not a device name (it names a file in the session)")
-        obj = _object(obj, where)
-        kind = obj.get("kind")
-        if kind not in KINDS:
-            raise ValueError(f"{where}.kind: unknown device kind {json.dumps(kind)} (one of {', '.join(KINDS)})")
-        url = obj.get("url", "")
-        if not isinstance(url, str):
-            raise ValueError(f"{where}.url: expected a string, got {_kind_of(url)}")
-        role = obj.get("role", "rx")
-        if not (isinstance(role, str) and (role == "rx" or (role[:2] in ("rx", "tx") and role[2:].isdigit()))):
-            raise ValueError(f"{where}.role: expected rx, rx<ID> or tx<ID>, got {json.dumps(role)}")
-        baud = obj.get("baudrate", 115200)
-        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
-            raise ValueError(f"{where}.baudrate: expected a positive integer, got {json.dumps(baud)}")
-        fmt = obj.get("format")
-        if fmt is not None and fmt not in FORMATS.get(kind, ()):
-            raise ValueError(f"{where}.format: a {kind} device cannot speak {json.dumps(fmt)}")
-        return cls(kind, url, role, baud, fmt)
-
-
-@dataclass(frozen=True)
-class GeoPose:
+class GeoPose(msgspec.Struct, frozen=True):
     """A surveyed point (degrees, metres HAE) with an optional attitude (degrees)."""
 
-    lat: float
-    lon: float
-    alt: float
-    heading: float | None = None
-    roll: float = 0.0
-    pitch: float = 0.0
+    lat: Number(-90.0, 90.0, unit="")
+    lon: Number(-180.0, 180.0, unit="")
+    alt: Number(-1e5, 1e5, unit="")
+    heading: Number(-360.0, 360.0, unit="") | None = None
+    roll: Number(-180.0, 180.0, unit="") = 0.0
+    pitch: Number(-90.0, 90.0, unit="") = 0.0
 
-    @classmethod
-    def from_json(cls, obj, where: str, alt_default: float | None = None, attitude: bool = False) -> GeoPose:
-        obj = _object(obj, where)
-        lat = _number(obj, "lat", where, -90.0, 90.0)
-        lon = _number(obj, "lon", where, -180.0, 180.0)
-        alt = _number(obj, "alt", where, -1e5, 1e5, default=alt_default)
-        if not attitude or "heading" not in obj:
-            return cls(lat, lon, alt)
-        return cls(lat, lon, alt, _number(obj, "heading", where, -360.0, 360.0),
-                   _number(obj, "roll", where, -180.0, 180.0, default=0.0),
-                   _number(obj, "pitch", where, -90.0, 90.0, default=0.0))  # fmt: skip
+
+class _Origin(GeoPose, frozen=True):
+    alt: Number(-1e5, 1e5, unit="") = 0.0
+
+
+class _ManifestTable(msgspec.Struct, frozen=True):
+    """What this program reads of a manifest (other keys, a note, the command, are kept)."""
+
+    version: Int(1, 2**31)
+    devices: dict[str, dict] = {}  # each a DeviceEntry, converted one by one to name it
+    start_utc: str | None = None
+    stop_utc: str | None = None
+    origin: _Origin | None = None
+    tx_poses: dict[str, dict] = {}  # each a GeoPose
+    summary: dict | None = None
+
+
+def _typed(value: object, type_: type[T], where: str) -> T:
+    try:
+        return convert(value, type_, "an object")
+    except SchemaError as exc:
+        raise ValueError(f"{join_key(where, exc.key)}: {exc.reason}") from None
 
 
 @dataclass(frozen=True)
@@ -371,40 +340,31 @@ class Manifest:
     @classmethod
     def _parse(cls, obj) -> Manifest:
         if not isinstance(obj, dict):
-            raise ValueError(f"not a session manifest (a JSON object), got {_kind_of(obj)}")
+            raise ValueError(f"not a session manifest (a JSON object), got {type_name(obj, 'an object')}")
         if obj.get("format") != FORMAT:
             raise ValueError(f"not an {FORMAT} manifest")
-        version = obj.get("version", 0)
-        if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-            raise ValueError(f"version: expected a positive integer, got {json.dumps(version)}")
-        if version > FORMAT_VERSION:
-            raise ValueError(f"session format {version} is newer than this program reads ({FORMAT_VERSION})")
-        devices = {
-            name: DeviceEntry.from_json(name, dev, f"devices.{name}")
-            for name, dev in _object(obj.get("devices", {}), "devices").items()
-        }
+        doc = _typed(obj, _ManifestTable, "")
+        if doc.version > FORMAT_VERSION:
+            raise ValueError(f"session format {doc.version} is newer than this program reads ({FORMAT_VERSION})")
+        devices = {}
+        for name, entry in doc.devices.items():
+            if not name or "/" in name or "\\" in name or name.startswith("."):
+                raise ValueError(f"devices.{name}: {name!r} is not a device name (it names a file in the session)")
+            devices[name] = dev = _typed(entry, DeviceEntry, f"devices.{name}")
+            if dev.format is not None and dev.format not in FORMATS.get(dev.kind, ()):
+                raise ValueError(f"devices.{name}.format: a {dev.kind} device cannot speak {json.dumps(dev.format)}")
         if not devices:
             raise ValueError("devices: none listed (a session logs at least one device)")
-        origin = obj.get("origin")
-        origin = None if origin is None else GeoPose.from_json(origin, "origin", alt_default=0.0)
-        poses = {}
-        for tx, pose in _object(obj.get("tx_poses", {}), "tx_poses").items():
-            if not tx.isdigit():
-                raise ValueError(f"tx_poses: {tx!r} is not a transmitter ID")
-            poses[int(tx)] = GeoPose.from_json(pose, f"tx_poses.{tx}", attitude=True)
-        times = []
+        if any(not tx.isdigit() for tx in doc.tx_poses):
+            raise ValueError(f"tx_poses: {next(tx for tx in doc.tx_poses if not tx.isdigit())!r} is not a transmitter ID")
+        poses = {int(tx): _typed(pose, GeoPose, f"tx_poses.{tx}") for tx, pose in doc.tx_poses.items()}
         for key in ("start_utc", "stop_utc"):
-            value = obj.get(key)
-            if value is not None:
-                try:
-                    parse_utc(value)
-                except (TypeError, ValueError):
-                    raise ValueError(f"{key}: expected a UTC time like 2026-01-15T10:00:00.000000Z, got {json.dumps(value)}") from None
-            times.append(value)
-        summary = obj.get("summary")
-        if summary is not None:
-            _object(summary, "summary")
-        return cls(version, devices, times[0], times[1], origin, poses, summary, obj)
+            try:
+                getattr(doc, key) is None or parse_utc(getattr(doc, key))
+            except ValueError:
+                raise ValueError(f"{key}: expected a UTC time like 2026-01-15T10:00:00.000000Z, "
+                                 f"got {json.dumps(getattr(doc, key))}") from None
+        return cls(doc.version, devices, doc.start_utc, doc.stop_utc, doc.origin, poses, doc.summary, obj)
 
 
 # -- reading ------------------------------------------------------------------------

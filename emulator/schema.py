@@ -110,6 +110,11 @@ def explain(message: str, data: Any, type_: Any, table: str = "a table") -> Sche
     return SchemaError(_key(parts), _reason(text, value, node, table))
 
 
+def join_key(path: str, key: str) -> str:
+    """``path.key`` (``path[0]`` for an index key), or whichever is not empty."""
+    return f"{path}{'' if key.startswith('[') else '.'}{key}" if path and key else path or key
+
+
 def _key(parts: list[str | int]) -> str:
     return "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in parts).lstrip(".")
 

@@ -24,7 +24,9 @@ from emulator.files import MAX_TOML_BYTES, FileRefused, read_regular
 from emulator.frames.trajectory import IDENTITY
 from emulator.receiver.model import ANTENNAS
 from emulator.scene.limits import MIN_Q, MODEL_LIMITS
-from emulator.schema import MAX_FLOAT, Finite, Int, Number, SchemaError, Strict, Text, Vector2, Vector3, Vector4, convert
+from emulator.schema import (
+    MAX_FLOAT, Finite, Int, Number, SchemaError, Strict, Text, Vector2, Vector3, Vector4, convert, join_key,
+)
 
 #: Stream rates a scene may ask for, Hz: one epoch per 1000 s up to 10 kHz (epoch k is
 #: at k / rate: a rate of 1e-320 Hz would put epoch 1 beyond any float).
@@ -174,7 +176,7 @@ class TableReader:
         try:
             return convert(value, type_)
         except SchemaError as exc:
-            raise self.fail(join_key(path, exc.key).replace(".[", "["), exc.reason) from None
+            raise self.fail(join_key(path, exc.key), exc.reason) from None
 
     def build(self, key: str, factory: Callable[..., T], **kwargs: Any) -> T:
         """``factory(**kwargs)``, its :class:`InputError` (a check across keys) named by ``key``."""
@@ -217,10 +219,6 @@ class TableReader:
 
     def vector(self, value: Any, path: str, length: int) -> list[float]:
         return list(self.convert(value, tuple[(Finite,) * length], path))
-
-
-def join_key(path: str, key: str) -> str:
-    return f"{path}.{key}" if path and key else path or key
 
 
 def toml_document(raw: bytes | str, source: str) -> dict:
