@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from firmware_proto.errors import InputError, PoseError
+from firmware_proto.errors import InputError
 from firmware_proto.sentences import MAX_ID
 
 from emulator.closed_loop.loop import ClosedLoop
@@ -50,6 +50,7 @@ from emulator.output.scheduler import Route, SceneClock, epochs_before
 from emulator.output.streams import ArvaStream, EpochSource, Stream
 from emulator.receiver.receiver import Receiver
 from emulator.scene.types import Scene, Transmitter
+from emulator.schema import Int, SchemaError, Vector3, Vector4, convert, join_key
 from emulator.truth.streams import TruthCarrier, ground_truth_carriers, ground_truth_stream
 
 
@@ -289,10 +290,8 @@ class Pipeline:
         is left out of every receiver's evaluation, so its slot frees. Its ground-truth
         streams (``gps:tx<id>`` ...) follow the new pose.
         """
-        if isinstance(tx_id, bool) or not isinstance(tx_id, int) or not 0 <= tx_id <= MAX_ID:
-            raise InputError(f"set_transmitter: id must be an integer in 0..{MAX_ID}, got {tx_id!r}")
-        if enabled is not None and not isinstance(enabled, bool):
-            raise InputError(f"set_transmitter: enabled must be true or false, got {enabled!r}")
+        _checked(tx_id, Int(0, MAX_ID), "set_transmitter.id")
+        _checked(enabled, bool | None, "set_transmitter.enabled")
         old = self.transmitters.get(tx_id)
         if old is None and position is None:
             raise InputError(f"set_transmitter: transmitter {tx_id} is new: position required")
@@ -411,29 +410,20 @@ class Pipeline:
                 self.streams[label].trajectory = rx.trajectory
 
 
-def _numbers(value, n: int, what: str) -> np.ndarray:
-    """``n`` finite numbers (not booleans), as scene values are checked."""
-    ok = (
-        isinstance(value, (list, tuple, np.ndarray))
-        and len(value) == n
-        and all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in value)
-    )
-    arr = np.asarray(value, dtype=np.float64) if ok else None
-    if arr is None or not np.all(np.isfinite(arr)):
-        raise InputError(f"{what}: expected {n} finite numbers, got {value!r}")
-    return arr
+def _checked(value, type_, what: str):
+    """``value`` by the rule the control requests (and scenes) apply to it (:mod:`emulator.schema`)."""
+    try:
+        return convert(value.tolist() if isinstance(value, np.ndarray) else value, type_)
+    except SchemaError as exc:
+        raise InputError(f"{join_key(what, exc.key)}: {exc.reason}") from None
 
 
 def _vector(value: Sequence[float], what: str) -> np.ndarray:
-    return _numbers(value, 3, what)
+    return np.array(_checked(value, Vector3, what))
 
 
 def _quaternion(value: Sequence[float]) -> np.ndarray:
-    q = _numbers(value, 4, "orientation")
-    try:
-        return normalize_quaternions(q, "orientation")
-    except PoseError as exc:
-        raise InputError(str(exc)) from None
+    return normalize_quaternions(_checked(value, Vector4, "orientation"), "orientation")  # or PoseError
 
 
 __all__ = [
