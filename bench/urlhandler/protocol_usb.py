@@ -439,14 +439,6 @@ class Serial(VirtualLine, SerialBase):
         except usb.core.USBError as exc:
             raise self._fail(f"write failed: {usb_reason(exc)}") from None
 
-    def reset_output_buffer(self) -> None:
-        if not self.is_open:
-            raise PortNotOpenError()
-
-    @property
-    def out_waiting(self) -> int:
-        return 0
-
     # -- closing and the rest ----------------------------------------------------
     def close(self) -> None:
         self.is_open = False

@@ -17,6 +17,7 @@ drop bytes, as on stdout), so ``arvaemu://S?speed=0`` reads exactly what
 
 from __future__ import annotations
 
+import argparse
 import math
 import time
 import urllib.parse
@@ -25,7 +26,7 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Tim
 
 from firmware_proto.errors import InputError
 
-from emulator.cli_types import speed_value
+from emulator.cli_types import non_negative_int, seconds, speed
 from emulator.output.ports import BufferPort
 from emulator.output.scheduler import Route
 from emulator.pipeline import Pipeline
@@ -64,11 +65,11 @@ class Serial(VirtualLine, SerialBase):
         path = parts.netloc + parts.path
         try:
             scene = default_scene() if path in ("", "default") else load_scene(path)
-            self._speed = _speed(opt, url)
-            frames = _count(opt, "frames", url)
-            delay = _number(opt, "delay", 0.0, url)
         except InputError as exc:
             raise SerialException(str(exc)) from None
+        self._speed = _option(opt, "speed", speed, 1.0, url)
+        frames = _option(opt, "frames", non_negative_int, None, url)
+        delay = _option(opt, "delay", seconds, 0.0, url)
         index = 0
         several = len(scene.receivers) > 1
         if "receiver" in opt:
@@ -158,14 +159,6 @@ class Serial(VirtualLine, SerialBase):
             raise PortNotOpenError()
         return len(data)
 
-    def reset_output_buffer(self) -> None:
-        if not self.is_open:
-            raise PortNotOpenError()
-
-    @property
-    def out_waiting(self) -> int:
-        return 0
-
     def close(self) -> None:
         self.is_open = False
         self._buffer.clear()
@@ -175,38 +168,12 @@ class Serial(VirtualLine, SerialBase):
         super().close()
 
 
-def _speed(opt: dict, url: str) -> float:
-    """``speed=``: the one speed rule of every command (emulator.cli_types.speed_value)."""
-    if "speed" not in opt:
-        return 1.0
-    try:
-        return speed_value(_float(opt, "speed", url), opt["speed"])
-    except InputError as exc:
-        raise SerialException(f"{url}: speed={opt['speed']}: {exc}") from None
-
-
-def _count(opt: dict, key: str, url: str) -> int | None:
-    """An optional whole number >= 0 (``frames=``)."""
-    if key not in opt:
-        return None
-    value = _number(opt, key, 0.0, url)
-    if value != int(value):
-        raise SerialException(f"{url}: {key}={opt[key]}: expected a whole number")
-    return int(value)
-
-
-def _number(opt: dict, key: str, default: float, url: str) -> float:
-    """An optional finite number >= 0 (``delay=``)."""
+def _option(opt: dict, key: str, parse, default, url: str):
+    """``key=`` by the rule of the command-line option of that name (emulator.cli_types:
+    ``--speed``, ``--frames``, ``--delay``), ``default`` when not given."""
     if key not in opt:
         return default
-    value = _float(opt, key, url)
-    if not (math.isfinite(value) and value >= 0):
-        raise SerialException(f"{url}: {key}={opt[key]}: must be a finite number >= 0")
-    return value
-
-
-def _float(opt: dict, key: str, url: str) -> float:
     try:
-        return float(opt[key])
-    except ValueError:
-        raise SerialException(f"{url}: {key}={opt[key]}: expected a number") from None
+        return parse(opt[key])
+    except argparse.ArgumentTypeError as exc:
+        raise SerialException(f"{url}: {key}={opt[key]}: {exc}") from None
