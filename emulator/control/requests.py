@@ -1,11 +1,12 @@
 """Control requests (BRIEF 9): one JSON object per line, decoded into schema structs.
 
 :func:`parse_request` turns one line (bytes, without or with its ``\\n``) into one of the
-request structs below (a union tagged by ``op``, :mod:`emulator.schema`), or raises :class:`ControlError` whose text is the one-line
-``error`` of the reply. Values are validated like scene values: ids are integers in
-0..65535, positions three finite numbers (metres, ENU), orientations four finite numbers
-``[w, x, y, z]`` whose norm is at least 1e-9 (normalised here), ``enabled`` a boolean;
-times are scene seconds / milliseconds. Unknown keys are errors that name the key.
+request structs below (a union tagged by ``op``, :mod:`emulator.schema`), or raises
+:class:`ControlError` whose text is the one-line ``error`` of the reply. Values are
+validated like scene values: ids are integers in 0..65535, positions three finite numbers
+(metres, ENU), orientations four finite numbers ``[w, x, y, z]`` whose norm is at least
+1e-9 (normalised here), ``enabled`` a boolean; times are scene seconds / milliseconds.
+Unknown keys are errors that name the key.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Scenes (BRIEF 5): the scene types (``types``), strict typed access to TOML tables
-(``tables``, also used by the vehicle table's parser) and the scene reader (``reader``).
+"""Scenes (BRIEF 5): the scene types (``types``), the scene file's tables as
+schema structs (``tables``; its TableReader also reads the vehicle table) and the scene reader (``reader``).
 
 Errors name ``FILE: key.path: reason``. Example scenes ship in ``emulator/scenes/`` (data)."""
