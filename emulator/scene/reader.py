@@ -31,7 +31,7 @@ from emulator.receiver.model import ModelParams
 from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
-from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_Q, MIN_WAYPOINT_DT_S, MODEL_LIMITS, stream_labels
+from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S, stream_labels
 from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint, toml_document, toml_file
 from emulator.scene.types import SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter
 from emulator.schema import given, type_name
@@ -150,17 +150,6 @@ def _check_quantized_range(rd: TableReader, model: ModelParams, cfg: QuantizeCon
                            f"beyond the protocol's {MAX_D_CM}")
 
 
-def _check_model_limits(rd: TableReader, model: ModelParams) -> None:
-    """A receiver's final model (defaults, profile, scene keys) within emulator.scene.limits."""
-    for key, (lo, hi) in MODEL_LIMITS.items():
-        value = getattr(model, key)
-        if not lo <= value <= hi:
-            raise rd.fail(f"model.{key}", f"must be within [{lo:.10g}, {hi:.10g}], got {value:g}")
-    for i, qi in enumerate(model.q):
-        if qi < MIN_Q:
-            raise rd.fail(f"model.q[{i}]", f"must be >= {MIN_Q:g}, got {qi:g}")
-
-
 def _ground_truth(rd: TableReader, doc: SceneTable, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
     """``[origin]`` (geodetic, for GPS) and ``[ground_truth]`` (stream settings)."""
     origin = None
@@ -233,9 +222,7 @@ def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, model_keys
     """Defaults, then the profile, then the scene's ``[model]`` keys, then ``antennas``."""
     base = profile.model if profile is not None else ModelParams()
     antennas = base.antennas if r.antennas is None else r.antennas
-    model = rd.build("model", partial(replace, base), **model_keys, antennas=antennas)
-    _check_model_limits(rd, model)
-    return model
+    return rd.build("model", partial(replace, base), **model_keys, antennas=antennas)  # each within MODEL_LIMITS
 
 
 def _receivers(
