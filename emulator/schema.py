@@ -190,9 +190,14 @@ def _out_of_range(value: float, node: Any, extra: dict) -> str:
         return f"must be in {lo}..{hi}, got {value}"
     if "unit" in extra:
         unit = f" {extra['unit']}" if extra["unit"] else ""
-        return f"must be within {'(' if node.gt is not None else '['}{lo:.10g}, {hi:.10g}]{unit}, got {value:g}"
+        return f"must be within {'(' if node.gt is not None else '['}{_short(lo)}, {_short(hi)}]{unit}, got {value:g}"
     if node.gt is not None and not value > node.gt:
         return f"must be > {node.gt:.10g}, got {value:g}"
     if lo is not None and value < lo:
         return f"must be >= {lo:.10g}, got {value:g}"
     return f"must be <= {hi:.10g}, got {value:g}"
+
+
+def _short(bound: float) -> str:
+    """The shorter exact spelling of a bound: 1e+06, 86400000, 99999.99."""
+    return min((f"{bound:.10g}", f"{bound:g}"), key=lambda t: (float(t) != bound, len(t)))

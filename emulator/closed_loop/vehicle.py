@@ -11,8 +11,8 @@ or a DEM grid file (:class:`GridTerrain`, bilinear). Positions are world ENU met
 (BRIEF 2). The vehicle flies level: its attitude is a yaw about world z only, so the
 receiver's x_r points along the heading (yaw 0 = east, counter-clockwise positive).
 
-The scene table ``[receiver.vehicle]`` is parsed here (:func:`parse_vehicle`), with the
-same strict rules as the rest of the scene (unknown keys are errors naming the key).
+The scene table ``[receiver.vehicle]`` is parsed here (:func:`parse_vehicle`: the struct
+:class:`VehicleTable` of :mod:`emulator.schema` types, as the rest of the scene).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from emulator.cli_types import BAUD_LIMITS
 from emulator.scene.limits import MAX_VEHICLE_COORD_M, VEHICLE_LIMITS
 from emulator.scene.tables import TableReader
+from emulator.schema import Int, Number, Strict, Text, Vector2, Vector3
 
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")
 
@@ -245,121 +246,89 @@ class VehicleSpec:
         return self.r_s if self.start_height is None else self.start_height
 
 
-_VEHICLE_KEYS = {
-    "kind", "controller", "start", "start_height", "yaw", "v_max", "v_z_max", "r_s", "k_c", "k_z",
-    "control_rate_hz", "range_sigma_m", "terrain", "terrain_height", "terrain_origin", "terrain_spacing",
-    "search_area", "strip_width", "v_stop", "v_fine", "flux_reverse", "mavlink", "mavlink_origin",
-    "mavlink_baud",
-}
-_MAVLINK_ONLY = {"mavlink", "mavlink_origin", "mavlink_baud"}
+def _limited(key: str, positive: bool = True):
+    """A number of ``[receiver.vehicle]`` within :data:`VEHICLE_LIMITS` (``positive``: > 0)."""
+    lo, hi = VEHICLE_LIMITS[key]
+    return Number(lo, hi, positive=positive and lo == 0.0)
+
+
+Coord = Number(-MAX_VEHICLE_COORD_M, MAX_VEHICLE_COORD_M, unit="m")
+_D = VehicleSpec()
+
+
+class VehicleTable(Strict):
+    """``[receiver.vehicle]`` as written: every key, its type and range (emulator.schema)."""
+
+    kind: Literal["uav"] = "uav"
+    controller: Literal[CONTROLLERS] = "flux"
+    start: tuple[Coord, Coord] = _D.start
+    start_height: _limited("start_height", False) | None = None
+    yaw: _limited("yaw") = 0.0
+    v_max: _limited("v_max") = _D.v_max
+    v_z_max: _limited("v_z_max") = _D.v_z_max
+    r_s: _limited("r_s") = _D.r_s
+    k_c: _limited("k_c") = _D.k_c
+    k_z: _limited("k_z") = _D.k_z
+    control_rate_hz: _limited("control_rate_hz") = _D.control_rate_hz
+    range_sigma_m: _limited("range_sigma_m", False) = _D.range_sigma_m
+    terrain: Text(".", 'flat or the path of a DEM grid file (.npy or .csv)') = "flat"
+    terrain_height: _limited("terrain_height") | None = None
+    terrain_origin: Vector2 | None = None
+    terrain_spacing: Vector2 | None = None
+    search_area: tuple[Coord, Coord, Coord, Coord] | None = None
+    strip_width: _limited("strip_width") = _D.strip_width
+    v_stop: _limited("v_stop") = _D.v_stop
+    v_fine: _limited("v_fine") = _D.v_fine
+    flux_reverse: bool = False
+    mavlink: Text(".", "a pymavlink connection string (udpin:HOST:PORT, /dev/ttyUSB0, ...)") | None = None
+    mavlink_origin: Vector3 | None = None
+    mavlink_baud: Int(*BAUD_LIMITS) | None = None
 
 
 def parse_vehicle(rd: TableReader, data: Any, path: str, scene_dir: Path | None) -> VehicleSpec:
     """Validate a ``vehicle`` table with the scene's reader ``rd`` (its file, its rules)."""
-    if not isinstance(data, dict):
-        raise rd.fail(path, "expected a table")
-    rd.known_keys(data, path, _VEHICLE_KEYS)
-    p = lambda key: f"{path}.{key}"  # noqa: E731
-    kind = data.get("kind", "uav")
-    if kind != "uav":
-        raise rd.fail(p("kind"), f"unknown vehicle kind {kind!r} (known: uav)")
-    controller = data.get("controller", "flux")
-    if controller not in CONTROLLERS:
-        raise rd.fail(p("controller"), f"unknown controller {controller!r} (known: {', '.join(CONTROLLERS)})")
-    if controller != "external_mavlink":
-        for key in sorted(_MAVLINK_ONLY & set(data)):
-            raise rd.fail(p(key), 'only with controller = "external_mavlink"')
-    d = VehicleSpec()
-    num = lambda key, default, positive=False: rd.number(  # noqa: E731
-        data, key, p(key), default, positive, limits=VEHICLE_LIMITS.get(key)
+    v: VehicleTable = rd.convert(data, VehicleTable, path)
+    mavlink = {"mavlink": v.mavlink, "mavlink_origin": v.mavlink_origin, "mavlink_baud": v.mavlink_baud}
+    if v.controller != "external_mavlink":
+        for key in sorted(k for k, value in mavlink.items() if value is not None):
+            raise rd.fail(f"{path}.{key}", 'only with controller = "external_mavlink"')
+    if v.search_area is not None and not (v.search_area[2] > v.search_area[0] and v.search_area[3] > v.search_area[1]):
+        raise rd.fail(f"{path}.search_area", "expected [xmin, ymin, xmax, ymax] with xmax > xmin and ymax > ymin")
+    terrain, source = _terrain(rd, v, path, scene_dir)
+    external = v.controller == "external_mavlink"
+    return VehicleSpec(
+        **{k: getattr(v, k) for k in _SAME_KEYS}, yaw_deg=v.yaw, terrain=terrain, terrain_source=source,
+        mavlink=(v.mavlink or "udpin:127.0.0.1:14550") if external else None,
+        mavlink_origin=v.mavlink_origin or _D.mavlink_origin,
+        mavlink_baud=v.mavlink_baud or _D.mavlink_baud,
     )
-    nonneg = lambda key, default: _non_negative(rd, num(key, default), p(key))  # noqa: E731
-
-    start = _coords(rd, rd.vector(data["start"], p("start"), 2), p("start")) if "start" in data else d.start
-    terrain, source = _terrain(rd, data, path, scene_dir)
-    area = None
-    if "search_area" in data:
-        area = _coords(rd, rd.vector(data["search_area"], p("search_area"), 4), p("search_area"))
-        if not (area[2] > area[0] and area[3] > area[1]):
-            raise rd.fail(p("search_area"), "expected [xmin, ymin, xmax, ymax] with xmax > xmin and ymax > ymin")
-    mavlink = None
-    origin = d.mavlink_origin
-    if controller == "external_mavlink":
-        mavlink = data.get("mavlink", "udpin:127.0.0.1:14550")
-        if not isinstance(mavlink, str) or not mavlink:
-            raise rd.fail(p("mavlink"), "expected a pymavlink connection string (udpin:HOST:PORT, /dev/ttyUSB0, ...)")
-        if "mavlink_origin" in data:
-            origin = tuple(rd.vector(data["mavlink_origin"], p("mavlink_origin"), 3))
-        baud = rd.integer(data, "mavlink_baud", p("mavlink_baud"), d.mavlink_baud, *BAUD_LIMITS)
-    else:
-        baud = d.mavlink_baud
-    spec = VehicleSpec(
-        kind=kind,
-        controller=controller,
-        start=(float(start[0]), float(start[1])),
-        start_height=nonneg("start_height", None) if "start_height" in data else None,
-        yaw_deg=num("yaw", 0.0),
-        v_max=num("v_max", d.v_max, True),
-        v_z_max=num("v_z_max", d.v_z_max, True),
-        r_s=num("r_s", d.r_s, True),
-        k_c=num("k_c", d.k_c, True),
-        k_z=num("k_z", d.k_z, True),
-        control_rate_hz=num("control_rate_hz", d.control_rate_hz, True),
-        range_sigma_m=nonneg("range_sigma_m", d.range_sigma_m),
-        terrain=terrain,
-        terrain_source=source,
-        search_area=area,
-        strip_width=num("strip_width", d.strip_width, True),
-        v_stop=num("v_stop", d.v_stop, True),
-        v_fine=num("v_fine", d.v_fine, True),
-        flux_reverse=rd.boolean(data, "flux_reverse", p("flux_reverse"), False),
-        mavlink=mavlink,
-        mavlink_origin=tuple(float(v) for v in origin),
-        mavlink_baud=baud,
-    )
-    return spec
 
 
-def _coords(rd: TableReader, values: list[float], path: str) -> tuple[float, ...]:
-    for i, v in enumerate(values):
-        if abs(v) > MAX_VEHICLE_COORD_M:
-            raise rd.fail(f"{path}[{i}]", f"must be within [{-MAX_VEHICLE_COORD_M:g}, {MAX_VEHICLE_COORD_M:g}] m, got {v:g}")
-    return tuple(values)
+_SAME_KEYS = ("kind", "controller", "start", "start_height", "v_max", "v_z_max", "r_s", "k_c", "k_z", "control_rate_hz",
+              "range_sigma_m", "search_area", "strip_width", "v_stop", "v_fine", "flux_reverse")
 
 
-def _non_negative(rd: TableReader, value: float, path: str) -> float:
-    if value < 0:
-        raise rd.fail(path, f"must be >= 0, got {value:g}")
-    return value
-
-
-def _terrain(rd: TableReader, data: dict, path: str, scene_dir: Path | None) -> tuple[Terrain, str]:
+def _terrain(rd: TableReader, v: VehicleTable, path: str, scene_dir: Path | None) -> tuple[Terrain, str]:
     p = lambda key: f"{path}.{key}"  # noqa: E731
-    name = data.get("terrain", "flat")
-    if not isinstance(name, str) or not name:
-        raise rd.fail(p("terrain"), 'expected "flat" or the path of a DEM grid file (.npy or .csv)')
-    if name == "flat":
+    if v.terrain == "flat":
         for key in ("terrain_origin", "terrain_spacing"):
-            if key in data:
+            if getattr(v, key) is not None:
                 raise rd.fail(p(key), "only with a DEM terrain file")
-        height = rd.number(data, "terrain_height", p("terrain_height"), 0.0, limits=VEHICLE_LIMITS["terrain_height"])
-        return FlatTerrain(height), "flat"
-    if "terrain_height" in data:
+        return FlatTerrain(v.terrain_height or 0.0), "flat"
+    if v.terrain_height is not None:
         raise rd.fail(p("terrain_height"), 'only with terrain = "flat" (a DEM gives the heights)')
     for key in ("terrain_origin", "terrain_spacing"):
-        if key not in data:
+        if getattr(v, key) is None:
             raise rd.fail(p(key), f"missing: a DEM file needs {key} = [x, y] (metres)")
-    origin = rd.vector(data["terrain_origin"], p("terrain_origin"), 2)
-    spacing = rd.vector(data["terrain_spacing"], p("terrain_spacing"), 2)
-    if not (spacing[0] > 0 and spacing[1] > 0):
+    if not (v.terrain_spacing[0] > 0 and v.terrain_spacing[1] > 0):
         raise rd.fail(p("terrain_spacing"), "both spacings must be > 0")
-    file = Path(name)
+    file = Path(v.terrain)
     if not file.is_absolute() and scene_dir is not None:
         file = scene_dir / file
     if file.suffix.lower() not in (".npy", ".csv"):
-        raise rd.fail(p("terrain"), f"a DEM file must be .npy or .csv, got {name!r}")
+        raise rd.fail(p("terrain"), f"a DEM file must be .npy or .csv, got {v.terrain!r}")
     try:
-        return GridTerrain.load(file, origin, spacing), str(file)
+        return GridTerrain.load(file, list(v.terrain_origin), list(v.terrain_spacing)), str(file)
     except OSError as exc:
         raise rd.fail(p("terrain"), f"cannot read {str(file)!r}: {exc.strerror or exc}") from None
     except ValueError as exc:

@@ -3,9 +3,9 @@ length and range, written once. :mod:`emulator.scene.reader` converts a decoded 
 document to :class:`SceneTable` and builds the scene from it; receiver profiles share the
 model, display and rate rules. Units: metres, seconds, Hz; quaternions ``[w, x, y, z]``.
 
-:class:`TableReader` is typed access to a raw TOML table with the same rules, for the
-parts of a scene that read their own table (:func:`emulator.closed_loop.vehicle.parse_vehicle`).
-Every error is :class:`~firmware_proto.errors.SceneError`: ``FILE: key.path: reason``.
+:class:`TableReader` turns the errors into :class:`~firmware_proto.errors.SceneError`
+(``FILE: key.path: reason``), also for the tables a scene's parts convert themselves
+(:func:`emulator.closed_loop.vehicle.parse_vehicle`).
 """
 
 from __future__ import annotations
@@ -24,9 +24,7 @@ from emulator.files import MAX_TOML_BYTES, FileRefused, read_regular
 from emulator.frames.trajectory import IDENTITY
 from emulator.receiver.model import ANTENNAS
 from emulator.scene.limits import MIN_Q, MODEL_LIMITS
-from emulator.schema import (
-    MAX_FLOAT, Finite, Int, Number, SchemaError, Strict, Text, Vector2, Vector3, Vector4, convert, join_key,
-)
+from emulator.schema import Finite, Int, Number, SchemaError, Strict, Text, Vector2, Vector3, Vector4, convert, join_key
 
 #: Stream rates a scene may ask for, Hz: one epoch per 1000 s up to 10 kHz (epoch k is
 #: at k / rate: a rate of 1e-320 Hz would put epoch 1 beyond any float).
@@ -163,7 +161,8 @@ class SceneTable(Strict):
 
 
 class TableReader:
-    """Typed access to a raw TOML table, errors as ``FILE: key.path: reason``."""
+    """A scene file's errors as ``FILE: key.path: reason``: tables converted to their
+    structs, configs built, the format version gated."""
 
     def __init__(self, source: str) -> None:
         self.source = source
@@ -193,32 +192,6 @@ class TableReader:
         if version > newest:
             raise self.fail(key, f"version {version} is newer than this program supports ({newest})")
         return version
-
-    def known_keys(self, data: dict, path: str, allowed: set[str]) -> None:
-        for key in data:
-            if key not in allowed:
-                raise self.fail(join_key(path, key), "unknown key")
-
-    def _get(self, data: dict, key: str, path: str, default: Any) -> Any:
-        value = data.get(key, default)
-        if value is None:
-            raise self.fail(path, "missing")
-        return value
-
-    def integer(self, data: dict, key: str, path: str, default: int | None, lo: int, hi: int) -> int:
-        return self.convert(self._get(data, key, path, default), Int(lo, hi), path)
-
-    def number(self, data: dict, key: str, path: str, default: float | None, positive: bool = False,
-               limits: tuple[float, float] | None = None) -> float:
-        """A finite number; ``positive``: > 0 (with ``limits`` (0, hi): within (0, hi])."""
-        lo, hi = limits or (0.0 if positive else -MAX_FLOAT, MAX_FLOAT)
-        return float(self.convert(self._get(data, key, path, default), Number(lo, hi, positive=positive), path))
-
-    def boolean(self, data: dict, key: str, path: str, default: bool) -> bool:
-        return self.convert(data.get(key, default), bool, path)
-
-    def vector(self, value: Any, path: str, length: int) -> list[float]:
-        return list(self.convert(value, tuple[(Finite,) * length], path))
 
 
 def toml_document(raw: bytes | str, source: str) -> dict:

@@ -139,8 +139,8 @@ def test_scene_without_vehicle_has_none():
     "body, message",
     [
         ("speed = 3", "v.toml: receiver.vehicle.speed: unknown key"),
-        ('kind = "rover"', "v.toml: receiver.vehicle.kind: unknown vehicle kind 'rover' (known: uav)"),
-        ('controller = "magic"', "v.toml: receiver.vehicle.controller: unknown controller 'magic' (known: flux, receiver_only, external_mavlink)"),
+        ('kind = "rover"', 'v.toml: receiver.vehicle.kind: must be "uav", got "rover"'),
+        ('controller = "magic"', 'v.toml: receiver.vehicle.controller: must be one of external_mavlink, flux, receiver_only, got "magic"'),
         ("v_max = 0", "v.toml: receiver.vehicle.v_max: must be > 0, got 0"),
         ("range_sigma_m = -1", "v.toml: receiver.vehicle.range_sigma_m: must be >= 0, got -1"),
         ("start = [1, 2, 3]", "v.toml: receiver.vehicle.start: expected 2 numbers, got 3"),
