@@ -2,7 +2,8 @@
 measured on the two hot validations: a control request line (JSON -> typed request, the
 control round trip's parse) and a scene's receiver/transmitter tables (decoded TOML dict
 -> typed structs). Each library gets the same typed model with the same range rules;
-the hand-written parsers of today are measured beside them. Prints microseconds per call
+the project's own parsers are measured beside them (hand-written until the migration to
+msgspec of issue 30; since then emulator.schema's). Prints microseconds per call
 (median of 7 repeats) and the error text each gives for the same bad input.
 
 Run: python tests/perf/schema_choice.py   (needs `pip install msgspec pydantic`)
@@ -171,19 +172,19 @@ def error_of(fn) -> str:
 
 def main() -> int:
     rows = [
-        ("control line -> request", "hand-written parse_request", per_call_us(lambda: [parse_request(x) for x in LINES], 3000) / 3),
+        ("control line -> request", "the project's parse_request", per_call_us(lambda: [parse_request(x) for x in LINES], 3000) / 3),
         ("control line -> request", f"msgspec {msgspec.__version__}", per_call_us(lambda: [m_decoder.decode(x) for x in LINES], 3000) / 3),
         ("control line -> request", f"pydantic {pydantic.VERSION}", per_call_us(lambda: [p_adapter.validate_json(x) for x in LINES], 3000) / 3),
         ("scene dict -> structs (8 tx, 60 waypoints)", f"msgspec {msgspec.__version__}", per_call_us(lambda: msgspec.convert(DATA, MScene), 500)),
         ("scene dict -> structs (8 tx, 60 waypoints)", f"pydantic {pydantic.VERSION}", per_call_us(lambda: PScene.model_validate(DATA), 500)),
-        ("scene text -> Scene (whole loader, for scale)", "hand-written loads_scene", per_call_us(lambda: loads_scene(SCENE, "s.toml"), 50)),
+        ("scene text -> Scene (whole loader, for scale)", "the project's loads_scene", per_call_us(lambda: loads_scene(SCENE, "s.toml"), 50)),
     ]
     print("| validation | by | us per call |\n|---|---|---|")
     for what, by, us in rows:
         print(f"| {what} | {by} | {us:.1f} |")
     print()
     print("Error for", BAD.decode())
-    print("  hand-written:", error_of(lambda: parse_request(BAD)))
+    print("  project:", error_of(lambda: parse_request(BAD)))
     print("  msgspec:     ", error_of(lambda: m_decoder.decode(BAD)))
     print("  pydantic:    ", error_of(lambda: p_adapter.validate_json(BAD)))
     bad_scene = {**DATA, "receiver": {**DATA["receiver"], "path": [*DATA["receiver"]["path"][:3], {"t": 4.0, "position": [0.0, "x", 0.0]}]}}
