@@ -27,8 +27,11 @@ import urllib.parse
 from collections.abc import Callable
 from pathlib import Path
 
-from emulator.scene.reader import default_scene, load_scene
+from serial import SerialException
+
 from firmware_proto.errors import InputError
+
+from emulator.urlhandler.protocol_arvaemu import parse_url
 
 from ..ingest.pacer import ReplayPacer
 from ..ingest.reader import Device, DeviceSpec, LinkEvent, Listener, Notifier, Read
@@ -67,20 +70,15 @@ class SceneTruth:
 
     @classmethod
     def for_url(cls, url: str, rx_role: str) -> SceneTruth | None:
-        parts = urllib.parse.urlsplit(url)
-        if parts.scheme != "arvaemu":
+        if urllib.parse.urlsplit(url).scheme != "arvaemu":
             return None
-        path = parts.netloc + parts.path
-        opts = {k: v[-1] for k, v in urllib.parse.parse_qs(parts.query).items()}
         try:
-            scene = default_scene() if path in ("", "default") else load_scene(path)
-        except (InputError, OSError):
+            u = parse_url(url)
+        except (SerialException, OSError):
             return None  # the port itself will report the problem
-        ids = [rx.id for rx in scene.receivers]
-        index = ids.index(int(opts["receiver"])) if opts.get("receiver", "").isdigit() and int(opts["receiver"]) in ids else 0
-        if getattr(scene.receivers[index], "vehicle", None) is not None:
+        if getattr(u.scene.receivers[u.index], "vehicle", None) is not None:
             return None
-        return cls(scene, index, rx_role)
+        return cls(u.scene, u.index, rx_role)
 
     def reset(self) -> None:
         """A new connection: the emulated receiver starts again at epoch 0."""

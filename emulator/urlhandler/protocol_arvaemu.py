@@ -21,6 +21,7 @@ import argparse
 import math
 import time
 import urllib.parse
+from dataclasses import dataclass
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
 
@@ -31,6 +32,7 @@ from emulator.output.ports import BufferPort
 from emulator.output.scheduler import Route
 from emulator.pipeline import Pipeline
 from emulator.scene.reader import default_scene, load_scene
+from emulator.scene.types import Scene
 from emulator.output.virtual_line import VirtualLine
 
 
@@ -53,37 +55,15 @@ class Serial(VirtualLine, SerialBase):
         self.is_open = True
 
     def _configure(self, url: str) -> None:
-        parts = urllib.parse.urlsplit(url)
-        if parts.scheme != "arvaemu":
-            raise SerialException(f"expected arvaemu://[SCENE][?options], got {url!r}")
-        options = urllib.parse.parse_qs(parts.query, keep_blank_values=True)
-        known = {"receiver", "speed", "frames", "delay"}
-        for key in options:
-            if key not in known:
-                raise SerialException(f"{url}: unknown option {key!r} (known: {', '.join(sorted(known))})")
-        opt = {k: v[-1] for k, v in options.items()}
-        path = parts.netloc + parts.path
-        try:
-            scene = default_scene() if path in ("", "default") else load_scene(path)
-        except InputError as exc:
-            raise SerialException(str(exc)) from None
-        self._speed = _option(opt, "speed", speed, 1.0, url)
-        frames = _option(opt, "frames", non_negative_int, None, url)
-        delay = _option(opt, "delay", seconds, 0.0, url)
-        index = 0
-        several = len(scene.receivers) > 1
-        if "receiver" in opt:
-            ids = [rx.id for rx in scene.receivers]
-            if not opt["receiver"].isdigit() or int(opt["receiver"]) not in ids:
-                raise SerialException(f"{url}: receiver={opt['receiver']}: no such receiver (ids: {ids})")
-            index = ids.index(int(opt["receiver"]))
-        label = f"arva:{scene.receivers[index].id}" if several else "arva"
+        u = parse_url(url)
+        self._speed = u.speed
+        label = f"arva:{u.scene.receivers[u.index].id}" if len(u.scene.receivers) > 1 else "arva"
         if self._pipeline is not None:
             self._pipeline.close_sources()
-        self._pipeline = Pipeline(scene, [label])
+        self._pipeline = Pipeline(u.scene, [label])
         (self._route,) = self._pipeline.bind({label: BufferPort(label, self._buffer)}, self._speed)
-        self._route.end_k = frames  # one stream: --frames' rule is its epoch count
-        self._start = time.monotonic() + delay
+        self._route.end_k = u.frames  # one stream: --frames' rule is its epoch count
+        self._start = time.monotonic() + u.delay
 
     # -- reading ----------------------------------------------------------------
     def _due(self) -> int:
@@ -166,6 +146,47 @@ class Serial(VirtualLine, SerialBase):
             self._pipeline.close_sources()
             self._pipeline = None
         super().close()
+
+
+@dataclass(frozen=True)
+class ArvaemuUrl:
+    """What an ``arvaemu://`` URL asks for: the scene, the receiver's index in it, the
+    speed (times real time, 0: as fast as read), the epoch count (None: endless) and the
+    delay before the first epoch (s)."""
+
+    scene: Scene
+    index: int
+    speed: float
+    frames: int | None
+    delay: float
+
+
+def parse_url(url: str) -> ArvaemuUrl:
+    """``url``'s scene and options, or :class:`SerialException` naming what is wrong."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme != "arvaemu":
+        raise SerialException(f"expected arvaemu://[SCENE][?options], got {url!r}")
+    options = urllib.parse.parse_qs(parts.query, keep_blank_values=True)
+    known = {"receiver", "speed", "frames", "delay"}
+    for key in options:
+        if key not in known:
+            raise SerialException(f"{url}: unknown option {key!r} (known: {', '.join(sorted(known))})")
+    opt = {k: v[-1] for k, v in options.items()}
+    path = parts.netloc + parts.path
+    try:
+        scene = default_scene() if path in ("", "default") else load_scene(path)
+    except InputError as exc:
+        raise SerialException(str(exc)) from None
+    index = 0
+    if "receiver" in opt:
+        ids = [rx.id for rx in scene.receivers]
+        if not opt["receiver"].isdigit() or int(opt["receiver"]) not in ids:
+            raise SerialException(f"{url}: receiver={opt['receiver']}: no such receiver (ids: {ids})")
+        index = ids.index(int(opt["receiver"]))
+    return ArvaemuUrl(
+        scene, index, _option(opt, "speed", speed, 1.0, url), _option(opt, "frames", non_negative_int, None, url),
+        _option(opt, "delay", seconds, 0.0, url),
+    )
 
 
 def _option(opt: dict, key: str, parse, default, url: str):

@@ -614,3 +614,16 @@ def test_n_and_p_bring_each_receiver_into_view_at_80x24(tmp_path):
                 assert in_view() == [device], key
 
     run(go())
+
+
+def test_scene_truth_reads_the_url_as_the_port_does(scene_file):
+    """Through the port's own parse_url: a URL the port refuses gives no scene truth (the
+    port reports the problem), never the first receiver's poses."""
+    from scene_builders import two_rx
+
+    scene = scene_file(two_rx(channels_7=2), "two.toml")
+    truth = SceneTruth.for_url(f"arvaemu://{scene}?receiver=7", "rx")
+    assert truth is not None and truth.rx.id == 7
+    assert SceneTruth.for_url(f"arvaemu://{scene}?receiver=9", "rx") is None
+    assert SceneTruth.for_url("arvaemu://?speed=fast", "rx") is None
+    assert SceneTruth.for_url("socket://localhost:1", "rx") is None

@@ -104,3 +104,15 @@ def test_bad_urls(url, message):
     with pytest.raises(serial.SerialException) as info:
         serial.serial_for_url(url)
     assert str(info.value) == message
+
+
+
+def test_parse_url_reads_scene_receiver_and_options(scene_file):
+    from emulator.urlhandler.protocol_arvaemu import parse_url
+
+    scene = scene_file(two_rx(channels_7=2), "two.toml")
+    u = parse_url(f"arvaemu://{scene}?receiver=7&speed=0&frames=3&delay=0.5")
+    assert (u.index, u.speed, u.frames, u.delay) == (1, 0.0, 3, 0.5)
+    assert [rx.id for rx in u.scene.receivers] == [1, 7]
+    with pytest.raises(serial.SerialException, match=r"receiver=9: no such receiver \(ids: \[1, 7\]\)"):
+        parse_url(f"arvaemu://{scene}?receiver=9")
