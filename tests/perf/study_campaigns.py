@@ -364,6 +364,7 @@ CONDITIONS = {
         Condition("level-gm-junk", "level_rw", "gm", ("dup", "gaps", "spurious")),
         Condition("spiral-gm", "spiral", "gm"),
         Condition("near-gm", "near", "gm"),
+        Condition("far-exact", "far"),
         Condition("far-gm", "far", "gm"),
         Condition("drone-gm", "drone", "gm"),
         Condition("radial-gm-4h", "radial", "gm", minutes=240.0),
