@@ -19,6 +19,11 @@ Usage::
 
     python tests/perf/calibration_study.py --seeds 50 --workers 2 [--conditions a,b] [--tuning]
     python tests/perf/calibration_study.py --table out.jsonl   # the table of earlier runs
+    python tests/perf/calibration_study.py --conditions level-heavy \
+        --with "level-heavy:--fit gps_outlier"   # also a variant with these fit options
+
+A ``--with COND:OPTIONS`` variant runs the condition's campaigns again with OPTIONS
+added to the fit (after ``--extra``), reported as its own row, ``COND [OPTIONS]``.
 """
 
 from __future__ import annotations
@@ -61,14 +66,14 @@ def warning_notes(notes: list[str]) -> list[str]:
     return [n for n in notes if not any(re.search(p, n) for p in ROUTINE)]
 
 
-def run_one(cond: sc.Condition, seed: int, extra: list[str], workdir: Path) -> dict:
+def run_one(cond: sc.Condition, seed: int, extra: list[str], workdir: Path, label: str | None = None) -> dict:
     camp = sc.campaign(cond, seed)
-    path = workdir / f"{cond.name}-{seed}.csv"
+    path = workdir / f"{cond.name}-{seed}-{abs(hash(label)) if label else 0}.csv"
     path.write_text(camp.csv_text())
     cmd = [sys.executable, "-m", "bench.cli", "fit", str(path), "--json", *extra]
     t0 = time.monotonic()
     rec: dict = {
-        "condition": cond.name,
+        "condition": label or cond.name,
         "seed": seed,
         "truth": {"kappa_eq": camp.truth.kappa_eq, "r_en": camp.truth.r_en},
         "rows": int(len(camp.rows)),
@@ -92,7 +97,7 @@ def run_one(cond: sc.Condition, seed: int, extra: list[str], workdir: Path) -> d
         path.unlink(missing_ok=True)
         return rec
     rec["status"] = "converged" if out.get("converged") else "not_converged"
-    rec["fit"] = {k: out.get(k) for k in ("kappa_eq", "kappa_eq_se", "r_en", "r_en_se", "gps_sigma", "attitude_sigma", "time_offset", "separable", "fit_seconds", "message")}
+    rec["fit"] = {k: out.get(k) for k in ("kappa_eq", "kappa_eq_se", "r_en", "r_en_se", "gps_sigma", "attitude_sigma", "time_offset", "separable", "fit_seconds", "message", "gps_outlier", "gps_outlier_scale", "mount_pitch", "mount_pitch_se", "mount_roll", "mount_roll_se")}
     rec["fit"]["gps_sigma_se"] = out.get("gps_sigma_se")
     rec["fit"]["attitude_sigma_se"] = out.get("attitude_sigma_se")
     gof = out.get("goodness_of_fit") or {}
@@ -159,6 +164,10 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "tests/perf/out/calibration_study.jsonl")
     ap.add_argument("--extra", default="", help="extra fit options, space-separated")
+    ap.add_argument(
+        "--with", dest="variants", action="append", default=[], metavar="COND:OPTIONS",
+        help="also run condition COND with these fit options (space-separated), as the row 'COND [OPTIONS]'",
+    )
     ap.add_argument("--table", type=Path, help="only print the table of this jsonl")
     args = ap.parse_args(argv)
     if args.table:
@@ -169,14 +178,24 @@ def main(argv=None) -> int:
     unknown = [n for n in names if n not in sc.CONDITIONS]
     if unknown:
         ap.error(f"unknown condition(s): {', '.join(unknown)} (choose from {', '.join(sc.CONDITIONS)})")
+    variants = []
+    for item in args.variants:
+        cname, sep, opts = item.partition(":")
+        if not sep or cname not in sc.CONDITIONS or not opts.split():
+            ap.error(f"--with {item!r}: expected COND:OPTIONS with a known condition and some options")
+        variants.append((cname, opts.split()))
     seed0 = 0 if args.tuning else REPORT_SEED0
-    jobs = [(sc.CONDITIONS[n], seed0 + k) for n in names for k in range(args.seeds)]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     extra = args.extra.split()
+    jobs = [(sc.CONDITIONS[n], seed0 + k, extra, None) for k in range(args.seeds) for n in names]
+    jobs += [
+        (sc.CONDITIONS[c], seed0 + k, extra + opts, f"{c} [{' '.join(opts)}]") for k in range(args.seeds) for c, opts in variants
+    ]
+    jobs.sort(key=lambda job: job[1])  # seed by seed: every row grows together when a run is cut short
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     records = []
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     with tempfile.TemporaryDirectory() as tmp, open(args.out, "a") as fh, ThreadPoolExecutor(args.workers) as pool:
-        for rec in pool.map(lambda job: run_one(job[0], job[1], extra, Path(tmp)), jobs):
+        for rec in pool.map(lambda job: run_one(job[0], job[1], job[2], Path(tmp), job[3]), jobs):
             rec["started"] = started
             fh.write(json.dumps(rec) + "\n")
             fh.flush()
