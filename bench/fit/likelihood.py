@@ -150,6 +150,11 @@ class Likelihood:
         self._memo.clear()
         return self.regimes
 
+    def geometry(self, p: Params) -> Geometry:
+        """The rows' geometry under ``p``: at its time offset, with its mounting bias and
+        antennas (what :meth:`prob` evaluates)."""
+        return self._geo(p)
+
     def _geo(self, p: Params) -> Geometry:
         geo = self.rows.track.geometry(p.time_offset) if p.time_offset != 0.0 and self.rows.track is not None else self.rows.geo
         if p.mount_pitch != 0.0 or p.mount_roll != 0.0:

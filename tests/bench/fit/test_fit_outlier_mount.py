@@ -45,6 +45,7 @@ def with_mount(rows, pitch_deg, roll_deg):
 # -- the model ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # (1.3-1.4 s under load 8-10: the generator's walk, the pose moments)
 def test_mounted_geometry_is_the_true_attitudes_geometry():
     table, _truth = table_of(sc.Condition("radial-exact", "radial", minutes=1), 3)
     true = rows_from_table(table).geo
@@ -56,6 +57,7 @@ def test_mounted_geometry_is_the_true_attitudes_geometry():
     np.testing.assert_allclose(back.g, true.g, rtol=0, atol=1e-8)  # (the CSV keeps 9 digits of each quaternion)
 
 
+@pytest.mark.slow  # (1.3-1.4 s under load 8-10: the generator's walk, the pose moments)
 def test_the_outlier_mixture_is_the_two_components_marginals():
     table, truth = table_of(sc.CONDITIONS["level-heavy"], 7)
     sigma0 = (1.0, 1.5, math.radians(2.0))
