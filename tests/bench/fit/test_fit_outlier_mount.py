@@ -81,8 +81,9 @@ def test_the_outlier_mixture_is_the_two_components_marginals():
     assert np.all(like.pose_spread(wide, 0.0, 0.0)[0] > like.pose_spread(p0, 0.0, 0.0)[0])
 
 
+@pytest.mark.slow  # (1.6-2.9 s under load: the campaign, the fit's checks)
 def test_the_options_refuse_what_they_cannot_widen():
-    table, _ = table_of(sc.Condition("radial-exact", "radial", minutes=2), 1)
+    table, _ = table_of(sc.Condition("radial-exact", "radial", minutes=1), 1)
     with pytest.raises(FitInputError, match="gps_outlier needs a horizontal GPS error"):
         fit(table, FitOptions(free=EXACT + ("gps_outlier",)))
     with pytest.raises(FitInputError, match="gps_outlier_scale needs gps_outlier"):
@@ -154,3 +155,41 @@ def test_without_heavy_tails_the_outlier_width_collapses():
     assert res.estimate["gps_outlier_scale"] == 1.5 or res.estimate["gps_outlier"] == 1e-5
     assert any("no outliers wider" in n or "no GPS outliers are visible" in n for n in res.notes)
     assert abs(res.estimate["kappa_eq"] - truth.kappa_eq) < 1.96 * res.se["kappa_eq"]
+
+
+# -- the command line ----------------------------------------------------------------------
+
+
+def fit_options(*argv):
+    import argparse
+
+    from bench.fit.cli import options_from_args, register
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    return options_from_args(parser.parse_args(["fit", "walk.csv", *argv]))
+
+
+def test_the_command_line_names_free_both_parameters_of_each():
+    assert fit_options().free == ("kappa_eq", "r_en", "gps_sigma", "attitude_sigma")
+    assert fit_options("--fit", "gps_outlier").free == (
+        "kappa_eq", "r_en", "gps_sigma", "attitude_sigma", "gps_outlier", "gps_outlier_scale",
+    )  # fmt: skip
+    assert fit_options("--fit", "mounting,gps_outlier", "--gps-sigma", "1").free == (
+        "kappa_eq", "r_en", "attitude_sigma", "gps_outlier", "gps_outlier_scale", "mount_pitch", "mount_roll",
+    )  # fmt: skip
+    assert fit_options("--fit", "mounting", "--gps-sigma", "0", "--attitude-sigma", "0").free == (
+        "kappa_eq", "r_en", "pose_sigma", "mount_pitch", "mount_roll",
+    )  # fmt: skip
+
+
+@pytest.mark.slow  # (1.6-2.9 s under load: the campaign, the fit's checks)
+def test_the_command_line_refuses_outliers_of_exact_positions(capsys, tmp_path):
+    from bench.cli import main
+
+    table, _ = table_of(sc.Condition("radial-exact", "radial", minutes=1), 1)
+    path = tmp_path / "walk.csv"
+    table.write_csv(path)
+    assert main(["fit", str(path), "--fit", "gps_outlier", "--gps-sigma", "0"]) == 2
+    out, err = capsys.readouterr()
+    assert (out, err) == ("", "arva-bench: fit: --fit gps_outlier needs a GPS error to widen, not --gps-sigma 0\n")
