@@ -150,6 +150,40 @@ def table(records: list[dict]) -> tuple[list[str], list[list[object]]]:
     return header, rows
 
 
+def extras_table(records: list[dict]) -> tuple[list[str], list[list[object]]] | None:
+    """Per condition, of the converged fits: how many the goodness-of-fit check said do
+    not fit, and the optional parameters where fitted: the mounting bias against the
+    generator's (``study_campaigns.MOUNT_DEG``: mean, RMS error and coverage of the 95 %
+    interval, deg) and the GPS outlier share and width (medians)."""
+    by: dict[str, list[dict]] = {}
+    for r in records:
+        f = r.get("fit") or {}
+        if r.get("status") == "converged":
+            by.setdefault(r["condition"], []).append(f)
+    if not by:
+        return None
+    header = ["condition", "fits", "misfit found", "pitch mean", "pitch RMS", "pitch cover %", "roll mean", "roll RMS", "roll cover %",
+              "outlier share (median)", "outlier width (median)"]  # fmt: skip
+    rows = []
+    for name, fits in by.items():
+        gof = [f["goodness_of_fit"] for f in fits if f.get("goodness_of_fit")]
+        cells: list[object] = [name, len(fits), f"{sum(not g.get('fits', True) for g in gof)}/{len(gof)}"]
+        for key, truth in zip(("mount_pitch", "mount_roll"), sc.MOUNT_DEG):
+            got = [(math.degrees(f[key]), math.degrees(f[f"{key}_se"])) for f in fits if f.get(key) is not None and f.get(f"{key}_se")]
+            if got and "mount" in name:
+                errs = [v - truth for v, _s in got]
+                cover = sum(abs(e) <= 1.96 * s for e, (_v, s) in zip(errs, got))
+                cells += [f"{sum(v for v, _s in got) / len(got):+.2f}", f"{math.sqrt(sum(e * e for e in errs) / len(errs)):.2f}",
+                          f"{100 * cover / len(got):.0f} ({cover}/{len(got)})"]  # fmt: skip
+            else:
+                cells += ["-", "-", "-"]
+        for key in ("gps_outlier", "gps_outlier_scale"):
+            vals = sorted(f[key] for f in fits if f.get(key) is not None)
+            cells.append(f"{vals[len(vals) // 2]:.3g}" if vals else "-")
+        rows.append(cells)
+    return header, rows
+
+
 def markdown(header, rows) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
@@ -173,6 +207,10 @@ def main(argv=None) -> int:
     if args.table:
         recs = [json.loads(line) for line in args.table.read_text().splitlines() if line.strip()]
         print(markdown(*table(recs)))
+        extras = extras_table(recs)
+        if extras is not None:
+            print()
+            print(markdown(*extras))
         return 0
     names = [n for n in args.conditions.split(",") if n]
     unknown = [n for n in names if n not in sc.CONDITIONS]
