@@ -194,6 +194,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--conditions", default=",".join(sc.CONDITIONS), help="comma-separated condition names")
     ap.add_argument("--seeds", type=int, default=50)
+    ap.add_argument("--skip", type=int, default=0, help="start this many seeds in (to continue an earlier run)")
     ap.add_argument("--tuning", action="store_true", help="development seeds (0 up) instead of the report seeds")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "tests/perf/out/calibration_study.jsonl")
@@ -222,7 +223,7 @@ def main(argv=None) -> int:
         if not sep or cname not in sc.CONDITIONS or not opts.split():
             ap.error(f"--with {item!r}: expected COND:OPTIONS with a known condition and some options")
         variants.append((cname, opts.split()))
-    seed0 = 0 if args.tuning else REPORT_SEED0
+    seed0 = (0 if args.tuning else REPORT_SEED0) + args.skip
     extra = args.extra.split()
     jobs = [(sc.CONDITIONS[n], seed0 + k, extra, None) for k in range(args.seeds) for n in names]
     jobs += [
