@@ -23,7 +23,10 @@ from emulator.progress import progress
 
 from .grades import GPS_GRADE_RATIO, GPS_GRADES, IMU_GRADES
 
-OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset", "dropout")
+OPTIONAL_FREE = ("q", "r_outer", "time_offset", "height_offset", "dropout", "gps_outlier", "mounting")
+#: ``--fit`` names that free several parameters: the share of GPS outliers with their
+#: width; the mounting bias's pitch and roll (docs/calibration.md section 2).
+ALIASES = {"gps_outlier": ("gps_outlier", "gps_outlier_scale"), "mounting": ("mount_pitch", "mount_roll")}
 
 
 def register(subparsers) -> None:
@@ -49,7 +52,9 @@ def register(subparsers) -> None:
         metavar="NAMES",
         action="append",
         default=[],
-        help=f"also fit these, comma-separated: {', '.join(OPTIONAL_FREE)} (q as the ratio q_y/q_x)",
+        help=f"also fit these, comma-separated: {', '.join(OPTIONAL_FREE)} (q as the ratio q_y/q_x; gps_outlier: "
+        "heavy-tailed GPS error, a share of rows with a wider horizontal error, both fitted; mounting: constant pitch and roll "
+        "offsets of the receiver's attitude)",
     )
     fixed = p.add_argument_group("fixed model constants (used as given unless fitted)")
     fixed.add_argument("--r-inner", type=_positive, default=3.0, metavar="M", help="inner-zone radius (default 3.0)")
@@ -188,8 +193,9 @@ def options_from_args(args):
                 continue
             if name not in OPTIONAL_FREE:
                 raise FitInputError(f"--fit: unknown parameter {name!r} (choose from {', '.join(OPTIONAL_FREE)})")
-            if name not in extra:
-                extra.append(name)
+            for one in ALIASES.get(name, (name,)):
+                if one not in extra:
+                    extra.append(one)
     # The pose error: GPS and attitude sigmas estimated unless given; with both given as 0
     # (exact poses) the relative pose_sigma is fitted instead, as before the errors-in-variables model.
     gps = args.gps_sigma
@@ -203,6 +209,8 @@ def options_from_args(args):
             raise FitInputError("--imu-grade and --attitude-sigma contradict each other; give one")
         att = IMU_GRADES[args.imu_grade]
     eiv = not (gps is not None and gps[0] == 0 and att is not None and att == 0)
+    if "gps_outlier" in extra and gps is not None and gps[0] == 0:
+        raise FitInputError("--fit gps_outlier needs a GPS error to widen, not --gps-sigma 0")
     pose_free = args.pose_sigma is None and (not eiv or fit_pose_sigma)
     free = (
         ["kappa_eq", "r_en"]
@@ -264,6 +272,17 @@ def summary(result) -> str:
         lines.append(row("time_offset", p.time_offset, " s"))
     if "dropout" in result.free:
         lines.append(row("dropout", p.dropout, "", "   (rows that read -1 whatever the signal)"))
+    if "gps_outlier" in result.free:
+        lines.append(
+            row("gps_outlier", p.gps_outlier, "", f"   (rows whose horizontal GPS error is {p.gps_outlier_scale:.3g}x wider"
+                + (f" +- {result.se['gps_outlier_scale']:.3g}" if _has_se(result, "gps_outlier_scale") else "") + ")")
+        )  # fmt: skip
+    if "mount_pitch" in result.free or "mount_roll" in result.free:
+        parts = [
+            f"{label} {math.degrees(getattr(p, name)):+.3g}" + (f" +- {math.degrees(result.se[name]):.2g}" if _has_se(result, name) else "")
+            for label, name in (("pitch", "mount_pitch"), ("roll", "mount_roll")) if name in result.free
+        ]  # fmt: skip
+        lines.append(f"{'mounting':<11} = {', '.join(parts)} deg   (the receiver's attitude against the logged one)")
     if "q" in result.free:
         lines.append(f"{'q':<11} = {', '.join(f'{v:.4g}' for v in p.q)}   (q_y/q_x +- {result.se.get('q', float('nan')):.3g})")
     if result.hac_lag == result.hac_lag:
@@ -278,6 +297,11 @@ def summary(result) -> str:
     nv = result.naive
     lines.append(f"naive least squares on detected rows only: kappa_eq {nv['kappa_eq']:.6g}, r_en {nv['r_en']:.4g} m")
     return "\n".join(lines)
+
+
+def _has_se(result, name: str) -> bool:
+    se = result.se.get(name)
+    return name in result.free and se is not None and se == se
 
 
 def run(args: argparse.Namespace) -> int:

@@ -36,6 +36,10 @@ from .table import FitInputError, Table, check_times, gps_scale
 MIN_ROWS = 50
 #: Where a fitted dropout probability starts (one spurious -1 row in a thousand).
 DROPOUT_START = 1e-3
+#: Where a fitted share of GPS outliers starts (the wide component of heavy-tailed GPS error).
+GPS_OUTLIER_START = 0.05
+#: The heavy-tailed GPS error's parameters (they need a horizontal GPS error to widen).
+OUTLIER = ("gps_outlier", "gps_outlier_scale")
 #: 90 % of rows within this ratio of distances is "no spread".
 MIN_SPREAD = 1.25
 
@@ -244,14 +248,17 @@ def exact_if_invisible(table: Table, options: FitOptions, res: FitResult) -> tup
         and options.start is None
     ):
         return res, options
-    free = tuple(m for m in options.free if m not in POSE_SIGMAS)
+    free = tuple(m for m in options.free if m not in POSE_SIGMAS + OUTLIER)  # (no GPS error: nothing to widen)
     if options.eiv_floor and "pose_sigma" not in free:
         free += ("pose_sigma",)
     exact_options = replace(
         options,
         free=free,
-        base=replace(options.base, gps_sigma=0.0, attitude_sigma=0.0, pose_sigma=Params().pose_sigma if options.eiv_floor else options.base.pose_sigma),
-    )
+        base=replace(
+            options.base, gps_sigma=0.0, attitude_sigma=0.0, gps_outlier=0.0,
+            pose_sigma=Params().pose_sigma if options.eiv_floor else options.base.pose_sigma,
+        ),
+    )  # fmt: skip
     exact = fit_restarted(table, exact_options)
     exact.seconds += res.seconds
     exact.n_evals += res.n_evals
@@ -270,6 +277,26 @@ def exact_if_invisible(table: Table, options: FitOptions, res: FitResult) -> tup
         f"(as --gps-sigma 0 --attitude-sigma 0{before})",
     )
     return exact, exact_options
+
+
+def outlier_width_held(free, held) -> np.ndarray:
+    """Where ``free`` has the outliers' width and their share is ``held`` at its lower
+    bound: no outliers are visible, the width is flat and is held where it is."""
+    out = np.zeros(len(free), bool)
+    if "gps_outlier" in free and "gps_outlier_scale" in free and held[free.index("gps_outlier")]:
+        out[free.index("gps_outlier_scale")] = True
+    return out
+
+
+def check_outlier(table: Table, free, base: Params) -> None:
+    """Heavy-tailed GPS error widens the horizontal GPS error: refuse it (one line)
+    without one, and its scale without its share."""
+    if not any(m in free for m in OUTLIER):
+        return
+    if not ("gps_sigma" in free or base.gps_sigma > 0.0):
+        raise FitInputError(f"{table.source}: gps_outlier needs a horizontal GPS error (fitted or > 0), not exact positions")
+    if "gps_outlier_scale" in free and not ("gps_outlier" in free or base.gps_outlier > 0.0):
+        raise FitInputError(f"{table.source}: gps_outlier_scale needs gps_outlier (fitted or > 0)")
 
 
 def no_floor_note(r_max: float) -> str:
@@ -295,6 +322,9 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
     stamps = check_times(table)
     if "dropout" in free and not base.dropout > 0.0:
         base = replace(base, dropout=DROPOUT_START)
+    check_outlier(table, free, base)
+    if "gps_outlier" in free and not base.gps_outlier > 0.0:
+        base = replace(base, gps_outlier=GPS_OUTLIER_START)
     if eiv:
         if "pose_sigma" not in free and options.eiv_floor:
             base = replace(base, pose_sigma=EIV_POSE_SIGMA)
@@ -375,6 +405,7 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         # every other standard error huge.
         vanish = np.array([m in MAY_VANISH for m in newton_free]) & (theta_n <= lo_n + math.log(1.02))
         active = active | vanish | (theta_n >= hi_n - 1e-6)  # r_en a hair below its ceiling
+        active = active | outlier_width_held(newton_free, vanish)
     theta_n = np.where(active & (theta_n <= lo_n + math.log(1.02)), lo_n, theta_n)  # exactly at the bound
     params = to_params(base, newton_free, theta_n)
     for name in MAY_VANISH:
@@ -398,10 +429,14 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         for i in np.flatnonzero(active):
             name = newton_free[i]
             at_lower = theta_n[i] <= lo[i] + 1e-6
-            if name in MAY_VANISH and at_lower:
+            if name == "gps_outlier_scale" and outlier_width_held(newton_free, active)[i]:
+                notes.append(f"gps_outlier_scale is held at {params.gps_outlier_scale:.3g} (no GPS outliers are visible)")
+            elif name in MAY_VANISH and at_lower:
                 what = {
                     "pose_sigma": "the poses look exact", "gps_sigma": "no GPS error is visible",
                     "attitude_sigma": "no attitude error is visible", "dropout": "no spurious -1 rows are visible",
+                    "gps_outlier": "no GPS outliers are visible",
+                    "gps_outlier_scale": "no outliers wider than the usual GPS error are visible",
                 }[name]  # fmt: skip
                 held_how = (
                     "the other standard errors include how far it could be above it (its variance is a "

@@ -60,7 +60,7 @@ from .special import (
     smoothed_ball_disk_cdf,
 )
 from .params import FREE_PARAMS, LINEAR, Params, from_params, to_params  # noqa: F401 (re-exported)
-from .rows import Geometry, PoseTrack, Rows, geometry, rows_from_table  # noqa: F401 (re-exported)
+from .rows import Geometry, PoseTrack, Rows, geometry, mounted, rows_from_table  # noqa: F401 (re-exported)
 
 GROSS_ERROR = 1e-6
 EPS_SPLIT = 0.03
@@ -150,8 +150,15 @@ class Likelihood:
         self._memo.clear()
         return self.regimes
 
+    def geometry(self, p: Params) -> Geometry:
+        """The rows' geometry under ``p``: at its time offset, with its mounting bias and
+        antennas (what :meth:`prob` evaluates)."""
+        return self._geo(p)
+
     def _geo(self, p: Params) -> Geometry:
         geo = self.rows.track.geometry(p.time_offset) if p.time_offset != 0.0 and self.rows.track is not None else self.rows.geo
+        if p.mount_pitch != 0.0 or p.mount_roll != 0.0:
+            geo = mounted(geo, p.mount_pitch, p.mount_roll)
         return geo if p.antennas == 3 else Geometry(geo.log_r, geo.g * np.array([[1.0], [1.0], [0.0]]))
 
     def logp(self, p: Params) -> NDArray[np.float64]:
@@ -210,7 +217,7 @@ class Likelihood:
         this class's own."""
         mom_free = self.rows.moments is None or (p.gps_sigma == 0.0 and p.attitude_sigma == 0.0 and p.height_offset == 0.0)
         narrow = self.regimes is not None and self.regimes.narrow is not None and bool(self.regimes.narrow.any())
-        plain = type(self).mid_prob is Likelihood.mid_prob and p.pose_sigma > 0.0 and p.dropout == 0.0
+        plain = type(self).mid_prob is Likelihood.mid_prob and p.pose_sigma > 0.0 and p.dropout == 0.0 and p.gps_outlier == 0.0
         return mom_free and not narrow and plain
 
     def logp_grad(self, p: Params) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -284,7 +291,14 @@ class Likelihood:
 
     def prob(self, p: Params, grad: bool = False):
         """P(d_i) per row; with ``grad`` (exact poses, :meth:`has_grad`) also its
-        derivatives in (log kappa_eq, log r_en, log pose_sigma), shape (3, N)."""
+        derivatives in (log kappa_eq, log r_en, log pose_sigma), shape (3, N). With
+        heavy-tailed GPS error (``p.gps_outlier`` > 0) the mixture of its two components."""
+        if p.gps_outlier > 0.0 and not grad:
+            return mixed(p, self._prob)
+        return self._prob(p, grad)
+
+    def _prob(self, p: Params, grad: bool = False):
+        """:meth:`prob` of one pose-error model (no outlier component)."""
         if self.regimes is None:
             self.choose_regimes(p)
         geo = self._geo(p)
@@ -445,7 +459,7 @@ class Likelihood:
         det = k >= 1
         if det.any():
             widened = _UnionBin(self, det)
-            below[det] = widened.prob_le(p) * (1.0 - p.dropout)
+            below[det] = mixed(p, widened.prob_le) * (1.0 - p.dropout)
         cens = k == -1
         if cens.any():
             below[cens] = 1.0 - self.prob_censored(p)[cens]
@@ -460,6 +474,18 @@ class Likelihood:
             return (1.0 - p.dropout) * self.prob(p) + p.dropout
         finally:
             self.k, self.censored = saved
+
+
+def mixed(p: Params, f):
+    """f(p), or with heavy-tailed GPS error (p.gps_outlier = w > 0) the mixture
+    (1 - w) f(usual) + w f(wide) of its components (:meth:`Params.outlier_components`):
+    a row's horizontal GPS error is from the wide one with probability w. The pose-error
+    moments are linear in each group's sigma^2, so the wide component is the same rows'
+    moments at a larger horizontal sigma."""
+    if not p.gps_outlier > 0.0:
+        return f(p)
+    usual, wide = p.outlier_components()
+    return (1.0 - p.gps_outlier) * f(usual) + p.gps_outlier * f(wide)
 
 
 @dataclass

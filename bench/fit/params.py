@@ -33,20 +33,36 @@ class Params:
     attitude_sigma: float = 0.0  # attitude error of the receiver (rad, per body axis)
     height_offset: float = 0.0  # receiver-above-transmitter height the logs miss (m; common GPS error)
     dropout: float = 0.0  # probability that a row reads -1 whatever the signal (a spurious "nothing heard")
+    # heavy-tailed horizontal GPS error: with probability gps_outlier a row's horizontal GPS
+    # error is from a wide component, gps_outlier_scale times gps_sigma (0: off)
+    gps_outlier: float = 0.0
+    gps_outlier_scale: float = 4.0
+    # constant mounting bias of the receiver's attitude (rad): the true receiver-frame field
+    # is Ry(mount_pitch) Rx(mount_roll) times the logged one (rows.mounted; 0: off)
+    mount_pitch: float = 0.0
+    mount_roll: float = 0.0
 
     @property
     def pose_error(self) -> tuple[float, float, float]:
         """(horizontal m, vertical m, attitude rad) of the errors-in-variables model."""
         return (self.gps_sigma, self.gps_ratio * self.gps_sigma, self.attitude_sigma)
 
+    def outlier_components(self) -> tuple["Params", "Params"]:
+        """(usual, wide): the two components of the heavy-tailed GPS error, each without it;
+        the wide one's horizontal sigma is gps_outlier_scale times larger, its vertical the
+        same (gps_ratio divided by the scale)."""
+        usual = replace(self, gps_outlier=0.0)
+        k = self.gps_outlier_scale
+        return usual, replace(usual, gps_sigma=k * self.gps_sigma, gps_ratio=self.gps_ratio / k)
+
 
 #: Parameters the fit can estimate, with their transform to the optimiser's scale.
 FREE_PARAMS = (
     "kappa_eq", "r_en", "q", "r_outer", "time_offset", "pose_sigma", "gps_sigma", "attitude_sigma", "height_offset",
-    "dropout",
+    "dropout", "gps_outlier", "gps_outlier_scale", "mount_pitch", "mount_roll",
 )  # fmt: skip
-#: Parameters on a linear scale (seconds, metres); the others are fitted in logs.
-LINEAR = ("time_offset", "height_offset")
+#: Parameters on a linear scale (seconds, metres, radians); the others are fitted in logs.
+LINEAR = ("time_offset", "height_offset", "mount_pitch", "mount_roll")
 
 
 def to_params(base: Params, names: tuple[str, ...], theta: NDArray[np.float64]) -> Params:
@@ -90,9 +106,14 @@ BOUNDS = {
     "attitude_sigma": (math.radians(0.05), 0.5),  # rad
     # below 1e-5 a spurious -1 is rarer than one per campaign: the likelihood is flat there
     "dropout": (1e-5, 0.5),
+    # the share of rows in the wide GPS component: as dropout
+    "gps_outlier": (1e-5, 0.95),
+    "gps_outlier_scale": (1.5, 30.0),  # wide / usual horizontal GPS sigma
+    "mount_pitch": (-0.5, 0.5),  # rad (about +-29 deg)
+    "mount_roll": (-0.5, 0.5),
 }
 #: Parameters that may sit at their lower bound on exact poses (held there, with a note).
-MAY_VANISH = ("pose_sigma", "gps_sigma", "attitude_sigma", "dropout")
+MAY_VANISH = ("pose_sigma", "gps_sigma", "attitude_sigma", "dropout", "gps_outlier", "gps_outlier_scale")
 
 def box(free) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     lo = np.array([BOUNDS[n][0] if n in LINEAR else math.log(BOUNDS[n][0]) for n in free])
@@ -112,6 +133,10 @@ INITIAL_STEPS = {
     "gps_sigma": 1e-2,
     "attitude_sigma": 1e-2,
     "dropout": 1e-2,
+    "gps_outlier": 1e-2,
+    "gps_outlier_scale": 1e-2,
+    "mount_pitch": 2e-3,  # rad
+    "mount_roll": 2e-3,
 }
 
 

@@ -58,11 +58,15 @@ def diagnostics(table: Table, result: FitResult, seed: int = 0) -> Diagnostics:
     rows = model_rows(table, params)
     like = Likelihood(rows)
     like.choose_regimes(params)
-    spread = None
+    spread = wide = None
     if rows.moments is not None:
         zero = np.zeros(rows.k.shape[0])
-        s_xy, _s3, _l3, shift = like.pose_spread(params, zero, zero)
+        usual, outlier = params.outlier_components()
+        s_xy, _s3, _l3, shift = like.pose_spread(usual, zero, zero)
         spread = (shift, np.broadcast_to(s_xy, zero.shape))
+        if params.gps_outlier > 0.0:  # heavy-tailed GPS error: a row's draw from the wide component
+            s_xy, _s3, _l3, shift = like.pose_spread(outlier, zero, zero)
+            wide = (shift, np.broadcast_to(s_xy, zero.shape))
     r = np.exp(rows.geo.log_r)
     d = rows.k
     top = float(np.max(r))
@@ -73,7 +77,15 @@ def diagnostics(table: Table, result: FitResult, seed: int = 0) -> Diagnostics:
 
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0xD1A6,)))
     reps = int(min(200, max(4, 400000 // max(len(d), 1))))
-    sims = np.stack([simulate(rows.geo, params, rng, spread) for _ in range(reps)], axis=1)  # (n, reps)
+    geo = like.geometry(params)  # (with a mounting bias, the receiver's own attitude)
+
+    def draw(spread):
+        if wide is not None:
+            pick = rng.random(zero.shape[0]) < params.gps_outlier
+            spread = tuple(np.where(pick, w, u) for u, w in zip(spread, wide))
+        return simulate(geo, params, rng, spread)
+
+    sims = np.stack([draw(spread) for _ in range(reps)], axis=1)  # (n, reps)
     logp = like.logp(params)
     pit, p_cens = pit_values(like, params, rng.random(len(d)))
     ks = _ks_uniform(pit)

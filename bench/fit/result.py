@@ -85,6 +85,10 @@ class FitResult:
             out[name] = getattr(self.params, name)
             if name in self.free:
                 out[f"{name}_se"] = self.se.get(name)
+        for name in ("gps_outlier", "gps_outlier_scale", "mount_pitch", "mount_roll"):  # optional: only when used
+            if name in self.free or (name == "gps_outlier_scale" and "gps_outlier" in self.free):
+                out[name] = getattr(self.params, name)
+                out[f"{name}_se"] = self.se.get(name) if name in self.free else None
         if not self.separable:  # r_en not determined: no number (docs/calibration.md, identifiability)
             out["r_en"] = out["r_en_se"] = None
         out["gps_sigma_vertical"] = self.params.gps_ratio * self.params.gps_sigma

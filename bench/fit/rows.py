@@ -9,6 +9,7 @@ as splines of time, for a clock offset.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,6 +47,15 @@ def geometry(rx_pos, rx_quat, tx_pos, tx_quat) -> Geometry:
     with np.errstate(divide="ignore"):
         log_r = np.log(r)
     return Geometry(log_r, g)
+
+
+def mounted(geo: Geometry, pitch: float, roll: float) -> Geometry:
+    """``geo`` with a constant mounting bias of the receiver (pitch, roll in rad): the log
+    holds the attitude of the receiver turned by M = Ry(pitch) Rx(roll) in its body frame
+    (logged = true M, body to world), so the true receiver-frame field is g = M g_logged."""
+    cp, sp, cr, sr = math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
+    m = np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
+    return Geometry(geo.log_r, m @ geo.g)
 
 
 class PoseTrack:

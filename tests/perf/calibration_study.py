@@ -19,6 +19,11 @@ Usage::
 
     python tests/perf/calibration_study.py --seeds 50 --workers 2 [--conditions a,b] [--tuning]
     python tests/perf/calibration_study.py --table out.jsonl   # the table of earlier runs
+    python tests/perf/calibration_study.py --conditions level-heavy \
+        --with "level-heavy:--fit gps_outlier"   # also a variant with these fit options
+
+A ``--with COND:OPTIONS`` variant runs the condition's campaigns again with OPTIONS
+added to the fit (after ``--extra``), reported as its own row, ``COND [OPTIONS]``.
 """
 
 from __future__ import annotations
@@ -50,6 +55,7 @@ ROUTINE = (
     r"^each row's GPS error follows",
     r"rows left out: closer to the transmitter than the pose error lets the model place them$",
     r"is at its lower bound .*\(exact|is at its lower bound",
+    r"^gps_outlier_scale is held at .* \(no GPS outliers are visible\)$",
     r"^the first search stopped .*; a restart from its point.* converged$",
     # the default fit refitted as exact poses (both pose-error sigmas on their floors): how
     # it ran, not a warning, so it must not hide a miss from the silent count
@@ -61,14 +67,14 @@ def warning_notes(notes: list[str]) -> list[str]:
     return [n for n in notes if not any(re.search(p, n) for p in ROUTINE)]
 
 
-def run_one(cond: sc.Condition, seed: int, extra: list[str], workdir: Path) -> dict:
+def run_one(cond: sc.Condition, seed: int, extra: list[str], workdir: Path, label: str | None = None) -> dict:
     camp = sc.campaign(cond, seed)
-    path = workdir / f"{cond.name}-{seed}.csv"
+    path = workdir / f"{cond.name}-{seed}-{abs(hash(label)) if label else 0}.csv"
     path.write_text(camp.csv_text())
     cmd = [sys.executable, "-m", "bench.cli", "fit", str(path), "--json", *extra]
     t0 = time.monotonic()
     rec: dict = {
-        "condition": cond.name,
+        "condition": label or cond.name,
         "seed": seed,
         "truth": {"kappa_eq": camp.truth.kappa_eq, "r_en": camp.truth.r_en},
         "rows": int(len(camp.rows)),
@@ -92,7 +98,7 @@ def run_one(cond: sc.Condition, seed: int, extra: list[str], workdir: Path) -> d
         path.unlink(missing_ok=True)
         return rec
     rec["status"] = "converged" if out.get("converged") else "not_converged"
-    rec["fit"] = {k: out.get(k) for k in ("kappa_eq", "kappa_eq_se", "r_en", "r_en_se", "gps_sigma", "attitude_sigma", "time_offset", "separable", "fit_seconds", "message")}
+    rec["fit"] = {k: out.get(k) for k in ("kappa_eq", "kappa_eq_se", "r_en", "r_en_se", "gps_sigma", "attitude_sigma", "time_offset", "separable", "fit_seconds", "message", "gps_outlier", "gps_outlier_scale", "mount_pitch", "mount_pitch_se", "mount_roll", "mount_roll_se")}
     rec["fit"]["gps_sigma_se"] = out.get("gps_sigma_se")
     rec["fit"]["attitude_sigma_se"] = out.get("attitude_sigma_se")
     gof = out.get("goodness_of_fit") or {}
@@ -137,10 +143,46 @@ def table(records: list[dict]) -> tuple[list[str], list[list[object]]]:
                 cells += ["-", "-", "-"]
         for r in conv:
             zk, zr = _z(r, "kappa_eq"), _z(r, "r_en")
-            if ((zk is not None and abs(zk) > 3) or (zr is not None and abs(zr) > 3)) and not r["warnings"]:
+            # (the warnings from the notes under the current ROUTINE list, as run_one makes them)
+            warned = warning_notes(r.get("notes", [])) or not (r.get("fit") or {}).get("separable", True)
+            if ((zk is not None and abs(zk) > 3) or (zr is not None and abs(zr) > 3)) and not warned:
                 silent += 1
         walls = sorted(r["wall"] for r in recs if "wall" in r)
         cells += [silent, f"{walls[len(walls) // 2]:.1f}" if walls else "-"]
+        rows.append(cells)
+    return header, rows
+
+
+def extras_table(records: list[dict]) -> tuple[list[str], list[list[object]]] | None:
+    """Per condition, of the converged fits: how many the goodness-of-fit check said do
+    not fit, and the optional parameters where fitted: the mounting bias against the
+    generator's (``study_campaigns.MOUNT_DEG``: mean, RMS error and coverage of the 95 %
+    interval, deg) and the GPS outlier share and width (medians)."""
+    by: dict[str, list[dict]] = {}
+    for r in records:
+        f = r.get("fit") or {}
+        if r.get("status") == "converged":
+            by.setdefault(r["condition"], []).append(f)
+    if not by:
+        return None
+    header = ["condition", "fits", "misfit found", "pitch mean", "pitch RMS", "pitch cover %", "roll mean", "roll RMS", "roll cover %",
+              "outlier share (median)", "outlier width (median)"]  # fmt: skip
+    rows = []
+    for name, fits in by.items():
+        gof = [f["goodness_of_fit"] for f in fits if f.get("goodness_of_fit")]
+        cells: list[object] = [name, len(fits), f"{sum(not g.get('fits', True) for g in gof)}/{len(gof)}"]
+        for key, truth in zip(("mount_pitch", "mount_roll"), sc.MOUNT_DEG):
+            got = [(math.degrees(f[key]), math.degrees(f[f"{key}_se"])) for f in fits if f.get(key) is not None and f.get(f"{key}_se")]
+            if got and "mount" in name:
+                errs = [v - truth for v, _s in got]
+                cover = sum(abs(e) <= 1.96 * s for e, (_v, s) in zip(errs, got))
+                cells += [f"{sum(v for v, _s in got) / len(got):+.2f}", f"{math.sqrt(sum(e * e for e in errs) / len(errs)):.2f}",
+                          f"{100 * cover / len(got):.0f} ({cover}/{len(got)})"]  # fmt: skip
+            else:
+                cells += ["-", "-", "-"]
+        for key in ("gps_outlier", "gps_outlier_scale"):
+            vals = sorted(f[key] for f in fits if f.get(key) is not None)
+            cells.append(f"{vals[len(vals) // 2]:.3g}" if vals else "-")
         rows.append(cells)
     return header, rows
 
@@ -155,28 +197,47 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--conditions", default=",".join(sc.CONDITIONS), help="comma-separated condition names")
     ap.add_argument("--seeds", type=int, default=50)
+    ap.add_argument("--skip", type=int, default=0, help="start this many seeds in (to continue an earlier run)")
     ap.add_argument("--tuning", action="store_true", help="development seeds (0 up) instead of the report seeds")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "tests/perf/out/calibration_study.jsonl")
     ap.add_argument("--extra", default="", help="extra fit options, space-separated")
+    ap.add_argument(
+        "--with", dest="variants", action="append", default=[], metavar="COND:OPTIONS",
+        help="also run condition COND with these fit options (space-separated), as the row 'COND [OPTIONS]'",
+    )
     ap.add_argument("--table", type=Path, help="only print the table of this jsonl")
     args = ap.parse_args(argv)
     if args.table:
         recs = [json.loads(line) for line in args.table.read_text().splitlines() if line.strip()]
         print(markdown(*table(recs)))
+        extras = extras_table(recs)
+        if extras is not None:
+            print()
+            print(markdown(*extras))
         return 0
     names = [n for n in args.conditions.split(",") if n]
     unknown = [n for n in names if n not in sc.CONDITIONS]
     if unknown:
         ap.error(f"unknown condition(s): {', '.join(unknown)} (choose from {', '.join(sc.CONDITIONS)})")
-    seed0 = 0 if args.tuning else REPORT_SEED0
-    jobs = [(sc.CONDITIONS[n], seed0 + k) for n in names for k in range(args.seeds)]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
+    variants = []
+    for item in args.variants:
+        cname, sep, opts = item.partition(":")
+        if not sep or cname not in sc.CONDITIONS or not opts.split():
+            ap.error(f"--with {item!r}: expected COND:OPTIONS with a known condition and some options")
+        variants.append((cname, opts.split()))
+    seed0 = (0 if args.tuning else REPORT_SEED0) + args.skip
     extra = args.extra.split()
+    jobs = [(sc.CONDITIONS[n], seed0 + k, extra, None) for k in range(args.seeds) for n in names]
+    jobs += [
+        (sc.CONDITIONS[c], seed0 + k, extra + opts, f"{c} [{' '.join(opts)}]") for k in range(args.seeds) for c, opts in variants
+    ]
+    jobs.sort(key=lambda job: job[1])  # seed by seed: every row grows together when a run is cut short
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     records = []
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     with tempfile.TemporaryDirectory() as tmp, open(args.out, "a") as fh, ThreadPoolExecutor(args.workers) as pool:
-        for rec in pool.map(lambda job: run_one(job[0], job[1], extra, Path(tmp)), jobs):
+        for rec in pool.map(lambda job: run_one(job[0], job[1], job[2], Path(tmp), job[3]), jobs):
             rec["started"] = started
             fh.write(json.dumps(rec) + "\n")
             fh.flush()

@@ -268,6 +268,10 @@ def gauss_markov(n, dt, sigma, tau, rng, dims, innovations=None):
     return x * sigma
 
 
+#: The ``mount`` error's bias (pitch, roll; deg): logged attitude = true * Ry(pitch) Rx(roll).
+MOUNT_DEG = (3.0, -2.0)
+
+
 def pose_error(kind: str, t, pos, rot, fine, rng: np.random.Generator):
     """Logged (positions, Rotation) for true ones at 1 Hz times ``t``."""
     if kind == "exact":
@@ -299,7 +303,7 @@ def pose_error(kind: str, t, pos, rot, fine, rng: np.random.Generator):
     att = Rotation.from_rotvec(gauss_markov(n, dt, math.radians(2.0), 5.0, rng, 3))
     logged_rot = rot * att  # a body-frame error rotation
     if kind == "mount":
-        logged_rot = logged_rot * Rotation.from_euler("ZYX", [0.0, 3.0, -2.0], degrees=True)
+        logged_rot = logged_rot * Rotation.from_euler("ZYX", [0.0, *MOUNT_DEG], degrees=True)
     return pos + err, logged_rot
 
 

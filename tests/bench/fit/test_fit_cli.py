@@ -224,7 +224,7 @@ def test_bad_inputs_exit_2_with_one_line(capsys, tmp_path):
 
 
 def test_bad_arguments(campaign, capsys):
-    assert run(capsys, campaign, "--fit", "q,foo") == (2, "", "arva-bench: fit: --fit: unknown parameter 'foo' (choose from q, r_outer, time_offset, height_offset, dropout)\n")
+    assert run(capsys, campaign, "--fit", "q,foo") == (2, "", "arva-bench: fit: --fit: unknown parameter 'foo' (choose from q, r_outer, time_offset, height_offset, dropout, gps_outlier, mounting)\n")
     assert run(capsys, campaign, "--fit", "pose_sigma", "--pose-sigma", "0.01")[2] == (
         "arva-bench: fit: --fit pose_sigma and --pose-sigma contradict each other\n"
     )
