@@ -32,17 +32,17 @@ run: $(RUN_STAMP)
 	$(BIN)/arva-emulate --port - --frames 10 --speed 0
 
 # The import layers first (pyproject.toml's [tool.importlinter]), then the whole suite in
-# two runs: what is not marked pty or timing on 2 xdist workers (a file stays on one worker,
-# so its module fixtures are built once), then the pty and timing tests one at a time on
-# an otherwise quiet machine. Both runs always run; the target fails if either failed.
-# 2026-12-05, this 2-core host shared with three other sessions (load 6-13): 814 s wall
-# (the serial run before: 841 s at load 5-10); idle estimate and details in
-# docs/architecture.md#tests.
+# two runs: what is not marked pty or timing on 3 xdist workers (a file stays on one worker,
+# so its module fixtures are built once; 3 on 2 cores because many tests wait on a child
+# process), then the pty and timing tests one at a time on an otherwise quiet machine.
+# Both runs always run; the target fails if either failed. Measured idle on this 2-core
+# host (docs/architecture.md#tests): 8 min 40 s serial before, 6 min 26 s with 2 workers,
+# the first run 269 s -> 232 s with 3.
 SERIAL := pty or timing
 test: $(DEV_STAMP) firmware-tools
 	$(BIN)/lint-imports
 	@status=0; \
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not ($(SERIAL))" tests docs/examples || status=$$?; \
+	$(BIN)/python -m pytest -q -n 3 --dist loadfile -m "not ($(SERIAL))" tests docs/examples || status=$$?; \
 	$(BIN)/python -m pytest -q -p no:xdist -m "$(SERIAL)" tests docs/examples || status=$$?; \
 	exit $$status
 

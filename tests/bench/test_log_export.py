@@ -72,11 +72,11 @@ def run_emulator(tmp_path, frames, link_faults=None, link=None, speed=SPEED, **k
 
 @pytest.mark.timeout(90)
 def test_log_then_export_matches_the_scene(tmp_path):
-    N = 40
+    N = 20  # at 2.5x real time: 8 s after the 1.5 s delay; the logger stops 1.5 s later
     emu, scene_path = run_emulator(tmp_path, N, speed=2.5)
     out = tmp_path / "session"
     try:
-        logger = start_logger(emu.ports, out, duration=19.0)
+        logger = start_logger(emu.ports, out, duration=11.0)
         assert emu.proc.wait(timeout=60) == 0
         _, err = logger.communicate(timeout=60)
         assert logger.returncode == 0, err

@@ -34,6 +34,6 @@ def test_make_run_installs_the_runtime_set_only():
 def test_make_test_installs_the_dev_set():
     out = dry_run("test")
     assert "pip install --quiet -e '.[dev]'\n" in out
-    # The suite in two runs: on 2 workers, then the pty and timing tests alone.
-    assert '-m pytest -q -n 2 --dist loadfile -m "not (pty or timing)" tests docs/examples' in out
+    # The suite in two runs: on 3 workers, then the pty and timing tests alone.
+    assert '-m pytest -q -n 3 --dist loadfile -m "not (pty or timing)" tests docs/examples' in out
     assert '-m pytest -q -p no:xdist -m "pty or timing" tests docs/examples' in out
