@@ -51,7 +51,7 @@ def expected_information(like: Likelihood, base: Params, free: tuple[str, ...], 
     (:func:`likelihood.simulate`) ``reps`` times. Used by the coverage study in
     docs/calibration.md, not by the fit."""
     params = to_params(base, free, theta)
-    geo = like._geo(params)
+    geo = like.geometry(params)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0xF1,)))
     h = np.array([0.01 if n == "time_offset" else 1e-4 for n in free])
     info = np.zeros((len(free), len(free)))

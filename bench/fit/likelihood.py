@@ -133,7 +133,7 @@ class Likelihood:
         self._fixed_memo: tuple | None = None  # (geometry, q, k, arrays) of :meth:`_fixed`
 
     def choose_regimes(self, p: Params, eps_split: float = EPS_SPLIT) -> Regimes:
-        geo = self._geo(p)
+        geo = self.geometry(p)
         gx, gy, _ = geo.g
         with np.errstate(divide="ignore"):
             log_gxy = np.log(np.hypot(gx, gy))
@@ -153,9 +153,6 @@ class Likelihood:
     def geometry(self, p: Params) -> Geometry:
         """The rows' geometry under ``p``: at its time offset, with its mounting bias and
         antennas (what :meth:`prob` evaluates)."""
-        return self._geo(p)
-
-    def _geo(self, p: Params) -> Geometry:
         geo = self.rows.track.geometry(p.time_offset) if p.time_offset != 0.0 and self.rows.track is not None else self.rows.geo
         if p.mount_pitch != 0.0 or p.mount_roll != 0.0:
             geo = mounted(geo, p.mount_pitch, p.mount_roll)
@@ -301,7 +298,7 @@ class Likelihood:
         """:meth:`prob` of one pose-error model (no outlier component)."""
         if self.regimes is None:
             self.choose_regimes(p)
-        geo = self._geo(p)
+        geo = self.geometry(p)
         k = self.k
         n = k.shape[0]
         log_r = geo.log_r
@@ -511,7 +508,7 @@ class _UnionBin:
 
     def prob_le(self, p: Params) -> NDArray[np.float64]:
         like = self.like
-        geo = like._geo(p)
+        geo = like.geometry(p)
         sel = self.rows
         k = like.k[sel].astype(np.float64)
         y = np.log((k - 0.5) / 100.0)  # d < k <=> distance < (k - 0.5) cm
