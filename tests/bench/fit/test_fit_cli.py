@@ -44,12 +44,12 @@ def test_summary(campaign, capsys):
     assert lines[1].startswith("kappa_eq    = 1.54") and lines[1].endswith("   (for transmitter moment s = 1)")
     assert lines[2].startswith("r_en        = ") and lines[2].endswith(" m")
     # exact poses: no GPS or attitude error is visible (both at their floors), so the
-    # fit is that of exact poses (pose_sigma fitted, the inverse Hessian), and says so
-    assert lines[3] == "pose_sigma  = 0.0001"
-    assert "; converged; " in lines[4]
-    assert lines[6].startswith(
+    # fit is that of exact poses (the inverse Hessian), and says so; its pose_sigma went
+    # to its bound 1e-4, so it is held at 1e-5 and not printed as an estimate
+    assert "; converged; " in lines[3]
+    assert lines[5].startswith(
         "note: no pose error is visible (GPS and attitude error at their floors, 5 mm and 0.05 deg): fitted as exact "
-        "poses (as --gps-sigma 0 --attitude-sigma 0; with the floors r_en was "
+        "poses (as --gps-sigma 0 --attitude-sigma 0 --pose-sigma 1e-05; with the floors r_en was "
     )
 
 
@@ -89,8 +89,9 @@ def test_json_is_one_object_with_the_required_keys(campaign, capsys):
         assert isinstance(obj[key], (int, float)) and math.isfinite(obj[key]), key
     assert (obj["n_rows"], obj["n_censored"], obj["converged"]) == (1200, 485, True)
     assert abs(obj["kappa_eq"] / 1.542 - 1) < 0.01 and abs(obj["r_en"] / 80 - 1) < 0.05
-    # exact poses: fitted as such (no pose error visible), the GPS error 0
-    assert obj["free"] == ["kappa_eq", "r_en", "pose_sigma"] and obj["separable"] is True
+    # exact poses: fitted as such (no pose error visible), the GPS error 0, pose_sigma
+    # held at 1e-5 (fitted, it went to its bound 1e-4)
+    assert obj["free"] == ["kappa_eq", "r_en"] and obj["separable"] is True and obj["pose_sigma"] == 1e-5
     assert obj["gps_sigma"] == 0.0 and obj["gps_sigma_vertical"] == 0.0
 
 

@@ -10,7 +10,8 @@ import pytest
 
 from bench.fit import stages
 from bench.fit.csvio import parse_csv
-from bench.fit.estimate import fit, fit_once
+from bench.fit.estimate import EXACT_POSE_SIGMA, fit, fit_once
+from bench.fit.params import Params
 from bench.fit.result import EIV_FREE, FitOptions
 
 import repo_paths
@@ -31,31 +32,37 @@ def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible():
     """Radial walk with tilted holds, exact poses (tuning seed 0): the default fit puts
     both pose-error sigmas on their floors, where the model still smooths the noise edge
     by 0.05 deg and 5 mm; its r_en was 2.6 s.e. above the truth (the study's report seeds:
-    9 silent misses of 50). Now it says the poses look exact and fits them as such: the
-    same numbers as --gps-sigma 0 --attitude-sigma 0, r_en within 1.96 s.e."""
+    9 silent misses of 50). Now it says the poses look exact and fits them as such; the
+    fit of exact poses puts pose_sigma on its bound 1e-4, which smooths the edge too, so it
+    is held at 1e-5: the same numbers as --gps-sigma 0 --attitude-sigma 0 --pose-sigma
+    1e-05, r_en within 1.96 s.e."""
     camp, table = study_table("radial-exact", 0)
     res = fit(table, FitOptions(free=EIV_FREE))
-    exact = fit(table, FitOptions())
-    assert res.converged and exact.converged
+    on_bound = fit(table, FitOptions())
+    held = fit(table, FitOptions(free=("kappa_eq", "r_en"), base=Params(pose_sigma=EXACT_POSE_SIGMA)))
+    assert res.converged and on_bound.converged and held.converged
+    assert on_bound.params.pose_sigma == 1e-4  # the library's fit of exact poses: on the bound
     m = re.fullmatch(
         r"no pose error is visible \(GPS and attitude error at their floors, 5 mm and 0\.05 deg\): fitted as exact "
-        r"poses \(as --gps-sigma 0 --attitude-sigma 0; with the floors r_en was ([0-9.]+)\)",
+        r"poses \(as --gps-sigma 0 --attitude-sigma 0 --pose-sigma 1e-05; with the floors r_en was ([0-9.]+)\)",
         res.notes[0],
     )
     assert m is not None, res.notes[0]
-    assert res.free == ("kappa_eq", "r_en", "pose_sigma")
-    for name in ("kappa_eq", "r_en", "pose_sigma"):
-        assert res.estimate[name] == exact.estimate[name], name
+    assert res.free == ("kappa_eq", "r_en") and res.params.pose_sigma == 1e-5
     for name in ("kappa_eq", "r_en"):
-        assert res.se[name] == exact.se[name], name
+        assert res.estimate[name] == held.estimate[name], name
+        assert res.se[name] == held.se[name], name
     truth = camp.truth
     floors = fit_once(table, FitOptions(free=EIV_FREE))  # the fit before: at the floors
     assert floors.estimate["r_en"] == float(m.group(1)) or abs(floors.estimate["r_en"] / float(m.group(1)) - 1) < 1e-5
     assert (floors.estimate["r_en"] - truth.r_en) / floors.se["r_en"] > 2.5  # its interval missed
-    for name in ("kappa_eq", "r_en"):
-        assert abs(res.estimate[name] - getattr(truth, name)) < 1.96 * res.se[name], name
+    z = {name: (res.estimate[name] - getattr(truth, name)) / res.se[name] for name in ("kappa_eq", "r_en")}
+    assert all(abs(v) < 1.96 for v in z.values()), z
+    # on the bound r_en is further up than held at 1e-5
+    assert (on_bound.estimate["r_en"] - truth.r_en) / on_bound.se["r_en"] > z["r_en"]
     out = res.to_json()
     assert (out["gps_sigma"], out["attitude_sigma"], "gps_sigma_se" in out) == (0.0, 0.0, False)
+    assert (out["pose_sigma"], "pose_sigma_se" in out) == (1e-5, False)
 
 
 def test_pose_error_keeps_the_errors_in_variables_model():
