@@ -193,3 +193,35 @@ def test_the_command_line_refuses_outliers_of_exact_positions(capsys, tmp_path):
     assert main(["fit", str(path), "--fit", "gps_outlier", "--gps-sigma", "0"]) == 2
     out, err = capsys.readouterr()
     assert (out, err) == ("", "arva-bench: fit: --fit gps_outlier needs a GPS error to widen, not --gps-sigma 0\n")
+
+
+@pytest.mark.slow  # (three fits of a 10-minute campaign)
+def test_an_outlier_fit_that_does_not_converge_gives_the_fit_without_it(monkeypatch):
+    """When the fit with heavy-tailed GPS error stops (on mild tails the mixture has no
+    clear second component), the numbers are those of the fit without it, converged,
+    with a first note naming why; the time and evaluations of both are counted."""
+    from bench.fit import estimate
+
+    table, _truth = table_of(sc.Condition("level-gm", "level_rw", "gm", minutes=10), 1)
+    real = estimate.fit_restarted
+    stuck = []
+
+    def stalls_with_outliers(table, options):
+        res = real(table, options)
+        if "gps_outlier" in options.free:
+            stuck.append(res.n_evals)
+            res = replace(res, converged=False, message="no convergence after 60 Newton iterations")
+        return res
+
+    monkeypatch.setattr(estimate, "fit_restarted", stalls_with_outliers)
+    res = fit(table, FitOptions(free=EIV_FREE + ("gps_outlier", "gps_outlier_scale")))
+    plain = fit(table, FitOptions(free=EIV_FREE))
+    assert res.converged and res.free == plain.free == EIV_FREE and res.params.gps_outlier == 0.0
+    assert res.notes[0] == (
+        "the fit with heavy-tailed GPS error (--fit gps_outlier) did not converge (no convergence after 60 Newton "
+        "iterations); these are the numbers without it (no share of wider GPS errors)"
+    )
+    assert res.notes[1:] == plain.notes
+    for name in EIV_FREE:  # (a s.e. is nan for a parameter held on its floor)
+        assert np.array_equal([res.estimate[name], res.se[name]], [plain.estimate[name], plain.se[name]], equal_nan=True), name
+    assert len(stuck) == 1 and res.n_evals == plain.n_evals + stuck[0]
