@@ -427,13 +427,6 @@ def _quaternion(value: Sequence[float]) -> np.ndarray:
 
 
 __all__ = [
-    "EpochRef",
-    "Pipeline",
-    "StreamInfo",
-    "arva_stream",
-    "build_stream",
-    "link_faulted",
-    "receiver_source",
-    "scene_streams",
-    "stream_layout",
+    "EpochRef", "Pipeline", "StreamInfo", "arva_stream", "build_stream", "link_faulted", "receiver_source",
+    "scene_streams", "stream_layout"
 ]

@@ -60,16 +60,8 @@ from firmware_proto.errors import InputError, PoseError
 from emulator.frames.attitude import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
 
 __all__ = [
-    "KNOTS_PER_MPS",
-    "gga_sentence",
-    "gps_sentences",
-    "hpr_to_quaternion",
-    "pashr_from_quaternion",
-    "pashr_from_quaternions",
-    "pashr_sentence",
-    "quaternion_to_hpr",
-    "rmc_sentence",
-    "speed_course_from_enu",
+    "KNOTS_PER_MPS", "gga_sentence", "gps_sentences", "hpr_to_quaternion", "pashr_from_quaternion",
+    "pashr_from_quaternions", "pashr_sentence", "quaternion_to_hpr", "rmc_sentence", "speed_course_from_enu"
 ]
 
 #: 1 knot = 1852 m / 3600 s exactly.
