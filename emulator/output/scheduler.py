@@ -1,10 +1,8 @@
 """The epoch scheduler: renders every stream's epochs at their deadlines and writes them.
 
 Real time (``speed > 0``): epoch k of a stream is due at ``start + k / (rate_hz * speed)``
-on the monotonic clock. Deadlines are absolute, so sleep overshoot never accumulates
-(hours of 1 Hz epochs stay on the second), and each epoch is rendered ahead of its
-deadline so only the write happens at the deadline. As fast as possible (``speed == 0``):
-epochs are rendered in batches covering a window of scene time, stream by stream.
+on the monotonic clock, rendered ahead of its deadline (docs/emulator.md, "Timing"). As
+fast as possible (``speed == 0``): batches covering a window of scene time, stream by stream.
 
 A live control channel (:mod:`emulator.control`) changes the scene between epochs: every
 render and write here happens under :attr:`EpochScheduler.lock`, which the channel holds
