@@ -1,35 +1,13 @@
 """Firmware in the loop: a microcontroller emulated by QEMU, its UART wired to the emulator.
 
-:class:`Board` runs ``qemu-system-arm -M mps2-an385 -kernel FIRMWARE.elf`` (a Cortex-M3
-board with CMSDK APB UARTs; any ``-M`` machine with two UARTs works) with both UARTs as
-ptys:
-
-* **UART0** is where a real receiver's cable would go: its pty path (:attr:`Board.uart0`)
-  is handed to ``arva-emulate`` as a serial device (``--stream arva=PATH``, what
-  ``--arva-port`` does on a real bench), so the emulator writes the receiver stream into
-  the firmware's UART exactly as into a USB serial adapter;
-* **UART1** carries the firmware's own output (one line per decision, say), read by a
-  thread into :attr:`Board.lines` and ``uart1.txt``.
-
-:class:`FirmwareLoop` is the pair (board + emulator with its control channel) that the
-``arva_firmware`` fixture returns. The files kept (under the test's ``tmp_path`` when a
-test fails, like ``arva_emulator``'s): ``uart1.txt`` (the firmware's output),
-``qemu.log`` (QEMU's guest errors and unimplemented-device accesses), ``qemu-stdout.txt``
-and the emulator's ``emulator/streams/<stream>.bytes`` (every byte offered to UART0) and
-``emulator/control-transcript.txt``.
-
-Clocks. Under the step clock the emulator writes epoch k only when the test steps it; the
-firmware sees bytes, never scene time. QEMU hands the guest one byte at a time while the
-guest's one-byte RX buffer is empty (flow control, not loss) and does not model baud timing:
-the firmware's line is as fast as it reads. With ``icount`` (QEMU's ``-icount shift=N``)
-the guest's own clock (SysTick, timers) advances by 2**N ns per instruction executed, so
-the firmware's notion of time depends only on what it executed, not on host load; without
-it, the guest clock is the host's. Either way a firmware that decides from the bytes it
-received (as the example does) decides the same.
-
-Needs Debian's ``qemu-system-arm`` (and ``gcc-arm-none-eabi`` with
-``libnewlib-arm-none-eabi`` to build a firmware): :class:`ToolMissing` names what to
-install. See docs/hil_testing.md, "Your firmware in the loop".
+:class:`Board` runs ``qemu-system-arm -M mps2-an385 -kernel FIRMWARE.elf`` with both
+UARTs as ptys: UART0's (:attr:`Board.uart0`) is handed to ``arva-emulate`` as a serial
+device (``--stream arva=PATH``), UART1 carries the firmware's own output, read by a
+thread into :attr:`Board.lines` and ``uart1.txt``. :class:`FirmwareLoop` is the pair
+(board + emulator with its control channel) that the ``arva_firmware`` fixture returns.
+docs/hil_testing.md, "Your firmware in the loop", describes the wiring, the files kept
+when a test fails, the two clocks (``icount``: the guest clock advances 2**N ns per
+instruction) and the Debian packages needed (:class:`ToolMissing` names them).
 """
 
 from __future__ import annotations
