@@ -46,7 +46,7 @@ class FluxState(StateArrays):
 
 
 @dataclass
-class FluxParams:
+class FluxParams(StateArrays):
     """:class:`FluxFollower` constants per run (from its :class:`VehicleSpec`)."""
 
     v_max: np.ndarray
@@ -58,9 +58,6 @@ class FluxParams:
     def of(cls, specs: list[VehicleSpec]) -> "FluxParams":
         return cls(np.array([s.v_max for s in specs], dtype=np.float64), np.array([s.k_c for s in specs], dtype=np.float64),
                    np.array([s.v_stop for s in specs], dtype=np.float64), np.array([s.flux_reverse for s in specs]))
-
-    def take(self, rows: np.ndarray) -> "FluxParams":
-        return FluxParams(self.v_max[rows], self.k_c[rows], self.v_stop[rows], self.reverse[rows])
 
 
 def flux_epoch(st: FluxState, ep: EpochArrays, par: FluxParams) -> tuple[np.ndarray, np.ndarray]:

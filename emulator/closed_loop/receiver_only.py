@@ -88,7 +88,7 @@ class RxState(StateArrays):
 
 
 @dataclass
-class RxParams:
+class RxParams(StateArrays):
     """:class:`ReceiverOnlySearch` constants per run: v_max, k_c, v_fine (spec) and
     d_gain (d in m -> the |h|^(-1/3) of eq. 10: |h| = kappa_eq / (4 pi d^3))."""
 
@@ -102,9 +102,6 @@ class RxParams:
         gain = (4.0 * math.pi / model.kappa_eq) ** (1.0 / 3.0)
         col = lambda name: np.array([getattr(s, name) for s in specs], dtype=np.float64)  # noqa: E731
         return cls(col("v_max"), col("k_c"), col("v_fine"), np.full(len(specs), gain))
-
-    def take(self, rows: np.ndarray) -> "RxParams":
-        return RxParams(self.v_max[rows], self.k_c[rows], self.v_fine[rows], self.d_gain[rows])
 
 
 def rx_epoch(st: RxState, ep: EpochArrays, par: RxParams) -> None:

@@ -138,15 +138,12 @@ def serve(keeper: Keeper, stdin_fd: int, out, period: float = PERIOD) -> int:
     refused = keeper.sweep()
     if refused is not None:
         keeper.restore()  # a partial sweep changes nothing either
-        out.write(f"refused {refused}\n")
-        out.flush()
+        print(f"refused {refused}", file=out, flush=True)
         return 0
     if not keeper.raised:
-        out.write("refused no kernel workers visible (no kthreadd at pid 2: a container?)\n")
-        out.flush()
+        print("refused no kernel workers visible (no kthreadd at pid 2: a container?)", file=out, flush=True)
         return 0
-    out.write(f"raised {len(keeper.raised)}\n")
-    out.flush()
+    print(f"raised {len(keeper.raised)}", file=out, flush=True)
     try:
         while True:
             ready, _, _ = select.select([stdin_fd], [], [], period)

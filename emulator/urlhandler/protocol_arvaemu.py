@@ -2,17 +2,10 @@
 
 A pyserial port whose input is the ``$PARVA`` stream an emulated receiver would send,
 with no pty and no thread: epochs are rendered lazily when the client reads, at the
-times the scene says (``speed`` times real time, from the moment the port is opened;
-``speed=0`` delivers as fast as the client reads). SCENE is a scene file path
-(``arvaemu://scenes/walk.toml`` relative, ``arvaemu:///abs/walk.toml`` absolute) or
-empty / ``default`` for the embedded default scene. ``receiver`` picks a receiver by
-id when the scene has several. Writes are accepted and ignored (a receiver takes no
-commands). After ``frames`` epochs the port reads as EOF (empty reads).
-
-The bytes come from the same :class:`~emulator.pipeline.Pipeline` as ``arva-emulate``'s,
-link faults included (the port is an in-memory line, which cannot be unplugged: outages
-drop bytes, as on stdout), so ``arvaemu://S?speed=0`` reads exactly what
-``arva-emulate --scene S --port - --speed 0`` prints.
+scene's times from the moment the port opens (``speed`` times real time; 0: as fast as
+read). The bytes come from the same :class:`~emulator.pipeline.Pipeline` as
+``arva-emulate``'s, link faults included. docs/emulator.md, "In-process: arvaemu://",
+gives the URL's forms and options.
 """
 
 from __future__ import annotations
