@@ -377,7 +377,10 @@ class ServerPort(Port):
         self.settings = settings or LineSettings()
         self.notify = notify or (lambda _line: None)
         text = spec_text or f"{spec.kind}:{spec.host}:{spec.port}"
-        addresses = _resolve(spec.host, spec.port, text)
+        try:
+            addresses = socket.getaddrinfo(spec.host, spec.port, type=socket.SOCK_STREAM)
+        except socket.gaierror as exc:
+            raise InputError(f"port {text}: cannot resolve {spec.host!r}: {exc.strerror}") from None
         if not serve_any_host and not all(ipaddress.ip_address(a[4][0]).is_loopback for a in addresses):
             raise InputError(
                 f"port {text}: {spec.host} is not a loopback address; add --serve-any-host to serve other hosts"
@@ -396,9 +399,8 @@ class ServerPort(Port):
         self._selector = selectors.DefaultSelector()
         self._selector.register(self._listener, selectors.EVENT_READ)
         self._selector.register(self._wake_r, selectors.EVENT_READ)
-        host, port = self._listener.getsockname()[:2]
         scheme = "rfc2217" if spec.kind == "rfc2217-server" else "socket"
-        self.path = f"{scheme}://{f'[{host}]' if ':' in host else host}:{port}"
+        self.path = f"{scheme}://{_format_addr(self._listener.getsockname())}"
         self.drain_wait = 0.0
         self._clients: list[ServedClient] = []
         self._lock = threading.Lock()
@@ -531,13 +533,6 @@ def _shut(sock: socket.socket) -> None:
     except OSError:
         pass
     sock.close()
-
-
-def _resolve(host: str, port: int, text: str):
-    try:
-        return socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-    except socket.gaierror as exc:
-        raise InputError(f"port {text}: cannot resolve {host!r}: {exc.strerror}") from None
 
 
 def _format_addr(addr) -> str:

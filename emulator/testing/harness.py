@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -319,14 +320,14 @@ class Emulator:
         try:
             proc = EmulatorProcess(*args, streams=0, timeout=timeout)
         except EmulatorError:
-            _remove_dir(sock_dir)
+            shutil.rmtree(sock_dir, ignore_errors=True)
             raise
         try:
             client = ControlClient(proc.control, timeout=max(timeout, 30.0), transcript=work / "control-transcript.txt")
             status = client.request("status")
         except Exception:
             proc.kill()
-            _remove_dir(sock_dir)
+            shutil.rmtree(sock_dir, ignore_errors=True)
             raise
         ports = {}
         for label, path in status["streams"].items():
@@ -412,7 +413,7 @@ class Emulator:
             self.process.kill()
             self.client.close()
             for folder in self._cleanup:
-                _remove_dir(folder)
+                shutil.rmtree(folder, ignore_errors=True)
             if self.artefacts is not None:
                 try:  # its symlinks went with the ptys: no empty folder among the artefacts
                     (self.artefacts / "pty").rmdir()
@@ -428,12 +429,6 @@ class Emulator:
 
 def _given(**fields) -> dict:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in fields.items() if v is not None}
-
-
-def _remove_dir(path: str | Path) -> None:
-    import shutil
-
-    shutil.rmtree(path, ignore_errors=True)
 
 
 def read_lines(ser, count: int, timeout: float = 10.0) -> list[bytes]:
