@@ -237,10 +237,7 @@ class ControlServer:
             self._loop.close()
 
     async def _serve(self, sock: socket.socket) -> None:
-        if self.address.kind == "unix":
-            server = await asyncio.start_unix_server(self._client, sock=sock, limit=MAX_LINE)
-        else:
-            server = await asyncio.start_server(self._client, sock=sock, limit=MAX_LINE)
+        server = await asyncio.start_server(self._client, sock=sock, limit=MAX_LINE)  # unix or TCP: bound above
         await self._stop.wait()
         self._closing = True
         server.close()

@@ -59,23 +59,16 @@ class Serial(VirtualLine, SerialBase):
         self._start = time.monotonic() + u.delay
 
     # -- reading ----------------------------------------------------------------
-    def _due(self) -> int:
-        """Epochs due by now (all of them at speed 0: rendering follows the reader)."""
-        route = self._route
-        if self._speed == 0:
-            return route.next_k + 1
-        elapsed = time.monotonic() - self._start
-        if elapsed < 0:
-            return 0
-        return math.floor(elapsed * route.stream.rate_hz * self._speed) + 1
-
     def _render_due(self, want: int) -> None:
+        """Render the epochs due by now; at speed 0 (rendering follows the reader), whole
+        epochs until ``want`` bytes are buffered."""
         route = self._route
-        due = self._due()
         if self._speed == 0:
-            # Render whole epochs until the request can be met.
             per_epoch = 64 * max(1, route.stream.receiver.channels)
             due = route.next_k + max(1, math.ceil((want - len(self._buffer)) / per_epoch))
+        else:
+            elapsed = time.monotonic() - self._start
+            due = math.floor(elapsed * route.stream.rate_hz * self._speed) + 1 if elapsed >= 0 else 0
         if route.end_k is not None:
             due = min(due, route.end_k)
         # Written through the pipeline's route: link faults apply, bytes land in _buffer.
