@@ -31,23 +31,8 @@ import time
 import numpy as np
 
 from emulator.closed_loop.controllers import (
-    PLAN_BACK,
-    PLAN_CONST,
-    PLAN_SEARCH,
-    SEARCH,
-    EpochArrays,
-    FluxFollower,
-    FluxParams,
-    FluxState,
-    Located,
-    RxParams,
-    RxState,
-    fly_back,
-    flux_epoch,
-    rx_arrive,
-    rx_epoch,
-    rx_plan,
-    strip_velocity,
+    PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, EpochArrays, FluxFollower, FluxParams, FluxState, Located, RxParams,
+    RxState, fly_back, flux_epoch, rx_arrive, rx_epoch, rx_plan, strip_velocity,
 )
 from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
 from emulator.closed_loop.vehicle import FlatTerrain

@@ -26,31 +26,11 @@ from __future__ import annotations
 
 from emulator.closed_loop.flux import FluxFollower, FluxParams, FluxState, flux_epoch
 from emulator.closed_loop.receiver_only import (
-    ReceiverOnlySearch,
-    RxParams,
-    RxState,
-    fly_back,
-    rx_arrive,
-    rx_epoch,
-    rx_plan,
+    ReceiverOnlySearch, RxParams, RxState, fly_back, rx_arrive, rx_epoch, rx_plan,
 )
 from emulator.closed_loop.strategy import (
-    APPROACH,
-    FINE,
-    FOLLOW,
-    INNER_CM,
-    PLAN_BACK,
-    PLAN_CONST,
-    PLAN_SEARCH,
-    SEARCH,
-    Controller,
-    EpochArrays,
-    Located,
-    Observation,
-    StripSearch,
-    TickPlan,
-    speed_law,
-    strip_velocity,
+    APPROACH, FINE, FOLLOW, INNER_CM, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays, Located,
+    Observation, StripSearch, TickPlan, speed_law, strip_velocity,
 )
 from emulator.closed_loop.vehicle import VehicleSpec
 from emulator.receiver.model import ModelParams

@@ -11,20 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from emulator.closed_loop.strategy import (
-    FOLLOW,
-    PHASE_NAMES,
-    SEARCH,
-    Controller,
-    EpochArrays,
-    Observation,
-    StateArrays,
-    cos,
-    exact,
-    hypot,
-    pick_slots,
-    power,
-    sin,
-    speed_law,
+    FOLLOW, PHASE_NAMES, SEARCH, Controller, EpochArrays, Observation, StateArrays, cos, exact, hypot, pick_slots,
+    power, sin, speed_law,
 )
 from emulator.closed_loop.vehicle import VehicleSpec
 from emulator.receiver.model import ModelParams

@@ -14,26 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from emulator.closed_loop.strategy import (
-    APPROACH,
-    FINE,
-    INNER_CM,
-    PHASE_NAMES,
-    PLAN_BACK,
-    PLAN_CONST,
-    PLAN_SEARCH,
-    SEARCH,
-    Controller,
-    EpochArrays,
-    Observation,
-    StateArrays,
-    TickPlan,
-    atan2,
-    cos,
-    exact,
-    hypot,
-    pick_slots,
-    sin,
-    speed_law,
+    APPROACH, FINE, INNER_CM, PHASE_NAMES, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays,
+    Observation, StateArrays, TickPlan, atan2, cos, exact, hypot, pick_slots, sin, speed_law,
 )
 from emulator.closed_loop.flux import FluxFollower
 from emulator.closed_loop.vehicle import VehicleSpec
