@@ -208,21 +208,19 @@ class FirmwareLoop:
 
     @classmethod
     def start(cls, firmware, scene=None, clock: str = "step", speed: float = 1.0, workdir=None, machine: str = "mps2-an385", icount: int | None = None) -> "FirmwareLoop":
-        if workdir is None:
-            import tempfile
+        import tempfile
 
-            work, cleanup = Path(tempfile.mkdtemp(prefix="arva-fw-")), True
-        else:
-            work, cleanup = Path(workdir), False
+        work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="arva-fw-"))
+        ours = work if workdir is None else None  # a temporary folder, removed at stop
         board = Board(firmware, work, machine=machine, icount=icount)
         try:
             emu = Emulator.start(scene, clock=clock, speed=speed, workdir=work / "emulator", arva_port=board.uart0)
         except BaseException:
             board.stop()
-            if cleanup:
-                shutil.rmtree(work, ignore_errors=True)
+            if ours is not None:
+                shutil.rmtree(ours, ignore_errors=True)
             raise
-        return cls(board, emu, work if cleanup else None)
+        return cls(board, emu, ours)
 
     def decisions(self) -> list[dict]:
         """The JSON lines with a ``seq`` so far; each line is parsed once (the board's
@@ -239,10 +237,7 @@ class FirmwareLoop:
         return list(self._decisions)
 
     def decision(self, seq: int, timeout: float = 10.0) -> dict:
-        def seen(lines) -> bool:
-            return any(d["seq"] == seq for d in self.decisions())
-
-        self.board.wait_for(seen, timeout)
+        self.board.wait_for(lambda _lines: any(d["seq"] == seq for d in self.decisions()), timeout)
         return next(d for d in reversed(self.decisions()) if d["seq"] == seq)
 
     def captured(self, stream: str = "arva") -> bytes:
