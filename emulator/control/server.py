@@ -16,6 +16,7 @@ docs/reliability.md, "Bounded servers".
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import logging
 import os
@@ -92,10 +93,8 @@ def control_address(text: str) -> ControlAddress:
 
 def is_loopback(host: str) -> bool:
     """True if every address ``host`` resolves to is a loopback address."""
-    try:
+    with contextlib.suppress(ValueError):
         return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        pass
     try:
         infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
     except OSError:
@@ -223,10 +222,8 @@ class ControlServer:
         listener.close()
         self._slices.put(None)
         if self.address.kind == "unix":
-            try:
+            with contextlib.suppress(OSError):
                 os.unlink(self.address.path)
-            except OSError:
-                pass
 
     # --- serving (in the server's thread) ------------------------------------------------
 
@@ -307,10 +304,8 @@ class ControlServer:
         self._reply(writer, reply)
         if isinstance(request, Quit) and reply.get("ok"):
             writer.transport.set_write_buffer_limits(high=0)  # drain() now waits for every byte
-            try:
+            with contextlib.suppress(TimeoutError, ConnectionError):
                 await asyncio.wait_for(writer.drain(), QUIT_FLUSH_S)
-            except (TimeoutError, ConnectionError):
-                pass
             self.on_quit()
             return False
         return True

@@ -18,6 +18,7 @@ alone; when the first puts them back, the second raises them again within ``PERI
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import select
@@ -206,10 +207,9 @@ def main(argv: list[str] | None = None) -> int:
     priority = int(argv[0]) if argv else PRIORITY
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # SystemExit runs serve's restore
-    try:  # never keep a real-time class inherited from a --realtime parent
+    # Never keep a real-time class inherited from a --realtime parent.
+    with contextlib.suppress(AttributeError, OSError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (AttributeError, OSError):
-        pass
     if not hasattr(os, "sched_setscheduler"):
         print("refused not Linux", flush=True)
         return 0

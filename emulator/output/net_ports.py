@@ -285,10 +285,9 @@ class ServedClient:
             self.bytes_sent += n
             self.bytes_dropped += len(data) - n
             if chunk and not (self._control or self._data or self._sending):
-                try:
+                # Full (BlockingIOError) or gone: the sender thread sends or finds out.
+                with contextlib.suppress(OSError):
                     chunk = chunk[self.sock.send(chunk, socket.MSG_DONTWAIT) :]
-                except OSError:
-                    pass  # full (BlockingIOError) or gone: the sender thread sends or finds out
             if chunk:
                 self._data += chunk
                 self._cond.notify()
@@ -528,10 +527,8 @@ def escape_iac(data: bytes) -> bytes:
 
 
 def _shut(sock: socket.socket) -> None:
-    try:
+    with contextlib.suppress(OSError):
         sock.shutdown(socket.SHUT_RDWR)
-    except OSError:
-        pass
     sock.close()
 
 

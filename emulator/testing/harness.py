@@ -7,6 +7,7 @@ imports numpy; pyserial is imported when a port is opened.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -401,10 +402,8 @@ class Emulator:
         self._stopped = True
         try:
             if self.process.proc.poll() is None:
-                try:
+                with contextlib.suppress(EmulatorError, ControlReplyError, OSError):
                     self.client.request("quit")
-                except (EmulatorError, ControlReplyError, OSError):
-                    pass
             try:
                 return self.process.wait(timeout)
             except EmulatorError:
@@ -415,10 +414,9 @@ class Emulator:
             for folder in self._cleanup:
                 shutil.rmtree(folder, ignore_errors=True)
             if self.artefacts is not None:
-                try:  # its symlinks went with the ptys: no empty folder among the artefacts
+                # Its symlinks went with the ptys: no empty folder among the artefacts.
+                with contextlib.suppress(OSError):
                     (self.artefacts / "pty").rmdir()
-                except OSError:
-                    pass
 
     def __enter__(self) -> "Emulator":
         return self
