@@ -260,7 +260,6 @@ class FaultyPort(PortWrapper):
             if t >= k * every + self.config.disconnect_s:  # the whole outage fell between writes
                 self._up()
 
-
     # --- faults --------------------------------------------------------------------------
 
     def _go_down(self) -> None:
