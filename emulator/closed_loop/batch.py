@@ -65,7 +65,6 @@ class BatchLoop:
         if not scenes:
             raise ValueError("a batch needs at least one scene")
         self.scenes = list(scenes)
-        self.index = index
         first = scenes[0]
         self.rate_hz = first.rate_hz
         self.ticks, self.dt = control_ticks(first, index)
@@ -99,15 +98,14 @@ class BatchLoop:
         self.x = np.array([u.x for u in uavs])
         self.y = np.array([u.y for u in uavs])
         self.z = np.array([u.z for u in uavs])
-        self.yaw = [u.yaw for u in uavs]
+        self.yaws = np.array([u.yaw for u in uavs], dtype=np.float64)
         self.quat = np.array([u.orientation for u in uavs])
         self.v_max = np.array([u.v_max for u in uavs])
         self.v_z_max = np.array([u.v_z_max for u in uavs])
         specs = [s.receivers[index].vehicle for s in scenes]
         self.k_z = np.array([sp.k_z for sp in specs])
         self.r_s = np.array([sp.r_s for sp in specs])
-        self.sigma = np.array([u.range.sigma for u in uavs])
-        self.noisy_range = self.sigma > 0
+        self.noisy_range = np.array([u.range.sigma for u in uavs]) > 0
         self.any_noisy_range = bool(self.noisy_range.any())
         self.range_buf = np.zeros((n, uavs[0].range.BLOCK))
         self.range_used = self.range_buf.shape[1]  # readings taken from the current blocks
@@ -141,7 +139,6 @@ class BatchLoop:
         self.flux_par = FluxParams.of(specs)
         self.rx = RxState.empty(n)
         self.rx_par = RxParams.of(specs, self.model)
-        self.yaws = np.array(self.yaw, dtype=np.float64)
         self.found: list[list[Located]] = [[] for _ in range(n)]
         self.marked = np.zeros((n, m + 1), dtype=bool)  # by id column; column m: no id
         self.col = np.full(int(self.ids.max()) + 2, m, dtype=np.int64)  # id + 1 -> column
