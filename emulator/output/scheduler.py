@@ -140,8 +140,6 @@ class EpochScheduler:
         #: Held while rendering and writing; a control channel holds it to change the scene.
         self.lock = threading.RLock()
         self.paused = False
-        #: Epochs of the first stream rendered but not written because the clock was paused.
-        self.epochs_paused = 0
         if frames is not None:
             rate0 = routes[0].stream.rate_hz
             for r in routes:
@@ -188,10 +186,8 @@ class EpochScheduler:
 
     def _write(self, route: Route, data: bytes) -> None:
         self.scene_clock.t = route.next_k / route.stream.rate_hz
-        if self.paused:
-            self.epochs_paused += route is self.routes[0]
-            return
-        route.port.write(data)
+        if not self.paused:  # paused: rendered, then discarded
+            route.port.write(data)
 
     def _run_fast(self) -> None:
         for r in self.routes:
