@@ -157,9 +157,7 @@ def run_batch_rows(config: SweepConfig, tasks: list[tuple[str, float, float, int
     scene time flown."""
     made = [burial_scene(config, i, strategy, v_max, k_c) for strategy, v_max, k_c, i in tasks]
     results = run_batch([scene for scene, _ in made], config.t_max)
-    rows: list[dict] = []
-    for task, (_, txs), result in zip(tasks, made, results):
-        rows += run_rows(*task[:3], task[3], txs, result)
+    rows = [row for task, (_, txs), result in zip(tasks, made, results) for row in run_rows(*task, txs, result)]
     return rows, sum(r.t_end for r in results)
 
 
@@ -168,15 +166,12 @@ def run_rows(strategy: str, v_max: float, k_c: float, i: int, txs: list[dict], r
     found = result.found()
     all_found = all(f["found"] for f in found)
     t_all = max(f["t"] for f in found) if all_found else math.nan
-    rows = []
-    for tx, f in zip(txs, found):
-        rows.append({
-            "strategy": strategy, "v_max": v_max, "k_c": k_c, "burial": i, "n_tx": len(txs),
-            "tx_id": tx["id"], "tx_x": tx["position"][0], "tx_y": tx["position"][1], "depth_m": tx["depth"],
-            "found": f["found"], "t_found_s": f["t"], "error_m": f["error_m"],
-            "all_found": all_found, "t_all_s": t_all, "t_end_s": result.t_end, "path_m": result.path_length,
-        })
-    return rows
+    return [{
+        "strategy": strategy, "v_max": v_max, "k_c": k_c, "burial": i, "n_tx": len(txs),
+        "tx_id": tx["id"], "tx_x": tx["position"][0], "tx_y": tx["position"][1], "depth_m": tx["depth"],
+        "found": f["found"], "t_found_s": f["t"], "error_m": f["error_m"],
+        "all_found": all_found, "t_all_s": t_all, "t_end_s": result.t_end, "path_m": result.path_length,
+    } for tx, f in zip(txs, found)]
 
 
 def run_chunk(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
