@@ -52,7 +52,7 @@ def flux_epoch(st: FluxState, ep: EpochArrays, par: FluxParams) -> tuple[np.ndar
     """:class:`FluxFollower`'s decision on a new epoch, for B runs at once (the one copy
     of that logic: a single FluxFollower runs it with B = 1). Updates ``st`` in place;
     returns (mask of the runs that located their target now, the ids they located):
-    the caller records those (:meth:`Controller.mark` without the state part, done here).
+    the caller records those (:meth:`Controller.record` without the state part, done here).
     """
     n = st.phase.size
     slot, st.target[:] = pick_slots(st.target, ep)
