@@ -1,49 +1,26 @@
-"""Many closed-loop runs stepped together: the per-run :class:`ClosedLoop`, batched.
+"""Many closed-loop runs stepped together: the per-run :class:`ClosedLoop`, batched
+(docs/closed_loop.md, "Many runs at once").
 
 Same frames and units as :mod:`emulator.closed_loop.loop` (world ENU metres, scene
-seconds). Each run keeps everything that makes it *its* run — its scene seed, its
-receiver noise stream (:class:`~emulator.receiver.noise.NoiseEffect`), its range-sensor
-stream, its controller's state — and the batch steps all of them one epoch at a time:
-
-1. **receiver model, batched**: one :func:`~emulator.receiver.model.measure` call for
-   all runs (per-run transmitters as a (B, M, 3) array; runs with fewer transmitters
-   are padded with silent ones far away, which never reach a channel), then
-   :func:`~emulator.receiver.model.select_channels`. Each run's noise comes from its
-   own stream (the normals of ``draw``, 32 epochs at a time: the same stream), and all
-   are mapped into the unit ball together;
-2. **controllers at the epoch tick, batched**: the runs of each strategy decide
-   together — :func:`~emulator.closed_loop.controllers.flux_epoch` and
-   :func:`~emulator.closed_loop.controllers.rx_epoch` on their state arrays
-   (:class:`~emulator.closed_loop.controllers.FluxState`, ``RxState``), the very code a
-   per-run controller object runs on a batch of one — and state their tick plans
-   (hold a velocity, strip search, fly back to a fine-search minimum);
-3. **the other ticks, batched**: the plans and the vehicle (paper eq. 9: speed limits,
-   integration, terrain contact) and the range sensor are evaluated in numpy for all
-   runs; where a fine-search line arrives on its minimum,
-   :func:`~emulator.closed_loop.controllers.rx_arrive` decides for those runs.
-
-Finished runs (all located, search exhausted, ``t_max``) drop out of the batch.
+seconds). Each run keeps its scene seed, receiver noise stream, range-sensor stream and
+controller state; per epoch the batch makes one receiver-model call for all runs (runs
+with fewer transmitters padded with silent ones far away), lets the controllers of each
+strategy decide together (:func:`~emulator.closed_loop.controllers.flux_epoch`,
+:func:`~emulator.closed_loop.controllers.rx_epoch`) and state their tick plans, then
+steps the other ticks, the vehicles (paper eq. 9) and the range sensors in numpy.
+Finished runs (all located, search exhausted, ``t_max``) drop out.
 
 **Bit equality with ClosedLoop.** Every float operation is the per-run one on the same
-operands: numpy's element-wise +, -, *, /, sqrt, min/max and comparisons are IEEE
-correctly rounded, so they equal Python's float arithmetic; the functions that are not
-(``math.hypot``, ``atan2``, ``cos``, ``sin``, ``pow``; CPython's ``hypot`` is not libm's,
-numpy's SIMD loops are neither) are applied element by element with the very Python
-function (``np.frompyfunc``). The receiver model is
-the same numpy code on a larger array, and so is the noise's mapping into the ball; the
-one assumption IEEE does not guarantee is that numpy's vectorised ``cbrt``, ``arctan``
-and ``einsum`` give an element the same result whatever the length of the array around
-it (numpy's SIMD loops treat an array's tail with the same kernel). That holds for the
-numpy on which ``tests/emulator/closed_loop/test_batch_loop.py`` runs: it checks that rows, times, errors and
-path lengths are identical for seeded burials with noise on, so a numpy where it does
-not hold fails that test rather than drifting silently.
+operands: numpy's element-wise +, -, *, /, sqrt, min/max and comparisons are correctly
+rounded like Python's floats, and ``math.hypot``, ``atan2``, ``cos``, ``sin`` and
+``pow`` are applied element by element with the Python function (``np.frompyfunc``).
+The one assumption IEEE does not guarantee, that numpy's vectorised ``cbrt``,
+``arctan`` and ``einsum`` give an element the same result whatever the array around it,
+is checked by ``tests/emulator/closed_loop/test_batch_loop.py``.
 
-Not batched (``ValueError``: use :class:`ClosedLoop`): ``external_mavlink``, moving
-transmitters, scenes without transmitters, the pulses and quantize effects (or a
-profile's display), and runs that differ in rate, control rate, channels, receiver model
-(class and constants: ``Scene.receiver_model``), noise switch or
-transmitter ids (beyond a common prefix). Runs may differ in everything else: burial,
-seed, strategy, gains, speeds, terrain, start.
+Not batched (``ValueError``: use :class:`ClosedLoop`): what :meth:`BatchLoop._check`
+refuses (external MAVLink, moving transmitters, pulses, quantize, runs that differ in
+rate, channels, model or noise switch).
 """
 
 from __future__ import annotations
@@ -54,23 +31,8 @@ import time
 import numpy as np
 
 from emulator.closed_loop.controllers import (
-    PLAN_BACK,
-    PLAN_CONST,
-    PLAN_SEARCH,
-    SEARCH,
-    EpochArrays,
-    FluxFollower,
-    FluxParams,
-    FluxState,
-    Located,
-    RxParams,
-    RxState,
-    fly_back,
-    flux_epoch,
-    rx_arrive,
-    rx_epoch,
-    rx_plan,
-    strip_velocity,
+    PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, EpochArrays, FluxFollower, FluxParams, FluxState, Located, RxParams,
+    RxState, fly_back, flux_epoch, rx_arrive, rx_epoch, rx_plan, strip_velocity,
 )
 from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
 from emulator.closed_loop.vehicle import FlatTerrain
@@ -103,7 +65,6 @@ class BatchLoop:
         if not scenes:
             raise ValueError("a batch needs at least one scene")
         self.scenes = list(scenes)
-        self.index = index
         first = scenes[0]
         self.rate_hz = first.rate_hz
         self.ticks, self.dt = control_ticks(first, index)
@@ -137,15 +98,14 @@ class BatchLoop:
         self.x = np.array([u.x for u in uavs])
         self.y = np.array([u.y for u in uavs])
         self.z = np.array([u.z for u in uavs])
-        self.yaw = [u.yaw for u in uavs]
+        self.yaws = np.array([u.yaw for u in uavs], dtype=np.float64)
         self.quat = np.array([u.orientation for u in uavs])
         self.v_max = np.array([u.v_max for u in uavs])
         self.v_z_max = np.array([u.v_z_max for u in uavs])
         specs = [s.receivers[index].vehicle for s in scenes]
         self.k_z = np.array([sp.k_z for sp in specs])
         self.r_s = np.array([sp.r_s for sp in specs])
-        self.sigma = np.array([u.range.sigma for u in uavs])
-        self.noisy_range = self.sigma > 0
+        self.noisy_range = np.array([u.range.sigma for u in uavs]) > 0
         self.any_noisy_range = bool(self.noisy_range.any())
         self.range_buf = np.zeros((n, uavs[0].range.BLOCK))
         self.range_used = self.range_buf.shape[1]  # readings taken from the current blocks
@@ -154,13 +114,10 @@ class BatchLoop:
         self.terrain = [sp.terrain for sp in specs]
         self.flat = all(isinstance(t, FlatTerrain) for t in self.terrain)
         self.elevation = np.array([t.elevation if isinstance(t, FlatTerrain) else 0.0 for t in self.terrain])
-        index: dict[int, int] = {}
-        self.terrains = []
-        for t in self.terrain:
-            if id(t) not in index:
-                index[id(t)] = len(self.terrains)
-                self.terrains.append(t)
-        self.terrain_group = np.array([index[id(t)] for t in self.terrain])
+        distinct = {id(t): t for t in self.terrain}
+        self.terrains = list(distinct.values())
+        group = {key: g for g, key in enumerate(distinct)}
+        self.terrain_group = np.array([group[id(t)] for t in self.terrain])
         # Strip search waypoints, padded.
         strips = [c.strips for c in self.ctrl]
         w = max((len(st.waypoints) for st in strips if st is not None), default=0)
@@ -182,7 +139,6 @@ class BatchLoop:
         self.flux_par = FluxParams.of(specs)
         self.rx = RxState.empty(n)
         self.rx_par = RxParams.of(specs, self.model)
-        self.yaws = np.array(self.yaw, dtype=np.float64)
         self.found: list[list[Located]] = [[] for _ in range(n)]
         self.marked = np.zeros((n, m + 1), dtype=bool)  # by id column; column m: no id
         self.col = np.full(int(self.ids.max()) + 2, m, dtype=np.int64)  # id + 1 -> column

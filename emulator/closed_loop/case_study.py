@@ -1,38 +1,17 @@
 """The paper's case study (section IV, Figs. 8-11), flown in closed loop with our choices
 where the paper gives none.
 
-Four test cases, one transmitter each, at (20, 5, 0), (10, 0, 1), (20, -20, -1) and
-(-6, 5, 0); the UAV starts at the origin (take-off height 4 m, the paper's "up to 4
-meters"), holds r_s = 1 m above the snow, flies at most v_max = 1 m/s and follows the
-flux lines with eq. 10. Scenes: ``emulator/scenes/case_study_{1,2,3,4}.toml``.
+Four test cases, one transmitter each (:data:`CASES`: position in ENU metres, dipole yaw
+in degrees), the UAV starting at the origin; scenes
+``emulator/scenes/case_study_{1,2,3,4}.toml`` over the DEM ``case_study_terrain.csv``
+(:func:`terrain_grid` regenerates it: ``--terrain``). What the paper gives and what we
+chose (the yaws, so that the distance first grows as the paper describes; gains, rates,
+the located rule, the terrain) is in docs/closed_loop.md, "The paper's case study":
+times and errors from these scenes are ours, not the paper's.
 
-The paper gives the positions, v_max, r_s and a qualitative claim (the distance first
-grows, most in test 4); it gives no transmitter orientations, gains, times or final
-errors. What it leaves open, and what we chose (docs/closed_loop.md has the full list —
-also k_c, k_z, the 10 Hz control, the located rule, the fixed 4 m take-off, EMI off —
-and ``tests/perf/case_study_sensitivity.py`` shows how the results depend on the yaw and
-k_c). Times and errors from these scenes are ours, not the paper's:
-
-* **Terrain.** The paper flies over "a mountain covered in snow" without giving it; the
-  transmitters' heights (0, 1, -1, 0 m) are those of the terrain where they lie. The
-  scenes share a DEM, ``case_study_terrain.csv`` (1 m grid, x -40..60, y -50..40):
-  the thin-plate spline through the start (0, 0, 0) and the four transmitter
-  positions, so each transmitter lies on the snow surface and the UAV ends r_s above
-  it. :func:`terrain_grid` regenerates it (``python -m emulator.closed_loop.case_study --terrain``).
-* **Transmitter orientations.** Not given. The paper reports that in all four tests the
-  distance "shows a limited growth before decreasing", most evidently in the fourth.
-  Along a dipole's flux line r = C sin^2(theta), which is largest broadside
-  (theta = 90 deg): following the field from a start at angle theta_0 < 90 deg from the
-  dipole axis (the forward half-space) first takes the UAV *away*, by a factor
-  1/sin^2(theta_0), before it comes back; from the rear half-space the distance only
-  falls. So the paper's transmitters must have pointed roughly towards the start. We
-  take case 4 unrotated (dipole east: theta_0 = 40 deg, growth x2.6, "particularly
-  evident") and yaw the others so that theta_0 is 70-75 deg (growth 5-40 %): case 1
-  yaw 120 deg, case 2 yaw 110 deg, case 3 yaw 60 deg.
-
-``python -m emulator.closed_loop.case_study --out docs/img`` flies all four (both strategies), prints
-a table and draws Figs. 8-11 (trajectory over the horizontal field lines, distance
-versus time).
+``python -m emulator.closed_loop.case_study --out docs/img`` flies all four (both
+strategies), prints a table and draws Figs. 8-11 (trajectory over the horizontal field
+lines, distance versus time).
 """
 
 from __future__ import annotations

@@ -11,20 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from emulator.closed_loop.strategy import (
-    FOLLOW,
-    PHASE_NAMES,
-    SEARCH,
-    Controller,
-    EpochArrays,
-    Observation,
-    StateArrays,
-    cos,
-    exact,
-    hypot,
-    pick_slots,
-    power,
-    sin,
-    speed_law,
+    FOLLOW, PHASE_NAMES, SEARCH, Controller, EpochArrays, Observation, StateArrays, cos, exact, hypot, pick_slots,
+    power, sin, speed_law,
 )
 from emulator.closed_loop.vehicle import VehicleSpec
 from emulator.receiver.model import ModelParams
@@ -46,7 +34,7 @@ class FluxState(StateArrays):
 
 
 @dataclass
-class FluxParams:
+class FluxParams(StateArrays):
     """:class:`FluxFollower` constants per run (from its :class:`VehicleSpec`)."""
 
     v_max: np.ndarray
@@ -59,15 +47,12 @@ class FluxParams:
         return cls(np.array([s.v_max for s in specs], dtype=np.float64), np.array([s.k_c for s in specs], dtype=np.float64),
                    np.array([s.v_stop for s in specs], dtype=np.float64), np.array([s.flux_reverse for s in specs]))
 
-    def take(self, rows: np.ndarray) -> "FluxParams":
-        return FluxParams(self.v_max[rows], self.k_c[rows], self.v_stop[rows], self.reverse[rows])
-
 
 def flux_epoch(st: FluxState, ep: EpochArrays, par: FluxParams) -> tuple[np.ndarray, np.ndarray]:
     """:class:`FluxFollower`'s decision on a new epoch, for B runs at once (the one copy
     of that logic: a single FluxFollower runs it with B = 1). Updates ``st`` in place;
     returns (mask of the runs that located their target now, the ids they located):
-    the caller records those (:meth:`Controller.mark` without the state part, done here).
+    the caller records those (:meth:`Controller.record` without the state part, done here).
     """
     n = st.phase.size
     slot, st.target[:] = pick_slots(st.target, ep)

@@ -1,23 +1,16 @@
-"""Closed loop: a receiver on a vehicle, flown by a controller, faster than real time.
+"""Closed loop: a receiver on a vehicle, flown by a controller, faster than real time
+(docs/closed_loop.md, "The loop").
 
-Per epoch k (scene time t_k = k / rate_hz, BRIEF 3 step 7):
-
-1. the receiver is evaluated at the vehicle's pose *now* (the whole effects pipeline of
-   :class:`~emulator.receiver.receiver.Receiver`: noise, pulses, quantize, channel selection);
-2. the controller runs ``control_rate_hz / rate_hz`` ticks of dt = 1 / control_rate_hz,
-   each with the range-sensor reading and that epoch (held), and the vehicle integrates
-   its velocity command (paper eq. 9).
-
-Epoch k+1 depends on where epoch k sent the vehicle, so rendering is sequential: the
-:class:`ClosedLoop` object has the ``next_batch(count)`` interface of a Receiver and is
-what :class:`~emulator.output.streams.ArvaStream` drives for a receiver with a ``vehicle``, so
-the closed-loop receiver's ``$PARVA`` goes out on a port through the usual scheduler
-(``arva-emulate --scene case_study_1.toml --port pty``). With ``controller =
-"external_mavlink"`` there is no simulated vehicle: each epoch uses the latest pose
-from the autopilot (:mod:`emulator.closed_loop.mavlink`).
-
-For search experiments use :meth:`ClosedLoop.run`, which stops when every transmitter
-has been located (or the search gave up, or ``t_max``) and returns a :class:`RunResult`.
+Per epoch k (scene time t_k = k / rate_hz s, BRIEF 3 step 7) the receiver is evaluated
+at the vehicle's pose *now* (the whole effects pipeline of
+:class:`~emulator.receiver.receiver.Receiver`), then the controller runs
+``control_rate_hz / rate_hz`` ticks of dt = 1 / control_rate_hz with that epoch held,
+and the vehicle integrates each velocity command (paper eq. 9). Positions are world ENU
+metres. Rendering is sequential, so :class:`ClosedLoop` has a Receiver's
+``next_batch(count)`` and is what :class:`~emulator.output.streams.ArvaStream` drives
+for a receiver with a ``vehicle``. With ``controller = "external_mavlink"`` each epoch
+uses the latest autopilot pose instead (:mod:`emulator.closed_loop.mavlink`).
+:meth:`ClosedLoop.run` flies a search experiment and returns a :class:`RunResult`.
 """
 
 from __future__ import annotations
@@ -25,7 +18,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -62,7 +55,6 @@ class RunResult:
     wall_s: float
     ground_contacts: int = 0
     path_length: float = 0.0
-    extra: dict = field(default_factory=dict)
 
     def distance(self, i: int = 0, horizontal: bool = False) -> np.ndarray:
         """Distance (m) from the vehicle to transmitter column ``i`` at every tick."""

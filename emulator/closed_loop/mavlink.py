@@ -1,25 +1,14 @@
 """The receiver's pose from an autopilot over MAVLink (pymavlink; extra ``mavlink``).
 
-The emulator "rides along" a SITL or a real flight: it listens for the autopilot's
-``LOCAL_POSITION_NED`` (#32) and its attitude, ``ATTITUDE_QUATERNION`` (#31, PX4's
-default) or ``ATTITUDE`` (#30, ArduPilot's default; once a link has carried a
-quaternion, later ``ATTITUDE`` messages are ignored: the same instant twice), and keeps
-the latest pose; the closed-loop receiver evaluates each epoch at that pose. Frame
-conversions (NED/FRD -> ENU/FLU) are :mod:`emulator.frames.mavlink`'s; the autopilot's
-local origin sits at ``origin`` in the scene's ENU frame.
-
-Talking to a real autopilot: the source sends a ``HEARTBEAT`` (as a GCS) every second,
-so the autopilot knows a peer is there, and on each autopilot ``HEARTBEAT`` asks with
-``COMMAND_LONG`` ``MAV_CMD_SET_MESSAGE_INTERVAL`` (511) for ``LOCAL_POSITION_NED`` and
-``ATTITUDE_QUATERNION`` at ``rate_hz`` until both kinds have arrived (a request lost on
-UDP is simply repeated). If positions arrive without any attitude, or the reverse, for
-``WARN_AFTER_S`` seconds, one warning says so on stderr (logger ``arva-emulate``): the
-epochs would otherwise stay at the start pose with nothing saying why.
-
-Use a pymavlink connection string: ``udpin:0.0.0.0:14550`` (listen for a SITL's or a
-GCS-forwarded stream), ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, or a serial device
-``/dev/ttyUSB0`` (telemetry radio; ``baud`` applies). Reads block at most 0.2 s at a time
-so :meth:`MavlinkPoseSource.close` is prompt; :meth:`wait` takes a timeout.
+docs/closed_loop.md, "External loop", describes the protocol: the latest
+``LOCAL_POSITION_NED`` (#32) and ``ATTITUDE_QUATERNION`` (#31) or ``ATTITUDE`` (#30;
+ignored once a link has carried a quaternion) make the pose; we send a GCS
+``HEARTBEAT`` every second and, on each autopilot ``HEARTBEAT``, ask with
+``MAV_CMD_SET_MESSAGE_INTERVAL`` for the streams still missing; one warning after
+``WARN_AFTER_S`` of positions without attitude (or the reverse). Frames: NED/FRD ->
+ENU/FLU by :mod:`emulator.frames.mavlink`, the autopilot's local origin at ``origin`` in
+the scene's ENU metres. Reads block at most 0.2 s at a time so :meth:`MavlinkPoseSource.close`
+is prompt; :meth:`MavlinkPoseSource.wait` takes a timeout.
 """
 
 from __future__ import annotations
@@ -29,8 +18,6 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-
-import numpy as np
 
 from firmware_proto.errors import MissingExtra
 
@@ -49,7 +36,7 @@ HEARTBEAT_PERIOD_S = 1.0
 #: Positions without attitude (or the reverse) this long earn one warning.
 WARN_AFTER_S = 2.0
 
-__all__ = ["MavlinkPoseSource", "Pose", "attitude_euler_to_flu_enu", "frd_ned_to_flu_enu", "ned_to_enu", "pose_arrays"]
+__all__ = ["MavlinkPoseSource", "Pose", "attitude_euler_to_flu_enu", "frd_ned_to_flu_enu", "ned_to_enu"]
 
 
 @dataclass(frozen=True)
@@ -250,8 +237,3 @@ class MavlinkPoseSource:
             )
         return self.latest()
 
-
-def pose_arrays(pose: Pose, t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(1, 3) position and (1, 4) orientation arrays for the receiver model."""
-    p = pose.position if t is None else pose.extrapolated(t)
-    return np.array([p], dtype=np.float64), np.array([pose.orientation], dtype=np.float64)

@@ -14,26 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from emulator.closed_loop.strategy import (
-    APPROACH,
-    FINE,
-    INNER_CM,
-    PHASE_NAMES,
-    PLAN_BACK,
-    PLAN_CONST,
-    PLAN_SEARCH,
-    SEARCH,
-    Controller,
-    EpochArrays,
-    Observation,
-    StateArrays,
-    TickPlan,
-    atan2,
-    cos,
-    exact,
-    hypot,
-    pick_slots,
-    sin,
-    speed_law,
+    APPROACH, FINE, INNER_CM, PHASE_NAMES, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays,
+    Observation, StateArrays, TickPlan, atan2, cos, exact, hypot, pick_slots, sin, speed_law,
 )
 from emulator.closed_loop.flux import FluxFollower
 from emulator.closed_loop.vehicle import VehicleSpec
@@ -88,7 +70,7 @@ class RxState(StateArrays):
 
 
 @dataclass
-class RxParams:
+class RxParams(StateArrays):
     """:class:`ReceiverOnlySearch` constants per run: v_max, k_c, v_fine (spec) and
     d_gain (d in m -> the |h|^(-1/3) of eq. 10: |h| = kappa_eq / (4 pi d^3))."""
 
@@ -102,9 +84,6 @@ class RxParams:
         gain = (4.0 * math.pi / model.kappa_eq) ** (1.0 / 3.0)
         col = lambda name: np.array([getattr(s, name) for s in specs], dtype=np.float64)  # noqa: E731
         return cls(col("v_max"), col("k_c"), col("v_fine"), np.full(len(specs), gain))
-
-    def take(self, rows: np.ndarray) -> "RxParams":
-        return RxParams(self.v_max[rows], self.k_c[rows], self.v_fine[rows], self.d_gain[rows])
 
 
 def rx_epoch(st: RxState, ep: EpochArrays, par: RxParams) -> None:
@@ -294,28 +273,18 @@ def rx_arrive(st: RxState, x, y, par: RxParams) -> tuple[np.ndarray, ...]:
 
 
 class ReceiverOnlySearch(Controller):
-    """A rescuer's procedure on (id, d, delta) only (see module doc).
+    """A rescuer's procedure on (id, d, delta) only (docs/closed_loop.md, "Strategies").
 
-    Coarse search: the heading is the flux line's bearing yaw + delta, or its opposite,
-    whichever continues the current heading; it is reversed when d exceeds the best
-    seen on this approach by 10 % + 1 m (at most every 5 epochs). Near a steeply tilted
-    transmitter the two-antenna mid-zone d grows while the true distance falls (the
-    field turns vertical, |(h_x, h_y)| shrinks); a rescuer that keeps turning there is
-    stuck, so after 3 reversals or 20 epochs without a new best d the fine search
-    starts from the best point seen.
-
-    Fine search (inner zone, or stuck): crosses of two bracketing lines (along the
-    heading, then across it); each line flies until d is ``RISE_CM`` above its minimum
-    (turning once if it got worse from the start) or ``MAX_LINE_M`` each way, then
-    returns to the minimum. Cross 1 at v_fine, then at v_fine / 2; located after two
-    crosses when the minimum is in the inner zone, else after the third if the minimum
-    is below ``PROBE_CM`` (a deep burial: probe there). A minimum above that is the
-    steep-dipole trap: follow delta for ``COMMIT_EPOCHS`` without turning around and
-    search again; after ``MAX_ATTEMPTS`` such retries, the best point is reported.
-
-    The logic is written once over arrays of runs (:func:`rx_epoch`, :func:`rx_plan`,
-    :func:`fly_back`, :func:`rx_arrive`); this object runs it on a batch of one, a
-    batch loop on many runs together.
+    Coarse search: follow yaw + delta (or its opposite, whichever continues the heading),
+    turning around when d exceeds its best by ``REVERSE_FRACTION`` + ``REVERSE_CM`` (at
+    most every ``REVERSE_EVERY`` epochs); after ``MAX_REVERSALS`` reversals or
+    ``STUCK_EPOCHS`` without a new best (near a steep dipole the two-antenna d grows
+    while the distance falls) the fine search starts from the best point seen. Fine
+    search: crosses of two bracketing lines, each flown until d is ``RISE_CM`` above its
+    minimum or ``MAX_LINE_M`` each way; located after two crosses in the inner zone, or
+    after a third below ``PROBE_CM``; above that (the trap) follow delta for
+    ``COMMIT_EPOCHS`` and retry, at most ``MAX_ATTEMPTS`` times. This object runs the
+    array logic (:func:`rx_epoch` ...) on a batch of one.
     """
 
     name = "receiver_only"

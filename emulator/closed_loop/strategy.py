@@ -60,8 +60,8 @@ class EpochArrays:
 
 
 class StateArrays:
-    """Controller state as numpy arrays, one element per run: a dataclass of arrays
-    whose rows can be taken out (:meth:`take`) and put back (:meth:`put`)."""
+    """Controller state (or constants) as numpy arrays, one element per run: a dataclass
+    of arrays whose rows can be taken out (:meth:`take`) and put back (:meth:`put`)."""
 
     @classmethod
     def empty(cls, n: int):

@@ -1,35 +1,14 @@
 """Search sweeps: N seeded random burials per strategy, in closed loop, faster than real time.
 
-Burial i (i = 0 .. N-1) is drawn from ``SeedSequence(seed, spawn_key=(i,))``: 1 to
-``max_transmitters`` transmitters, uniform in the search area, buried ``depth`` metres
-below a flat snow surface (uniform in the range), each with a uniformly random
-orientation (a uniform random unit quaternion). Every strategy and every (v_max, k_c)
-flies the *same* burials (paired comparison), from the area's south-west corner, with a
-lawnmower signal search (strips ``strip_width`` apart), EMI noise on (unless
-``noise=False``) and the scene seed derived from the burial, so a sweep is a pure
-function of its config: the same rows on one process, a pool or a Dask cluster.
-
-Results: one row per (strategy, v_max, k_c, burial, transmitter) — :data:`COLUMNS` —
-written as CSV (or Parquet when pyarrow is installed and the name ends in .parquet),
-and a summary per (strategy, v_max, k_c): fraction located, time-to-locate and final
-horizontal error distributions (median, p90, p99, max; the p99 and max with seeded
-burial-bootstrap 95 % intervals, :func:`bootstrap_tail`).
-
-Engines: ``batch`` (default) flies the runs of a task (a chunk of the task list, any
-strategies and gains) together with :class:`~emulator.closed_loop.batch.BatchLoop`; ``run`` flies them one by
-one with :class:`~emulator.closed_loop.loop.ClosedLoop`, the reference. Both give the
+docs/closed_loop.md, "Sweeps", describes the burials, the rows (:data:`COLUMNS`), the
+summary and the command line (``python -m emulator.closed_loop.sweep``, ``arva-sweep``).
+Burial i is drawn from ``SeedSequence(seed, spawn_key=(i,))`` (positions ENU metres,
+depths metres below a flat snow surface, uniform random orientations) and every
+strategy and (v_max, k_c) flies the same burials, so a sweep is a pure function of its
+config: the same rows on one process, a pool or a Dask cluster. Engines: ``batch``
+(:class:`~emulator.closed_loop.batch.BatchLoop`, a task's runs together) and ``run``
+(:class:`~emulator.closed_loop.loop.ClosedLoop` one by one, the reference) give the
 same rows, bit for bit (``tests/emulator/closed_loop/test_batch_loop.py``).
-
-Command line (``python -m emulator.closed_loop.sweep``; console script ``arva-sweep``)::
-
-    python -m emulator.closed_loop.sweep --n 1000 --seed 1 --out sweep.csv
-    python -m emulator.closed_loop.sweep --n 200 --v-max 0.5,1,2 --k-c 0.1,0.2,0.4 --out grid.csv
-    python -m emulator.closed_loop.sweep --n 5000 --scheduler tcp://10.0.0.5:8786 --out big.csv
-
-The default executor is a local process pool (``--workers``, default the CPU count);
-tasks are chunks of runs, one batch per worker (:func:`chunk_size`, at most 2048 runs);
-``--scheduler ADDRESS`` runs the same chunks on a dask.distributed cluster (extra
-``cluster``), whose workers need this package importable.
 """
 
 from __future__ import annotations
@@ -41,7 +20,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -110,7 +89,6 @@ class SweepResult:
     wall_s: float
     scene_s: float  # scene time flown in total
     executor: str = ""
-    extra: dict = field(default_factory=dict)
 
     @property
     def speedup(self) -> float:
@@ -179,9 +157,7 @@ def run_batch_rows(config: SweepConfig, tasks: list[tuple[str, float, float, int
     scene time flown."""
     made = [burial_scene(config, i, strategy, v_max, k_c) for strategy, v_max, k_c, i in tasks]
     results = run_batch([scene for scene, _ in made], config.t_max)
-    rows: list[dict] = []
-    for task, (_, txs), result in zip(tasks, made, results):
-        rows += run_rows(*task[:3], task[3], txs, result)
+    rows = [row for task, (_, txs), result in zip(tasks, made, results) for row in run_rows(*task, txs, result)]
     return rows, sum(r.t_end for r in results)
 
 
@@ -190,29 +166,21 @@ def run_rows(strategy: str, v_max: float, k_c: float, i: int, txs: list[dict], r
     found = result.found()
     all_found = all(f["found"] for f in found)
     t_all = max(f["t"] for f in found) if all_found else math.nan
-    rows = []
-    for tx, f in zip(txs, found):
-        rows.append({
-            "strategy": strategy, "v_max": v_max, "k_c": k_c, "burial": i, "n_tx": len(txs),
-            "tx_id": tx["id"], "tx_x": tx["position"][0], "tx_y": tx["position"][1], "depth_m": tx["depth"],
-            "found": f["found"], "t_found_s": f["t"], "error_m": f["error_m"],
-            "all_found": all_found, "t_all_s": t_all, "t_end_s": result.t_end, "path_m": result.path_length,
-        })
-    return rows
+    return [{
+        "strategy": strategy, "v_max": v_max, "k_c": k_c, "burial": i, "n_tx": len(txs),
+        "tx_id": tx["id"], "tx_x": tx["position"][0], "tx_y": tx["position"][1], "depth_m": tx["depth"],
+        "found": f["found"], "t_found_s": f["t"], "error_m": f["error_m"],
+        "all_found": all_found, "t_all_s": t_all, "t_end_s": result.t_end, "path_m": result.path_length,
+    } for tx, f in zip(txs, found)]
 
 
 def run_chunk(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
     """Several runs in one worker call: one batch with the batch engine, else one after
     the other. Rows in task order either way."""
-    rows: list[dict] = []
-    scene_s = 0.0
-    if config.engine == "run":
-        for task in tasks:
-            r, t = run_one(config, *task)
-            rows += r
-            scene_s += t
-        return rows, scene_s
-    return run_batch_rows(config, tasks)
+    if config.engine != "run":
+        return run_batch_rows(config, tasks)
+    parts = [run_one(config, *task) for task in tasks]
+    return [row for rows, _ in parts for row in rows], sum(t for _, t in parts)
 
 
 #: Largest number of runs per task with the batch engine (memory stays ~100 MB).

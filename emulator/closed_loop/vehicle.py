@@ -228,7 +228,6 @@ class VehicleSpec:
     control_rate_hz: float = 10.0
     range_sigma_m: float = 0.0
     terrain: Terrain = FlatTerrain()
-    terrain_source: str = "flat"
     # Signal search (both search controllers): a lawnmower over this rectangle.
     search_area: tuple[float, float, float, float] | None = None  # xmin, ymin, xmax, ymax
     strip_width: float = 30.0
@@ -294,10 +293,10 @@ def parse_vehicle(rd: TableReader, data: Any, path: str, scene_dir: Path | None)
             raise rd.fail(f"{path}.{key}", 'only with controller = "external_mavlink"')
     if v.search_area is not None and not (v.search_area[2] > v.search_area[0] and v.search_area[3] > v.search_area[1]):
         raise rd.fail(f"{path}.search_area", "expected [xmin, ymin, xmax, ymax] with xmax > xmin and ymax > ymin")
-    terrain, source = _terrain(rd, v, path, scene_dir)
+    terrain = _terrain(rd, v, path, scene_dir)
     external = v.controller == "external_mavlink"
     return VehicleSpec(
-        **{k: getattr(v, k) for k in _SAME_KEYS}, yaw_deg=v.yaw, terrain=terrain, terrain_source=source,
+        **{k: getattr(v, k) for k in _SAME_KEYS}, yaw_deg=v.yaw, terrain=terrain,
         mavlink=(v.mavlink or "udpin:127.0.0.1:14550") if external else None,
         mavlink_origin=v.mavlink_origin or _D.mavlink_origin,
         mavlink_baud=v.mavlink_baud or _D.mavlink_baud,
@@ -308,13 +307,13 @@ _SAME_KEYS = ("kind", "controller", "start", "start_height", "v_max", "v_z_max",
               "range_sigma_m", "search_area", "strip_width", "v_stop", "v_fine", "flux_reverse")
 
 
-def _terrain(rd: TableReader, v: VehicleTable, path: str, scene_dir: Path | None) -> tuple[Terrain, str]:
+def _terrain(rd: TableReader, v: VehicleTable, path: str, scene_dir: Path | None) -> Terrain:
     p = lambda key: f"{path}.{key}"  # noqa: E731
     if v.terrain == "flat":
         for key in ("terrain_origin", "terrain_spacing"):
             if getattr(v, key) is not None:
                 raise rd.fail(p(key), "only with a DEM terrain file")
-        return FlatTerrain(v.terrain_height or 0.0), "flat"
+        return FlatTerrain(v.terrain_height or 0.0)
     if v.terrain_height is not None:
         raise rd.fail(p("terrain_height"), 'only with terrain = "flat" (a DEM gives the heights)')
     for key in ("terrain_origin", "terrain_spacing"):
@@ -328,7 +327,7 @@ def _terrain(rd: TableReader, v: VehicleTable, path: str, scene_dir: Path | None
     if file.suffix.lower() not in (".npy", ".csv"):
         raise rd.fail(p("terrain"), f"a DEM file must be .npy or .csv, got {v.terrain!r}")
     try:
-        return GridTerrain.load(file, list(v.terrain_origin), list(v.terrain_spacing)), str(file)
+        return GridTerrain.load(file, list(v.terrain_origin), list(v.terrain_spacing))
     except OSError as exc:
         raise rd.fail(p("terrain"), f"cannot read {str(file)!r}: {exc.strerror or exc}") from None
     except ValueError as exc:

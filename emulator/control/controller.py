@@ -3,22 +3,11 @@ epoch index, pause) and the :class:`~emulator.pipeline.Pipeline` (transmitters,
 receiver pins, faults on demand, the step clock's :meth:`~emulator.pipeline.Pipeline.step`).
 
 :meth:`Controller.handle` takes a parsed request and returns the reply object (for a
-``step``, a :class:`StepJob` that the server runs :data:`STEP_SLICE` epochs at a time,
-so other clients are served during a long step). It holds the scheduler's lock while it
-works, so a change lands between two epochs and takes effect from the next epoch
-rendered, whose index the reply carries (``epoch``). Errors
-raise :class:`~emulator.control.requests.ControlError` and change nothing: requests
-are validated when parsed, and the pipeline checks before it changes anything.
-
-Semantics of the changes (BRIEF 9): ``set_transmitter`` pins a transmitter at the pose
-given (fields not given keep their value at the next epoch), ``enabled: false`` leaves
-it out of every receiver's channel selection (its slot frees); an unknown id adds one
-(it has no ground-truth streams: those are fixed at start). ``remove_transmitter``
-takes it out of every receiver (its ground-truth streams, if any, keep its last pose).
-``set_receiver`` pins a receiver (its ground-truth streams follow), ``path: resume``
-hands it back to its scene path at the scene time of the next epoch; a receiver on a
-vehicle cannot be pinned. ``fault``: see :meth:`emulator.pipeline.Pipeline.fault`; the
-fault starts at the scene time of the stream's next epoch.
+``step``, a :class:`StepJob` the server runs :data:`STEP_SLICE` epochs at a time). It
+holds the scheduler's lock while it works, so a change lands between two epochs and
+takes effect from the next epoch rendered, whose index the reply carries (``epoch``).
+Errors raise :class:`~emulator.control.requests.ControlError` and change nothing. What
+each request does: docs/hil_testing.md, "Protocol".
 """
 
 from __future__ import annotations

@@ -20,6 +20,7 @@ from firmware_proto.errors import InputError, PoseError
 from firmware_proto.sentences import MAX_ID
 
 from emulator.frames.rotation import normalize_quaternions
+from emulator.output.link_faults import INJECTABLE
 from emulator.schema import Hinted, Int, Number, SchemaError, Strict, Text, Vector3, Vector4, convert, type_name
 
 #: Longest request line accepted, bytes (a request is a few hundred bytes at most).
@@ -31,9 +32,7 @@ MAX_FAULT_S = 86400.0
 #: Most bytes one ``corrupt`` fault may cover.
 MAX_CORRUPT_BYTES = 1_000_000
 
-FAULT_KINDS = ("corrupt", "disconnect", "stall")
-#: Which parameter each fault kind takes.
-FAULT_PARAMETER = {"disconnect": "seconds", "stall": "ms", "corrupt": "bytes"}
+FAULT_KINDS = tuple(sorted(INJECTABLE))
 
 
 class ControlError(InputError):
@@ -185,7 +184,7 @@ def _checked(req: Request) -> Request:
     if isinstance(req, Fault):
         if req.kind is None:
             raise ControlError(f"{op}.kind: must be one of {', '.join(FAULT_KINDS)}, got nothing")
-        wanted = FAULT_PARAMETER[req.kind]
+        wanted = INJECTABLE[req.kind]  # the parameter it takes
         for key, value in (("seconds", req.seconds), ("ms", req.ms), ("bytes", req.count)):
             if value is not None and key != wanted:
                 raise ControlError(f"{op}.{key}: not a parameter of kind {req.kind} (it takes {wanted})")

@@ -104,10 +104,7 @@ class ControlSession:
         self.stop = stop
         self.captures = list(captures)
         self.controller = Controller(scheduler, pipe, self.clock)
-        self.server = ControlServer(args.control, self.controller.handle, self._quit, any_host=args.control_any_host)
-
-    def _quit(self) -> None:
-        self.stop.set()
+        self.server = ControlServer(args.control, self.controller.handle, stop.set, any_host=args.control_any_host)
 
     def start(self, announce: Callable[[str], None]) -> None:
         """Listen, then announce ``control ADDRESS`` (the channel accepts from then on)."""

@@ -1,33 +1,22 @@
 """The control channel's socket server (BRIEF 9): JSON lines over a unix or TCP socket.
 
-Addresses: ``unix:PATH`` (the socket is created with mode 0600, owner only; a stale
-socket file left by a killed run is replaced, anything else at PATH is an error) or
-``tcp:HOST:PORT`` (HOST must be a loopback address, 127.0.0.1, ::1 or a name resolving
-only to loopback, unless ``any_host``; PORT 0 picks a free port, and the address
-announced says which).
-
-An asyncio event loop in its own thread serves every client (asyncio streams). Several
-clients may be connected at once (up to :data:`MAX_CLIENTS`); each gets exactly one
-reply per request, in order, on its own connection, and sees the changes made by the
-others (they change one emulator). Requests are executed one at a time in arrival order,
-in the loop's thread, except a long one (a ``step``): the handler returns it as a
-:class:`Sliced` request, which runs a slice at a time (a ``step``: at most
-:data:`~emulator.control.controller.STEP_SLICE` epochs) in one worker thread, the loop
-serving the other clients' requests between two slices (a request that needs the
-emulator waits for the slice to end: the handler's lock); its reply is sent once its
-last slice is done. Meanwhile its own client's further requests wait (unread: its socket
-applies back pressure), and other clients' long requests queue behind it. When the
-server closes (a ``quit``, SIGTERM) a long request stops after its current slice and its
-client gets an error reply saying how far it got. A line longer than
-:data:`~emulator.control.requests.MAX_LINE`, bytes that are not UTF-8 or JSON, an
-unknown op or an invalid value each get an error reply and change nothing; blank lines
-are ignored. A client that does not read its replies is disconnected once more than
-:data:`MAX_OUTBOX` bytes wait for it, so no client can stall the emulator.
+Addresses (docs/hil_testing.md, "The control channel"): ``unix:PATH`` (mode 0600, a
+stale socket file replaced) or ``tcp:HOST:PORT`` (loopback only unless ``any_host``;
+PORT 0 picks a free port, announced). An asyncio event loop in its own thread serves up
+to :data:`MAX_CLIENTS` clients, one reply per request, in order ("Several clients").
+Requests run one at a time in the loop's thread, except a long one (a ``step``), which
+the handler returns as a :class:`Sliced` request: a worker thread runs it a slice at a
+time while the loop serves the other clients; meanwhile its own client's further
+requests wait unread (back pressure) and other long requests queue behind it. On close
+it stops after its current slice and its client is told how far it got. The caps
+(:data:`~emulator.control.requests.MAX_LINE`, :data:`MAX_OUTBOX`, :data:`MAX_CLIENTS`):
+docs/reliability.md, "Bounded servers".
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import logging
 import os
@@ -104,10 +93,8 @@ def control_address(text: str) -> ControlAddress:
 
 def is_loopback(host: str) -> bool:
     """True if every address ``host`` resolves to is a loopback address."""
-    try:
+    with contextlib.suppress(ValueError):
         return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        pass
     try:
         infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
     except OSError:
@@ -235,10 +222,8 @@ class ControlServer:
         listener.close()
         self._slices.put(None)
         if self.address.kind == "unix":
-            try:
+            with contextlib.suppress(OSError):
                 os.unlink(self.address.path)
-            except OSError:
-                pass
 
     # --- serving (in the server's thread) ------------------------------------------------
 
@@ -249,10 +234,7 @@ class ControlServer:
             self._loop.close()
 
     async def _serve(self, sock: socket.socket) -> None:
-        if self.address.kind == "unix":
-            server = await asyncio.start_unix_server(self._client, sock=sock, limit=MAX_LINE)
-        else:
-            server = await asyncio.start_server(self._client, sock=sock, limit=MAX_LINE)
+        server = await asyncio.start_server(self._client, sock=sock, limit=MAX_LINE)  # unix or TCP: bound above
         await self._stop.wait()
         self._closing = True
         server.close()
@@ -322,10 +304,8 @@ class ControlServer:
         self._reply(writer, reply)
         if isinstance(request, Quit) and reply.get("ok"):
             writer.transport.set_write_buffer_limits(high=0)  # drain() now waits for every byte
-            try:
+            with contextlib.suppress(TimeoutError, ConnectionError):
                 await asyncio.wait_for(writer.drain(), QUIT_FLUSH_S)
-            except (TimeoutError, ConnectionError):
-                pass
             self.on_quit()
             return False
         return True

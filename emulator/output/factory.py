@@ -10,7 +10,7 @@ fresh machine, ``:`` in a label written ``-``), the same serial settings.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from firmware_proto.errors import InputError
@@ -34,14 +34,7 @@ class PortOptions:
 
     def serial_options(self, url: str) -> dict:
         """pyserial's keyword arguments for ``url``."""
-        opts = {
-            "baudrate": self.line.baudrate,
-            "bytesize": self.line.bytesize,
-            "parity": self.line.parity,
-            "stopbits": self.line.stopbits,
-            "rtscts": self.rtscts,
-            "xonxoff": self.xonxoff,
-        }
+        opts = {**asdict(self.line), "rtscts": self.rtscts, "xonxoff": self.xonxoff}
         if "://" not in url:
             opts["exclusive"] = True  # a device another program holds is an error, not a fight
         return opts

@@ -1,36 +1,24 @@
 """``--realtime-workers``: run the kernel workers that carry a pty's bytes at SCHED_FIFO.
 
-Linux only; times in seconds. A pty hands the bytes written on its master to the reader
-of its slave from a kernel worker: the write queues the tty's flush work on the unbound
-workqueue, and a worker of its pool (a kernel thread named ``kworker/uN:M``, a child of
-``kthreadd``) runs it. Those workers run at ordinary priority (SCHED_OTHER, nice 0): with
-every core busy, the reader's wake-up waits for that worker's fair-scheduler turn,
-whatever the priorities of the writer and the reader (1-3 ms at p99 on the benchmark's
-loaded host, docs/performance.md). At SCHED_FIFO priority 1 (above every ordinary task,
-below the emulator's and a real-time reader's priority) the worker runs when the write
-queues it.
+Linux only; times in seconds. A pty hands the bytes written on its master to its reader
+from a worker of the unbound workqueue (``kworker/uN:M``, a child of ``kthreadd``) at
+ordinary priority, so with every core busy the reader waits for that worker's turn
+(docs/emulator.md, "Sub-millisecond timing at the device under test"). At SCHED_FIFO
+priority 1 the worker runs when the write queues it.
 
-The change is host-wide: every work item of the unbound pool (writeback among them) then
-runs ahead of ordinary tasks. So it is opt-in, lasts for the run only, and is kept by a
-separate keeper process (``python -m emulator.output.kworkers PRIORITY``):
-
-* it raises the pool's workers it finds, and looks again every ``PERIOD`` seconds (the
-  pool creates workers as it needs them);
-* when its standard input closes (the emulator ended, however: even SIGKILL closes it)
-  it puts back every worker it changed that is still as it left it, and exits;
-* it ignores SIGINT (a Ctrl-C at the terminal is the emulator's to handle) and restores
-  on SIGTERM.
-
-Its first line on stdout says what it did: ``raised N`` or ``refused REASON`` (then it
-exits at once, having changed nothing).
-
-Two emulators with ``--realtime-workers`` at once: the second keeper leaves the workers
-the first raised alone (not its own change); when the first ends and puts them back,
-the second's next look, within ``PERIOD``, raises them again.
+The change is host-wide, so it is opt-in, lasts for the run only, and is kept by a
+separate keeper process (``python -m emulator.output.kworkers PRIORITY``) that raises the
+pool's workers every ``PERIOD`` s (the pool creates them as it needs them); when its
+stdin closes (the emulator ended, even by SIGKILL) it puts back every worker it changed
+that is still as it left it, and exits. It ignores SIGINT (the emulator's to handle) and
+restores on SIGTERM. Its first line on stdout is ``raised N`` or ``refused REASON`` (then
+it exits at once, having changed nothing). A second keeper leaves the first's workers
+alone; when the first puts them back, the second raises them again within ``PERIOD``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import select
@@ -151,15 +139,12 @@ def serve(keeper: Keeper, stdin_fd: int, out, period: float = PERIOD) -> int:
     refused = keeper.sweep()
     if refused is not None:
         keeper.restore()  # a partial sweep changes nothing either
-        out.write(f"refused {refused}\n")
-        out.flush()
+        print(f"refused {refused}", file=out, flush=True)
         return 0
     if not keeper.raised:
-        out.write("refused no kernel workers visible (no kthreadd at pid 2: a container?)\n")
-        out.flush()
+        print("refused no kernel workers visible (no kthreadd at pid 2: a container?)", file=out, flush=True)
         return 0
-    out.write(f"raised {len(keeper.raised)}\n")
-    out.flush()
+    print(f"raised {len(keeper.raised)}", file=out, flush=True)
     try:
         while True:
             ready, _, _ = select.select([stdin_fd], [], [], period)
@@ -179,7 +164,7 @@ class WorkersRaised:
 
     def close(self) -> None:
         """Close the keeper's stdin and wait for it to put the workers back."""
-        if self._proc.stdin is not None and not self._proc.stdin.closed:
+        if not self._proc.stdin.closed:
             self._proc.stdin.close()
         try:
             self._proc.wait(timeout=START_TIMEOUT)
@@ -208,12 +193,7 @@ def raise_workers(priority: int = PRIORITY, prog: str = "arva-emulate") -> tuple
     proc.stdout.close()
     if first.startswith("raised "):
         return WorkersRaised(proc), None
-    proc.stdin.close()
-    try:
-        proc.wait(timeout=START_TIMEOUT)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+    WorkersRaised(proc).close()  # it has ended, or ends now
     if first.startswith("refused "):
         return refused(first.removeprefix("refused "))
     if not ready:
@@ -227,10 +207,9 @@ def main(argv: list[str] | None = None) -> int:
     priority = int(argv[0]) if argv else PRIORITY
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # SystemExit runs serve's restore
-    try:  # never keep a real-time class inherited from a --realtime parent
+    # Never keep a real-time class inherited from a --realtime parent.
+    with contextlib.suppress(AttributeError, OSError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (AttributeError, OSError):
-        pass
     if not hasattr(os, "sched_setscheduler"):
         print("refused not Linux", flush=True)
         return 0

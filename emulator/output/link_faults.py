@@ -1,40 +1,29 @@
-"""Link faults on a port (BRIEF 3.1 ``link_faults``): what a flaky cable or radio does.
+"""Link faults on a port (BRIEF 3.1 ``link_faults``; docs/emulator.md, "link_faults").
 
-:class:`FaultyPort` wraps any :class:`~emulator.output.ports.Port` and is one itself. Per write,
-in this order:
+:class:`FaultyPort` wraps any :class:`~emulator.output.ports.Port` and is one itself. Per
+write, in this order:
 
-1. Disconnect schedule: outages start at scene times k * ``disconnect_every_s``
-   (k = 1, 2, ...) and last ``disconnect_s``. The wrapped port is ``disconnect()``-ed at
-   the first write (or :meth:`FaultyPort.poll`) inside an outage and ``reconnect()``-ed
-   at the first one after it; if no write falls inside an outage at all, it is still
-   applied, as a disconnect immediately followed by a reconnect. While disconnected, the
-   bytes are dropped and counted (``bytes_disconnected``) and nothing is drawn. A port
-   that cannot disconnect (stdout) gets a simulated outage: bytes dropped, nothing closed.
+1. Disconnect schedule: outages from scene times k * ``disconnect_every_s`` (k >= 1),
+   ``disconnect_s`` long. The wrapped port is ``disconnect()``-ed at the first write (or
+   :meth:`FaultyPort.poll`) inside an outage and ``reconnect()``-ed at the first after
+   it; an outage no write fell into is still applied (disconnect, then reconnect at
+   once). Meanwhile bytes are dropped (``bytes_disconnected``) and nothing is drawn; a
+   port that cannot disconnect (stdout) gets a simulated outage.
 2. Stall: with probability ``stall``, ``sleep(stall_ms / 1000)`` before the write.
-3. Bytes: each byte is lost with probability ``loss``; each byte not lost is corrupted
-   with probability ``corrupt`` (XOR with a uniform non-zero byte, so it always changes).
-4. Split: with probability ``split`` the faulted data goes out in 2, 3 or 4 pieces
-   (uniform; cut points uniform among the distinct positions), written back to back
-   with ``sleep(SPLIT_GAP_S)`` between pieces so a reader sees separate reads.
+3. Bytes: each byte lost with probability ``loss``; each byte kept corrupted with
+   probability ``corrupt`` (XOR with a uniform non-zero byte, so it always changes).
+4. Split: with probability ``split`` into 2, 3 or 4 pieces (cut points uniform among
+   the distinct positions), ``sleep(SPLIT_GAP_S)`` between them.
 
-Faults on demand (a control channel, :meth:`FaultyPort.inject`): an outage of S scene
-seconds from the current scene time, one stall of M ms before the next write (slept, or
-with ``stall_hold`` the bytes held until the scene clock has advanced M ms, then written
-in order with the first write at or after that), or
-corruption of the next N bytes written (each XOR-ed with a uniform non-zero byte from
-its own generator). A port can be wrapped with an all-zero :class:`LinkFaultConfig`
-only to take these; it then draws nothing until asked.
+:meth:`FaultyPort.inject` adds faults on demand (the control channel). Time comes from
+two injected callables, ``clock()`` (scene seconds) and ``sleep(seconds)`` (a no-op at
+``--speed 0``), so the port never sleeps when running as fast as possible.
 
-Time comes from two injected callables: ``clock()`` (scene time, seconds) and
-``sleep(seconds)`` (time.sleep in real time, a no-op at ``--speed 0``), so the port itself
-never sleeps when running as fast as possible.
-
-Determinism: the stall, byte, corruption-value and split faults each draw from their own
-generator (derived from the seed and ``stream``), only when enabled. The byte faults draw
-one fixed-size block per byte in stream order, so which bytes are lost or corrupted, and
-how, does not depend on how the stream is cut into writes: a run at ``--speed 0`` (large
-batched writes) and one in real time (a write per epoch) carry the same faulted bytes.
-Enabling splits or stalls does not change them either.
+Determinism: stalls, byte faults, corruption values and splits each draw from their own
+generator (from the seed and ``stream``), only when enabled. Byte faults draw one
+fixed-size block per byte in stream order, so the faulted bytes do not depend on how the
+stream is cut into writes (``--speed 0`` and real time carry the same), nor on splits or
+stalls being on.
 """
 
 from __future__ import annotations
@@ -59,6 +48,9 @@ _TAG = 0x4C494E4B
 _STALL, _BYTES, _SPLIT, _XOR, _FORCED = 0, 1, 2, 3, 4
 #: Kinds of fault :meth:`FaultyPort.inject` applies, with the unit of their amount.
 INJECTABLE = {"disconnect": "seconds", "stall": "ms", "corrupt": "bytes"}
+#: The counters of :meth:`FaultyPort.summary`, in order.
+COUNTERS = ("bytes_offered", "bytes_written", "bytes_dropped", "bytes_lost", "bytes_corrupted", "bytes_disconnected",
+            "writes", "writes_split", "stalls", "disconnects")
 
 
 def _finite(v) -> bool:
@@ -67,16 +59,10 @@ def _finite(v) -> bool:
 
 @dataclass(frozen=True)
 class LinkFaultConfig:
-    """Scene settings of the ``link_faults`` effect.
-
-    * ``loss``: per-byte loss probability, [0, 1].
-    * ``corrupt``: per-byte corruption probability (of bytes not lost), [0, 1].
-    * ``split``: probability a write is split into 2..4 pieces, [0, 1].
-    * ``stall``: probability a write is preceded by a stall, [0, 1].
-    * ``stall_ms``: stall length, >= 0 (default 200).
-    * ``disconnect_every_s``: outage period in scene seconds, >= 0 (0 = never, default).
-    * ``disconnect_s``: outage length, > 0 and < ``disconnect_every_s`` (default 2).
-    """
+    """Scene settings of the ``link_faults`` effect (docs/emulator.md, "link_faults"):
+    probabilities per byte (``loss``, ``corrupt`` of the bytes kept) or per write
+    (``split``, ``stall``), ``stall_ms`` in ms, the outage period and length in scene
+    seconds (``disconnect_every_s`` 0: never)."""
 
     loss: float = 0.0
     corrupt: float = 0.0
@@ -211,18 +197,7 @@ class FaultyPort(PortWrapper):
         return self.bytes_lost + self.bytes_corrupted + self.writes_split + self.stalls + self.disconnects
 
     def summary(self) -> dict[str, int]:
-        return {
-            "bytes_offered": self.bytes_offered,
-            "bytes_written": self.bytes_written,
-            "bytes_dropped": self.bytes_dropped,
-            "bytes_lost": self.bytes_lost,
-            "bytes_corrupted": self.bytes_corrupted,
-            "bytes_disconnected": self.bytes_disconnected,
-            "writes": self.writes,
-            "writes_split": self.writes_split,
-            "stalls": self.stalls,
-            "disconnects": self.disconnects,
-        }
+        return {name: getattr(self, name) for name in COUNTERS}
 
     # --- Port interface ------------------------------------------------------------------
 
@@ -284,7 +259,6 @@ class FaultyPort(PortWrapper):
             self._go_down()
             if t >= k * every + self.config.disconnect_s:  # the whole outage fell between writes
                 self._up()
-
 
     # --- faults --------------------------------------------------------------------------
 

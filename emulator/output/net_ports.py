@@ -1,52 +1,22 @@
 """Network ports: a stream served to TCP clients, as a lab's serial server would.
 
-Two port kinds, each a :class:`~emulator.output.ports.Port`:
-
-* ``rfc2217-server:HOST:PORT``: an RFC 2217 (Telnet COM-PORT-OPTION) server, the
-  protocol of ser2net and labgrid; any pyserial client opens ``rfc2217://HOST:PORT``.
-  The Telnet and RFC 2217 negotiation is pyserial's own (:class:`serial.rfc2217.PortManager`).
+* ``rfc2217-server:HOST:PORT``: RFC 2217 (Telnet COM-PORT-OPTION), ser2net's and
+  labgrid's protocol; the negotiation is pyserial's :class:`serial.rfc2217.PortManager`.
 * ``tcp-server:HOST:PORT``: a raw socket (ser2net's raw mode; pyserial ``socket://``).
 
-``PORT`` 0 asks the system for a free port; the URL a client opens is announced like a
-pty path (``arva rfc2217://127.0.0.1:40123``). HOST must be a loopback address unless the
-caller allows other hosts (``--serve-any-host``).
+docs/emulator.md, "Network servers", is the user's view: port 0, loopback only unless
+``--serve-any-host``, one emulated UART per client (its own line settings; ``baud /
+bits_per_char`` bytes per second of wall-clock time out of a :data:`UART_FIFO_BYTES`
+FIFO, the rest dropped and counted), the client events reported through ``notify``.
+docs/reliability.md, "Bounded servers", lists the caps that keep a hostile client from
+growing the emulator (:data:`MAX_SUBNEGOTIATION`, :data:`MAX_REPLIES_WAITING`,
+:data:`SOCKET_BACKLOG_BYTES`, :data:`MAX_CLIENTS`, :data:`NOTIFY_SETTING_CHANGES`).
 
-Every client gets its own emulated UART: a transmitter at that client's line settings
-(RFC 2217 clients set baud rate, data bits, parity and stop bits as on a real port; a
-raw-socket client has the command line's). The line carries ``baud / bits_per_char``
-bytes per second of wall-clock time (bits per char = start bit + data bits + parity bit +
-stop bits) out of a transmit FIFO of :data:`UART_FIFO_BYTES` bytes (the Linux serial
-driver's buffer); what does not fit is dropped and counted, exactly as a device whose
-UART is too slow for its epoch rate loses bytes. As fast as possible (``--speed 0``) a
-write may first wait up to the drain wait for the line, like a serial device (see
-:class:`~emulator.output.ports.SerialPort`). Bytes the UART accepted go to the socket at
-once, from the emulator's own write (a thread sends only what the socket could not take
-at once): the baud rate limits how many arrive, not when. A client that stops reading has
-at most :data:`SOCKET_BACKLOG_BYTES` queued for it; beyond that its bytes are dropped.
-
-Several clients may connect at once: each receives every byte the stream writes from
-the moment it connected, through its own UART (so a slow client drops without costing a
-fast one anything). A client that closes or vanishes is forgotten; it never blocks the
-emulator, whose :meth:`write` only appends to per-client queues. Bytes a client sends to
-the device are read and discarded (an emulated receiver has no input).
-
-No client can grow the emulator without limit (issue 29): a Telnet subnegotiation (``IAC
-SB`` ... ``IAC SE``) longer than :data:`MAX_SUBNEGOTIATION` bytes, more than
-:data:`MAX_REPLIES_WAITING` bytes of Telnet / RFC 2217 replies waiting for a client that
-does not read them, or a request pyserial's PortManager cannot parse disconnects that
-client (one line through ``notify``, counted in :attr:`ServerPort.clients_cut`); at most
-:data:`MAX_CLIENTS` clients are served at once (a connection beyond is closed at once,
-counted in :attr:`ServerPort.clients_refused`, the first :data:`NOTIFY_REFUSALS` of them
-reported). A client's line-setting changes are reported up to
-:data:`NOTIFY_SETTING_CHANGES` times; the rest are counted in its ``left`` line. So a
-hostile client costs at most a few hundred kB (tests/emulator/output/test_net_ports_hostile.py measures
-the emulator's resident memory).
-
-Counters: :attr:`Port.bytes_written` is the sum over clients of the bytes their UART
-carried; :attr:`Port.bytes_dropped` the sum of the bytes their UART dropped, plus every
-byte written while no client was connected (nobody received it). Client events
-(connect, line settings, leave with its counts) are reported through ``notify`` (the
-command lines print them on stderr).
+The emulator's :meth:`ServerPort.write` never waits for a socket: what a client's UART
+accepted is sent from the caller's thread when the socket takes it at once, else queued
+for that client's sender thread. :attr:`Port.bytes_written` sums the bytes the clients'
+UARTs carried; :attr:`Port.bytes_dropped` what they dropped plus every byte written
+while no client was connected.
 """
 
 from __future__ import annotations
@@ -59,7 +29,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import serial
 import serial.rfc2217
@@ -103,10 +73,6 @@ class ServerSpec:
     host: str
     port: int
 
-    @property
-    def ephemeral(self) -> bool:
-        return self.port == 0
-
 
 def parse_server_spec(text: str) -> ServerSpec | None:
     """``rfc2217-server:HOST:PORT`` or ``tcp-server:HOST:PORT`` (IPv6 as ``[::1]``);
@@ -134,7 +100,7 @@ def is_ephemeral(text: str) -> bool:
         spec = parse_server_spec(text)
     except InputError:
         return False
-    return spec is not None and spec.ephemeral
+    return spec is not None and spec.port == 0
 
 
 @dataclass(frozen=True)
@@ -157,8 +123,7 @@ class LineSettings:
 
     def describe(self) -> str:
         """``115200 8N1`` (``1.5`` stop bits as ``1.5``)."""
-        stop = f"{self.stopbits:g}"
-        return f"{self.baudrate} {self.bytesize}{self.parity}{stop}"
+        return f"{self.baudrate} {self.bytesize}{self.parity}{self.stopbits:g}"
 
 
 class UartLine:
@@ -228,14 +193,7 @@ class _ClientUart(VirtualLine, SerialBase):
     """
 
     def __init__(self, settings: LineSettings, on_change: Callable[[LineSettings], None], on_purge) -> None:
-        self._on_change = None
-        super().__init__(
-            port=None,
-            baudrate=settings.baudrate,
-            bytesize=settings.bytesize,
-            parity=settings.parity,
-            stopbits=settings.stopbits,
-        )
+        super().__init__(port=None, **asdict(settings))
         self._on_change = on_change
         self._on_purge = on_purge
         self.is_open = True  # from now on every setting change calls _reconfigure_port
@@ -244,11 +202,7 @@ class _ClientUart(VirtualLine, SerialBase):
         lo, hi = BAUD_LIMITS
         if not lo <= self._baudrate <= hi:
             raise ValueError(f"baud rate {self._baudrate} outside {lo}..{hi}")
-        if self._on_change is not None:
-            self._on_change(self.line_settings())
-
-    def line_settings(self) -> LineSettings:
-        return LineSettings(self._baudrate, self._bytesize, self._parity, self._stopbits)
+        self._on_change(LineSettings(self._baudrate, self._bytesize, self._parity, self._stopbits))
 
     def reset_input_buffer(self) -> None:  # data from the device not yet sent to the client
         self._on_purge()
@@ -331,10 +285,9 @@ class ServedClient:
             self.bytes_sent += n
             self.bytes_dropped += len(data) - n
             if chunk and not (self._control or self._data or self._sending):
-                try:
+                # Full (BlockingIOError) or gone: the sender thread sends or finds out.
+                with contextlib.suppress(OSError):
                     chunk = chunk[self.sock.send(chunk, socket.MSG_DONTWAIT) :]
-                except OSError:
-                    pass  # full (BlockingIOError) or gone: the sender thread sends or finds out
             if chunk:
                 self._data += chunk
                 self._cond.notify()
@@ -423,7 +376,10 @@ class ServerPort(Port):
         self.settings = settings or LineSettings()
         self.notify = notify or (lambda _line: None)
         text = spec_text or f"{spec.kind}:{spec.host}:{spec.port}"
-        addresses = _resolve(spec.host, spec.port, text)
+        try:
+            addresses = socket.getaddrinfo(spec.host, spec.port, type=socket.SOCK_STREAM)
+        except socket.gaierror as exc:
+            raise InputError(f"port {text}: cannot resolve {spec.host!r}: {exc.strerror}") from None
         if not serve_any_host and not all(ipaddress.ip_address(a[4][0]).is_loopback for a in addresses):
             raise InputError(
                 f"port {text}: {spec.host} is not a loopback address; add --serve-any-host to serve other hosts"
@@ -442,9 +398,8 @@ class ServerPort(Port):
         self._selector = selectors.DefaultSelector()
         self._selector.register(self._listener, selectors.EVENT_READ)
         self._selector.register(self._wake_r, selectors.EVENT_READ)
-        host, port = self._listener.getsockname()[:2]
         scheme = "rfc2217" if spec.kind == "rfc2217-server" else "socket"
-        self.path = f"{scheme}://{f'[{host}]' if ':' in host else host}:{port}"
+        self.path = f"{scheme}://{_format_addr(self._listener.getsockname())}"
         self.drain_wait = 0.0
         self._clients: list[ServedClient] = []
         self._lock = threading.Lock()
@@ -572,18 +527,9 @@ def escape_iac(data: bytes) -> bytes:
 
 
 def _shut(sock: socket.socket) -> None:
-    try:
+    with contextlib.suppress(OSError):
         sock.shutdown(socket.SHUT_RDWR)
-    except OSError:
-        pass
     sock.close()
-
-
-def _resolve(host: str, port: int, text: str):
-    try:
-        return socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-    except socket.gaierror as exc:
-        raise InputError(f"port {text}: cannot resolve {host!r}: {exc.strerror}") from None
 
 
 def _format_addr(addr) -> str:
@@ -622,17 +568,6 @@ def open_server_port(
 
 
 __all__ = [
-    "KINDS",
-    "MAX_CLIENTS",
-    "MAX_REPLIES_WAITING",
-    "MAX_SUBNEGOTIATION",
-    "LineSettings",
-    "ServerPort",
-    "ServerSpec",
-    "UartLine",
-    "escape_iac",
-    "is_ephemeral",
-    "open_server_port",
-    "parse_server_spec",
-    "stderr_notifier",
+    "KINDS", "MAX_CLIENTS", "MAX_REPLIES_WAITING", "MAX_SUBNEGOTIATION", "LineSettings", "ServerPort", "ServerSpec",
+    "UartLine", "escape_iac", "is_ephemeral", "open_server_port", "parse_server_spec", "stderr_notifier",
 ]

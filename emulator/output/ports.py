@@ -173,22 +173,14 @@ class BufferPort(Port):
 class _FdWriter:
     """Writes a non-blocking fd like a UART: what does not fit is dropped.
 
-    With ``wait > 0`` (as fast as possible, ``--speed 0``, and the step clock) a full
-    buffer is given up to ``wait`` s *without progress* to drain: a reader that keeps
-    reading loses nothing, however slowly it reads (QEMU hands an emulated UART one byte
-    at a time, ~15 KB/s, and a pty signals room only once much of its ~20 KB buffer has
-    drained, so a reader can look idle for seconds: tests/perf/bench_firmware_loop.py).
-    Once a wait times out the reader is taken to be absent and later writes drop at once
-    (no blocking, no queue) until the buffer takes bytes again: any progress means
-    someone reads. (Waiting for a whole write to fit instead would keep a present but
-    briefly stalled reader "absent" for good when every write is larger than the buffer.)
-
-    ``first_wait`` caps the wait for a reader not yet seen reading: for a pty we create,
-    which nobody may be reading at all (the wait holds the control channel, whose other
-    clients are answered within a second). A reader is seen when a full buffer takes
-    bytes again. (Not from the pty's queue: the kernel moves written bytes to the reader's
-    side asynchronously, so "nothing queued" right after a write can mean "not moved yet";
-    under load an unread pty looked read and waited the whole 5 s.)
+    With ``wait > 0`` a full buffer is given up to ``wait`` s *without progress* to
+    drain, then the reader is taken to be absent and writes drop at once until the buffer
+    takes bytes again; ``first_wait`` caps the wait for a reader not yet seen reading
+    (docs/emulator.md, "Ports behave like a UART", says why). Progress, not a whole write
+    fitting, is what counts: a present reader briefly stalled would otherwise stay
+    "absent" for good when every write is larger than the buffer. A reader is seen when a
+    full buffer takes bytes again, not from the pty's queue: the kernel moves written
+    bytes to the reader's side asynchronously, so under load an unread pty looked read.
     """
 
     def __init__(self, wait: float = 0.0, first_wait: float | None = None) -> None:
@@ -235,15 +227,10 @@ def _write_some(fd: int, data: bytes) -> int:
 
 
 class PtyPort(Port):
-    """A pseudo-terminal pair made raw by us, behaving like a UART nobody may be reading.
-
-    The slave side is kept open so the pty survives readers coming and going (no EIO,
-    no hang-up); the master is written non-blocking and what does not fit the kernel
-    buffer (about 20 KB on Linux) is dropped and counted. A pyserial reader flushes
-    stale input when it opens the port (``tcflush``, which empties the whole pty
-    buffer), so a reader that reopens gets fresh epochs. ``link`` adds a stable
-    symlink to the slave path, updated when the pty is re-created by a disconnect;
-    ``on_reconnect`` is called with the port after that (to announce the new path).
+    """A raw pseudo-terminal pair behaving like a UART nobody may be reading (docs/emulator.md,
+    "Ports behave like a UART"): the slave kept open, the master written non-blocking.
+    ``link`` adds a stable symlink to the slave path, updated when a disconnect re-creates
+    the pty; ``on_reconnect`` is then called with the port (to announce the new path).
     """
 
     def __init__(self, label: str, link: Path | None = None) -> None:
@@ -261,8 +248,7 @@ class PtyPort(Port):
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line discipline: bytes pass through untouched
         tty.setraw(master)
-        flags = fcntl.fcntl(master, fcntl.F_GETFL)
-        fcntl.fcntl(master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        os.set_blocking(master, False)
         self._master, self._slave = master, slave
         self._writer.reset()
         self.path = os.ttyname(slave)
@@ -343,7 +329,7 @@ class SerialPort(Port):
         self._writer = _FdWriter()
         try:
             fd = self._serial.fileno()
-            fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) | os.O_NONBLOCK)
+            os.set_blocking(fd, False)
             self._fd = fd
         except (AttributeError, NotImplementedError, OSError, ValueError, serial.SerialException):
             self._serial.write_timeout = 0  # a URL handler without a file descriptor

@@ -1,18 +1,13 @@
 """``--realtime``: ask the OS for a real-time scheduling class and locked memory.
 
-Real-time epochs are written at deadlines on the monotonic clock (seconds); on a loaded
-host the process's wake-ups are late by whatever the kernel's fair scheduler gives other
-tasks first. SCHED_FIFO (``os.sched_setscheduler``) makes this process preempt ordinary
-tasks when its sleep ends, and ``mlockall`` keeps its pages resident so a deadline never
-waits on a page fault. Both need privileges (root, CAP_SYS_NICE / CAP_IPC_LOCK, or an
-rtprio / memlock limit); where refused the emulator runs as before and says so in one
-stderr line. Linux's RT throttling (sched_rt_runtime_us) still caps a real-time task
-below 100 % of a core, and the scheduler sleeps between epochs, so this never starves
-the host. No guest priority helps against a hypervisor's steal time (a vCPU taken away,
-up to ~100 ms at a time on the VM this was measured on), and a pty's bytes reach their
-reader through an ordinary-priority kernel worker, which ``--realtime-workers`` raises
-(emulator/output/kworkers.py): see docs/emulator.md, "Sub-millisecond timing at the
-device under test".
+Real-time epochs are written at deadlines on the monotonic clock (seconds). SCHED_FIFO
+makes this process preempt ordinary tasks when its sleep ends, and ``mlockall`` keeps
+its pages resident so a deadline never waits on a page fault. Both need privileges;
+where refused the emulator runs as before and says so in one stderr line. Linux's RT
+throttling still caps a real-time task below a whole core, and the scheduler sleeps
+between epochs, so this never starves the host. What it cannot help (a hypervisor's
+steal time, a pty's kernel worker: emulator/output/kworkers.py): docs/emulator.md,
+"Sub-millisecond timing at the device under test".
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """The epoch scheduler: renders every stream's epochs at their deadlines and writes them.
 
 Real time (``speed > 0``): epoch k of a stream is due at ``start + k / (rate_hz * speed)``
-on the monotonic clock. Deadlines are absolute, so sleep overshoot never accumulates
-(hours of 1 Hz epochs stay on the second), and each epoch is rendered ahead of its
-deadline so only the write happens at the deadline. As fast as possible (``speed == 0``):
-epochs are rendered in batches covering a window of scene time, stream by stream.
+on the monotonic clock, rendered ahead of its deadline (docs/emulator.md, "Timing"). As
+fast as possible (``speed == 0``): batches covering a window of scene time, stream by stream.
 
 A live control channel (:mod:`emulator.control`) changes the scene between epochs: every
 render and write here happens under :attr:`EpochScheduler.lock`, which the channel holds
@@ -142,8 +140,6 @@ class EpochScheduler:
         #: Held while rendering and writing; a control channel holds it to change the scene.
         self.lock = threading.RLock()
         self.paused = False
-        #: Epochs of the first stream rendered but not written because the clock was paused.
-        self.epochs_paused = 0
         if frames is not None:
             rate0 = routes[0].stream.rate_hz
             for r in routes:
@@ -190,10 +186,8 @@ class EpochScheduler:
 
     def _write(self, route: Route, data: bytes) -> None:
         self.scene_clock.t = route.next_k / route.stream.rate_hz
-        if self.paused:
-            self.epochs_paused += route is self.routes[0]
-            return
-        route.port.write(data)
+        if not self.paused:  # paused: rendered, then discarded
+            route.port.write(data)
 
     def _run_fast(self) -> None:
         for r in self.routes:

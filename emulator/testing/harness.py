@@ -7,8 +7,10 @@ imports numpy; pyserial is imported when a port is opened.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -68,7 +70,7 @@ class ControlClient:
             sock.close()
             raise EmulatorError(f"cannot connect to the control channel {address}: {exc}") from None
         self._sock = sock
-        self._buf = bytearray()
+        self._replies = sock.makefile("rb")  # each read waits at most `timeout` (the socket's)
         self._lock = threading.Lock()
         self._transcript = open(transcript, "a", encoding="utf-8") if transcript is not None else None
 
@@ -93,26 +95,15 @@ class ControlClient:
         return json.loads(reply)
 
     def _read_line(self) -> str:
-        deadline = time.monotonic() + self.timeout
-        while True:
-            nl = self._buf.find(b"\n")
-            if nl >= 0:
-                line = bytes(self._buf[:nl])
-                del self._buf[: nl + 1]
-                return line.decode("utf-8")
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise EmulatorError(f"control channel {self.address}: no reply within {self.timeout} s")
-            self._sock.settimeout(left)
-            try:
-                data = self._sock.recv(65536)
-            except socket.timeout:
-                continue
-            except OSError as exc:
-                raise EmulatorError(f"control channel {self.address}: {exc}") from None
-            if not data:
-                raise EmulatorError(f"control channel {self.address}: closed by the emulator")
-            self._buf += data
+        try:
+            line = self._replies.readline()
+        except TimeoutError:
+            raise EmulatorError(f"control channel {self.address}: no reply within {self.timeout} s") from None
+        except OSError as exc:
+            raise EmulatorError(f"control channel {self.address}: {exc}") from None
+        if not line.endswith(b"\n"):
+            raise EmulatorError(f"control channel {self.address}: closed by the emulator")
+        return line[:-1].decode("utf-8")
 
     def request(self, op: str, **fields: Any) -> dict:
         """``{"op": op, **fields}`` -> the reply; :class:`ControlReplyError` if not ok."""
@@ -129,6 +120,7 @@ class ControlClient:
         self.close()
 
     def close(self) -> None:
+        self._replies.close()
         self._sock.close()
         if self._transcript is not None:
             self._transcript.close()
@@ -329,14 +321,14 @@ class Emulator:
         try:
             proc = EmulatorProcess(*args, streams=0, timeout=timeout)
         except EmulatorError:
-            _remove_dir(sock_dir)
+            shutil.rmtree(sock_dir, ignore_errors=True)
             raise
         try:
             client = ControlClient(proc.control, timeout=max(timeout, 30.0), transcript=work / "control-transcript.txt")
             status = client.request("status")
         except Exception:
             proc.kill()
-            _remove_dir(sock_dir)
+            shutil.rmtree(sock_dir, ignore_errors=True)
             raise
         ports = {}
         for label, path in status["streams"].items():
@@ -410,10 +402,8 @@ class Emulator:
         self._stopped = True
         try:
             if self.process.proc.poll() is None:
-                try:
+                with contextlib.suppress(EmulatorError, ControlReplyError, OSError):
                     self.client.request("quit")
-                except (EmulatorError, ControlReplyError, OSError):
-                    pass
             try:
                 return self.process.wait(timeout)
             except EmulatorError:
@@ -422,12 +412,11 @@ class Emulator:
             self.process.kill()
             self.client.close()
             for folder in self._cleanup:
-                _remove_dir(folder)
+                shutil.rmtree(folder, ignore_errors=True)
             if self.artefacts is not None:
-                try:  # its symlinks went with the ptys: no empty folder among the artefacts
+                # Its symlinks went with the ptys: no empty folder among the artefacts.
+                with contextlib.suppress(OSError):
                     (self.artefacts / "pty").rmdir()
-                except OSError:
-                    pass
 
     def __enter__(self) -> "Emulator":
         return self
@@ -438,12 +427,6 @@ class Emulator:
 
 def _given(**fields) -> dict:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in fields.items() if v is not None}
-
-
-def _remove_dir(path: str | Path) -> None:
-    import shutil
-
-    shutil.rmtree(path, ignore_errors=True)
 
 
 def read_lines(ser, count: int, timeout: float = 10.0) -> list[bytes]:

@@ -1,32 +1,16 @@
 """The ``arva`` pytest plugin (BRIEF 9): the ``arva_emulator`` fixture and ``--arva-port``.
 
-Registered by installing the project (entry point group ``pytest11``, name ``arva``)::
-
-    def test_acquires(arva_emulator):
-        emu = arva_emulator(scene={...}, clock="step")
-        dut = MyDriver(emu.port)
-        emu.step(3)
-        ...
-
-``arva_emulator(scene=None, clock="step", speed=1.0)`` starts ``arva-emulate --port pty
---control ...`` and returns an :class:`~emulator.testing.harness.Emulator` handle. Every
-emulator a test started is stopped at teardown, whatever happened. The streams' bytes and
-the control transcript are kept under the test's ``tmp_path`` (folder ``arva-emulator-N``)
-when the test fails, and the failure report names the folder; on success they are
-removed. The scene and its seed are recorded as test properties, as ``record_property``
-does (JUnit XML ``<property>`` elements ``arva_scene``: the file given, ``<dict>`` or
-``<embedded default.toml>``; ``arva_scene_toml``: the scene's text as the emulator read it,
-so a report reproduces the run after its temporary files are gone; ``arva_seed``; ``_1``,
-``_2`` ... for further emulators of the same test). ``--arva-port DEVICE`` sends the
-first receiver's stream to DEVICE (a serial adapter wired to a real device under test)
-instead of a pty. See docs/hil_testing.md.
-
-``arva_firmware(firmware, scene=None, clock="step", ...)`` runs a firmware ELF on QEMU
-(``emulator.testing.qemu``) with the emulator writing the first receiver's stream into
-its UART0, and returns a ``FirmwareLoop``; same teardown and artefacts (``arva-firmware-N``).
-
-Loading the plugin costs one small import: nothing is started unless a test asks for
-the fixture.
+Registered by installing the project (entry point group ``pytest11``, name ``arva``);
+docs/hil_testing.md, "The fixture", is the user's guide. ``arva_emulator(scene=None,
+clock="step", speed=1.0)`` starts ``arva-emulate --port pty --control ...`` and returns an
+:class:`~emulator.testing.harness.Emulator`; ``arva_firmware(firmware, ...)`` runs a
+firmware ELF on QEMU (:mod:`emulator.testing.qemu`) and returns a ``FirmwareLoop``. Every
+emulator a test started is stopped at teardown; its folder (``arva-emulator-N``,
+``arva-firmware-N`` under ``tmp_path``: stream captures, control transcript) is kept and
+named in the report when the test fails, else removed. The scene and its seed are
+recorded as test properties, as ``record_property`` does (``arva_scene``,
+``arva_scene_toml``: the text the emulator read, ``arva_seed``; ``_1``, ``_2`` ... for
+further emulators of the same test). Loading the plugin starts nothing.
 """
 
 from __future__ import annotations
@@ -62,7 +46,6 @@ def pytest_runtest_makereport(item: pytest.Item, call):
         report.sections.append(
             ("arva emulator artefacts", "streams' bytes and control transcript kept in:\n" + "\n".join(map(str, folders)))
         )
-
 
 
 def _stop_all(request: pytest.FixtureRequest, started: list, folders: list) -> None:

@@ -1,35 +1,13 @@
 """Firmware in the loop: a microcontroller emulated by QEMU, its UART wired to the emulator.
 
-:class:`Board` runs ``qemu-system-arm -M mps2-an385 -kernel FIRMWARE.elf`` (a Cortex-M3
-board with CMSDK APB UARTs; any ``-M`` machine with two UARTs works) with both UARTs as
-ptys:
-
-* **UART0** is where a real receiver's cable would go: its pty path (:attr:`Board.uart0`)
-  is handed to ``arva-emulate`` as a serial device (``--stream arva=PATH``, what
-  ``--arva-port`` does on a real bench), so the emulator writes the receiver stream into
-  the firmware's UART exactly as into a USB serial adapter;
-* **UART1** carries the firmware's own output (one line per decision, say), read by a
-  thread into :attr:`Board.lines` and ``uart1.txt``.
-
-:class:`FirmwareLoop` is the pair (board + emulator with its control channel) that the
-``arva_firmware`` fixture returns. The files kept (under the test's ``tmp_path`` when a
-test fails, like ``arva_emulator``'s): ``uart1.txt`` (the firmware's output),
-``qemu.log`` (QEMU's guest errors and unimplemented-device accesses), ``qemu-stdout.txt``
-and the emulator's ``emulator/streams/<stream>.bytes`` (every byte offered to UART0) and
-``emulator/control-transcript.txt``.
-
-Clocks. Under the step clock the emulator writes epoch k only when the test steps it; the
-firmware sees bytes, never scene time. QEMU hands the guest one byte at a time while the
-guest's one-byte RX buffer is empty (flow control, not loss) and does not model baud timing:
-the firmware's line is as fast as it reads. With ``icount`` (QEMU's ``-icount shift=N``)
-the guest's own clock (SysTick, timers) advances by 2**N ns per instruction executed, so
-the firmware's notion of time depends only on what it executed, not on host load; without
-it, the guest clock is the host's. Either way a firmware that decides from the bytes it
-received (as the example does) decides the same.
-
-Needs Debian's ``qemu-system-arm`` (and ``gcc-arm-none-eabi`` with
-``libnewlib-arm-none-eabi`` to build a firmware): :class:`ToolMissing` names what to
-install. See docs/hil_testing.md, "Your firmware in the loop".
+:class:`Board` runs ``qemu-system-arm -M mps2-an385 -kernel FIRMWARE.elf`` with both
+UARTs as ptys: UART0's (:attr:`Board.uart0`) is handed to ``arva-emulate`` as a serial
+device (``--stream arva=PATH``), UART1 carries the firmware's own output, read by a
+thread into :attr:`Board.lines` and ``uart1.txt``. :class:`FirmwareLoop` is the pair
+(board + emulator with its control channel) that the ``arva_firmware`` fixture returns.
+docs/hil_testing.md, "Your firmware in the loop", describes the wiring, the files kept
+when a test fails, the two clocks (``icount``: the guest clock advances 2**N ns per
+instruction) and the Debian packages needed (:class:`ToolMissing` names them).
 """
 
 from __future__ import annotations
@@ -230,21 +208,19 @@ class FirmwareLoop:
 
     @classmethod
     def start(cls, firmware, scene=None, clock: str = "step", speed: float = 1.0, workdir=None, machine: str = "mps2-an385", icount: int | None = None) -> "FirmwareLoop":
-        if workdir is None:
-            import tempfile
+        import tempfile
 
-            work, cleanup = Path(tempfile.mkdtemp(prefix="arva-fw-")), True
-        else:
-            work, cleanup = Path(workdir), False
+        work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="arva-fw-"))
+        ours = work if workdir is None else None  # a temporary folder, removed at stop
         board = Board(firmware, work, machine=machine, icount=icount)
         try:
             emu = Emulator.start(scene, clock=clock, speed=speed, workdir=work / "emulator", arva_port=board.uart0)
         except BaseException:
             board.stop()
-            if cleanup:
-                shutil.rmtree(work, ignore_errors=True)
+            if ours is not None:
+                shutil.rmtree(ours, ignore_errors=True)
             raise
-        return cls(board, emu, work if cleanup else None)
+        return cls(board, emu, ours)
 
     def decisions(self) -> list[dict]:
         """The JSON lines with a ``seq`` so far; each line is parsed once (the board's
@@ -261,10 +237,7 @@ class FirmwareLoop:
         return list(self._decisions)
 
     def decision(self, seq: int, timeout: float = 10.0) -> dict:
-        def seen(lines) -> bool:
-            return any(d["seq"] == seq for d in self.decisions())
-
-        self.board.wait_for(seen, timeout)
+        self.board.wait_for(lambda _lines: any(d["seq"] == seq for d in self.decisions()), timeout)
         return next(d for d in reversed(self.decisions()) if d["seq"] == seq)
 
     def captured(self, stream: str = "arva") -> bytes:

@@ -2,17 +2,10 @@
 
 A pyserial port whose input is the ``$PARVA`` stream an emulated receiver would send,
 with no pty and no thread: epochs are rendered lazily when the client reads, at the
-times the scene says (``speed`` times real time, from the moment the port is opened;
-``speed=0`` delivers as fast as the client reads). SCENE is a scene file path
-(``arvaemu://scenes/walk.toml`` relative, ``arvaemu:///abs/walk.toml`` absolute) or
-empty / ``default`` for the embedded default scene. ``receiver`` picks a receiver by
-id when the scene has several. Writes are accepted and ignored (a receiver takes no
-commands). After ``frames`` epochs the port reads as EOF (empty reads).
-
-The bytes come from the same :class:`~emulator.pipeline.Pipeline` as ``arva-emulate``'s,
-link faults included (the port is an in-memory line, which cannot be unplugged: outages
-drop bytes, as on stdout), so ``arvaemu://S?speed=0`` reads exactly what
-``arva-emulate --scene S --port - --speed 0`` prints.
+scene's times from the moment the port opens (``speed`` times real time; 0: as fast as
+read). The bytes come from the same :class:`~emulator.pipeline.Pipeline` as
+``arva-emulate``'s, link faults included. docs/emulator.md, "In-process: arvaemu://",
+gives the URL's forms and options.
 """
 
 from __future__ import annotations
@@ -66,23 +59,16 @@ class Serial(VirtualLine, SerialBase):
         self._start = time.monotonic() + u.delay
 
     # -- reading ----------------------------------------------------------------
-    def _due(self) -> int:
-        """Epochs due by now (all of them at speed 0: rendering follows the reader)."""
-        route = self._route
-        if self._speed == 0:
-            return route.next_k + 1
-        elapsed = time.monotonic() - self._start
-        if elapsed < 0:
-            return 0
-        return math.floor(elapsed * route.stream.rate_hz * self._speed) + 1
-
     def _render_due(self, want: int) -> None:
+        """Render the epochs due by now; at speed 0 (rendering follows the reader), whole
+        epochs until ``want`` bytes are buffered."""
         route = self._route
-        due = self._due()
         if self._speed == 0:
-            # Render whole epochs until the request can be met.
             per_epoch = 64 * max(1, route.stream.receiver.channels)
             due = route.next_k + max(1, math.ceil((want - len(self._buffer)) / per_epoch))
+        else:
+            elapsed = time.monotonic() - self._start
+            due = math.floor(elapsed * route.stream.rate_hz * self._speed) + 1 if elapsed >= 0 else 0
         if route.end_k is not None:
             due = min(due, route.end_k)
         # Written through the pipeline's route: link faults apply, bytes land in _buffer.
