@@ -70,7 +70,8 @@ MAX_SD = 0.15
 #: narrow bin within 9.1e-8, both at the level of the ball rule's own error (G to
 #: 3e-7); on the 10,000-row subsample of the 1e5-row pose-error bench campaign (seed 0)
 #: at its estimate log P per row within 3.1e-5 of that reference (2 / 6: 3.6e-5), for
-#: ~15 % less CPU per evaluation (11.4 -> 9.6 ms, load ~8; tests/perf/fit_pieces.py).
+#: 12 % less CPU per evaluation (10.2 -> 8.9 ms; tests/perf/fit_pieces.py, 2026-12-05,
+#: 2-core EPYC at load 7-10; 13-15 % in two other runs).
 SIGNAL_PIECE = (4.0, 8)
 #: The rule of the fit's linearising passes (all errors-in-variables passes but the
 #: third, :func:`estimate.fit_once`): 2 s.d., 6 nodes, as before SIGNAL_PIECE. Their
