@@ -13,7 +13,7 @@ import numpy as np
 
 from .likelihood import Params, PoseTrack, Rows, geometry, rows_from_table
 from .parallel import pose_moments_halves
-from .pose_error import MAX_SD, posterior_attitudes, posterior_positions
+from .pose_error import MAX_SD, SIGNAL_PIECE, posterior_attitudes, posterior_positions
 from .table import Table, gps_scale
 
 #: pose_sigma under the errors-in-variables model when not given (its lower bound: a
@@ -40,7 +40,8 @@ def rule_sigmas(p: Params, free) -> tuple[float, float, float]:
 
 
 def eiv_rows(
-    rows: Rows, table: Table, sigma0, idx=None, attitude: float | None = None, track: bool = False
+    rows: Rows, table: Table, sigma0, idx=None, attitude: float | None = None, track: bool = False,
+    piece: tuple[float, int] = SIGNAL_PIECE,
 ) -> tuple[Rows, int]:
     """The rows of ``table`` (``rows``: all of them) for the errors-in-variables model at
     sigmas ``sigma0``: geometry at the expected true receiver poses, the pose-error
@@ -49,7 +50,8 @@ def eiv_rows(
     ``idx``: only these rows (sorted indices; the positions and the time-offset track
     still come from all of them). ``attitude``: the attitude error the tilts are shrunk
     by (default sigma0's, which is floored for the rule; 0 keeps the logged attitudes).
-    The time-offset track is built when ``rows`` has one or ``track`` asks for it."""
+    The time-offset track is built when ``rows`` has one or ``track`` asks for it.
+    ``piece``: the likelihood's pieces over this pose error (:attr:`PoseMoments.piece`)."""
     post = posterior_positions(table.rx_pos, table.tx_pos, sigma0[0], sigma0[1])
     quat = posterior_attitudes(table.rx_quat, sigma0[2] if attitude is None else attitude)
     # the geometry at the expected true poses, and so is the time-offset track's (with
@@ -65,6 +67,7 @@ def eiv_rows(
     rows.geo = geometry(pos, rx_q, tx_p, tx_q)
     rule0 = (sigma0[0], max(sigma0[1] * post.v_factor, 1e-6), sigma0[2])
     rows.moments = mom = pose_moments_halves(pos, rx_q, tx_p, tx_q, rule0)
+    mom.piece = piece
     # the likelihood scales the vertical group by gps_ratio * gps_sigma: fold the factor in
     for arr in (mom.m_xy, mom.v_xy, mom.m_3, mom.v_3):
         arr[1] *= post.v_factor**2

@@ -27,6 +27,7 @@ from .diagnostics import goodness_of_fit
 from .eiv import EIV_POSE_SIGMA, EIV_START, eiv_rows, rule_sigmas, usable
 from .likelihood import FREE_PARAMS, LINEAR, Params, Rows, from_params, rows_from_table, to_params
 from .offset import OFFSET_GAIN, offset_scan
+from .pose_error import LINEARISING_PIECE, SIGNAL_PIECE
 from .params import BOUNDS, MAY_VANISH, box
 from .pilot import naive_fit
 from .result import FitOptions, FitResult
@@ -409,7 +410,9 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         if eiv:
             at_p = base if start is None else start
             sigma0 = rule_sigmas(at_p, free)
-            rows, n_dropped = eiv_rows(all_rows, table, sigma0, attitude=at_p.attitude_sigma)
+            # (the passes before the third only choose the next one's sigmas: pose_error.LINEARISING_PIECE)
+            piece = SIGNAL_PIECE if eiv_pass == 2 else LINEARISING_PIECE
+            rows, n_dropped = eiv_rows(all_rows, table, sigma0, attitude=at_p.attitude_sigma, piece=piece)
             if rows.k.shape[0] < MIN_ROWS or not np.any(rows.k != -1):
                 raise FitInputError(
                     f"{table.source}: only {rows.k.shape[0]} rows are farther from the transmitter than the "
@@ -425,7 +428,8 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         # Between errors-in-variables passes only the sigmas matter: the subsample's
         # estimate is enough, and all rows are fitted once, in the last pass.
         searching = eiv and "r_outer" not in free
-        like, res, extra = run_stages(rows, base, newton_free, options, notes, start, not searching, prev)
+        # (the last pass's subsample search is only where the steps on all rows start)
+        like, res, extra = run_stages(rows, base, newton_free, options, notes, start, not searching, prev, searching and eiv_pass == 2)
         n_evals += extra
         r_outer_se = float("nan")
         if "r_outer" in free and res.ok:
@@ -442,6 +446,9 @@ def fit_once(table: Table, options: FitOptions) -> FitResult:
         new0 = rule_sigmas(start, free)
         if eiv_pass == 2 or all(abs(math.log(a / b)) < math.log(1.25) for a, b in zip(new0, sigma0)):
             if searching and rows.k.shape[0] > SUBSAMPLE and "time_offset" not in newton_free:
+                # the estimate is all rows': their likelihood takes the final rule's pieces
+                # (the subsample's search of an earlier pass was a linearising one)
+                rows = replace(rows, moments=replace(rows.moments, piece=SIGNAL_PIECE))
                 like, res, extra = full_stage(rows, base, newton_free, options, notes, res)
                 n_evals += extra
             break

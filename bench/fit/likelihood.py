@@ -409,12 +409,15 @@ class Likelihood:
             pe = np.empty(j.shape)
             with np.errstate(invalid="ignore", divide="ignore"):
                 log_g = np.log(_gamma(log_r[j], m.log_gxy[j], m.fxy[j], p.r_en)) - 3.0 * (m.lxy[j] - m.lxy0[j])
+                piece = self.rows.moments.piece
                 if nar.any():  # one density at the bin's middle instead of two CDFs
-                    pe[nar] = signal_error_bin(log_t0[nar] - 1.5 * (ae[nar] + be[nar]), 3.0 * (be[nar] - ae[nar]), log_g[nar], _at(s3, nar))
+                    pe[nar] = signal_error_bin(
+                        log_t0[nar] - 1.5 * (ae[nar] + be[nar]), 3.0 * (be[nar] - ae[nar]), log_g[nar], _at(s3, nar), piece
+                    )
                 if wide.any():
-                    above = signal_error_cdf(log_t0[wide] - 3.0 * ae[wide], log_g[wide], _at(s3, wide))
+                    above = signal_error_cdf(log_t0[wide] - 3.0 * ae[wide], log_g[wide], _at(s3, wide), piece)
                     tw = top[wide]
-                    above[tw] -= signal_error_cdf(log_t0[top] - 3.0 * be[top], log_g[top], _at(s3, top))
+                    above[tw] -= signal_error_cdf(log_t0[top] - 3.0 * be[top], log_g[top], _at(s3, top), piece)
                     pe[wide] = np.maximum(above, 0.0)
             pm[exact] = pe
         elif exact.any():

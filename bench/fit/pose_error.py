@@ -62,6 +62,25 @@ SQRT3 = math.sqrt(3.0)
 #: sigmas) exceeds this are not used: the moment-matched Gaussian is poor there and such
 #: rows carry almost no information on kappa_eq or r_en.
 MAX_SD = 0.15
+#: The piecewise rule of :func:`signal_error_cdf` and :func:`signal_error_bin`: pieces
+#: of at most this many s.d. of Z, this many Gauss-Legendre nodes each (the exact-pose
+#: rule of ``special``: 2 s.d., 6 nodes). On 4,000 random near-kink rows (s3 0.01-0.3,
+#: log gamma -2 to 3, t within 7 s.d. of a kink) against 12 nodes per 0.125 s.d. the
+#: CDF was within 2.4e-7 (2 s.d. / 6 nodes: 1.8e-7; 3 / 6: 2.3e-6; 4 / 7: 2.9e-6) and a
+#: narrow bin within 9.1e-8, both at the level of the ball rule's own error (G to
+#: 3e-7); on the 10,000-row subsample of the 1e5-row pose-error bench campaign (seed 0)
+#: at its estimate log P per row within 3.1e-5 of that reference (2 / 6: 3.6e-5), for
+#: 12 % less CPU per evaluation (10.2 -> 8.9 ms; tests/perf/fit_pieces.py, 2026-12-05,
+#: 2-core EPYC at load 7-10; 13-15 % in two other runs).
+SIGNAL_PIECE = (4.0, 8)
+#: The rule of the fit's linearising passes (all errors-in-variables passes but the
+#: third, :func:`estimate.fit_once`): 2 s.d., 6 nodes, as before SIGNAL_PIECE. Their
+#: estimates choose the sigmas of the next pass's moments, and so which near rows are
+#: left out (:data:`MAX_SD`) and, above 10,000 rows, the subsample drawn from the rest: a
+#: change of ~1e-5 in their log P moved the final estimates of 1e5-row campaigns by up
+#: to 0.4 standard errors (kappa_eq, r_en; attitude_sigma by up to 1.8) through the rows
+#: alone, so those passes keep the rule they had.
+LINEARISING_PIECE = (2.0, 6)
 
 
 @dataclass
@@ -76,11 +95,15 @@ class PoseMoments:
     sigma0: tuple[float, float, float]  # the sigmas the rule was evaluated at (m, m, rad)
     dz_xy: NDArray[np.float64]  # d a_xy / d (receiver height), 1/m (for the height offset)
     dz_3: NDArray[np.float64]
+    #: the likelihood's piecewise rule over this pose error, (longest piece in s.d. of Z,
+    #: Gauss-Legendre nodes per piece) (:func:`signal_error_cdf`; :data:`SIGNAL_PIECE`, or
+    #: the fit's linearising passes' :data:`LINEARISING_PIECE`)
+    piece: tuple[float, int] = SIGNAL_PIECE
 
     def take(self, idx) -> "PoseMoments":
         return PoseMoments(
             self.m_xy[:, idx], self.v_xy[:, idx], self.m_3[:, idx], self.v_3[:, idx], self.sigma0,
-            self.dz_xy[idx], self.dz_3[idx],
+            self.dz_xy[idx], self.dz_3[idx], self.piece,
         )  # fmt: skip
 
     def spread(self, s: NDArray[np.float64] | tuple) -> tuple[NDArray, NDArray, NDArray, NDArray]:
@@ -277,7 +300,7 @@ _GH3_X = np.array([-SQRT3, 0.0, SQRT3])
 _GH3_W = np.array([1.0, 4.0, 1.0]) / 6.0
 
 
-def signal_error_cdf(log_t, log_gamma, s3) -> NDArray[np.float64]:
+def signal_error_cdf(log_t, log_gamma, s3, piece: tuple[float, int] = SIGNAL_PIECE) -> NDArray[np.float64]:
     """E[G(t; gamma e^{-s3 Z})], Z standard normal: P(log dxy > y) for threshold
     t = e^{log_t} (noise radii) when the pose error scales the signal (all one per row;
     s3 = 3 sigma > 0; ``log_gamma`` includes -3 m, the pose error's mean effect).
@@ -286,13 +309,14 @@ def signal_error_cdf(log_t, log_gamma, s3) -> NDArray[np.float64]:
     (gamma' = |t - 1|) and is 1 above it when t > 1 (for t < 1 it tends smoothly to
     G(t; 0)). Rows with both kinks at least ``Z_KINK`` s.d. away take the 3-point
     Gauss-Hermite rule; the others are integrated only where G is neither 0 nor 1, in
-    pieces of at most ``special.PIECE`` s.d. split at the kinks (:func:`special.normal_pieces`),
-    blended into the 3-point value over ``Z_BLEND`` s.d. (the scheme of
-    :func:`special.smoothed_ball_disk_cdf`, which puts the same error on the threshold)."""
-    return _signal_rule(log_t, log_gamma, s3, False)
+    pieces split at the kinks (:func:`special.normal_pieces`; ``piece``: their longest
+    length in s.d. and their nodes), blended into the 3-point value over ``Z_BLEND`` s.d.
+    (the scheme of :func:`special.smoothed_ball_disk_cdf`, which puts the same error on the
+    threshold)."""
+    return _signal_rule(log_t, log_gamma, s3, False, piece)
 
 
-def signal_error_bin(log_t_mid, delta, log_gamma, s3) -> NDArray[np.float64]:
+def signal_error_bin(log_t_mid, delta, log_gamma, s3, piece: tuple[float, int] = SIGNAL_PIECE) -> NDArray[np.float64]:
     """E[G(t e^{delta/2}; gamma') - G(t e^{-delta/2}; gamma')], gamma' = gamma e^{-s3 Z}:
     the probability of a bin of width delta in log t (all one per row), for bins with
     delta <= :data:`BIN_W_MAX` s3 min(1, gamma). The two edges share gamma' at every
@@ -305,9 +329,10 @@ def signal_error_bin(log_t_mid, delta, log_gamma, s3) -> NDArray[np.float64]:
     (tests/bench/fit/test_fit_pose_error.py): within 2e-4 of P; on the 1e5-row pose-error bench
     (1 cm bins, w ~ 0.01) within 8e-5 of the two-CDF value on every row. Same rules
     (3-point Gauss-Hermite, pieces between the kinks, blend) as :func:`signal_error_cdf`;
-    t dG/dt is 0 where G is 0 or 1, so there is no tail term."""
+    t dG/dt is 0 where G is 0 or 1, so there is no tail term. ``piece``: as for
+    :func:`signal_error_cdf`."""
     delta = np.asarray(delta, dtype=np.float64)
-    return np.maximum(delta * _signal_rule(log_t_mid, log_gamma, s3, True), 0.0)
+    return np.maximum(delta * _signal_rule(log_t_mid, log_gamma, s3, True, piece), 0.0)
 
 
 #: :func:`signal_error_bin` is used for bins narrower than this many s3 min(1, gamma)
@@ -315,7 +340,7 @@ def signal_error_bin(log_t_mid, delta, log_gamma, s3) -> NDArray[np.float64]:
 BIN_W_MAX = 0.015
 
 
-def _signal_rule(log_t, log_gamma, s3, density: bool) -> NDArray[np.float64]:
+def _signal_rule(log_t, log_gamma, s3, density: bool, piece: tuple[float, int]) -> NDArray[np.float64]:
     """E[G] (or with ``density``: E[t dG/dt]) at t = e^{log_t}, gamma' = gamma e^{-s3 Z}."""
     log_t = np.asarray(log_t, dtype=np.float64)
     log_gamma = np.broadcast_to(np.asarray(log_gamma, dtype=np.float64), log_t.shape)
@@ -339,7 +364,7 @@ def _signal_rule(log_t, log_gamma, s3, density: bool) -> NDArray[np.float64]:
     near = np.flatnonzero(zmin < Z_KINK + Z_BLEND)
     if not near.size:
         return out
-    acc = _pieces(t[near], log_gamma[near], s3[near], za[near], zb[near], density)
+    acc = _pieces(t[near], log_gamma[near], s3[near], za[near], zb[near], density, piece)
     x = np.clip((zmin[near] - Z_KINK) / Z_BLEND, 0.0, 1.0)
     w = x * x * x * (10.0 - 15.0 * x + 6.0 * x * x)
     gh = np.where(w > 0.0, out[near], 0.0)
@@ -354,13 +379,13 @@ def _g(t, gamma, density: bool):
     return ball_disk_cdf(t, gamma, density=density)
 
 
-def _pieces(t, lg, s3, za, zb, density: bool = False) -> NDArray[np.float64]:
+def _pieces(t, lg, s3, za, zb, density: bool, piece: tuple[float, int]) -> NDArray[np.float64]:
     """The piecewise integral of :func:`_signal_rule` (one value per row)."""
     above = t > 1.0  # G = 1 above zb
     lo = np.clip(za, -Z_SPAN, Z_SPAN)
     hi = np.where(above, np.maximum(np.clip(zb, -Z_SPAN, Z_SPAN), lo), Z_SPAN)
     mid = np.clip(zb, lo, hi)
-    row, z, wz = normal_pieces(lo, mid, hi)
+    row, z, wz = normal_pieces(lo, mid, hi, *piece)
     with np.errstate(over="ignore"):
         gam = np.exp(np.minimum(lg[row][:, None] - s3[row][:, None] * z, 700.0))
     gz = _g(np.broadcast_to(t[row][:, None], gam.shape), gam, density)

@@ -52,6 +52,17 @@ def fd_gradient(f, theta, h, f0=None, hessian=False):
     return g, hess
 
 
+def forward_gradient(f, theta, h, f0, curvature):
+    """Forward-difference gradient of f at theta with steps h (p evaluations instead of
+    2p), its O(h) term h f''/2 taken off with ``curvature`` (the diagonal of a Hessian
+    carried by the search, floored at 0): the error left is that Hessian's error times
+    h/2 and O(h^2). Its points are :func:`fd_gradient`'s first p (the same floats, so a
+    memoising likelihood keeps them for a later central stencil at theta)."""
+    eye = np.diag(h)
+    fp = np.array(evaluate(f, [theta + eye[i] for i in range(theta.shape[0])]))
+    return (fp - f0) / h - 0.5 * np.maximum(curvature, 0.0) * h
+
+
 def merge(theta, mask, values):
     out = theta.copy()
     out[mask] = values
@@ -321,8 +332,11 @@ class Differences:
 
     scores = False
 
-    def __init__(self, f) -> None:
+    def __init__(self, f, forward: bool = False) -> None:
         self.f = f
+        #: The gradients of a BFGS search's steps by forward differences
+        #: (:meth:`step_gradient`); its ends (the Hessian by differences) stay central.
+        self.forward = forward
 
     def value(self, theta) -> tuple[float]:
         return (self.f(theta),)
@@ -331,11 +345,21 @@ class Differences:
         """The gradient of the coordinates ``mask`` at ``theta`` (and their Hessian)."""
         return fd_gradient(Part(self.f, lambda x: merge(theta, mask, x)), theta[mask], h[mask], f0, hessian)
 
+    def step_gradient(self, theta, f0, mask, h, curvature):
+        """The gradient of ``mask`` at a point of a BFGS search: central differences, or
+        with :attr:`forward` forward ones corrected by ``curvature``, the diagonal of the
+        carried Hessian of ``mask`` (:func:`forward_gradient`)."""
+        if not self.forward:
+            return self.gradient(theta, f0, mask, h)[0]
+        return forward_gradient(Part(self.f, lambda x: merge(theta, mask, x)), theta[mask], h[mask], f0, curvature)
+
     def renewed(self, theta, f0, g, keep, hk, h, lo, hi, free):
-        """(Hessian of the ``keep`` parameters by differences of f, the same steps)."""
+        """(Hessian of the ``keep`` parameters by differences of f, the same steps, and
+        with :attr:`forward` their central gradient from the same points, else None)."""
         mask = np.zeros(len(free), bool)
         mask[keep] = True
-        return self.gradient(theta, f0, mask, h, hessian=True)[1], h
+        g_c, hess = self.gradient(theta, f0, mask, h, hessian=True)
+        return hess, h, (g_c if self.forward else None)
 
 
 class Analytic:
@@ -354,7 +378,7 @@ class Analytic:
 
     def renewed(self, theta, f0, g, keep, hk, h, lo, hi, free):
         h = se_steps(hk, free, keep, h)
-        return hessian_fd(self.obj, theta, g, keep, h, lo, hi, self.one_sided), h
+        return hessian_fd(self.obj, theta, g, keep, h, lo, hi, self.one_sided), h, None
 
 
 #: With the outer product of the scores as curvature, the search takes the Hessian by
@@ -365,7 +389,7 @@ NOT_FINITE = "the likelihood is not finite next to the estimate"
 
 def newton(
     source, theta, free, max_iter, tol=DECREMENT_TOL, *, recompute=False, h=None, held=None, hess0=None,
-    hessian="final", finish=None, probe=True,
+    hessian="final", finish=None, probe=True, near=0.0,
 ) -> NewtonResult:
     """Projected, damped Newton on f (the negative log-likelihood) in the BOUNDS box.
 
@@ -386,6 +410,12 @@ def newton(
       ``tol``): once the decrement is below it, the Hessian by differences is taken where
       the search stands and one Newton step with it, not evaluated, ends the search (its
       f is the quadratic model's; ``evaluated`` says where the last gradient was taken).
+      A :class:`Differences` source with ``forward`` (BFGS, with ``finish``) takes its
+      steps' gradients by forward differences; its decrement is not trusted to converge
+      on, so below ``finish`` it always finishes, with the gradient central from the
+      Hessian's stencil: where it stands when the decrement is below ``near`` (the
+      forward points are the stencil's), else where the quasi-Newton step lands when f
+      is lower there (one value: the Hessian nearer the optimum).
 
     The active set: a parameter at a bound whose gradient points out is held there. Where
     the gradient of every parameter is known at each iteration (recompute, or Analytic)
@@ -438,7 +468,9 @@ def newton(
         nonlocal h, bhhh, exact_at, differenced, n_steps, last_dec
         if not fd:
             n_steps, last_dec = 0, math.inf
-        hq[np.ix_(keep, keep)], h = source.renewed(theta, f0, g, keep, hk, h, lo, hi, free)
+        hq[np.ix_(keep, keep)], h, central = source.renewed(theta, f0, g, keep, hk, h, lo, hi, free)
+        if central is not None:  # (forward-difference steps: the end's gradient is central)
+            g[keep] = central
         bhhh, differenced, exact_at = False, True, (theta.copy(), keep)
         return hq[np.ix_(keep, keep)]
 
@@ -448,7 +480,7 @@ def newton(
             g[keep], hq[np.ix_(keep, keep)] = source.gradient(theta, f0, ~held, h, hessian=True)
             exact_at = (theta.copy(), keep)
         else:
-            g[keep] = source.gradient(theta, f0, ~held, h)[0]
+            g[keep] = source.step_gradient(theta, f0, ~held, h, np.diag(hq)[keep])
     it = 0
     for it in range(1, max_iter + 1):
         # -- where the search stands: gradient, curvature and the active set
@@ -514,13 +546,22 @@ def newton(
             here = exact_at is not None and np.array_equal(exact_at[0], theta) and np.array_equal(exact_at[1], keep)
             if fd:
                 stalled = want = False
-                finishing = finish is not None and hessian == "final" and tol <= decrement < finish and not here
+                # (a forward gradient's decrement is not trusted below tol: it finishes too)
+                floor = 0.0 if source.forward else tol
+                finishing = finish is not None and hessian == "final" and floor <= decrement < finish and not here
             else:
                 slow = n_steps >= 2 and decrement > 0.5 * last_dec
                 stalled = decrement >= tol and ((bhhh and n_steps >= BHHH_STEPS) or slow)
                 want = (hessian == "final" and not here) or (hessian == "some" and not differenced)
                 finishing = finish is not None and hessian == "final" and decrement < finish and not here
             if stalled or (decrement < tol and want) or finishing:
+                if finishing and fd and source.forward and not modified and decrement >= near:
+                    # the end's stencil where the quasi-Newton step lands when f is lower there
+                    # (one value): the Hessian nearer the optimum than from where it was taken
+                    ahead = inside_step(theta, keep, stepf, lo, hi)
+                    f_ahead = math.inf if ahead is None else source.value(ahead)[0]
+                    if f_ahead <= f0:
+                        theta, f0 = ahead, f_ahead
                 hk = difference(theta, keep, hk)
                 stepf, modified = solve(hk, g[keep])
                 if stepf is None:
@@ -555,7 +596,7 @@ def newton(
             elif fd:
                 f0 = got[0]
                 held[taken] = True  # (this search keeps its active set: held at the bound)
-                g[~held] = source.gradient(theta, f0, ~held, h)[0]
+                g[~held] = source.step_gradient(theta, f0, ~held, h, np.diag(hq)[~held])
             else:
                 f0, g, scores = got
             continue
@@ -590,7 +631,7 @@ def newton(
             return NewtonResult(theta, f0, hq, active, h, it, False, "no step decreases the negative log-likelihood")
         if fd:
             g1 = g.copy()
-            g1[keep] = source.gradient(trial, r[0], ~held, h)[0]
+            g1[keep] = source.step_gradient(trial, r[0], ~held, h, np.diag(hq)[keep])
             r = (r[0], g1, None)
         else:
             trial, r = secant(source.value, theta, trial, g, r, lo, hi)

@@ -442,13 +442,16 @@ def smoothed_ball_disk_cdf(log_t, gamma, s3, grad: bool = False):
     return (out, *d)
 
 
-def normal_pieces(lo, mid, hi):
+def normal_pieces(lo, mid, hi, piece: float | None = None, nodes: int | None = None):
     """Nodes for E[f(Z); lo < Z < hi], Z standard normal, one interval per row split at
-    ``mid`` (a kink of f) into pieces of at most :data:`PIECE` s.d., 6 Gauss-Legendre
-    nodes each: (row, z, wz), the piece's row and its nodes and weights (pieces, 6), so
-    that ``bincount(row, weights=(wz * f(z)).sum(1))`` is the expectation per row."""
-    ka = np.ceil((mid - lo) / PIECE).astype(np.int64)
-    kb = np.ceil((hi - mid) / PIECE).astype(np.int64)
+    ``mid`` (a kink of f) into pieces of at most ``piece`` (default :data:`PIECE`) s.d.,
+    ``nodes`` (default 6) Gauss-Legendre nodes each: (row, z, wz), the piece's row and its
+    nodes and weights (pieces, nodes), so that ``bincount(row, weights=(wz * f(z)).sum(1))``
+    is the expectation per row."""
+    piece = PIECE if piece is None else piece
+    xp, wp = (_XP, _WP) if nodes is None else _legendre(nodes)
+    ka = np.ceil((mid - lo) / piece).astype(np.int64)
+    kb = np.ceil((hi - mid) / piece).astype(np.int64)
     kt = ka + kb
     row = np.repeat(np.arange(lo.shape[0]), kt)
     j = np.arange(row.shape[0]) - np.repeat(np.cumsum(kt) - kt, kt)  # piece number within its row
@@ -459,9 +462,19 @@ def normal_pieces(lo, mid, hi):
     width = np.where(in_a, wa, wb)
     left = np.where(in_a, lo[row] + j * wa, mid[row] + (j - ka_r) * wb)
     half = 0.5 * width
-    z = (left + half)[:, None] + half[:, None] * _XP  # (pieces, 6)
-    wz = (half[:, None] * _WP) * (_INV_SQRT_2PI * np.exp(-0.5 * z * z))
+    z = (left + half)[:, None] + half[:, None] * xp  # (pieces, nodes)
+    wz = (half[:, None] * wp) * (_INV_SQRT_2PI * np.exp(-0.5 * z * z))
     return row, z, wz
+
+
+_LEGENDRE: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+
+
+def _legendre(n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The n-point Gauss-Legendre nodes and weights on [-1, 1] (kept)."""
+    if n not in _LEGENDRE:
+        _LEGENDRE[n] = np.polynomial.legendre.leggauss(n)
+    return _LEGENDRE[n]
 
 
 def _piecewise(lt, g, s3, z1, z2, w=None, grad=False):

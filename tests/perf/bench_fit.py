@@ -286,11 +286,16 @@ sandwich standard errors). Target (issue 15): at most 10 s on 2 cores. Measured 
 How the fit spends it: the pilot and the search (Newton, finite-difference derivatives in
 the 4 parameters: 21 evaluations per Hessian) run on a {SUBSAMPLE:,}-row subsample, through
 up to three passes that re-linearise the pose-error moments at the estimated sigmas (the
-later ones by quasi-Newton steps from the previous pass's Hessian); all rows are
+later ones by quasi-Newton steps from the previous pass's Hessian; the third, which only
+leads in to the steps on all rows, with forward-difference gradients); all rows are
 evaluated only in the last pass: BFGS steps from the subsample's Hessian scaled to all
-rows until the decrement is below 3e-3 nats (0.08 standard errors), then the Hessian by
-differences on all rows there and one Newton step with it, not evaluated, to the estimate
-(the sandwich's scores reuse that last gradient's per-row values). The code
+rows, their gradients by forward differences (4 evaluations, not 8), until the decrement
+is below 2e-2 nats (0.2 standard errors), then the quasi-Newton step, the gradient and the
+Hessian by central differences on all rows there and one Newton step with it, not
+evaluated, to the estimate (the sandwich's scores reuse that last gradient's per-row
+values). The last pass integrates the pose error in pieces of at most 4 s.d. of 8 nodes
+(as accurate as the 2 s.d. of 6 nodes the passes before it keep, 12-15 % less CPU per
+evaluation; docs/calibration.md). The code
 before this design (every pass on all rows, gradient steps, the 60-node rule near the
 kinks) took 629 evaluations and 1298 s here under a load of ~20. The evaluations column
 is the machine limit of this design: their count times the CPU cost of one evaluation

@@ -13,10 +13,15 @@ from bench.fit.csvio import parse_csv
 import bench.fit.covariance as covariance_module
 from bench.fit.covariance import common_height_rows, time_block_meat, with_common_height
 from bench.fit.estimate import fit_table
-from bench.fit.result import FitOptions
+from bench.fit.result import EIV_FREE, FitOptions
 from bench.fit.likelihood import Params
+import bench.fit.estimate as estimate_module
+import bench.fit.special as special
+import bench.fit.stages as stages_module
 from bench.fit.pose_error import (
     BIN_W_MAX,
+    LINEARISING_PIECE,
+    SIGNAL_PIECE,
     pose_moments,
     posterior_attitudes,
     posterior_positions,
@@ -270,6 +275,64 @@ def test_signal_error_bin_matches_the_difference_of_fine_cdfs(log_t, log_gamma, 
     got = signal_error_bin(np.array([log_t]), np.array([delta]), np.array([log_gamma]), s3)[0]
     assert got >= 0.0
     assert abs(got - ref) <= 2e-4 * ref + 1e-6 * delta
+
+def near_kink_rows(n: int, seed: int):
+    """(log t, log gamma, s3, bin width) of rows within 7 s.d. of a kink of G."""
+    rng = np.random.default_rng(seed)
+    lg, s3 = rng.uniform(-2.0, 3.0, n), rng.uniform(0.01, 0.3, n)
+    g = np.exp(lg)
+    kink = np.where(rng.random(n) < 0.5, np.log(g + 1.0), np.log(np.abs(g - 1.0) + 1e-3))
+    return kink + s3 * rng.uniform(-7.0, 7.0, n), lg, s3, 0.01 * s3 * np.minimum(1.0, g)
+
+
+@pytest.mark.parametrize("piece", [SIGNAL_PIECE, LINEARISING_PIECE])
+def test_signal_rule_pieces_are_as_accurate_as_the_ball_rule(piece):
+    """Both piecewise rules (the fit's, and its linearising passes') against 12 nodes per
+    0.125 s.d. on near-kink rows: within 4e-7 (CDF) and 2e-7 (narrow bin), the level of
+    ball_disk_cdf's own error; pieces of 3 s.d. with 6 nodes were off by 2.3e-6."""
+    lt, lg, s3, delta = near_kink_rows(600, 3)
+    ref_cdf = signal_error_cdf(lt, lg, s3, (0.125, 12))
+    ref_bin = signal_error_bin(lt, delta, lg, s3, (0.125, 12))
+    assert np.max(np.abs(signal_error_cdf(lt, lg, s3, piece) - ref_cdf)) < 4e-7
+    assert np.max(np.abs(signal_error_bin(lt, delta, lg, s3, piece) - ref_bin)) < 2e-7
+
+
+def test_linearising_pieces_are_the_exact_pose_rules_nodes():
+    """LINEARISING_PIECE is the rule the fit had before SIGNAL_PIECE: special's pieces and
+    nodes, bit for bit (so those passes' estimates are unchanged)."""
+    rng = np.random.default_rng(1)
+    lo = rng.uniform(-8.0, 0.0, 50)
+    hi = lo + rng.uniform(0.0, 16.0, 50)
+    mid = lo + rng.uniform(0.0, 1.0, 50) * (hi - lo)
+    assert LINEARISING_PIECE == (special.PIECE, special._XP.shape[0])
+    for got, want in zip(special.normal_pieces(lo, mid, hi, *LINEARISING_PIECE), special.normal_pieces(lo, mid, hi)):
+        assert np.array_equal(got, want)
+
+
+def test_only_the_final_likelihoods_take_the_fits_pieces(monkeypatch):
+    """The errors-in-variables passes that choose the next pass's sigmas use
+    LINEARISING_PIECE; a third pass's rows and the steps on all rows use SIGNAL_PIECE
+    (a 20-minute campaign with the subsample stage at 600 rows)."""
+    monkeypatch.setattr(estimate_module, "SUBSAMPLE", 600)
+    monkeypatch.setattr(stages_module, "SUBSAMPLE", 600)
+    passes, full = [], []
+    eiv_rows, full_stage = estimate_module.eiv_rows, estimate_module.full_stage
+
+    def recording_rows(*args, **kw):
+        passes.append(kw["piece"])
+        return eiv_rows(*args, **kw)
+
+    def recording_full(rows, *args, **kw):
+        full.append(rows.moments.piece)
+        return full_stage(rows, *args, **kw)
+
+    monkeypatch.setattr(estimate_module, "eiv_rows", recording_rows)
+    monkeypatch.setattr(estimate_module, "full_stage", recording_full)
+    res = fit_table(emulate_campaign(20, TRUTH, seed=2, pose_error=TARGET_ERROR), FitOptions(free=EIV_FREE, scan_offset=False))
+    assert res.converged and len(passes) >= 2
+    assert passes == [LINEARISING_PIECE, LINEARISING_PIECE, SIGNAL_PIECE][: len(passes)]
+    assert full == [SIGNAL_PIECE]
+
 
 def test_pose_error_moves_the_signal_not_the_emi():
     """P(log dxy > y) for a far row (noise radius 0.4 of the signal, pose error 4 % of
