@@ -1,45 +1,20 @@
 """``usb://VID:PID[?serial=S&interface=N&endpoint=0x81&out=0x01&timeout_ms=T]``: a USB endpoint.
 
 A pyserial port over a raw USB device, through pyusb: reads come from a bulk or
-interrupt IN endpoint, writes go to a bulk or interrupt OUT endpoint. For receivers
-and ground-truth devices that stream bytes over USB without being a serial port
-(no ``/dev/ttyACM*``, no HID UART bridge).
-
-VID and PID are hexadecimal (as ``lsusb`` and ``arva-bench devices`` print them).
-Options:
-
-``serial``
-    pick, among devices with that VID:PID, the one with this serial number string
-    (``arva-bench devices`` shows it); without it, the first device found is opened.
-``interface``
-    bInterfaceNumber to claim (default: the first interface of the active configuration,
-    or the one holding ``endpoint`` when that is given). Alternate setting 0 is used.
-``endpoint``
-    bEndpointAddress of the IN endpoint to read (``0x81`` or ``129``; default: the first
-    bulk or interrupt IN endpoint of the interface).
-``out``
-    bEndpointAddress of the OUT endpoint to write (default: the first bulk or interrupt
-    OUT endpoint of the interface; with none, ``write`` raises ``SerialException``).
-``timeout_ms``
-    time limit of one USB transfer, in milliseconds (default 1000): a blocking read is a
-    series of transfers no longer than this (and no longer than the time left of the
-    port's ``timeout``); a write gives up after this long unless the port has a
-    ``write_timeout``.
+interrupt IN endpoint, writes go to a bulk or interrupt OUT endpoint, for devices that
+stream bytes over USB without being a serial port or a HID UART bridge. VID and PID are
+hexadecimal; the options, and which interface and endpoints are used without them, are
+in docs/transports.md ("Notes per transport"). ``timeout_ms`` (default 1000) is the time
+limit of one USB transfer; a read waits no longer than the port's ``timeout`` either.
 
 Reads follow pyserial's timeout rules: ``timeout=None`` blocks until ``size`` bytes came,
 ``timeout=0`` returns what is already there (after a 1 ms poll), ``timeout=T`` waits at
 most T seconds. Each transfer asks for exactly one packet (wMaxPacketSize bytes), so a
-transfer completes as soon as the device sends anything and a timed-out transfer never
-holds data (pyusb drops the bytes of a transfer that times out half-way); bytes beyond
-``size`` are kept for the next read. ``in_waiting`` polls the endpoint (1 ms per poll,
-until it is empty) and returns the number of buffered bytes.
-
-Baud rate, parity and modem lines mean nothing to a USB endpoint: they are accepted and
-ignored. The kernel driver bound to the interface, if any, is detached while the port is
-open and re-attached on close (where the platform supports it: Linux).
-
-Errors (bad URL, no such device, access denied, no usable endpoint) raise
-``serial.SerialException`` with one line naming the URL and the reason.
+timed-out transfer never holds data (pyusb drops the bytes of a transfer that times out
+half-way); bytes beyond ``size`` are kept for the next read. Baud rate, parity and modem
+lines are accepted and ignored. The interface's kernel driver, if any, is detached while
+the port is open (Linux). Errors raise ``serial.SerialException``: one line naming the
+URL and the reason.
 """
 
 from __future__ import annotations
@@ -281,7 +256,8 @@ class Serial(VirtualLine, SerialBase):
             if not chosen:
                 raise self._fail(f"no interface {url.interface} (interfaces: {numbers})")
         elif url.endpoint is not None:
-            chosen = [intf for intf in interfaces if _find_ep(intf, url.endpoint) is not None]
+            chosen = [intf for intf in interfaces
+                      if usb.util.find_descriptor(intf, bEndpointAddress=url.endpoint) is not None]
             if not chosen:
                 raise self._fail(f"no endpoint 0x{url.endpoint:02x} on any interface")
         else:
@@ -291,33 +267,19 @@ class Serial(VirtualLine, SerialBase):
         intf = chosen[0]
         number = intf.bInterfaceNumber
 
-        streaming = (usb.util.ENDPOINT_TYPE_BULK, usb.util.ENDPOINT_TYPE_INTR)
         if url.endpoint is not None:
-            self._in_ep = _find_ep(intf, url.endpoint)
-            if self._in_ep is None:
-                raise self._fail(f"interface {number} has no endpoint 0x{url.endpoint:02x}")
+            self._in_ep = self._named_ep(usb, intf, url.endpoint)
         else:
-            self._in_ep = _first_ep(usb, intf, usb.util.ENDPOINT_IN, streaming)
+            self._in_ep = _first_ep(usb, intf, usb.util.ENDPOINT_IN)
             if self._in_ep is None:
-                others = [
-                    str(i.bInterfaceNumber)
-                    for i in interfaces
-                    if _first_ep(usb, i, usb.util.ENDPOINT_IN, streaming) is not None
-                ]
+                others = [str(i.bInterfaceNumber) for i in interfaces
+                          if _first_ep(usb, i, usb.util.ENDPOINT_IN) is not None]
                 hint = f" (interface {', '.join(others)} has one: add interface=N)" if others else ""
                 raise self._fail(f"interface {number} has no bulk or interrupt IN endpoint{hint}")
-        if usb.util.endpoint_type(self._in_ep.bmAttributes) not in streaming:
-            raise self._fail(
-                f"endpoint 0x{self._in_ep.bEndpointAddress:02x} is neither bulk nor interrupt"
-            )
         if url.out is not None:
-            self._out_ep = _find_ep(intf, url.out)
-            if self._out_ep is None:
-                raise self._fail(f"interface {number} has no endpoint 0x{url.out:02x}")
-            if usb.util.endpoint_type(self._out_ep.bmAttributes) not in streaming:
-                raise self._fail(f"endpoint 0x{url.out:02x} is neither bulk nor interrupt")
+            self._out_ep = self._named_ep(usb, intf, url.out)
         else:
-            self._out_ep = _first_ep(usb, intf, usb.util.ENDPOINT_OUT, streaming)
+            self._out_ep = _first_ep(usb, intf, usb.util.ENDPOINT_OUT)
 
         try:
             active = device.is_kernel_driver_active(number)
@@ -336,6 +298,15 @@ class Serial(VirtualLine, SerialBase):
             usb.util.claim_interface(device, number)
         except usb.core.USBError as exc:
             raise self._fail(f"cannot claim interface {number}: {usb_reason(exc)}") from None
+
+    def _named_ep(self, usb, intf, address: int):  # type: ignore[no-untyped-def]
+        """The endpoint ``address`` of ``intf``, which must be bulk or interrupt."""
+        endpoint = usb.util.find_descriptor(intf, bEndpointAddress=address)
+        if endpoint is None:
+            raise self._fail(f"interface {intf.bInterfaceNumber} has no endpoint 0x{address:02x}")
+        if usb.util.endpoint_type(endpoint.bmAttributes) not in _streaming(usb):
+            raise self._fail(f"endpoint 0x{address:02x} is neither bulk nor interrupt")
+        return endpoint
 
     def _release(self) -> None:
         """Give the interface back (and its kernel driver), close the device handle."""
@@ -446,18 +417,15 @@ class Serial(VirtualLine, SerialBase):
         self._buffer.clear()
 
 
-def _find_ep(interface, address: int):  # type: ignore[no-untyped-def]
-    for endpoint in interface:
-        if endpoint.bEndpointAddress == address:
-            return endpoint
-    return None
+def _streaming(usb) -> tuple[int, int]:  # type: ignore[no-untyped-def]
+    return usb.util.ENDPOINT_TYPE_BULK, usb.util.ENDPOINT_TYPE_INTR
 
 
-def _first_ep(usb, interface, direction: int, types: tuple[int, ...]):  # type: ignore[no-untyped-def]
-    for endpoint in interface:
-        if (
-            usb.util.endpoint_direction(endpoint.bEndpointAddress) == direction
-            and usb.util.endpoint_type(endpoint.bmAttributes) in types
-        ):
-            return endpoint
-    return None
+def _first_ep(usb, interface, direction: int):  # type: ignore[no-untyped-def]
+    """The first bulk or interrupt endpoint of ``interface`` in ``direction``, or None."""
+
+    def streams(e) -> bool:  # type: ignore[no-untyped-def]
+        return (usb.util.endpoint_direction(e.bEndpointAddress) == direction
+                and usb.util.endpoint_type(e.bmAttributes) in _streaming(usb))  # fmt: skip
+
+    return usb.util.find_descriptor(interface, custom_match=streams)
