@@ -97,6 +97,9 @@ def _iso(dt) -> str | None:
     return None if dt is None else dt.isoformat().replace("+00:00", "Z")
 
 
+#: GpsFix fields a gps record holds as they are, in the record's order (after sentence,
+#: talker and time; then valid).
+GPS_FIELDS = ("lat", "lon", "alt_hae", "alt_msl", "quality", "sats", "hdop", "status", "mode", "speed_knots", "course")
 #: Reader counters that mean rejected input (``junk_bytes`` counts bytes, not lines).
 GT_ERROR_KEYS = ("bad_checksum", "no_checksum", "non_ascii", "malformed", "overlong", "fragments", "junk_bytes")
 
@@ -142,34 +145,12 @@ class GroundTruthRecords(RecordDecoder):
     def _records(self, items) -> list[dict]:
         out = []
         for r in items:
+            time = _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat())
             if isinstance(r, GpsFix):
-                out.append(
-                    {
-                        "sentence": r.sentence,
-                        "talker": r.talker,
-                        "time": _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat()),
-                        "lat": r.lat,
-                        "lon": r.lon,
-                        "alt_hae": r.alt_hae,
-                        "alt_msl": r.alt_msl,
-                        "quality": r.quality,
-                        "sats": r.sats,
-                        "hdop": r.hdop,
-                        "status": r.status,
-                        "mode": r.mode,
-                        "speed_knots": r.speed_knots,
-                        "course": r.course,
-                        "valid": r.valid,
-                    }
-                )
+                fields = {k: getattr(r, k) for k in GPS_FIELDS}
+                out.append({"sentence": r.sentence, "talker": r.talker, "time": time, **fields, "valid": r.valid})
             elif isinstance(r, Attitude):
-                rec = {
-                    "time": _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat()),
-                    "heading": r.heading,
-                    "roll": r.roll,
-                    "pitch": r.pitch,
-                    "q": list(r.quaternion),
-                }
+                rec = {"time": time, "heading": r.heading, "roll": r.roll, "pitch": r.pitch, "q": list(r.quaternion)}
                 if r.time_boot_ms is not None:
                     rec["time_boot_ms"] = r.time_boot_ms
                 out.append(rec)
