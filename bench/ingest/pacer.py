@@ -16,7 +16,6 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from emulator.cli_types import speed_value
-from firmware_proto.errors import InputError
 
 from ..session import RawLog, RawRead, session_logs
 
