@@ -32,17 +32,8 @@ from ..logger import DeviceSpec
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkStatus, TruthPose
 from .recorder import SessionRecorder
 from .state import LinkView, ReceiverState, TruthState
-from .widgets import (
-    ChannelTable,
-    ChannelView,
-    DirectionIndicator,
-    GroundTruthPanel,
-    LinkPanel,
-    LinksView,
-    ReceiverPanel,
-    StatusBar,
-    TruthView,
-)
+from .widgets import (ChannelTable, ChannelView, DirectionIndicator, GroundTruthPanel, LinkPanel, LinksView,
+                      ReceiverPanel, StatusBar, TruthView)
 
 HELP = """\
 [b]arva-bench dash[/b]: receivers, ground truth and links, live
@@ -209,26 +200,19 @@ class DashApp(App):
         self._refresh_links()
 
     def _link(self, device: str, kind: str, role: str) -> LinkView:
-        link = self.links.get(device)
-        if link is None:
-            link = self.links[device] = LinkView(device, kind, role)
-        return link
+        if device not in self.links:
+            self.links[device] = LinkView(device, kind, role)
+        return self.links[device]
 
     # -- drawing -------------------------------------------------------------------------------
-    def _panel(self, device: str) -> ReceiverPanel | None:
-        for panel in self.query(ReceiverPanel):
-            if panel.device == device:
-                return panel
-        return None
-
     def _refresh_receiver(self, rs: ReceiverState, gap: int = 0) -> None:
-        panel = self._panel(rs.device)
+        panel = next((p for p in self.query(ReceiverPanel) if p.device == rs.device), None)
         if panel is None or not panel.children:
             return
         ids = [s[0] for s in rs.slots if s is not None and s[0] >= 0]
         panel.query_one(ChannelTable).view = ChannelView(tuple(rs.slots), self.truth.distances(rs.role, ids), rs.histories())
         panel.query_one(DirectionIndicator).slots = tuple(rs.slots)
-        panel.show(rs.seq, rs.complete, gap, rs.epochs, len(rs.slots))
+        panel.show(rs.seq, rs.complete, gap)
 
     def _refresh_truth(self) -> None:
         self.query_one(GroundTruthPanel).view = TruthView(dict(self.truth.poses), tuple(self.truth.roles()))
@@ -316,21 +300,23 @@ class DashApp(App):
             self.message = f"cannot record: {exc}"
             return
         self.recorder = recorder
-        for source in self.sources:
-            for feed in source.feeds:
-                feed.recorder = recorder
+        self._attach(recorder)
         self.message = ""
 
     def _stop_recording(self) -> Path | None:
         recorder, self.recorder = self.recorder, None
         if recorder is None:
             return None
-        for source in self.sources:
-            for feed in source.feeds:
-                feed.recorder = None
+        self._attach(None)
         recorder.close()
         self.last_session = recorder.directory
         return recorder.directory
+
+    def _attach(self, recorder: SessionRecorder | None) -> None:
+        """Every feed hands its reads to ``recorder`` (None: to nobody)."""
+        for source in self.sources:
+            for feed in source.feeds:
+                feed.recorder = recorder
 
     async def action_quit(self) -> None:
         self.shutdown()

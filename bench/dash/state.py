@@ -134,19 +134,11 @@ class TruthState:
 
     # -- outputs ---------------------------------------------------------------------
     def distance(self, rx_role: str, tx: int) -> float | None:
-        rx = self.poses.get(rx_role)
-        txp = self.poses.get(f"tx{tx}")
-        if rx is None or txp is None or rx.position is None or txp.position is None:
-            return None
-        return math.dist(rx.position, txp.position)
+        rx, txp = self.poses.get(rx_role, Pose()), self.poses.get(f"tx{tx}", Pose())
+        return None if rx.position is None or txp.position is None else math.dist(rx.position, txp.position)
 
     def distances(self, rx_role: str, ids) -> dict[int, float]:
-        out = {}
-        for tx in ids:
-            d = self.distance(rx_role, tx)
-            if d is not None:
-                out[tx] = d
-        return out
+        return {tx: d for tx in ids if (d := self.distance(rx_role, tx)) is not None}
 
     def roles(self) -> list[str]:
         return sorted(self.poses, key=role_key)

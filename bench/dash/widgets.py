@@ -116,14 +116,10 @@ class ReceiverPanel(Horizontal):
         yield ChannelTable(classes="channels")
         yield DirectionIndicator(classes="direction")
 
-    def show(self, seq: int | None, complete: bool, gap: int, epochs: int, slots: int = 0) -> None:
-        title = f"{self.device} ({self.role})"
-        if seq is not None:
-            title += f"  seq {seq}"
-        self.border_title = title
-        notes = []
-        if not complete:
-            notes.append("incomplete epoch")
+    def show(self, seq: int | None, complete: bool, gap: int) -> None:
+        """The title with the latest epoch's seq; below, an incomplete epoch or missing seqs."""
+        self.border_title = f"{self.device} ({self.role})" + ("" if seq is None else f"  seq {seq}")
+        notes = [] if complete else ["incomplete epoch"]
         if gap:
             notes.append(f"{gap} seq missing")
         self.border_subtitle = ", ".join(notes)
