@@ -17,6 +17,7 @@ the stream held (they are counted); 2 for bad arguments or a source that cannot 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import select
@@ -189,10 +190,8 @@ def run(args: argparse.Namespace) -> int:
                     raise _Done
 
     def finish() -> None:
-        try:
+        with contextlib.suppress(_Done):
             emit(dec.flush())
-        except _Done:
-            pass
 
     status = 0
     last_data = time.monotonic()
@@ -222,10 +221,8 @@ def run(args: argparse.Namespace) -> int:
         pass
     except (KeyboardInterrupt, _Terminated) as exc:
         status = 130 if isinstance(exc, KeyboardInterrupt) else 143
-        try:
+        with contextlib.suppress(_PipeClosed):
             finish()
-        except _PipeClosed:
-            pass
     except _PipeClosed:
         # Keep the interpreter's final flush of stdout from failing again.
         devnull = os.open(os.devnull, os.O_WRONLY)

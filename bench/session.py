@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import contextlib
 import errno
 import datetime as _dt
 import json
@@ -169,10 +170,8 @@ class SessionWriter:
                 os.fsync(f.fileno())
             os.replace(tmp, self.dir / MANIFEST)
         except OSError:
-            try:
+            with contextlib.suppress(OSError):
                 tmp.unlink()
-            except OSError:
-                pass
             raise
         dir_fd = os.open(self.dir, os.O_RDONLY)
         try:
@@ -228,10 +227,8 @@ class SessionWriter:
         with self._files_lock:
             files = list(self._files.values())
         for f in files:
-            try:
+            with contextlib.suppress(OSError):
                 action(f)
-            except OSError:
-                pass
 
     def __enter__(self) -> "SessionWriter":
         return self
@@ -244,10 +241,8 @@ class SessionWriter:
         if self.closed:
             return
         self.closed = True
-        try:
+        with contextlib.suppress(LinkError):  # the disk is full: the manifest rewrite below may still fit
             self.event("stop", **summary)
-        except LinkError:
-            pass  # the disk is full: the manifest rewrite below may still fit
         self._stop.set()
         self._syncer.join(timeout=5)
         self._each_file(_AppendFile.close)
@@ -258,10 +253,8 @@ class SessionWriter:
             try:
                 self._write_manifest()
             except OSError:
-                try:
+                with contextlib.suppress(OSError):  # the previous manifest is still there, whole
                     self._overwrite_manifest()
-                except OSError:
-                    pass  # the previous manifest is still there, whole
 
 
 # -- the manifest, typed ---------------------------------------------------------------

@@ -13,6 +13,7 @@ keeps running.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from pathlib import Path
 
@@ -53,10 +54,8 @@ class SessionRecorder(SessionListener):
             if self.closed:
                 return
             self._devices[device.spec.name] = device
-            try:
+            with contextlib.suppress(LinkError):
                 handler(device, item)
-            except LinkError:
-                pass
 
     def bytes_on_disk(self) -> int:
         return self.writer.bytes_on_disk()

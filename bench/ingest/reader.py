@@ -26,6 +26,7 @@ process's ``time.monotonic()`` (s), ``utc`` POSIX seconds.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import logging
 import os
@@ -184,10 +185,8 @@ class _Port:
 
     def close(self) -> None:
         self.closed = True
-        try:
+        with contextlib.suppress(serial.SerialException, OSError):
             self.port.close()
-        except (serial.SerialException, OSError):
-            pass
 
 
 class Notifier:
@@ -255,10 +254,8 @@ class Notifier:
             self._wake_r = self._wake_w = -1  # closed only once nobody can write to it
 
     def _wake(self) -> None:
-        try:
+        with contextlib.suppress(OSError):  # already awake (pipe full)
             os.write(self._wake_w, b"x")
-        except OSError:
-            pass  # already awake (pipe full)
 
     # -- the I/O thread: wait, read, stamp; nothing else ------------------------------------
     def _io_loop(self) -> None:
@@ -322,10 +319,8 @@ class Notifier:
 
     def _io_close(self, sel, ports: list[_Port], p: _Port, reason: str) -> None:
         if p.fd is not None:
-            try:
+            with contextlib.suppress(KeyError, ValueError):
                 sel.unregister(p.fd)
-            except (KeyError, ValueError):
-                pass
         p.close()
         if p in ports:
             ports.remove(p)

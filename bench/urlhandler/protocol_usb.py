@@ -19,6 +19,7 @@ URL and the reason.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import math
 import re
@@ -315,15 +316,11 @@ class Serial(VirtualLine, SerialBase):
             return
         usb = self._usb
         if number is not None:
-            try:
+            with contextlib.suppress(usb.core.USBError):  # unplugged: nothing to release
                 usb.util.release_interface(device, number)
-            except usb.core.USBError:
-                pass  # unplugged: nothing to release
             if self._reattach:
-                try:
+                with contextlib.suppress(usb.core.USBError, NotImplementedError):
                     device.attach_kernel_driver(number)
-                except (usb.core.USBError, NotImplementedError):
-                    pass
         self._interface = None
         self._reattach = False
         usb.util.dispose_resources(device)
