@@ -20,13 +20,5 @@ from .lines import DEFAULT_MAX_LINE, LineSplitter
 from .reader import GroundTruthReader
 from .utc import DayTracker
 
-__all__ = [
-    "DEFAULT_MAX_LINE",
-    "Attitude",
-    "AttitudeReader",
-    "DayTracker",
-    "GpsFix",
-    "GpsReader",
-    "GroundTruthReader",
-    "LineSplitter",
-]
+__all__ = ["DEFAULT_MAX_LINE", "Attitude", "AttitudeReader", "DayTracker", "GpsFix", "GpsReader",
+           "GroundTruthReader", "LineSplitter"]
