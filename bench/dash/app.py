@@ -155,8 +155,8 @@ class DashApp(App):
         if self.config.start_sources:
             # Imported here, once the screen is up: the sources pull in the emulator
             # (scenes, scipy) for arvaemu:// and scene truth, about a second of imports
-            # the terminal would otherwise wait through. (launch imports nothing of app.)
-            from .launch import start_sources
+            # the terminal would otherwise wait through. (sources imports nothing of app.)
+            from .sources import start_sources
 
             self.sources = start_sources(self.config, self.post_message)
 

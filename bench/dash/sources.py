@@ -17,6 +17,7 @@ import threading
 import time
 import urllib.parse
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from serial import SerialException
@@ -313,3 +314,23 @@ class ReplaySource:
             feed.stop()
             if not self._stop.is_set():
                 feed.set_state("ended", "end of the session")
+
+
+def start_sources(config, post: Post) -> list:
+    """Start the reader threads of ``config`` (a :class:`~bench.dash.app.DashConfig`) and
+    return them: one :class:`ReplaySource` for a session directory, else one
+    :class:`LiveSource` for every live device (with scene truth for an ``arvaemu://``
+    receiver when asked)."""
+    if config.replay is not None:
+        # The links show where the bytes come from now: the session's raw logs.
+        feeds = [DeviceFeed(replace(s, url=str(config.replay / f"{s.name}.raw")), post) for s in config.specs]
+        sources = [ReplaySource(config.replay, feeds, config.replay_speed)]
+    else:
+        feeds = []
+        for spec in config.specs:
+            truth = SceneTruth.for_url(spec.url, spec.role) if config.scene_truth and spec.kind == "arva" else None
+            feeds.append(DeviceFeed(spec, post, truth))
+        sources = [LiveSource(feeds, config.stale_after)]  # one ingest loop reads them all
+    for source in sources:
+        source.start()
+    return sources
