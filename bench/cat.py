@@ -1,17 +1,13 @@
 """``arva-bench cat SOURCE``: decode a receiver stream, one JSON object per epoch on stdout.
 
-SOURCE is a file path, a FIFO, ``-`` (stdin), a serial device (``/dev/ttyUSB0``) or any
-pyserial URL (``loop://``, ``socket://host:port``, ``spy://...``, ``arvaemu://...``).
-Each epoch, in stream order, is printed and flushed as::
+SOURCE, the stop conditions and the exit statuses are those of the sub-command's
+description (:func:`register`). Each epoch, in stream order, is printed and flushed as::
 
     {"seq": 12, "complete": true, "slots": [[1, 1905, 21], [-1, -1, -1]]}
 
 with ``null`` for a slot that never arrived intact, plus ``"field": [[hx, hy, hz] | null,
-...]`` when ``$PARVH`` research sentences came with it. At the end of the input (EOF, or
-Ctrl-C, SIGTERM, or ``--epochs`` / ``--until-idle``) the decoder is flushed and one line
-of counters goes to stderr. Exit status: 0 at the end of the input, however many errors
-the stream held (they are counted); 2 for bad arguments or a source that cannot be opened;
-1 when a port fails mid-stream; 130 after Ctrl-C; 143 after SIGTERM.
+...]`` when ``$PARVH`` research sentences came with it. At the end of the input the
+decoder is flushed and one line of counters goes to stderr.
 """
 
 from __future__ import annotations
@@ -100,10 +96,7 @@ def open_source(spec: str, baud: int = 115200) -> Source:
     if spec == "-":
         return StreamSource(sys.stdin.buffer.fileno(), owned=False)
     try:
-        if "://" in spec:
-            return SerialSource(_serial_for_url(spec, baud))
-        mode = os.stat(spec).st_mode
-        if stat.S_ISCHR(mode):
+        if "://" in spec or stat.S_ISCHR(mode := os.stat(spec).st_mode):
             return SerialSource(_serial_for_url(spec, baud))
         if stat.S_ISDIR(mode):
             raise IsADirectoryError(21, "Is a directory")

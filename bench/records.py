@@ -104,6 +104,11 @@ GPS_FIELDS = ("lat", "lon", "alt_hae", "alt_msl", "quality", "sats", "hdop", "st
 GT_ERROR_KEYS = ("bad_checksum", "no_checksum", "non_ascii", "malformed", "overlong", "fragments", "junk_bytes")
 
 
+def is_positioned_fix(record: dict) -> bool:
+    """A valid GGA record with an ellipsoid height: a position the export and the origin use."""
+    return record.get("sentence") == "GGA" and bool(record.get("valid")) and record.get("alt_hae") is not None
+
+
 class GroundTruthRecords(RecordDecoder):
     """GPS fixes and/or $PASHR attitudes: one reader handles both on one stream.
 

@@ -110,14 +110,6 @@ def _by_angle(delta: float, chars: str) -> str:
     return chars[i if i == 0 else i + (delta <= 0)]
 
 
-def _line_char(delta: float) -> str:
-    return _by_angle(delta, "│╲╱──")
-
-
-def _head_char(delta: float) -> str:
-    return _by_angle(delta, "↑↖↗←→")
-
-
 def dial(delta: int | None, marks: Sequence[tuple[int, int]] = (), radius: int = 5, width: int = 26) -> list[str]:
     """A half dial ``radius + 2`` lines high: a legend line (``+90°`` left, ``0°`` up the
     receiver's x axis, ``-90°`` right), the arc, and the receiver ``▲`` at the centre of
@@ -159,8 +151,8 @@ def dial(delta: int | None, marks: Sequence[tuple[int, int]] = (), radius: int =
         for s in range(1, steps):
             c = cell(*at(angle, s / steps))
             if c != head and c != (cx, cy):
-                put(*c, _line_char(angle))
-        put(*at(angle), _head_char(angle))
+                put(*c, _by_angle(angle, "│╲╱──"))
+        put(*at(angle), _by_angle(angle, "↑↖↗←→"))
     put(cx, cy, "▲")
     return ["".join(r).rstrip() for r in grid]
 
@@ -265,7 +257,7 @@ def link_state(link, now: float, stale_after: float) -> str:
     """``up``, ``STALE``, ``down``, ``end`` or ``wait`` (connecting)."""
     if link.state == "ended":
         return "end"
-    if link.state in ("down",):
+    if link.state == "down":
         return "down"
     if link.stale(now, stale_after):
         return "STALE"
