@@ -87,39 +87,31 @@ def parse_url(url: str) -> UsbUrl:
         pairs = urllib.parse.parse_qsl(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
     except ValueError:
         raise SerialException(f"{url}: expected {USAGE}") from None
-    opt: dict[str, str] = {}
-    for key, value in pairs:
+    opt = dict(pairs)  # the last of a repeated option
+    for key in opt:
         if key not in OPTIONS:
             raise SerialException(f"{url}: unknown option {key!r} (known: {', '.join(OPTIONS)})")
-        opt[key] = value
-    serial_number = opt.get("serial")
-    if serial_number == "":
+    if opt.get("serial") == "":
         raise SerialException(f"{url}: serial=: expected a serial number")
-    interface = _integer(url, opt, "interface", 0, 255, "an interface number 0-255")
-    endpoint = _integer(url, opt, "endpoint", 0x81, 0x8F, "an IN endpoint address 0x81-0x8f")
-    out = _integer(url, opt, "out", 0x01, 0x0F, "an OUT endpoint address 0x01-0x0f")
-    timeout_ms = _integer(url, opt, "timeout_ms", 1, 3_600_000, "a whole number of milliseconds >= 1")
     return UsbUrl(
         vid=int(match.group(1), 16),
         pid=int(match.group(2), 16),
-        serial=serial_number,
-        interface=interface,
-        endpoint=endpoint,
-        out=out,
-        timeout_ms=DEFAULT_TIMEOUT_MS if timeout_ms is None else timeout_ms,
+        serial=opt.get("serial"),
+        interface=_integer(url, opt, "interface", 0, 255, "an interface number 0-255"),
+        endpoint=_integer(url, opt, "endpoint", 0x81, 0x8F, "an IN endpoint address 0x81-0x8f"),
+        out=_integer(url, opt, "out", 0x01, 0x0F, "an OUT endpoint address 0x01-0x0f"),
+        timeout_ms=_integer(url, opt, "timeout_ms", 1, 3_600_000, "a whole number of milliseconds >= 1")
+        or DEFAULT_TIMEOUT_MS,
     )
 
 
 def _integer(url: str, opt: dict[str, str], key: str, low: int, high: int, what: str) -> int | None:
     if key not in opt:
         return None
-    try:
-        value = int(opt[key], 0)
-    except ValueError:
-        value = None
-    if value is None or not low <= value <= high:
-        raise SerialException(f"{url}: {key}={opt[key]}: expected {what}")
-    return value
+    with contextlib.suppress(ValueError):
+        if low <= (value := int(opt[key], 0)) <= high:
+            return value
+    raise SerialException(f"{url}: {key}={opt[key]}: expected {what}")
 
 
 def usb_reason(exc: BaseException) -> str:
