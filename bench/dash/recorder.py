@@ -33,14 +33,6 @@ class SessionRecorder(SessionListener):
         self._lock = threading.Lock()  # the reader thread writes; the UI thread closes
         self.closed = False
 
-    @property
-    def error(self) -> str | None:  # type: ignore[override]
-        return None if self._error is None else str(self._error)
-
-    @error.setter
-    def error(self, value) -> None:
-        self._error = value
-
     def on_read(self, device: Device, read: Read) -> None:
         self._pass_on(device, super().on_read, read)
 
@@ -70,5 +62,5 @@ class SessionRecorder(SessionListener):
                 name: {**self._count(name), "decoder": self._devices[name].stamper.stats() if name in self._devices else {}}
                 for name in dict.fromkeys(self._names + list(self.counts))
             }
-            self.writer.close(devices=summary, stopped_by="disk error" if self._error else "user")
+            self.writer.close(devices=summary, stopped_by="disk error" if self.error is not None else "user")
             return summary
