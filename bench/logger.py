@@ -45,10 +45,7 @@ class SessionListener(Listener):
         self.counts: dict[str, dict[str, int]] = {}
 
     def _count(self, name: str) -> dict[str, int]:
-        c = self.counts.get(name)
-        if c is None:
-            c = self.counts[name] = {"reads": 0, "bytes": 0, "records": 0, "gaps": 0}
-        return c
+        return self.counts.setdefault(name, {"reads": 0, "bytes": 0, "records": 0, "gaps": 0})
 
     def on_read(self, device: Device, read: Read) -> None:
         if self.error is not None:

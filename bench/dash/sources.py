@@ -105,13 +105,10 @@ class DeviceFeed(Listener):
         self.post = post
         self.truth = truth
         self.recorder = None  # set and cleared by the app (an attribute write is atomic)
-        self.reads = 0
-        self.bytes = 0
         self.records = 0
         self.checksum_errors = 0
         self.errors = 0
         self.rejected_bytes = 0
-        self.last_data_mono: float | None = None
         self.state = "connecting"
         self.reason = ""
         self._last_status = -1e9
@@ -127,10 +124,7 @@ class DeviceFeed(Listener):
         if recorder is not None:
             recorder.on_read(device, read)
         self._handle(read.records)
-        if read.data:
-            self.reads += 1
-            self.bytes += len(read.data)
-            self.last_data_mono = read.mono
+        if read.data:  # reads, bytes and the last data's time are the device's stats
             self._dirty = True
             self.status(read.mono)
 
@@ -221,15 +215,15 @@ class DeviceFeed(Listener):
     def counters(self) -> LinkCounters:
         dec = self.device.decoder
         if isinstance(dec, ArvaRecords):
-            st = dec.decoder.stats
-            seq_gaps, dropped = st.seq_gaps, st.garbage_bytes + self.rejected_bytes
+            seq_gaps, dropped = dec.decoder.stats.seq_gaps, dec.decoder.stats.garbage_bytes + self.rejected_bytes
         else:
             assert isinstance(dec, GroundTruthRecords)
             seq_gaps, dropped = 0, dec.reader.stats["junk_bytes"]
+        st = self.device.stats
         return LinkCounters(
-            reads=self.reads, bytes=self.bytes, records=self.records, checksum_errors=self.checksum_errors,
+            reads=st.reads, bytes=st.bytes, records=self.records, checksum_errors=self.checksum_errors,
             errors=self.errors, seq_gaps=seq_gaps, dropped_bytes=dropped, reconnects=self.device.reconnects,
-            last_data_mono=self.last_data_mono,
+            last_data_mono=st.last_data_mono,
         )  # fmt: skip
 
     def status(self, mono: float | None = None, force: bool = False) -> None:
