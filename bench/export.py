@@ -165,7 +165,7 @@ def _last_of_ties(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def _origin_from(manifest: Manifest, origin: list[float] | None, first_fix) -> Origin:
     if origin is not None:
-        return Origin(origin[0], origin[1], origin[2] if len(origin) > 2 else 0.0)
+        return Origin(*origin)  # LAT,LON[,ALT]
     if manifest.origin is not None:
         o = manifest.origin
         return Origin(o.lat, o.lon, o.alt)

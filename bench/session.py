@@ -493,14 +493,15 @@ class RawLog:
     an :class:`InputError` naming the line, as is a stamp that breaks a rule.
     """
 
+    # What the last pass saw (the values before any).
+    reads = bytes = 0
+    first: RawRead | None = None
+    last: RawRead | None = None
+    torn_tail = False
+
     def __init__(self, path: str | Path, clock: SessionClock | None = None) -> None:
         self.path = Path(path)
         self.clock = clock
-        self.reads = 0
-        self.bytes = 0
-        self.first: RawRead | None = None
-        self.last: RawRead | None = None
-        self.torn_tail = False
 
     def __iter__(self) -> Iterator[RawRead]:
         path, clock = self.path, self.clock

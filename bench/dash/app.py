@@ -107,11 +107,7 @@ class DashApp(App):
         self.config = config
         self.clock = clock
         self._tick = tick
-        origin = None
-        if config.origin:
-            lat, lon, *alt = config.origin
-            origin = Origin(lat, lon, alt[0] if alt else 0.0)
-        self.truth = TruthState(origin, dict(config.tx_poses))
+        self.truth = TruthState(Origin(*config.origin) if config.origin else None, dict(config.tx_poses))
         self.receivers: dict[str, ReceiverState] = {}
         self.links: dict[str, LinkView] = {}
         for spec in config.specs:
