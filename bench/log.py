@@ -100,9 +100,8 @@ def manifest(args: argparse.Namespace, specs: list[DeviceSpec], argv: list[str])
         lat, lon, *alt = args.origin
         out["origin"] = {"lat": lat, "lon": lon, "alt": alt[0] if alt else 0.0}
     if args.tx_pose:
-        out["tx_poses"] = {
-            str(tx): dict(zip(("lat", "lon", "alt", "heading", "roll", "pitch"), values)) for tx, values in args.tx_pose
-        }
+        keys = ("lat", "lon", "alt", "heading", "roll", "pitch")
+        out["tx_poses"] = {str(tx): dict(zip(keys, values)) for tx, values in args.tx_pose}
     return out
 
 

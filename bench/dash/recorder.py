@@ -1,13 +1,11 @@
 """Recording from the dashboard: the reads the dashboard's reader already decoded, into a
 session directory written exactly as ``arva-bench log`` writes one.
 
-A :class:`SessionRecorder` is the log's :class:`~bench.logger.SessionListener` attached
-(through each :class:`~bench.dash.sources.DeviceFeed`) while recording: every read goes
-to ``<device>.raw`` and the records the ingest derived from it, with their stamps, to
-``<device>.jsonl``; gaps and reconnects become session events. Devices are never opened
-or decoded twice: a sentence cut by the start of the recording is decoded from the bytes
-before it (its raw bytes start mid-sentence; a reader re-deriving records from the raw
-log flags it). A disk error stops the recording (``error`` says why); the dashboard
+A :class:`SessionRecorder` is the log's :class:`~bench.logger.SessionListener`, attached
+(through each :class:`~bench.dash.sources.DeviceFeed`) while recording. Devices are never
+opened or decoded twice: a sentence cut by the start of the recording is decoded from the
+bytes before it (its raw bytes start mid-sentence; a reader re-deriving records from the
+raw log flags it). A disk error stops the recording (``error`` says why); the dashboard
 keeps running.
 """
 
