@@ -41,34 +41,26 @@ class Source(Protocol):
 
 
 class FileSource:
-    """A regular file: read to EOF, never blocks."""
+    """A regular file (read to EOF, never blocks); closed at the end when ``owned``."""
 
-    def __init__(self, fd: int) -> None:
+    def __init__(self, fd: int, owned: bool = True) -> None:
         self.fd = fd
-
-    def read(self) -> bytes | None:
-        return os.read(self.fd, CHUNK)
-
-    def close(self) -> None:
-        os.close(self.fd)
-
-
-class StreamSource(FileSource):
-    """stdin or a FIFO: waits at most IDLE_SECONDS per read."""
-
-    def __init__(self, fd: int, owned: bool) -> None:
-        super().__init__(fd)
         self.owned = owned
 
     def read(self) -> bytes | None:
-        ready, _, _ = select.select([self.fd], [], [], IDLE_SECONDS)
-        if not ready:
-            return None
         return os.read(self.fd, CHUNK)
 
     def close(self) -> None:
         if self.owned:
             os.close(self.fd)
+
+
+class StreamSource(FileSource):
+    """stdin or a FIFO: waits at most IDLE_SECONDS per read."""
+
+    def read(self) -> bytes | None:
+        ready, _, _ = select.select([self.fd], [], [], IDLE_SECONDS)
+        return os.read(self.fd, CHUNK) if ready else None
 
 
 class SerialSource:

@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     writer = SessionWriter(args.out, manifest(args, specs, sys.argv))
     stop = threading.Event()
     fatal: list[Exception] = []
-    stopped_by = ["user"]
+    stopped_by = "user"
 
     def on_fatal(exc: Exception) -> None:
         fatal.append(exc)
@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         while not stop.wait(0.25 if args.duration is None else min(0.25, max(0.0, t0 + args.duration - time.monotonic()))):
             if args.duration is not None and time.monotonic() - t0 >= args.duration:
-                stopped_by[0] = "duration"
+                stopped_by = "duration"
                 break
             if status is not None:
                 status.update(live, time.monotonic() - t0)
@@ -174,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
                 summary[dev.spec.name]["cut_at_stop"] = dev.cut_at_stop
             if not dev.opens:
                 summary[dev.spec.name]["never_opened"] = dev.reason or "not opened"
-        writer.close(devices=summary, stopped_by="disk error" if fatal else stopped_by[0])
+        writer.close(devices=summary, stopped_by="disk error" if fatal else stopped_by)
     late = f"the writer did not finish within {STOP_TIMEOUT:g} s; the last reads may be missing" if unfinished else ""
     never = [f"{dev.spec.name} never opened: {dev.reason or 'no attempt finished'}" for dev in devices if not dev.opens]
     # Exit 2 is one line: what went wrong, with what the reader needs to know folded in.

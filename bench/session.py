@@ -104,7 +104,7 @@ class _AppendFile:
                 self._f.close()
 
 
-class SessionWriter:
+class SessionWriter(contextlib.AbstractContextManager):
     """Writes one session directory; safe to call from several reader threads.
 
     ``fsync_interval`` (s) bounds what a power cut can lose. A disk error (e.g. a full
@@ -230,10 +230,7 @@ class SessionWriter:
             with contextlib.suppress(OSError):
                 action(f)
 
-    def __enter__(self) -> "SessionWriter":
-        return self
-
-    def __exit__(self, *exc_info) -> None:
+    def __exit__(self, *_) -> None:
         self.close()
 
     def close(self, **summary) -> None:
