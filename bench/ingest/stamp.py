@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections import Counter
 from dataclasses import dataclass
 
 from ..records import RecordDecoder
@@ -68,7 +69,7 @@ class ErrorSampler:
         self.window_end = -math.inf
         self.passed = 0  # in the current window
         self.pending = 0  # suppressed, not reported yet
-        self.kinds: dict[str, int] = {}
+        self.kinds: Counter[str] = Counter()
         self.length = 0
         self.total = 0  # suppressed since the start
 
@@ -83,12 +84,10 @@ class ErrorSampler:
         self.pending += 1
         self.total += 1
         err = record["error"]
-        kinds = self.kinds
         if isinstance(err, dict):  # ground truth: counter increments
-            for k, v in err.items():
-                kinds[k] = kinds.get(k, 0) + v
+            self.kinds.update(err)
         else:
-            kinds[err] = kinds.get(err, 0) + 1
+            self.kinds[err] += 1
             self.length += record.get("length", 0)
         return False
 
@@ -101,7 +100,7 @@ class ErrorSampler:
         rec: dict = {"suppressed": self.pending, "kinds": self.kinds}
         if self.length:
             rec["length"] = self.length
-        self.pending, self.kinds, self.length = 0, {}, 0
+        self.pending, self.kinds, self.length = 0, Counter(), 0
         return rec
 
 
