@@ -2,16 +2,12 @@
 
 Modelled on python-can's ``Notifier``/``Listener``: a :class:`Notifier` reads a set of
 :class:`Device` objects and hands every read, decoded, to each :class:`Listener` (the
-session writer of ``arva-bench log``, the dashboard's feeds). docs/bench.md ("How devices
-are read") gives the outline; the threads:
+session writer of ``arva-bench log``, the dashboard's feeds). The **I/O thread** reads
+every device with a descriptor in one selector and a port without one gets a small
+thread, as docs/bench.md ("How devices are read") describes; the I/O thread does nothing
+but read and stamp, so no device's decoding or disk writing delays another's stamp (with
+``switch_interval`` the GIL comes back to it within that time). Besides:
 
-* the **I/O thread** waits on every device with a file descriptor in one selector, reads
-  every ready one (``os.read``, up to :data:`READ_CHUNK` bytes), stamps them all with the
-  same clock reading and hands them on. It does nothing else, so no device's decoding or
-  disk writing delays another's stamp (with ``switch_interval`` the GIL comes back to it
-  within that time);
-* a port without a descriptor (``loop://``, ``arvaemu://``, ``usb://``, ``cp2110://``)
-  gets a small thread that blocks for the first byte and takes whatever else waits;
 * the **work thread** decodes each read (:mod:`bench.ingest.stamp`) and notifies the
   listeners, each device's reads in order; every :data:`TICK` it releases a quiet link's
   pending records and closes stale devices;
