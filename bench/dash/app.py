@@ -128,12 +128,8 @@ class DashApp(App):
             for rs in self.receivers.values():
                 yield ReceiverPanel(rs.device, rs.role)
         with Horizontal(id="bottom"):
-            truth = GroundTruthPanel(id="truth")
-            truth.border_title = "ground truth"
-            yield truth
-            links = LinkPanel(id="links")
-            links.border_title = "links"
-            yield links
+            yield GroundTruthPanel(id="truth")
+            yield LinkPanel(id="links")
         yield Footer()
 
     def on_resize(self, event: events.Resize) -> None:

@@ -130,6 +130,7 @@ class GroundTruthPanel(_TextWidget):
     quality, surveyed, scene), and attitude (heading, roll, pitch in degrees)."""
 
     DEFAULT_WIDTH = 36
+    BORDER_TITLE = "ground truth"
     view: reactive[TruthView] = reactive(TruthView, always_update=True)
 
     def lines(self, width: int) -> list[str]:
@@ -142,6 +143,7 @@ class LinkPanel(_TextWidget):
     bytes read and how often it was reopened."""
 
     DEFAULT_WIDTH = 40
+    BORDER_TITLE = "links"
     COMPONENT_CLASSES: ClassVar[set[str]] = {"link--up", "link--STALE", "link--down", "link--end", "link--wait", "link--header"}
 
     view: reactive[LinksView] = reactive(LinksView, always_update=True)
