@@ -412,12 +412,10 @@ def _json(text: str | bytes, where: str | Path) -> object:
     """JSON ``text`` parsed (``json.JSONDecodeError`` or ``UnicodeDecodeError`` if it is
     not JSON); :class:`InputError` naming ``where`` when it nests more than
     :data:`MAX_JSON_DEPTH` deep (a deeper text exhausts the parser's recursion first)."""
-    try:
+    with contextlib.suppress(RecursionError):
         obj = json.loads(text)
         if json_depth(obj) <= MAX_JSON_DEPTH:
             return obj
-    except RecursionError:
-        pass
     raise InputError(f"{where}: JSON nested more than {MAX_JSON_DEPTH} deep")
 
 

@@ -387,10 +387,8 @@ class Serial(VirtualLine, SerialBase):
             raise self._fail(f"interface {self._interface} has no OUT endpoint: the device cannot be written to")
         if not data:
             return 0
-        if self._write_timeout is None:
-            limit_ms = self._url.timeout_ms
-        else:
-            limit_ms = max(1, math.ceil(self._write_timeout * 1000))
+        timeout_s = self._write_timeout
+        limit_ms = self._url.timeout_ms if timeout_s is None else max(1, math.ceil(timeout_s * 1000))
         usb = self._usb
         try:
             return int(self._device.write(self._out_ep.bEndpointAddress, data, timeout=limit_ms))
