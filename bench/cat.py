@@ -124,14 +124,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("source", metavar="SOURCE", help="file path, device, pyserial URL, or - for stdin")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--epochs", type=positive_int, metavar="N", help="stop after N epochs")
-    p.add_argument(
-        "--until-idle", type=positive_seconds, metavar="SECONDS", help="stop when no byte arrives for SECONDS"
-    )
-    p.add_argument(
-        "--expect-fields",
-        action="store_true",
-        help="hold every epoch for the $PARVH of its last slot from the start (default: once one is seen)",
-    )
+    p.add_argument("--until-idle", type=positive_seconds, metavar="SECONDS",
+                   help="stop when no byte arrives for SECONDS")
+    p.add_argument("--expect-fields", action="store_true",
+                   help="hold every epoch for the $PARVH of its last slot from the start (default: once one is seen)")
     p.set_defaults(func=run)
 
     def one_line_error(message: str) -> None:  # argparse's default prints the usage too
