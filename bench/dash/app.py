@@ -231,7 +231,7 @@ class DashApp(App):
         n = len(self.receivers)
         left = f" arva-bench dash · {n} receiver{'s' if n != 1 else ''}" + (" (n/p)" if n > 1 else "")
         if self.recorder is not None:
-            kb = self.recorder.bytes_on_disk() / 1000
+            kb = self.recorder.writer.bytes_on_disk() / 1000
             right = f"● REC {self.recorder.directory}  {kb:.1f} kB"
         else:
             right = "○ not recording (r)"

@@ -47,9 +47,6 @@ class SessionRecorder(SessionListener):
             with contextlib.suppress(LinkError):
                 handler(device, item)
 
-    def bytes_on_disk(self) -> int:
-        return self.writer.bytes_on_disk()
-
     def close(self) -> dict:
         """Close the session (manifest summary as ``arva-bench log`` writes it)."""
         with self._lock:
