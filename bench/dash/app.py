@@ -75,13 +75,11 @@ class DashConfig:
 
 
 class HelpScreen(ModalScreen):
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "close", "Close"), Binding("question_mark", "close", "Close")]
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "dismiss", "Close"),
+                                             Binding("question_mark", "dismiss", "Close")]
 
     def compose(self) -> ComposeResult:
         yield Static(HELP, id="help")
-
-    def action_close(self) -> None:
-        self.dismiss()
 
 
 #: The ground-truth and link panels' minimum height (``#bottom`` in dash.tcss).
