@@ -29,8 +29,6 @@ FORMATS = {"gps": ("nmea",), "attitude": ("nmea", "mavlink")}
 
 
 class RecordDecoder:
-    kind = ""
-
     def feed(self, data: bytes) -> list[dict]:
         raise NotImplementedError
 
@@ -52,8 +50,6 @@ _KIND_NAMES = {kind: kind.name for kind in ErrorKind}
 
 
 class ArvaRecords(RecordDecoder):
-    kind = "arva"
-
     def __init__(self) -> None:
         self.decoder = Decoder()
 
@@ -116,8 +112,7 @@ class GroundTruthRecords(RecordDecoder):
     record for the read that carried it (the bytes themselves are in the raw log).
     """
 
-    def __init__(self, kind: str, fmt: str = "nmea") -> None:
-        self.kind = kind
+    def __init__(self, fmt: str = "nmea") -> None:
         self.format = fmt
         if fmt == "mavlink":
             from bench.ground_truth.mavlink import MavlinkAttitudeReader  # the optional extra
@@ -174,5 +169,5 @@ def decoder_for(kind: str, fmt: str | None = None) -> RecordDecoder:
         fmt = FORMATS[kind][0] if fmt is None else fmt
         if fmt not in FORMATS[kind]:
             raise ValueError(f"a {kind} device cannot speak {fmt!r} (one of: {', '.join(FORMATS[kind])})")
-        return GroundTruthRecords(kind, fmt)
+        return GroundTruthRecords(fmt)
     raise ValueError(f"unknown device kind {kind!r}")
