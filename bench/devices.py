@@ -131,33 +131,30 @@ def usb_devices(err) -> list[Found]:  # type: ignore[no-untyped-def]
     except usb.core.USBError as exc:
         print(f"USB: not listed (cannot list USB devices: {protocol_usb.usb_reason(exc)})", file=err)
         return []
-    found: list[tuple[tuple[int, int], Found]] = []
+    found: list[Found] = []
     denied = False
-    for dev in devices:
+    for dev in sorted(devices, key=lambda d: (d.bus or 0, d.address or 0)):
         if dev.bDeviceClass == USB_CLASS_HUB:
             continue
-        strings = {"manufacturer": None, "product": None, "serial": None}
-        note = None
+        manufacturer = product = serial_number = note = None
         try:
-            strings["manufacturer"] = protocol_usb.read_string(dev, dev.iManufacturer)
-            strings["product"] = protocol_usb.read_string(dev, dev.iProduct)
-            strings["serial"] = protocol_usb.read_string(dev, dev.iSerialNumber)
+            manufacturer = protocol_usb.read_string(dev, dev.iManufacturer)
+            product = protocol_usb.read_string(dev, dev.iProduct)
+            serial_number = protocol_usb.read_string(dev, dev.iSerialNumber)
         except (usb.core.USBError, ValueError, NotImplementedError) as exc:
-            text = getattr(exc, "strerror", None) or str(exc)
-            note = f"strings unreadable: {text}"
+            note = f"strings unreadable: {getattr(exc, 'strerror', None) or str(exc)}"
             denied = denied or getattr(exc, "errno", None) == errno.EACCES
         finally:
             usb.util.dispose_resources(dev)
         url = f"usb://{dev.idVendor:04x}:{dev.idProduct:04x}"
-        if strings["serial"]:
-            url += "?serial=" + urllib.parse.quote(strings["serial"], safe="")
-        found.append(((dev.bus or 0, dev.address or 0), Found(
-            kind="usb", url=url, vid=dev.idVendor, pid=dev.idProduct, serial_number=strings["serial"] or None,
-            manufacturer=strings["manufacturer"] or None, description=strings["product"] or None,
-            device=f"bus {dev.bus} address {dev.address}", note=note)))  # fmt: skip
+        if serial_number:
+            url += "?serial=" + urllib.parse.quote(serial_number, safe="")
+        found.append(Found(kind="usb", url=url, vid=dev.idVendor, pid=dev.idProduct,
+                           serial_number=serial_number or None, manufacturer=manufacturer or None,
+                           description=product or None, device=f"bus {dev.bus} address {dev.address}", note=note))
     if denied:
         print(f"USB: some devices could not be opened: {protocol_usb.UDEV_HINT}", file=err)
-    return [f for _, f in sorted(found, key=lambda pair: pair[0])]
+    return found
 
 
 def mark_duplicates(usb: Iterable[Found], others: list[Found]) -> None:
