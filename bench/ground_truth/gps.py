@@ -94,20 +94,14 @@ def _lat_lon(msg: NMEAMessage, i: int) -> tuple[float | None, float | None]:
     return lat, lon
 
 
-def _float(msg: NMEAMessage, name: str, index: int) -> float | None:
+def _number(msg: NMEAMessage, name: str, index: int, kind: type = float) -> float | int | None:
+    """Field ``index`` (named ``name`` by pynmeagps) as a ``kind``: digits only for an int,
+    a plain decimal number for a float (float() would take "nan", "inf", "1e5")."""
     raw = _raw(msg, index)
-    if raw and not PLAIN_NUMBER.match(raw):
-        raise FieldError(name)  # float() would take "nan", "inf", "1e5"
-    value = typed_value(msg, name, raw)
-    return None if value is None else float(value)  # type: ignore[arg-type]
-
-
-def _int(msg: NMEAMessage, name: str, index: int) -> int | None:
-    raw = _raw(msg, index)
-    if raw and not raw.isdigit():
+    if raw and not (raw.isdigit() if kind is int else PLAIN_NUMBER.match(raw)):
         raise FieldError(name)
     value = typed_value(msg, name, raw)
-    return None if value is None else int(value)  # type: ignore[call-overload]
+    return None if value is None else kind(value)
 
 
 class GpsReader(SentenceReader):
@@ -136,14 +130,14 @@ class GpsReader(SentenceReader):
     def _gga(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0 time, 1-4 lat N lon E, 5 quality, 6 sats, 7 hdop, 8 alt, 9 M, 10 sep, 11 M
         tod = time_of_day(msg, "time", _raw(msg, 0), self.stats)
-        quality = _int(msg, "quality", 5)
+        quality = _number(msg, "quality", 5, int)
         lat, lon = self._position(msg, 1, fix_claimed=bool(quality))
-        alt_msl = _float(msg, "alt", 8)
-        sep = _float(msg, "sep", 10)
+        alt_msl = _number(msg, "alt", 8)
+        sep = _number(msg, "sep", 10)
         utc = None if tod is None else self.tracker.resolve(tod)
         return GpsFix("GGA", talker_of(line), tod, utc, lat, lon, alt_msl=alt_msl, geoid_sep=sep,
                       alt_hae=None if alt_msl is None or sep is None else alt_msl + sep,
-                      quality=quality, sats=_int(msg, "numSV", 6), hdop=_float(msg, "HDOP", 7))
+                      quality=quality, sats=_number(msg, "numSV", 6, int), hdop=_number(msg, "HDOP", 7))
 
     def _rmc(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0 time, 1 status, 2-5 lat N lon E, 6 speed, 7 course, 8 date, 9-10 magvar, 11 mode
@@ -165,7 +159,7 @@ class GpsReader(SentenceReader):
         else:
             utc = self.tracker.resolve(tod)
         return GpsFix("RMC", talker_of(line), tod, utc, lat, lon, status=status, mode=mode,
-                      speed_knots=_float(msg, "spd", 6), course=_float(msg, "cog", 7))
+                      speed_knots=_number(msg, "spd", 6), course=_number(msg, "cog", 7))
 
     def _gll(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0-3 lat N lon E, 4 time, 5 status, 6 mode (NMEA >= 2.3; older: absent)
