@@ -174,13 +174,8 @@ def _origin_from(manifest: Manifest, origin: list[float] | None, first_fix) -> O
     raise InputError("export: no origin: the session has none and no receiver GPS fix; give --origin LAT,LON,ALT")
 
 
-def export_rows(
-    directory: str | Path,
-    origin: list[float] | None = None,
-    latency: float = 0.0,
-    max_gap: float = 2.0,
-    receiver: str | None = None,
-) -> ExportResult:
+def export_rows(directory: str | Path, origin: list[float] | None = None, latency: float = 0.0, max_gap: float = 2.0,
+                receiver: str | None = None) -> ExportResult:
     """The normative table of a session as numpy columns, with the drop counts: the rows of
     every receiver one after the other, or of the device named ``receiver`` only."""
     directory = Path(directory)
@@ -239,7 +234,7 @@ def export_rows(
     known_tx = sorted(int(role[2:]) for role in tracks if role.startswith("tx"))
 
     dropped: Counter = Counter()
-    parts: list[dict[str, np.ndarray]] = []
+    parts: list[np.ndarray] = []
     for name, eps in epochs.items():
         role = devices[name].role
         rows = []

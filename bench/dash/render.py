@@ -61,12 +61,8 @@ def table_header(width: int) -> str:
     return (head + "d(t)")[:width].ljust(width) if width > len(head) else head[:width]
 
 
-def channel_row(
-    slot: tuple[int, int, int] | None,
-    true_m: float | None,
-    history: Sequence[int | None],
-    width: int,
-) -> str:
+def channel_row(slot: tuple[int, int, int] | None, true_m: float | None, history: Sequence[int | None],
+                width: int) -> str:
     """One slot of the latest epoch. ``slot`` None: the slot never arrived intact."""
     spark = sparkline(history, max(0, width - TABLE_FIXED))
     if slot is None:
@@ -83,12 +79,8 @@ def channel_row(
     return f"{ident:>3} {d_text:>7} {dl:>4} {zn:<5} {true_text:>7} {err_text:>6}  {spark}"[:width]
 
 
-def channel_rows(
-    slots: Sequence[tuple[int, int, int] | None],
-    true_m: dict[int, float],
-    history: dict[int, Sequence[int | None]],
-    width: int,
-) -> list[str]:
+def channel_rows(slots: Sequence[tuple[int, int, int] | None], true_m: dict[int, float],
+                 history: dict[int, Sequence[int | None]], width: int) -> list[str]:
     """Header plus one row per slot (``history`` and ``true_m`` keyed by transmitter id)."""
     rows = [table_header(width)]
     for slot in slots:

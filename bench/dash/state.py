@@ -46,12 +46,9 @@ class ReceiverState:
         self.epochs += 1
         self.history.append({s[0]: s[1] for s in slots if s is not None and s[0] >= 0 and s[1] >= 0})
 
-    def series(self, tx: int) -> list[int | None]:
-        """d (cm) of transmitter ``tx`` in each kept epoch, None where it was not received."""
-        return [h.get(tx) for h in self.history]
-
     def histories(self) -> dict[int, list[int | None]]:
-        return {s[0]: self.series(s[0]) for s in self.slots if s is not None and s[0] >= 0}
+        """d (cm) of each slot's transmitter in each kept epoch, None where it was not received."""
+        return {s[0]: [h.get(s[0]) for h in self.history] for s in self.slots if s is not None and s[0] >= 0}
 
 
 @dataclass

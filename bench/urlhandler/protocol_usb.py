@@ -26,14 +26,7 @@ import re
 import urllib.parse
 from dataclasses import dataclass
 
-from serial.serialutil import (
-    PortNotOpenError,
-    SerialBase,
-    SerialException,
-    SerialTimeoutException,
-    Timeout,
-    to_bytes,
-)
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException, SerialTimeoutException, Timeout, to_bytes
 
 from emulator.output.virtual_line import VirtualLine
 
