@@ -160,11 +160,8 @@ def usb_devices(err) -> list[Found]:  # type: ignore[no-untyped-def]
 def mark_duplicates(usb: Iterable[Found], others: list[Found]) -> None:
     """Note on each USB device the serial port or HID bridge it also is."""
     for dev in usb:
-        also = [
-            o.url or f"HID {o.device}"
-            for o in others
-            if o.vid is not None and (o.vid, o.pid, o.serial_number) == (dev.vid, dev.pid, dev.serial_number)
-        ]
+        also = [o.url or f"HID {o.device}" for o in others
+                if o.vid is not None and (o.vid, o.pid, o.serial_number) == (dev.vid, dev.pid, dev.serial_number)]
         if also:
             dev.note = "; ".join(filter(None, [dev.note, "also " + ", ".join(also)]))
 

@@ -206,10 +206,9 @@ def export_rows(directory: str | Path, origin: list[float] | None = None, latenc
             for s in _decode(log, decoder_for(dev.kind, dev.format), dev.baudrate):
                 r = s.record
                 if is_positioned_fix(r):
-                    hdop = r.get("hdop")
-                    fixes.setdefault(dev.role, []).append(
-                        (s.mono, r["lat"], r["lon"], r["alt_hae"], r.get("quality") or 0, np.nan if hdop is None else hdop)
-                    )
+                    hdop = np.nan if r.get("hdop") is None else r["hdop"]
+                    fix = (s.mono, r["lat"], r["lon"], r["alt_hae"], r.get("quality") or 0, hdop)
+                    fixes.setdefault(dev.role, []).append(fix)
                 elif "q" in r:
                     attitudes.setdefault(dev.role, []).append((s.mono, r["q"]))
     # The earliest receiver fix, as the logger stores it when there is no --origin.

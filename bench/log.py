@@ -187,11 +187,9 @@ def run(args: argparse.Namespace) -> int:
     for dev in devices:
         c = summary[dev.spec.name]
         suppressed = c["decoder"].get("error_records_suppressed", 0)
-        print(
-            f"arva-bench: log: {dev.spec.name}: {c['reads']} reads, {c['bytes']} bytes, {c['records']} records, "
-            f"{c['gaps']} gaps" + (f", {suppressed} error records summed (line noise)" if suppressed else ""),
-            file=sys.stderr,
-        )
+        print(f"arva-bench: log: {dev.spec.name}: {c['reads']} reads, {c['bytes']} bytes, {c['records']} records, "
+              f"{c['gaps']} gaps" + (f", {suppressed} error records summed (line noise)" if suppressed else ""),
+              file=sys.stderr)
     for line in never + ([late] if late else []):
         print(f"arva-bench: log: {line}", file=sys.stderr)
     return 0

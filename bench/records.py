@@ -81,12 +81,8 @@ class ArvaRecords(RecordDecoder):
 
     def stats(self) -> dict[str, int]:
         s = self.decoder.stats
-        return {
-            "epochs": s.epochs_complete,
-            "incomplete": s.epochs_incomplete,
-            "errors": sum(s.errors.values()),
-            "seq_gaps": s.seq_gaps,
-        }
+        return {"epochs": s.epochs_complete, "incomplete": s.epochs_incomplete, "errors": sum(s.errors.values()),
+                "seq_gaps": s.seq_gaps}
 
 
 def _iso(dt) -> str | None:

@@ -264,11 +264,8 @@ def link_row(link, now: float, stale_after: float) -> tuple[str, str]:
     rate_text = DASH if rate is None else (f"{rate:.1f}" if rate < 100 else compact(round(rate), 4))
     gaps = compact(c.seq_gaps, 3) if link.kind == "arva" else DASH
     state = link_state(link, now, stale_after)
-    row = (
-        f"{link_label(link.device)[:8]:<8} {state:<5} {rate_text:>4} {compact(c.checksum_errors, 3):>3} "
-        f"{gaps:>3} {age_text(link.age(now)):>5} {compact(c.dropped_bytes, 5):>5}"
-    )
-    return row, state
+    return (f"{link_label(link.device)[:8]:<8} {state:<5} {rate_text:>4} {compact(c.checksum_errors, 3):>3} "
+            f"{gaps:>3} {age_text(link.age(now)):>5} {compact(c.dropped_bytes, 5):>5}"), state
 
 
 def size_text(n: int) -> str:

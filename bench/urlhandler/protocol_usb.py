@@ -205,9 +205,7 @@ class Serial(VirtualLine, SerialBase):
             return False
 
         try:
-            device = usb.core.find(
-                idVendor=url.vid, idProduct=url.pid, custom_match=serial_matches, backend=BACKEND
-            )
+            device = usb.core.find(idVendor=url.vid, idProduct=url.pid, custom_match=serial_matches, backend=BACKEND)
         except usb.core.NoBackendError:
             raise self._fail(NO_BACKEND) from None
         except usb.core.USBError as exc:
