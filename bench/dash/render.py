@@ -72,10 +72,8 @@ def channel_row(slot: tuple[int, int, int] | None, true_m: float | None, history
         ident, d_text, dl, zn = "-", DASH, DASH, DASH
     else:
         ident, d_text, dl, zn = str(tx), metres(d), str(delta), zone(d, delta)
-    if true_m is None or d < 0:
-        true_text, err_text = DASH, DASH
-    else:
-        true_text, err_text = f"{true_m:.2f}", f"{d / 100 - true_m:+.2f}"
+    known = true_m is not None and d >= 0
+    true_text, err_text = (f"{true_m:.2f}", f"{d / 100 - true_m:+.2f}") if known else (DASH, DASH)
     return f"{ident:>3} {d_text:>7} {dl:>4} {zn:<5} {true_text:>7} {err_text:>6}  {spark}"[:width]
 
 

@@ -260,10 +260,8 @@ class Serial(VirtualLine, SerialBase):
                           if _first_ep(usb, i, usb.util.ENDPOINT_IN) is not None]
                 hint = f" (interface {', '.join(others)} has one: add interface=N)" if others else ""
                 raise self._fail(f"interface {number} has no bulk or interrupt IN endpoint{hint}")
-        if url.out is not None:
-            self._out_ep = self._named_ep(usb, intf, url.out)
-        else:
-            self._out_ep = _first_ep(usb, intf, usb.util.ENDPOINT_OUT)
+        out = url.out
+        self._out_ep = _first_ep(usb, intf, usb.util.ENDPOINT_OUT) if out is None else self._named_ep(usb, intf, out)
 
         try:
             active = device.is_kernel_driver_active(number)
