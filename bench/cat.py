@@ -1,22 +1,19 @@
 """``arva-bench cat SOURCE``: decode a receiver stream, one JSON object per epoch on stdout.
 
-SOURCE is a file path, a FIFO, ``-`` (stdin), a serial device (``/dev/ttyUSB0``) or any
-pyserial URL (``loop://``, ``socket://host:port``, ``spy://...``, ``arvaemu://...``).
-Each epoch, in stream order, is printed and flushed as::
+SOURCE, the stop conditions and the exit statuses are those of the sub-command's
+description (:func:`register`). Each epoch, in stream order, is printed and flushed as::
 
     {"seq": 12, "complete": true, "slots": [[1, 1905, 21], [-1, -1, -1]]}
 
 with ``null`` for a slot that never arrived intact, plus ``"field": [[hx, hy, hz] | null,
-...]`` when ``$PARVH`` research sentences came with it. At the end of the input (EOF, or
-Ctrl-C, SIGTERM, or ``--epochs`` / ``--until-idle``) the decoder is flushed and one line
-of counters goes to stderr. Exit status: 0 at the end of the input, however many errors
-the stream held (they are counted); 2 for bad arguments or a source that cannot be opened;
-1 when a port fails mid-stream; 130 after Ctrl-C; 143 after SIGTERM.
+...]`` when ``$PARVH`` research sentences came with it. At the end of the input the
+decoder is flushed and one line of counters goes to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import select
@@ -44,34 +41,26 @@ class Source(Protocol):
 
 
 class FileSource:
-    """A regular file: read to EOF, never blocks."""
+    """A regular file (read to EOF, never blocks); closed at the end when ``owned``."""
 
-    def __init__(self, fd: int) -> None:
+    def __init__(self, fd: int, owned: bool = True) -> None:
         self.fd = fd
-
-    def read(self) -> bytes | None:
-        return os.read(self.fd, CHUNK)
-
-    def close(self) -> None:
-        os.close(self.fd)
-
-
-class StreamSource(FileSource):
-    """stdin or a FIFO: waits at most IDLE_SECONDS per read."""
-
-    def __init__(self, fd: int, owned: bool) -> None:
-        super().__init__(fd)
         self.owned = owned
 
     def read(self) -> bytes | None:
-        ready, _, _ = select.select([self.fd], [], [], IDLE_SECONDS)
-        if not ready:
-            return None
         return os.read(self.fd, CHUNK)
 
     def close(self) -> None:
         if self.owned:
             os.close(self.fd)
+
+
+class StreamSource(FileSource):
+    """stdin or a FIFO: waits at most IDLE_SECONDS per read."""
+
+    def read(self) -> bytes | None:
+        ready, _, _ = select.select([self.fd], [], [], IDLE_SECONDS)
+        return os.read(self.fd, CHUNK) if ready else None
 
 
 class SerialSource:
@@ -99,10 +88,7 @@ def open_source(spec: str, baud: int = 115200) -> Source:
     if spec == "-":
         return StreamSource(sys.stdin.buffer.fileno(), owned=False)
     try:
-        if "://" in spec:
-            return SerialSource(_serial_for_url(spec, baud))
-        mode = os.stat(spec).st_mode
-        if stat.S_ISCHR(mode):
+        if "://" in spec or stat.S_ISCHR(mode := os.stat(spec).st_mode):
             return SerialSource(_serial_for_url(spec, baud))
         if stat.S_ISDIR(mode):
             raise IsADirectoryError(21, "Is a directory")
@@ -138,14 +124,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("source", metavar="SOURCE", help="file path, device, pyserial URL, or - for stdin")
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--epochs", type=positive_int, metavar="N", help="stop after N epochs")
-    p.add_argument(
-        "--until-idle", type=positive_seconds, metavar="SECONDS", help="stop when no byte arrives for SECONDS"
-    )
-    p.add_argument(
-        "--expect-fields",
-        action="store_true",
-        help="hold every epoch for the $PARVH of its last slot from the start (default: once one is seen)",
-    )
+    p.add_argument("--until-idle", type=positive_seconds, metavar="SECONDS",
+                   help="stop when no byte arrives for SECONDS")
+    p.add_argument("--expect-fields", action="store_true",
+                   help="hold every epoch for the $PARVH of its last slot from the start (default: once one is seen)")
     p.set_defaults(func=run)
 
     def one_line_error(message: str) -> None:  # argparse's default prints the usage too
@@ -189,10 +171,8 @@ def run(args: argparse.Namespace) -> int:
                     raise _Done
 
     def finish() -> None:
-        try:
+        with contextlib.suppress(_Done):
             emit(dec.flush())
-        except _Done:
-            pass
 
     status = 0
     last_data = time.monotonic()
@@ -222,10 +202,8 @@ def run(args: argparse.Namespace) -> int:
         pass
     except (KeyboardInterrupt, _Terminated) as exc:
         status = 130 if isinstance(exc, KeyboardInterrupt) else 143
-        try:
+        with contextlib.suppress(_PipeClosed):
             finish()
-        except _PipeClosed:
-            pass
     except _PipeClosed:
         # Keep the interpreter's final flush of stdout from failing again.
         devnull = os.open(os.devnull, os.O_WRONLY)

@@ -21,10 +21,8 @@ SUBCOMMANDS: tuple[str, ...] = ("cat", "devices", "log", "export", "replay", "da
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineParser(
-        prog="arva-bench",
-        description="Log, replay, export and fit ARVA receivers and their ground truth.",
-    )
+    parser = OneLineParser(prog="arva-bench",
+                           description="Log, replay, export and fit ARVA receivers and their ground truth.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

@@ -1,25 +1,11 @@
 """``arva-bench devices``: the devices this machine can read, and the URL that opens each.
 
-Three sources, each used when its library is there:
-
-* serial ports (pyserial's ``list_ports``): the URL is the device path (``/dev/ttyUSB0``,
-  ``COM3``);
-* HID devices (hidapi, the ``hid`` extra): Silicon Labs CP2110/CP2114 HID UART bridges
-  get the ``cp2110://`` URL of pyserial's handler; other HID devices are listed with no
-  URL (nothing opens them as a port);
-* USB devices (pyusb and a libusb backend, the ``usb`` extra): the ``usb://VID:PID?serial=S``
-  URL of the bench's handler (``bench/urlhandler/protocol_usb.py``). Hubs are left out.
-  Strings are read where the device can be opened; a device that also appears as a serial
-  port or HID bridge says so (``also /dev/ttyUSB0``): use that URL, its driver speaks
-  the chip's protocol, ``usb://`` would only see raw endpoint bytes.
-
-A source that is missing is reported on stderr in one line and the others are listed.
-Output: a table, one device per line, columns aligned, ``-`` for an unknown field; or
-with ``--json`` one JSON array of objects with the keys ``kind`` (``serial``, ``hid``,
-``usb``), ``url``, ``vid``, ``pid`` (4 lowercase hex digits, as in lsusb and udev rules),
-``serial_number``, ``manufacturer``, ``description``, ``device`` (device path, HID path,
-or ``bus B address A``) and ``note``, ``null`` where unknown. Exit status 0, even when
-nothing is found.
+Three sources, each used when its library is there: serial ports (pyserial's
+``list_ports``: the device path), HID devices (hidapi, the ``hid`` extra: CP2110/CP2114
+bridges get a ``cp2110://`` URL, others none) and USB devices (pyusb, the ``usb`` extra:
+``usb://VID:PID?serial=S``, hubs left out). Output, the ``--json`` keys and what a missing
+library does: docs/transports.md ("Finding the URL"). Exit status 0, even when nothing is
+found.
 """
 
 from __future__ import annotations
@@ -77,21 +63,12 @@ class Found:
 # -- the three sources -------------------------------------------------------------------
 def serial_ports() -> list[Found]:
     """Serial ports pyserial sees, in natural order of their paths."""
-    found = []
-    for port in list_ports.comports():
-        description = port.description if port.description not in (None, "", "n/a") else None
-        found.append(
-            Found(
-                kind="serial",
-                url=port.device,
-                vid=port.vid,
-                pid=port.pid,
-                serial_number=port.serial_number or None,
-                manufacturer=port.manufacturer or None,
-                description=description,
-                device=port.device,
-            )
-        )
+    found = [
+        Found(kind="serial", url=port.device, vid=port.vid, pid=port.pid, serial_number=port.serial_number or None,
+              manufacturer=port.manufacturer or None, device=port.device,
+              description=port.description if port.description not in (None, "", "n/a") else None)
+        for port in list_ports.comports()
+    ]
     return sorted(found, key=lambda f: _natural(f.device))
 
 
@@ -132,17 +109,10 @@ def hid_devices(err) -> list[Found]:  # type: ignore[no-untyped-def]
             url = cp2110_url(path)
             if url is None:
                 note = "its path cannot be written as a cp2110:// URL"
-        found[path] = Found(
-            kind="hid",
-            url=url,
-            vid=vid,
-            pid=pid,
-            serial_number=entry.get("serial_number") or None,
-            manufacturer=entry.get("manufacturer_string") or None,
-            description=entry.get("product_string") or None,
-            device=path.decode("utf-8", "replace"),
-            note=note,
-        )
+        found[path] = Found(kind="hid", url=url, vid=vid, pid=pid, serial_number=entry.get("serial_number") or None,
+                            manufacturer=entry.get("manufacturer_string") or None,
+                            description=entry.get("product_string") or None,
+                            device=path.decode("utf-8", "replace"), note=note)
     return sorted(found.values(), key=lambda f: _natural(f.device))
 
 
@@ -161,53 +131,37 @@ def usb_devices(err) -> list[Found]:  # type: ignore[no-untyped-def]
     except usb.core.USBError as exc:
         print(f"USB: not listed (cannot list USB devices: {protocol_usb.usb_reason(exc)})", file=err)
         return []
-    found: list[tuple[tuple[int, int], Found]] = []
+    found: list[Found] = []
     denied = False
-    for dev in devices:
+    for dev in sorted(devices, key=lambda d: (d.bus or 0, d.address or 0)):
         if dev.bDeviceClass == USB_CLASS_HUB:
             continue
-        strings = {"manufacturer": None, "product": None, "serial": None}
-        note = None
+        manufacturer = product = serial_number = note = None
         try:
-            strings["manufacturer"] = protocol_usb.read_string(dev, dev.iManufacturer)
-            strings["product"] = protocol_usb.read_string(dev, dev.iProduct)
-            strings["serial"] = protocol_usb.read_string(dev, dev.iSerialNumber)
+            manufacturer = protocol_usb.read_string(dev, dev.iManufacturer)
+            product = protocol_usb.read_string(dev, dev.iProduct)
+            serial_number = protocol_usb.read_string(dev, dev.iSerialNumber)
         except (usb.core.USBError, ValueError, NotImplementedError) as exc:
-            text = getattr(exc, "strerror", None) or str(exc)
-            note = f"strings unreadable: {text}"
+            note = f"strings unreadable: {getattr(exc, 'strerror', None) or str(exc)}"
             denied = denied or getattr(exc, "errno", None) == errno.EACCES
         finally:
             usb.util.dispose_resources(dev)
         url = f"usb://{dev.idVendor:04x}:{dev.idProduct:04x}"
-        if strings["serial"]:
-            url += "?serial=" + urllib.parse.quote(strings["serial"], safe="")
-        found.append((
-            (dev.bus or 0, dev.address or 0),
-            Found(
-                kind="usb",
-                url=url,
-                vid=dev.idVendor,
-                pid=dev.idProduct,
-                serial_number=strings["serial"] or None,
-                manufacturer=strings["manufacturer"] or None,
-                description=strings["product"] or None,
-                device=f"bus {dev.bus} address {dev.address}",
-                note=note,
-            ),
-        ))
+        if serial_number:
+            url += "?serial=" + urllib.parse.quote(serial_number, safe="")
+        found.append(Found(kind="usb", url=url, vid=dev.idVendor, pid=dev.idProduct,
+                           serial_number=serial_number or None, manufacturer=manufacturer or None,
+                           description=product or None, device=f"bus {dev.bus} address {dev.address}", note=note))
     if denied:
         print(f"USB: some devices could not be opened: {protocol_usb.UDEV_HINT}", file=err)
-    return [f for _, f in sorted(found, key=lambda pair: pair[0])]
+    return found
 
 
 def mark_duplicates(usb: Iterable[Found], others: list[Found]) -> None:
     """Note on each USB device the serial port or HID bridge it also is."""
     for dev in usb:
-        also = [
-            o.url or f"HID {o.device}"
-            for o in others
-            if o.vid is not None and (o.vid, o.pid, o.serial_number) == (dev.vid, dev.pid, dev.serial_number)
-        ]
+        also = [o.url or f"HID {o.device}" for o in others
+                if o.vid is not None and (o.vid, o.pid, o.serial_number) == (dev.vid, dev.pid, dev.serial_number)]
         if also:
             dev.note = "; ".join(filter(None, [dev.note, "also " + ", ".join(also)]))
 

@@ -48,7 +48,7 @@ from emulator.progress import Tracker, progress
 from firmware_proto.errors import InputError
 
 from .ingest.stamp import Stamped, StampedDecoder
-from .records import ArvaRecords, decoder_for
+from .records import ArvaRecords, decoder_for, is_positioned_fix
 from .session import MANIFEST, Manifest, RawLog, load_manifest, session_logs
 
 COLUMNS = (
@@ -58,6 +58,7 @@ COLUMNS = (
 )  # fmt: skip
 #: After the normative ones: the receiver GPS fix quality (GGA, 1-8) and HDOP of each row.
 GPS_QUALITY_COLUMNS = ("fix_quality", "hdop")
+INT_COLUMNS = ("seq", "id", "d", "delta", "fix_quality")
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 #: Rows written between progress updates (a terminal's bar only; nothing in a pipe).
 _PROGRESS_ROWS = 65536
@@ -164,7 +165,7 @@ def _last_of_ties(t: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def _origin_from(manifest: Manifest, origin: list[float] | None, first_fix) -> Origin:
     if origin is not None:
-        return Origin(origin[0], origin[1], origin[2] if len(origin) > 2 else 0.0)
+        return Origin(*origin)  # LAT,LON[,ALT]
     if manifest.origin is not None:
         o = manifest.origin
         return Origin(o.lat, o.lon, o.alt)
@@ -173,13 +174,8 @@ def _origin_from(manifest: Manifest, origin: list[float] | None, first_fix) -> O
     raise InputError("export: no origin: the session has none and no receiver GPS fix; give --origin LAT,LON,ALT")
 
 
-def export_rows(
-    directory: str | Path,
-    origin: list[float] | None = None,
-    latency: float = 0.0,
-    max_gap: float = 2.0,
-    receiver: str | None = None,
-) -> ExportResult:
+def export_rows(directory: str | Path, origin: list[float] | None = None, latency: float = 0.0, max_gap: float = 2.0,
+                receiver: str | None = None) -> ExportResult:
     """The normative table of a session as numpy columns, with the drop counts: the rows of
     every receiver one after the other, or of the device named ``receiver`` only."""
     directory = Path(directory)
@@ -209,11 +205,10 @@ def export_rows(
         else:
             for s in _decode(log, decoder_for(dev.kind, dev.format), dev.baudrate):
                 r = s.record
-                if r.get("sentence") == "GGA" and r.get("valid") and r.get("alt_hae") is not None:
-                    hdop = r.get("hdop")
-                    fixes.setdefault(dev.role, []).append(
-                        (s.mono, r["lat"], r["lon"], r["alt_hae"], r.get("quality") or 0, np.nan if hdop is None else hdop)
-                    )
+                if is_positioned_fix(r):
+                    hdop = np.nan if r.get("hdop") is None else r["hdop"]
+                    fix = (s.mono, r["lat"], r["lon"], r["alt_hae"], r.get("quality") or 0, hdop)
+                    fixes.setdefault(dev.role, []).append(fix)
                 elif "q" in r:
                     attitudes.setdefault(dev.role, []).append((s.mono, r["q"]))
     # The earliest receiver fix, as the logger stores it when there is no --origin.
@@ -238,7 +233,7 @@ def export_rows(
     known_tx = sorted(int(role[2:]) for role in tracks if role.startswith("tx"))
 
     dropped: Counter = Counter()
-    parts: list[dict[str, np.ndarray]] = []
+    parts: list[np.ndarray] = []
     for name, eps in epochs.items():
         role = devices[name].role
         rows = []
@@ -277,29 +272,13 @@ def export_rows(
         unattributed = "empty slot, no transmitter known" if not known_tx else "empty slot, several transmitters"
         dropped[unattributed] += int((keep & (slot_tx < 0)).sum())
         keep &= ok_tx
-        parts.append(
-            {
-                "t": r[keep, 1],
-                "seq": r[keep, 2].astype(np.int64),
-                "id": ids[keep],
-                "d": r[keep, 4].astype(np.int64),
-                "delta": r[keep, 5].astype(np.int64),
-                **{f"rx_{c}": rx_p[keep, i] for i, c in enumerate("xyz")},
-                **{f"rx_q{c}": rx_q[keep, i] for i, c in enumerate("wxyz")},
-                **{f"tx_{c}": tx_p[keep, i] for i, c in enumerate("xyz")},
-                **{f"tx_q{c}": tx_q[keep, i] for i, c in enumerate("wxyz")},
-                "fix_quality": rx_quality[keep],
-                "hdop": rx_hdop[keep],
-            }
-        )
+        parts.append(np.column_stack([r[:, 1:], rx_p, rx_q, tx_p, tx_q, rx_quality, rx_hdop])[keep])  # COLUMNS order
     if not any(epochs.values()):
         logged = ", ".join(str(logs[name].path) for name in receivers if name in logs)
         raise InputError(f"{logged}: no complete read (empty or only a torn line): nothing to export")
-    if parts:
-        columns = {c: np.concatenate([p[c] for p in parts]) for c in COLUMNS + GPS_QUALITY_COLUMNS}
-    else:
-        ints = ("seq", "id", "d", "delta", "fix_quality")
-        columns = {c: np.empty(0, dtype=np.int64 if c in ints else np.float64) for c in COLUMNS + GPS_QUALITY_COLUMNS}
+    names = COLUMNS + GPS_QUALITY_COLUMNS
+    table = np.concatenate(parts) if parts else np.empty((0, len(names)))
+    columns = {c: table[:, i].astype(np.int64 if c in INT_COLUMNS else np.float64) for i, c in enumerate(names)}
     return ExportResult(columns, Counter({k: v for k, v in dropped.items() if v}), org, tuple(receivers))
 
 

@@ -100,9 +100,8 @@ def manifest(args: argparse.Namespace, specs: list[DeviceSpec], argv: list[str])
         lat, lon, *alt = args.origin
         out["origin"] = {"lat": lat, "lon": lon, "alt": alt[0] if alt else 0.0}
     if args.tx_pose:
-        out["tx_poses"] = {
-            str(tx): dict(zip(("lat", "lon", "alt", "heading", "roll", "pitch"), values)) for tx, values in args.tx_pose
-        }
+        keys = ("lat", "lon", "alt", "heading", "roll", "pitch")
+        out["tx_poses"] = {str(tx): dict(zip(keys, values)) for tx, values in args.tx_pose}
     return out
 
 
@@ -141,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     writer = SessionWriter(args.out, manifest(args, specs, sys.argv))
     stop = threading.Event()
     fatal: list[Exception] = []
-    stopped_by = ["user"]
+    stopped_by = "user"
 
     def on_fatal(exc: Exception) -> None:
         fatal.append(exc)
@@ -160,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         while not stop.wait(0.25 if args.duration is None else min(0.25, max(0.0, t0 + args.duration - time.monotonic()))):
             if args.duration is not None and time.monotonic() - t0 >= args.duration:
-                stopped_by[0] = "duration"
+                stopped_by = "duration"
                 break
             if status is not None:
                 status.update(live, time.monotonic() - t0)
@@ -175,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
                 summary[dev.spec.name]["cut_at_stop"] = dev.cut_at_stop
             if not dev.opens:
                 summary[dev.spec.name]["never_opened"] = dev.reason or "not opened"
-        writer.close(devices=summary, stopped_by="disk error" if fatal else stopped_by[0])
+        writer.close(devices=summary, stopped_by="disk error" if fatal else stopped_by)
     late = f"the writer did not finish within {STOP_TIMEOUT:g} s; the last reads may be missing" if unfinished else ""
     never = [f"{dev.spec.name} never opened: {dev.reason or 'no attempt finished'}" for dev in devices if not dev.opens]
     # Exit 2 is one line: what went wrong, with what the reader needs to know folded in.
@@ -188,11 +187,9 @@ def run(args: argparse.Namespace) -> int:
     for dev in devices:
         c = summary[dev.spec.name]
         suppressed = c["decoder"].get("error_records_suppressed", 0)
-        print(
-            f"arva-bench: log: {dev.spec.name}: {c['reads']} reads, {c['bytes']} bytes, {c['records']} records, "
-            f"{c['gaps']} gaps" + (f", {suppressed} error records summed (line noise)" if suppressed else ""),
-            file=sys.stderr,
-        )
+        print(f"arva-bench: log: {dev.spec.name}: {c['reads']} reads, {c['bytes']} bytes, {c['records']} records, "
+              f"{c['gaps']} gaps" + (f", {suppressed} error records summed (line noise)" if suppressed else ""),
+              file=sys.stderr)
     for line in never + ([late] if late else []):
         print(f"arva-bench: log: {line}", file=sys.stderr)
     return 0

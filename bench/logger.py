@@ -17,6 +17,7 @@ from collections.abc import Callable
 from firmware_proto.errors import LinkError
 
 from .ingest.reader import Device, DeviceSpec, DeviceStats, LinkEvent, Listener, Read
+from .records import is_positioned_fix
 from .session import SessionWriter
 
 __all__ = ["DeviceSpec", "DeviceStats", "SessionListener"]
@@ -27,9 +28,7 @@ SESSION_EVENTS = ("unavailable", "gap", "reconnect")
 
 def is_origin_fix(device: Device, record: dict) -> bool:
     """A valid GGA fix with a height from a receiver's GPS (the session's origin candidate)."""
-    spec = device.spec
-    return (spec.kind == "gps" and spec.role.startswith("rx") and record.get("sentence") == "GGA"
-            and bool(record.get("valid")) and record.get("alt_hae") is not None)  # fmt: skip
+    return device.spec.kind == "gps" and device.spec.role.startswith("rx") and is_positioned_fix(record)
 
 
 class SessionListener(Listener):
@@ -46,10 +45,7 @@ class SessionListener(Listener):
         self.counts: dict[str, dict[str, int]] = {}
 
     def _count(self, name: str) -> dict[str, int]:
-        c = self.counts.get(name)
-        if c is None:
-            c = self.counts[name] = {"reads": 0, "bytes": 0, "records": 0, "gaps": 0}
-        return c
+        return self.counts.setdefault(name, {"reads": 0, "bytes": 0, "records": 0, "gaps": 0})
 
     def on_read(self, device: Device, read: Read) -> None:
         if self.error is not None:

@@ -29,8 +29,6 @@ FORMATS = {"gps": ("nmea",), "attitude": ("nmea", "mavlink")}
 
 
 class RecordDecoder:
-    kind = ""
-
     def feed(self, data: bytes) -> list[dict]:
         raise NotImplementedError
 
@@ -52,8 +50,6 @@ _KIND_NAMES = {kind: kind.name for kind in ErrorKind}
 
 
 class ArvaRecords(RecordDecoder):
-    kind = "arva"
-
     def __init__(self) -> None:
         self.decoder = Decoder()
 
@@ -85,20 +81,24 @@ class ArvaRecords(RecordDecoder):
 
     def stats(self) -> dict[str, int]:
         s = self.decoder.stats
-        return {
-            "epochs": s.epochs_complete,
-            "incomplete": s.epochs_incomplete,
-            "errors": sum(s.errors.values()),
-            "seq_gaps": s.seq_gaps,
-        }
+        return {"epochs": s.epochs_complete, "incomplete": s.epochs_incomplete, "errors": sum(s.errors.values()),
+                "seq_gaps": s.seq_gaps}
 
 
 def _iso(dt) -> str | None:
     return None if dt is None else dt.isoformat().replace("+00:00", "Z")
 
 
+#: GpsFix fields a gps record holds as they are, in the record's order (after sentence,
+#: talker and time; then valid).
+GPS_FIELDS = ("lat", "lon", "alt_hae", "alt_msl", "quality", "sats", "hdop", "status", "mode", "speed_knots", "course")
 #: Reader counters that mean rejected input (``junk_bytes`` counts bytes, not lines).
 GT_ERROR_KEYS = ("bad_checksum", "no_checksum", "non_ascii", "malformed", "overlong", "fragments", "junk_bytes")
+
+
+def is_positioned_fix(record: dict) -> bool:
+    """A valid GGA record with an ellipsoid height: a position the export and the origin use."""
+    return record.get("sentence") == "GGA" and bool(record.get("valid")) and record.get("alt_hae") is not None
 
 
 class GroundTruthRecords(RecordDecoder):
@@ -108,8 +108,7 @@ class GroundTruthRecords(RecordDecoder):
     record for the read that carried it (the bytes themselves are in the raw log).
     """
 
-    def __init__(self, kind: str, fmt: str = "nmea") -> None:
-        self.kind = kind
+    def __init__(self, fmt: str = "nmea") -> None:
         self.format = fmt
         if fmt == "mavlink":
             from bench.ground_truth.mavlink import MavlinkAttitudeReader  # the optional extra
@@ -142,34 +141,12 @@ class GroundTruthRecords(RecordDecoder):
     def _records(self, items) -> list[dict]:
         out = []
         for r in items:
+            time = _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat())
             if isinstance(r, GpsFix):
-                out.append(
-                    {
-                        "sentence": r.sentence,
-                        "talker": r.talker,
-                        "time": _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat()),
-                        "lat": r.lat,
-                        "lon": r.lon,
-                        "alt_hae": r.alt_hae,
-                        "alt_msl": r.alt_msl,
-                        "quality": r.quality,
-                        "sats": r.sats,
-                        "hdop": r.hdop,
-                        "status": r.status,
-                        "mode": r.mode,
-                        "speed_knots": r.speed_knots,
-                        "course": r.course,
-                        "valid": r.valid,
-                    }
-                )
+                fields = {k: getattr(r, k) for k in GPS_FIELDS}
+                out.append({"sentence": r.sentence, "talker": r.talker, "time": time, **fields, "valid": r.valid})
             elif isinstance(r, Attitude):
-                rec = {
-                    "time": _iso(r.utc) or (None if r.time_of_day is None else r.time_of_day.isoformat()),
-                    "heading": r.heading,
-                    "roll": r.roll,
-                    "pitch": r.pitch,
-                    "q": list(r.quaternion),
-                }
+                rec = {"time": time, "heading": r.heading, "roll": r.roll, "pitch": r.pitch, "q": list(r.quaternion)}
                 if r.time_boot_ms is not None:
                     rec["time_boot_ms"] = r.time_boot_ms
                 out.append(rec)
@@ -188,5 +165,5 @@ def decoder_for(kind: str, fmt: str | None = None) -> RecordDecoder:
         fmt = FORMATS[kind][0] if fmt is None else fmt
         if fmt not in FORMATS[kind]:
             raise ValueError(f"a {kind} device cannot speak {fmt!r} (one of: {', '.join(FORMATS[kind])})")
-        return GroundTruthRecords(kind, fmt)
+        return GroundTruthRecords(fmt)
     raise ValueError(f"unknown device kind {kind!r}")

@@ -1,28 +1,24 @@
 """Crash-safe session directories: every byte read, timestamped, append-only.
 
-Layout of a session directory::
+Layout (docs/bench.md, section 4): ``manifest.json`` (atomic rewrite), ``events.jsonl``,
+``<device>.raw`` (one line per read: ``mono_s <TAB> utc_iso <TAB> base64(bytes)``) and
+``<device>.jsonl`` (records derived from the raw bytes). Each line is written with one
+``write`` and flushed at once (a SIGKILL loses nothing the kernel has); a background
+thread fsyncs dirty files at least once a second (a power cut loses at most the last
+second). ``mono_s`` is ``time.monotonic()`` of the logging process, for intervals;
+``utc_iso`` (``2026-11-22T08:01:02.123456Z``) is wall time.
 
-    manifest.json           devices, roles, versions, start/stop, origin (atomic rewrite)
-    events.jsonl            start, stop, gaps (unplugged devices), reconnects, disk errors
-    <device>.raw            one line per read:  mono_s <TAB> utc_iso <TAB> base64(bytes)
-    <device>.jsonl          decoded records derived from the raw bytes (flagged if corrupt)
-
-Every file is line-oriented and append-only; each line is written with one ``write``
-and flushed at once (a SIGKILL loses nothing the kernel has), and a background thread
-fsyncs dirty files at least once a second (a power cut loses at most the last second).
-Readers tolerate a torn last line. ``mono_s`` is ``time.monotonic()`` of the reading
-process, for intervals; ``utc_iso`` (``2026-11-22T08:01:02.123456Z``) is wall time.
-
-Readers never hold a whole file: :class:`RawLog` streams a ``.raw`` one line at a time
-and checks every read's stamps against the session's clock (:class:`SessionClock`);
-only regular files are read, and lines and manifests have caps (``MAX_*`` below). What
-breaks a rule or a cap is an :class:`InputError` of one line naming the file and line.
+Readers never hold a whole file and tolerate a torn last line: :class:`RawLog` streams a
+``.raw`` and checks every read's stamps against the session's clock (:class:`SessionClock`);
+only regular files are read, lines and manifests have caps (``MAX_*``). What breaks a
+rule or a cap is an :class:`InputError` of one line naming the file and line.
 """
 
 from __future__ import annotations
 
 import base64
 import binascii
+import contextlib
 import errno
 import datetime as _dt
 import json
@@ -108,7 +104,7 @@ class _AppendFile:
                 self._f.close()
 
 
-class SessionWriter:
+class SessionWriter(contextlib.AbstractContextManager):
     """Writes one session directory; safe to call from several reader threads.
 
     ``fsync_interval`` (s) bounds what a power cut can lose. A disk error (e.g. a full
@@ -174,10 +170,8 @@ class SessionWriter:
                 os.fsync(f.fileno())
             os.replace(tmp, self.dir / MANIFEST)
         except OSError:
-            try:
+            with contextlib.suppress(OSError):
                 tmp.unlink()
-            except OSError:
-                pass
             raise
         dir_fd = os.open(self.dir, os.O_RDONLY)
         try:
@@ -233,15 +227,10 @@ class SessionWriter:
         with self._files_lock:
             files = list(self._files.values())
         for f in files:
-            try:
+            with contextlib.suppress(OSError):
                 action(f)
-            except OSError:
-                pass
 
-    def __enter__(self) -> "SessionWriter":
-        return self
-
-    def __exit__(self, *exc_info) -> None:
+    def __exit__(self, *_) -> None:
         self.close()
 
     def close(self, **summary) -> None:
@@ -249,10 +238,8 @@ class SessionWriter:
         if self.closed:
             return
         self.closed = True
-        try:
+        with contextlib.suppress(LinkError):  # the disk is full: the manifest rewrite below may still fit
             self.event("stop", **summary)
-        except LinkError:
-            pass  # the disk is full: the manifest rewrite below may still fit
         self._stop.set()
         self._syncer.join(timeout=5)
         self._each_file(_AppendFile.close)
@@ -263,10 +250,8 @@ class SessionWriter:
             try:
                 self._write_manifest()
             except OSError:
-                try:
+                with contextlib.suppress(OSError):  # the previous manifest is still there, whole
                     self._overwrite_manifest()
-                except OSError:
-                    pass  # the previous manifest is still there, whole
 
 
 # -- the manifest, typed ---------------------------------------------------------------
@@ -423,19 +408,24 @@ def json_depth(obj: object) -> int:
     return deepest
 
 
+def _json(text: str | bytes, where: str | Path) -> object:
+    """JSON ``text`` parsed (``json.JSONDecodeError`` or ``UnicodeDecodeError`` if it is
+    not JSON); :class:`InputError` naming ``where`` when it nests more than
+    :data:`MAX_JSON_DEPTH` deep (a deeper text exhausts the parser's recursion first)."""
+    with contextlib.suppress(RecursionError):
+        obj = json.loads(text)
+        if json_depth(obj) <= MAX_JSON_DEPTH:
+            return obj
+    raise InputError(f"{where}: JSON nested more than {MAX_JSON_DEPTH} deep")
+
+
 def loads_json(text: str, where: str | Path) -> object:
     """JSON ``text`` parsed, at most :data:`MAX_JSON_DEPTH` deep; :class:`InputError`
-    naming ``where`` otherwise (a deeper text exhausts the parser's recursion first)."""
+    naming ``where`` otherwise."""
     try:
-        obj = json.loads(text)
-        deep = json_depth(obj) > MAX_JSON_DEPTH
+        return _json(text, where)
     except json.JSONDecodeError as exc:
         raise InputError(f"{where}: not JSON (line {exc.lineno} column {exc.colno}: {exc.msg})") from None
-    except RecursionError:
-        deep = True
-    if deep:
-        raise InputError(f"{where}: JSON nested more than {MAX_JSON_DEPTH} deep")
-    return obj
 
 
 @dataclass(frozen=True)
@@ -498,14 +488,15 @@ class RawLog:
     an :class:`InputError` naming the line, as is a stamp that breaks a rule.
     """
 
+    # What the last pass saw (the values before any).
+    reads = bytes = 0
+    first: RawRead | None = None
+    last: RawRead | None = None
+    torn_tail = False
+
     def __init__(self, path: str | Path, clock: SessionClock | None = None) -> None:
         self.path = Path(path)
         self.clock = clock
-        self.reads = 0
-        self.bytes = 0
-        self.first: RawRead | None = None
-        self.last: RawRead | None = None
-        self.torn_tail = False
 
     def __iter__(self) -> Iterator[RawRead]:
         path, clock = self.path, self.clock
@@ -591,27 +582,22 @@ def session_logs(directory: str | Path, names: Iterable[str]) -> dict[str, RawLo
 def read_jsonl(path: str | Path) -> Iterator[dict]:
     """Objects of a ``.jsonl`` file, one line at a time (at most :data:`MAX_JSONL_LINE`
     bytes, :data:`MAX_JSON_DEPTH` deep); a torn last line is skipped."""
-    pending: tuple[int, str] | None = None
+    bad: int | None = None  # a line that is not JSON: an error unless it is the torn tail
     for number, line, complete in _lines(Path(path), MAX_JSONL_LINE, "JSON lines"):
-        if pending is not None:
-            raise InputError(f"{path}: line {pending[0]}: {pending[1]}")
+        if bad is not None:
+            break
         if not line:
             continue
         try:
-            obj = json.loads(line)
-            deep = json_depth(obj) > MAX_JSON_DEPTH
-        except RecursionError:
-            deep = True
-        except ValueError:  # not JSON, or not UTF-8: an error unless it is the torn tail
+            obj = _json(line, f"{path}: line {number}")
+        except (json.JSONDecodeError, UnicodeDecodeError):
             if not complete:
                 return
-            pending = (number, "not JSON")
+            bad = number
             continue
-        if deep:
-            raise InputError(f"{path}: line {number}: JSON nested more than {MAX_JSON_DEPTH} deep")
         yield obj
-    if pending is not None:
-        raise InputError(f"{path}: line {pending[0]}: {pending[1]}")
+    if bad is not None:
+        raise InputError(f"{path}: line {bad}: not JSON")
 
 
 def read_manifest(directory: str | Path) -> dict:

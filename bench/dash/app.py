@@ -32,17 +32,8 @@ from ..logger import DeviceSpec
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkStatus, TruthPose
 from .recorder import SessionRecorder
 from .state import LinkView, ReceiverState, TruthState
-from .widgets import (
-    ChannelTable,
-    ChannelView,
-    DirectionIndicator,
-    GroundTruthPanel,
-    LinkPanel,
-    LinksView,
-    ReceiverPanel,
-    StatusBar,
-    TruthView,
-)
+from .widgets import (ChannelTable, ChannelView, DirectionIndicator, GroundTruthPanel, LinkPanel, LinksView,
+                      ReceiverPanel, StatusBar, TruthView)
 
 HELP = """\
 [b]arva-bench dash[/b]: receivers, ground truth and links, live
@@ -84,13 +75,11 @@ class DashConfig:
 
 
 class HelpScreen(ModalScreen):
-    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "close", "Close"), Binding("question_mark", "close", "Close")]
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "dismiss", "Close"),
+                                             Binding("question_mark", "dismiss", "Close")]
 
     def compose(self) -> ComposeResult:
         yield Static(HELP, id="help")
-
-    def action_close(self) -> None:
-        self.dismiss()
 
 
 #: The ground-truth and link panels' minimum height (``#bottom`` in dash.tcss).
@@ -116,11 +105,7 @@ class DashApp(App):
         self.config = config
         self.clock = clock
         self._tick = tick
-        origin = None
-        if config.origin:
-            lat, lon, *alt = config.origin
-            origin = Origin(lat, lon, alt[0] if alt else 0.0)
-        self.truth = TruthState(origin, dict(config.tx_poses))
+        self.truth = TruthState(Origin(*config.origin) if config.origin else None, dict(config.tx_poses))
         self.receivers: dict[str, ReceiverState] = {}
         self.links: dict[str, LinkView] = {}
         for spec in config.specs:
@@ -141,12 +126,8 @@ class DashApp(App):
             for rs in self.receivers.values():
                 yield ReceiverPanel(rs.device, rs.role)
         with Horizontal(id="bottom"):
-            truth = GroundTruthPanel(id="truth")
-            truth.border_title = "ground truth"
-            yield truth
-            links = LinkPanel(id="links")
-            links.border_title = "links"
-            yield links
+            yield GroundTruthPanel(id="truth")
+            yield LinkPanel(id="links")
         yield Footer()
 
     def on_resize(self, event: events.Resize) -> None:
@@ -164,8 +145,8 @@ class DashApp(App):
         if self.config.start_sources:
             # Imported here, once the screen is up: the sources pull in the emulator
             # (scenes, scipy) for arvaemu:// and scene truth, about a second of imports
-            # the terminal would otherwise wait through. (launch imports nothing of app.)
-            from .launch import start_sources
+            # the terminal would otherwise wait through. (sources imports nothing of app.)
+            from .sources import start_sources
 
             self.sources = start_sources(self.config, self.post_message)
 
@@ -209,26 +190,19 @@ class DashApp(App):
         self._refresh_links()
 
     def _link(self, device: str, kind: str, role: str) -> LinkView:
-        link = self.links.get(device)
-        if link is None:
-            link = self.links[device] = LinkView(device, kind, role)
-        return link
+        if device not in self.links:
+            self.links[device] = LinkView(device, kind, role)
+        return self.links[device]
 
     # -- drawing -------------------------------------------------------------------------------
-    def _panel(self, device: str) -> ReceiverPanel | None:
-        for panel in self.query(ReceiverPanel):
-            if panel.device == device:
-                return panel
-        return None
-
     def _refresh_receiver(self, rs: ReceiverState, gap: int = 0) -> None:
-        panel = self._panel(rs.device)
+        panel = next((p for p in self.query(ReceiverPanel) if p.device == rs.device), None)
         if panel is None or not panel.children:
             return
         ids = [s[0] for s in rs.slots if s is not None and s[0] >= 0]
         panel.query_one(ChannelTable).view = ChannelView(tuple(rs.slots), self.truth.distances(rs.role, ids), rs.histories())
         panel.query_one(DirectionIndicator).slots = tuple(rs.slots)
-        panel.show(rs.seq, rs.complete, gap, rs.epochs, len(rs.slots))
+        panel.show(rs.seq, rs.complete, gap)
 
     def _refresh_truth(self) -> None:
         self.query_one(GroundTruthPanel).view = TruthView(dict(self.truth.poses), tuple(self.truth.roles()))
@@ -255,7 +229,7 @@ class DashApp(App):
         n = len(self.receivers)
         left = f" arva-bench dash · {n} receiver{'s' if n != 1 else ''}" + (" (n/p)" if n > 1 else "")
         if self.recorder is not None:
-            kb = self.recorder.bytes_on_disk() / 1000
+            kb = self.recorder.writer.bytes_on_disk() / 1000
             right = f"● REC {self.recorder.directory}  {kb:.1f} kB"
         else:
             right = "○ not recording (r)"
@@ -316,21 +290,23 @@ class DashApp(App):
             self.message = f"cannot record: {exc}"
             return
         self.recorder = recorder
-        for source in self.sources:
-            for feed in source.feeds:
-                feed.recorder = recorder
+        self._attach(recorder)
         self.message = ""
 
     def _stop_recording(self) -> Path | None:
         recorder, self.recorder = self.recorder, None
         if recorder is None:
             return None
-        for source in self.sources:
-            for feed in source.feeds:
-                feed.recorder = None
+        self._attach(None)
         recorder.close()
         self.last_session = recorder.directory
         return recorder.directory
+
+    def _attach(self, recorder: SessionRecorder | None) -> None:
+        """Every feed hands its reads to ``recorder`` (None: to nobody)."""
+        for source in self.sources:
+            for feed in source.feeds:
+                feed.recorder = recorder
 
     async def action_quit(self) -> None:
         self.shutdown()

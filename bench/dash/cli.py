@@ -54,10 +54,6 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _is_session(url: str) -> bool:
-    return os.path.isdir(url)
-
-
 #: Where a device that is not there yet may appear (plugged in later): the dashboard waits
 #: for a missing path only below it; any other missing path is refused (a typo, or a
 #: session directory that does not exist).
@@ -78,7 +74,7 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
 
     probe_creatable_dir(Path(args.record_dir), "dash: --record-dir")  # a recording must not fail in the TUI
     sources = list(args.source) or [(DEFAULT_SOURCE, "rx")]
-    sessions = [url for url, _ in sources if _is_session(url)]
+    sessions = [url for url, _ in sources if os.path.isdir(url)]
     common = {"stale_after": args.stale, "record_dir": args.record_dir, "argv": list(sys.argv if argv is None else argv)}
     if sessions:
         if len(sources) > 1 or args.gps or args.attitude:
@@ -88,25 +84,19 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
             raise InputError(f"dash: {directory}: not a session directory (no {MANIFEST})")
         manifest = load_manifest(directory)
         logged = load_reads(directory, manifest.devices)  # a corrupt log: one line now, not a dead panel later
-        specs = [
-            DeviceSpec(name, dev.kind, dev.url, dev.role, dev.baudrate, dev.format)
-            for name, dev in manifest.devices.items()
-            if name in logged
-        ]
+        specs = [DeviceSpec(name, dev.kind, dev.url, dev.role, dev.baudrate, dev.format)
+                 for name, dev in manifest.devices.items() if name in logged]
         if not specs:
             raise InputError(f"dash: {directory}: no device has logged anything")
         origin = args.origin
-        if origin is None and manifest.origin is not None:
-            o = manifest.origin
+        if origin is None and (o := manifest.origin) is not None:
             origin = [o.lat, o.lon, o.alt]
         tx_poses = list(args.tx_pose)
         known = {tx for tx, _ in tx_poses}
         for tx, pose in manifest.tx_poses.items():
             if tx not in known:
-                values = [pose.lat, pose.lon, pose.alt]
-                if pose.heading is not None:
-                    values += [pose.heading, pose.roll, pose.pitch]
-                tx_poses.append((tx, values))
+                attitude = [] if pose.heading is None else [pose.heading, pose.roll, pose.pitch]
+                tx_poses.append((tx, [pose.lat, pose.lon, pose.alt, *attitude]))
         return DashConfig(specs=specs, replay=directory, replay_speed=args.speed, origin=origin,
                           tx_poses=tx_poses, scene_truth=False, **common)  # fmt: skip
     ns = argparse.Namespace(arva=sources, gps=args.gps, attitude=args.attitude, baud=args.baud)

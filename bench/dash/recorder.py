@@ -1,18 +1,17 @@
 """Recording from the dashboard: the reads the dashboard's reader already decoded, into a
 session directory written exactly as ``arva-bench log`` writes one.
 
-A :class:`SessionRecorder` is the log's :class:`~bench.logger.SessionListener` attached
-(through each :class:`~bench.dash.sources.DeviceFeed`) while recording: every read goes
-to ``<device>.raw`` and the records the ingest derived from it, with their stamps, to
-``<device>.jsonl``; gaps and reconnects become session events. Devices are never opened
-or decoded twice: a sentence cut by the start of the recording is decoded from the bytes
-before it (its raw bytes start mid-sentence; a reader re-deriving records from the raw
-log flags it). A disk error stops the recording (``error`` says why); the dashboard
+A :class:`SessionRecorder` is the log's :class:`~bench.logger.SessionListener`, attached
+(through each :class:`~bench.dash.sources.DeviceFeed`) while recording. Devices are never
+opened or decoded twice: a sentence cut by the start of the recording is decoded from the
+bytes before it (its raw bytes start mid-sentence; a reader re-deriving records from the
+raw log flags it). A disk error stops the recording (``error`` says why); the dashboard
 keeps running.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from pathlib import Path
 
@@ -32,14 +31,6 @@ class SessionRecorder(SessionListener):
         self._lock = threading.Lock()  # the reader thread writes; the UI thread closes
         self.closed = False
 
-    @property
-    def error(self) -> str | None:  # type: ignore[override]
-        return None if self._error is None else str(self._error)
-
-    @error.setter
-    def error(self, value) -> None:
-        self._error = value
-
     def on_read(self, device: Device, read: Read) -> None:
         self._pass_on(device, super().on_read, read)
 
@@ -53,13 +44,8 @@ class SessionRecorder(SessionListener):
             if self.closed:
                 return
             self._devices[device.spec.name] = device
-            try:
+            with contextlib.suppress(LinkError):
                 handler(device, item)
-            except LinkError:
-                pass
-
-    def bytes_on_disk(self) -> int:
-        return self.writer.bytes_on_disk()
 
     def close(self) -> dict:
         """Close the session (manifest summary as ``arva-bench log`` writes it)."""
@@ -71,5 +57,5 @@ class SessionRecorder(SessionListener):
                 name: {**self._count(name), "decoder": self._devices[name].stamper.stats() if name in self._devices else {}}
                 for name in dict.fromkeys(self._names + list(self.counts))
             }
-            self.writer.close(devices=summary, stopped_by="disk error" if self._error else "user")
+            self.writer.close(devices=summary, stopped_by="disk error" if self.error is not None else "user")
             return summary

@@ -61,12 +61,8 @@ def table_header(width: int) -> str:
     return (head + "d(t)")[:width].ljust(width) if width > len(head) else head[:width]
 
 
-def channel_row(
-    slot: tuple[int, int, int] | None,
-    true_m: float | None,
-    history: Sequence[int | None],
-    width: int,
-) -> str:
+def channel_row(slot: tuple[int, int, int] | None, true_m: float | None, history: Sequence[int | None],
+                width: int) -> str:
     """One slot of the latest epoch. ``slot`` None: the slot never arrived intact."""
     spark = sparkline(history, max(0, width - TABLE_FIXED))
     if slot is None:
@@ -76,19 +72,13 @@ def channel_row(
         ident, d_text, dl, zn = "-", DASH, DASH, DASH
     else:
         ident, d_text, dl, zn = str(tx), metres(d), str(delta), zone(d, delta)
-    if true_m is None or d < 0:
-        true_text, err_text = DASH, DASH
-    else:
-        true_text, err_text = f"{true_m:.2f}", f"{d / 100 - true_m:+.2f}"
+    known = true_m is not None and d >= 0
+    true_text, err_text = (f"{true_m:.2f}", f"{d / 100 - true_m:+.2f}") if known else (DASH, DASH)
     return f"{ident:>3} {d_text:>7} {dl:>4} {zn:<5} {true_text:>7} {err_text:>6}  {spark}"[:width]
 
 
-def channel_rows(
-    slots: Sequence[tuple[int, int, int] | None],
-    true_m: dict[int, float],
-    history: dict[int, Sequence[int | None]],
-    width: int,
-) -> list[str]:
+def channel_rows(slots: Sequence[tuple[int, int, int] | None], true_m: dict[int, float],
+                 history: dict[int, Sequence[int | None]], width: int) -> list[str]:
     """Header plus one row per slot (``history`` and ``true_m`` keyed by transmitter id)."""
     rows = [table_header(width)]
     for slot in slots:
@@ -108,14 +98,6 @@ def _by_angle(delta: float, chars: str) -> str:
     a = abs(delta)
     i = 0 if a < 22.5 else 1 if a < 67.5 else 3
     return chars[i if i == 0 else i + (delta <= 0)]
-
-
-def _line_char(delta: float) -> str:
-    return _by_angle(delta, "│╲╱──")
-
-
-def _head_char(delta: float) -> str:
-    return _by_angle(delta, "↑↖↗←→")
 
 
 def dial(delta: int | None, marks: Sequence[tuple[int, int]] = (), radius: int = 5, width: int = 26) -> list[str]:
@@ -159,8 +141,8 @@ def dial(delta: int | None, marks: Sequence[tuple[int, int]] = (), radius: int =
         for s in range(1, steps):
             c = cell(*at(angle, s / steps))
             if c != head and c != (cx, cy):
-                put(*c, _line_char(angle))
-        put(*at(angle), _head_char(angle))
+                put(*c, _by_angle(angle, "│╲╱──"))
+        put(*at(angle), _by_angle(angle, "↑↖↗←→"))
     put(cx, cy, "▲")
     return ["".join(r).rstrip() for r in grid]
 
@@ -265,7 +247,7 @@ def link_state(link, now: float, stale_after: float) -> str:
     """``up``, ``STALE``, ``down``, ``end`` or ``wait`` (connecting)."""
     if link.state == "ended":
         return "end"
-    if link.state in ("down",):
+    if link.state == "down":
         return "down"
     if link.stale(now, stale_after):
         return "STALE"
@@ -280,11 +262,8 @@ def link_row(link, now: float, stale_after: float) -> tuple[str, str]:
     rate_text = DASH if rate is None else (f"{rate:.1f}" if rate < 100 else compact(round(rate), 4))
     gaps = compact(c.seq_gaps, 3) if link.kind == "arva" else DASH
     state = link_state(link, now, stale_after)
-    row = (
-        f"{link_label(link.device)[:8]:<8} {state:<5} {rate_text:>4} {compact(c.checksum_errors, 3):>3} "
-        f"{gaps:>3} {age_text(link.age(now)):>5} {compact(c.dropped_bytes, 5):>5}"
-    )
-    return row, state
+    return (f"{link_label(link.device)[:8]:<8} {state:<5} {rate_text:>4} {compact(c.checksum_errors, 3):>3} "
+            f"{gaps:>3} {age_text(link.age(now)):>5} {compact(c.dropped_bytes, 5):>5}"), state
 
 
 def size_text(n: int) -> str:

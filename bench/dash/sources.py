@@ -1,22 +1,14 @@
 """Readers for the dashboard: the bench's one ingest (:mod:`bench.ingest`), with a
-:class:`DeviceFeed` listener per device that turns reads into messages.
+:class:`DeviceFeed` listener per device that turns reads into messages (docs/dashboard.md,
+"How it works").
 
-A :class:`DeviceFeed` gets each device's reads already stamped and decoded (the same
-:class:`~bench.ingest.reader.Device` decoders ``arva-bench log`` uses), keeps link
-counters, and posts messages (:mod:`bench.dash.messages`) with ``post`` -- the app's
-``post_message``, which is thread-safe; the reader thread touches nothing else of the
-UI. It also hands every read and link event to an optional recorder
-(:class:`bench.dash.recorder.SessionRecorder`, a session listener) set by the app.
-
-* :class:`LiveSource`: one :class:`~bench.ingest.reader.Notifier` (one selector loop) for
-  every live device: chunked reads, reopening a device that fails, vanishes or stays
-  silent longer than ``stale_after`` seconds (retried every 50 ms while absent).
-* :class:`ReplaySource` replays a session directory's raw reads in-process with the
-  shared :class:`~bench.ingest.pacer.ReplayPacer` (``speed`` times real time; 0 as fast
-  as possible), merged across devices by the logger's monotonic clock as ``arva-bench
-  replay`` does.
-* :class:`SceneTruth`: for an ``arvaemu://`` source, the true poses of the receiver and
-  transmitters at each epoch, from the scene itself (epoch k is at t = k / rate_hz).
+A :class:`DeviceFeed` gets each device's reads already stamped and decoded, keeps link
+counters, and posts :mod:`bench.dash.messages` with ``post`` (the app's thread-safe
+``post_message``; the reader thread touches nothing else of the UI). It also hands every
+read and link event to the app's recorder (:class:`bench.dash.recorder.SessionRecorder`)
+while one is set. :class:`LiveSource` reads every live device with one notifier,
+:class:`ReplaySource` replays a session directory with the shared replay pacer, and
+:class:`SceneTruth` gives an ``arvaemu://`` source's true poses (epoch k at t = k / rate_hz).
 """
 
 from __future__ import annotations
@@ -25,6 +17,7 @@ import threading
 import time
 import urllib.parse
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from serial import SerialException
@@ -110,16 +103,12 @@ class DeviceFeed(Listener):
         self.device = device if isinstance(device, Device) else Device(device)
         self.spec = self.device.spec
         self.post = post
-        self.decoder = self.device.decoder
         self.truth = truth
         self.recorder = None  # set and cleared by the app (an attribute write is atomic)
-        self.reads = 0
-        self.bytes = 0
         self.records = 0
         self.checksum_errors = 0
         self.errors = 0
         self.rejected_bytes = 0
-        self.last_data_mono: float | None = None
         self.state = "connecting"
         self.reason = ""
         self._last_status = -1e9
@@ -129,20 +118,13 @@ class DeviceFeed(Listener):
         self._token_mono: float | None = None
         self._held: list | None = None  # the latest record's messages not posted yet
 
-    @property
-    def reconnects(self) -> int:
-        return self.device.reconnects
-
     # -- from the reader -------------------------------------------------------------------
     def on_read(self, device: Device, read: Read) -> None:
         recorder = self.recorder
         if recorder is not None:
             recorder.on_read(device, read)
         self._handle(read.records)
-        if read.data:
-            self.reads += 1
-            self.bytes += len(read.data)
-            self.last_data_mono = read.mono
+        if read.data:  # reads, bytes and the last data's time are the device's stats
             self._dirty = True
             self.status(read.mono)
 
@@ -169,33 +151,15 @@ class DeviceFeed(Listener):
         name, role = self.spec.name, self.spec.role
         for stamped in records:
             rec, mono = stamped.record, stamped.mono
-            if "suppressed" in rec:  # error records summed by the ingest (bench.ingest.stamp)
-                kinds = rec["kinds"]
-                if self.spec.kind == "arva":
-                    self.errors += rec["suppressed"]
-                    self.checksum_errors += kinds.get("BAD_CHECKSUM", 0)
-                    self.rejected_bytes += rec.get("length", 0)
-                else:
-                    self.checksum_errors += kinds.get("bad_checksum", 0)
-                    self.errors += sum(v for k, v in kinds.items() if k != "junk_bytes")
-                continue
-            err = rec.get("error")
-            if err is not None:
-                if isinstance(err, dict):  # ground truth: counter increments
-                    self.checksum_errors += err.get("bad_checksum", 0)
-                    self.errors += sum(v for k, v in err.items() if k != "junk_bytes")
-                else:
-                    self.errors += 1
-                    self.checksum_errors += err == "BAD_CHECKSUM"
-                    self.rejected_bytes += rec.get("length", 0)
+            if "suppressed" in rec or "error" in rec:
+                self._count_errors(rec)
                 continue
             self.records += 1
             counts = self._counts
             if "seq" in rec:
                 counts["epoch"] += 1
                 k = self.truth.on_epoch(rec["seq"]) if self.truth is not None else 0
-                slots = [None if s is None else tuple(s) for s in rec["slots"]]
-                epoch = EpochReceived(name, role, rec["seq"], slots, mono, rec["complete"], rec.get("gap", 0),
+                epoch = EpochReceived(name, role, rec["seq"], rec["slots"], mono, rec["complete"], rec.get("gap", 0),
                                       count=counts["epoch"])  # fmt: skip
                 truth = self.truth
 
@@ -213,6 +177,19 @@ class DeviceFeed(Listener):
                 msg = AttitudeReceived(name, role, rec["heading"], rec["roll"], rec["pitch"], rec["q"], mono,
                                        count=counts["attitude"])  # fmt: skip
                 self._offer(lambda msg=msg: [msg], mono)
+
+    def _count_errors(self, rec: dict) -> None:
+        """An error record, or a sum of them (``suppressed``: see :mod:`bench.ingest.stamp`).
+        A receiver's error is a kind name, ground truth's a dict of counter increments."""
+        kinds = rec["kinds"] if "suppressed" in rec else rec["error"]
+        if self.spec.kind == "arva":
+            kinds = {kinds: 1} if isinstance(kinds, str) else kinds
+            self.errors += rec.get("suppressed", 1)
+            self.checksum_errors += kinds.get("BAD_CHECKSUM", 0)
+            self.rejected_bytes += rec.get("length", 0)
+        else:
+            self.checksum_errors += kinds.get("bad_checksum", 0)
+            self.errors += sum(v for k, v in kinds.items() if k != "junk_bytes")
 
     def _offer(self, make, mono: float) -> None:
         """Post one record's messages (``make()``), unless the token bucket is empty:
@@ -236,17 +213,17 @@ class DeviceFeed(Listener):
 
     # -- link state ----------------------------------------------------------------------
     def counters(self) -> LinkCounters:
-        dec = self.decoder
+        dec = self.device.decoder
         if isinstance(dec, ArvaRecords):
-            st = dec.decoder.stats
-            seq_gaps, dropped = st.seq_gaps, st.garbage_bytes + self.rejected_bytes
+            seq_gaps, dropped = dec.decoder.stats.seq_gaps, dec.decoder.stats.garbage_bytes + self.rejected_bytes
         else:
             assert isinstance(dec, GroundTruthRecords)
             seq_gaps, dropped = 0, dec.reader.stats["junk_bytes"]
+        st = self.device.stats
         return LinkCounters(
-            reads=self.reads, bytes=self.bytes, records=self.records, checksum_errors=self.checksum_errors,
-            errors=self.errors, seq_gaps=seq_gaps, dropped_bytes=dropped, reconnects=self.reconnects,
-            last_data_mono=self.last_data_mono,
+            reads=st.reads, bytes=st.bytes, records=self.records, checksum_errors=self.checksum_errors,
+            errors=self.errors, seq_gaps=seq_gaps, dropped_bytes=dropped, reconnects=self.device.reconnects,
+            last_data_mono=st.last_data_mono,
         )  # fmt: skip
 
     def status(self, mono: float | None = None, force: bool = False) -> None:
@@ -264,29 +241,14 @@ class DeviceFeed(Listener):
         self.status(force=True)
 
 
-
-class LiveSource:
+class LiveSource(Notifier):
     """Every live device of the dashboard read by one :class:`~bench.ingest.reader.Notifier`
     (one selector loop), each with its :class:`DeviceFeed` as listener; a device silent for
     ``stale_after`` seconds is closed and reopened."""
 
     def __init__(self, feeds: list[DeviceFeed], stale_after: float = 3.0) -> None:
-        self._feeds = list(feeds)
-        self.notifier = Notifier([f.device for f in self._feeds], self._feeds, stale_after=stale_after, name="dash")
-        self.thread = self.notifier.thread
-
-    @property
-    def feeds(self) -> list[DeviceFeed]:
-        return list(self._feeds)
-
-    def start(self) -> None:
-        self.notifier.start()
-
-    def request_stop(self) -> None:
-        self.notifier.request_stop()
-
-    def join(self, timeout: float) -> None:
-        self.notifier.join(timeout)
+        self.feeds = list(feeds)
+        super().__init__([f.device for f in self.feeds], self.feeds, stale_after=stale_after, name="dash")
 
 
 class ReplaySource:
@@ -295,14 +257,11 @@ class ReplaySource:
 
     def __init__(self, directory: str | Path, feeds: list[DeviceFeed], speed: float = 1.0) -> None:
         self.directory = Path(directory)
-        self._feeds = {f.spec.name: f for f in feeds}
+        self.feeds = list(feeds)
+        self._by_name = {f.spec.name: f for f in self.feeds}
         self.speed = speed
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name="dash-replay", daemon=True)
-
-    @property
-    def feeds(self) -> list[DeviceFeed]:
-        return list(self._feeds.values())
 
     def start(self) -> None:
         self.thread.start()
@@ -316,26 +275,26 @@ class ReplaySource:
 
     def _tick(self) -> None:
         mono, utc = time.monotonic(), time.time()
-        for feed in self._feeds.values():
+        for feed in self.feeds:
             read = feed.device.idle(mono, utc)
             if read.records:
                 feed.on_read(feed.device, read)
             feed.on_tick(mono)
 
     def _deliver(self, name: str, raw: RawRead) -> None:
-        feed = self._feeds[name]
+        feed = self._by_name[name]
         feed.on_read(feed.device, feed.device.ingest(raw.data, time.monotonic(), time.time()))
 
     def _run(self) -> None:
         reads: dict[str, RawLog] = {}
         try:
-            logs = session_logs(self.directory, self._feeds)
+            logs = session_logs(self.directory, self._by_name)
         except InputError as exc:
             logs = {}
-            for feed in self._feeds.values():
+            for feed in self.feeds:
                 feed.set_state("down", str(exc))
         for name, log in logs.items():
-            feed = self._feeds[name]
+            feed = self._by_name[name]
             try:
                 reads[name] = log.scan()  # checked whole first; replayed as a stream
             except InputError as exc:
@@ -344,8 +303,28 @@ class ReplaySource:
                 feed.set_state("up")
         ReplayPacer(reads, self.speed, self._stop, tick=self._tick, tick_interval=READ_TIMEOUT).run(self._deliver)
         mono, utc = time.monotonic(), time.time()
-        for feed in self._feeds.values():
+        for feed in self.feeds:
             feed.on_read(feed.device, feed.device.stop(mono, utc))
             feed.stop()
             if not self._stop.is_set():
                 feed.set_state("ended", "end of the session")
+
+
+def start_sources(config, post: Post) -> list:
+    """Start the reader threads of ``config`` (a :class:`~bench.dash.app.DashConfig`) and
+    return them: one :class:`ReplaySource` for a session directory, else one
+    :class:`LiveSource` for every live device (with scene truth for an ``arvaemu://``
+    receiver when asked)."""
+    if config.replay is not None:
+        # The links show where the bytes come from now: the session's raw logs.
+        feeds = [DeviceFeed(replace(s, url=str(config.replay / f"{s.name}.raw")), post) for s in config.specs]
+        sources = [ReplaySource(config.replay, feeds, config.replay_speed)]
+    else:
+        feeds = []
+        for spec in config.specs:
+            truth = SceneTruth.for_url(spec.url, spec.role) if config.scene_truth and spec.kind == "arva" else None
+            feeds.append(DeviceFeed(spec, post, truth))
+        sources = [LiveSource(feeds, config.stale_after)]  # one ingest loop reads them all
+    for source in sources:
+        source.start()
+    return sources

@@ -46,12 +46,9 @@ class ReceiverState:
         self.epochs += 1
         self.history.append({s[0]: s[1] for s in slots if s is not None and s[0] >= 0 and s[1] >= 0})
 
-    def series(self, tx: int) -> list[int | None]:
-        """d (cm) of transmitter ``tx`` in each kept epoch, None where it was not received."""
-        return [h.get(tx) for h in self.history]
-
     def histories(self) -> dict[int, list[int | None]]:
-        return {s[0]: self.series(s[0]) for s in self.slots if s is not None and s[0] >= 0}
+        """d (cm) of each slot's transmitter in each kept epoch, None where it was not received."""
+        return {s[0]: [h.get(s[0]) for h in self.history] for s in self.slots if s is not None and s[0] >= 0}
 
 
 @dataclass
@@ -134,19 +131,11 @@ class TruthState:
 
     # -- outputs ---------------------------------------------------------------------
     def distance(self, rx_role: str, tx: int) -> float | None:
-        rx = self.poses.get(rx_role)
-        txp = self.poses.get(f"tx{tx}")
-        if rx is None or txp is None or rx.position is None or txp.position is None:
-            return None
-        return math.dist(rx.position, txp.position)
+        rx, txp = self.poses.get(rx_role, Pose()), self.poses.get(f"tx{tx}", Pose())
+        return None if rx.position is None or txp.position is None else math.dist(rx.position, txp.position)
 
     def distances(self, rx_role: str, ids) -> dict[int, float]:
-        out = {}
-        for tx in ids:
-            d = self.distance(rx_role, tx)
-            if d is not None:
-                out[tx] = d
-        return out
+        return {tx: d for tx in ids if (d := self.distance(rx_role, tx)) is not None}
 
     def roles(self) -> list[str]:
         return sorted(self.poses, key=role_key)

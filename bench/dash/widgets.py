@@ -116,14 +116,10 @@ class ReceiverPanel(Horizontal):
         yield ChannelTable(classes="channels")
         yield DirectionIndicator(classes="direction")
 
-    def show(self, seq: int | None, complete: bool, gap: int, epochs: int, slots: int = 0) -> None:
-        title = f"{self.device} ({self.role})"
-        if seq is not None:
-            title += f"  seq {seq}"
-        self.border_title = title
-        notes = []
-        if not complete:
-            notes.append("incomplete epoch")
+    def show(self, seq: int | None, complete: bool, gap: int) -> None:
+        """The title with the latest epoch's seq; below, an incomplete epoch or missing seqs."""
+        self.border_title = f"{self.device} ({self.role})" + ("" if seq is None else f"  seq {seq}")
+        notes = [] if complete else ["incomplete epoch"]
         if gap:
             notes.append(f"{gap} seq missing")
         self.border_subtitle = ", ".join(notes)
@@ -134,6 +130,7 @@ class GroundTruthPanel(_TextWidget):
     quality, surveyed, scene), and attitude (heading, roll, pitch in degrees)."""
 
     DEFAULT_WIDTH = 36
+    BORDER_TITLE = "ground truth"
     view: reactive[TruthView] = reactive(TruthView, always_update=True)
 
     def lines(self, width: int) -> list[str]:
@@ -146,6 +143,7 @@ class LinkPanel(_TextWidget):
     bytes read and how often it was reopened."""
 
     DEFAULT_WIDTH = 40
+    BORDER_TITLE = "links"
     COMPONENT_CLASSES: ClassVar[set[str]] = {"link--up", "link--STALE", "link--down", "link--end", "link--wait", "link--header"}
 
     view: reactive[LinksView] = reactive(LinksView, always_update=True)

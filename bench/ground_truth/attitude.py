@@ -77,14 +77,11 @@ class AttitudeReader(SentenceReader):
         fields = line.split(b",", 4)
         return sentence_type(line) == b"PASHR" and len(fields) >= 4 and fields[3] == b"T"
 
-    def decode(self, msg: NMEAMessage, line: bytes) -> Attitude:
-        return self._pashr(msg)
-
     def count(self, att: Attitude) -> None:
         self.stats["pashr"] += 1
         self.stats["attitudes"] += 1
 
-    def _pashr(self, msg: NMEAMessage) -> Attitude:
+    def decode(self, msg: NMEAMessage, line: bytes) -> Attitude:
         # We read the raw fields: pynmeagps types them (DE/IN) but we want a strict
         # number syntax and None for empty fields. Its parse verified the checksum.
         p = list(msg.payload) + [""] * max(0, 11 - len(msg.payload))
@@ -97,18 +94,8 @@ class AttitudeReader(SentenceReader):
         assert heading is not None and roll is not None and pitch is not None
         if not (0.0 <= heading <= 360.0 and -180.0 <= roll <= 180.0 and -90.0 <= pitch <= 90.0):
             raise FieldError("angle out of range")
-        q = hpr_to_quaternion(heading, roll, pitch)
-        return Attitude(
-            time_of_day=tod,
-            utc=None if tod is None else self.tracker.resolve(tod),
-            heading=heading,
-            roll=roll,
-            pitch=pitch,
-            quaternion=(float(q[0]), float(q[1]), float(q[2]), float(q[3])),
-            heave=_number(p[5], required=False),
-            roll_accuracy=_number(p[6], required=False),
-            pitch_accuracy=_number(p[7], required=False),
-            heading_accuracy=_number(p[8], required=False),
-            gps_quality=_flag(p[9]),
-            ins_status=_flag(p[10]),
-        )
+        q = tuple(float(c) for c in hpr_to_quaternion(heading, roll, pitch))
+        utc = None if tod is None else self.tracker.resolve(tod)
+        heave, roll_accuracy, pitch_accuracy, heading_accuracy = (_number(f, required=False) for f in p[5:9])
+        return Attitude(tod, utc, heading, roll, pitch, q, heave, roll_accuracy, pitch_accuracy, heading_accuracy,
+                        gps_quality=_flag(p[9]), ins_status=_flag(p[10]))

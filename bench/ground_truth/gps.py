@@ -1,38 +1,28 @@
 """Streaming GPS reader: NMEA 0183 GGA, RMC and GLL from any talker -> :class:`GpsFix` records.
 
 ``GpsReader().feed(chunk)`` accepts any bytes in any chunking and returns one
-:class:`GpsFix` per checksum-verified GGA, RMC or GLL sentence (GP GPS, GN multi-GNSS,
-GL GLONASS, GA Galileo, BD/GB BeiDou, GQ QZSS, ...), with or without a position: a
-receiver without a fix still reports that it is alive. Records are not merged across
-sentences; a GGA and an RMC of the same epoch are two records with the same ``utc``.
-GLL (position and time, no date, no altitude) matters for older receivers: some Garmins
-send an extra GLL fix between their GGA/RMC pairs; it is dated like GGA.
+:class:`GpsFix` per checksum-verified GGA, RMC or GLL sentence (GP, GN, GL, GA, BD/GB,
+GQ, ... talkers), with or without a position: a receiver without a fix still reports that
+it is alive. Records are not merged across sentences (a GGA and an RMC of one epoch are
+two records with the same ``utc``). Degrees (north / east positive, as pynmeagps parses
+them, rounded to 1e-10), metres, knots:
 
-* Position: latitude / longitude in degrees (north / east positive), as sent, parsed by
-  pynmeagps (rounded to 1e-10 deg).
-* Altitude: GGA's altitude is above mean sea level (``alt_msl``) and its geoid separation
-  N (``geoid_sep``) is the height of the geoid above the WGS-84 ellipsoid; when both are
-  sent, ``alt_hae = alt_msl + geoid_sep`` (the height :mod:`emulator.frames.geodesy` uses).
-  Receivers that leave N empty (some report the ellipsoid height in the MSL field then)
-  give ``alt_hae = None``: we have no geoid model to guess with.
-* Time: ``time_of_day`` (UTC, from the sentence) and ``utc`` (aware datetime), dated by a
-  :class:`~bench.ground_truth.utc.DayTracker`: RMC's own date, GGA's by the last date
-  seen, across midnight (see that module). ``ZDA`` sentences (time and date, no position)
-  are read only to set that date -- some receivers send GGA + ZDA and no RMC -- and yield
-  no record. ``utc`` is None until a date is known.
-* Validity: ``valid`` is GGA quality > 0, or RMC/GLL status ``A`` with an FAA mode other
-  than ``N``; dead-reckoning fixes (quality 6, mode ``E``) count as valid, their ``quality`` /
-  ``mode`` says what they are.
+* ``alt_hae = alt_msl + geoid_sep`` (GGA's height above the WGS-84 ellipsoid, the one
+  :mod:`emulator.frames.geodesy` uses) when both are sent, else None: no geoid model.
+* ``utc`` (aware) is dated by a :class:`~bench.ground_truth.utc.DayTracker`: RMC's own
+  date, GGA's and GLL's by the last date seen; ``ZDA`` (time and date, no position: some
+  receivers send GGA + ZDA and no RMC) only sets that date. None until a date is known.
+* ``valid``: GGA quality > 0, or RMC/GLL status ``A`` with an FAA mode other than ``N``
+  (dead reckoning counts; ``quality`` / ``mode`` says what it is).
 
-Everything else -- other sentences, binary data, bad checksums, malformed fields -- is
-skipped and counted in ``stats`` (keys in :mod:`.lines` and :mod:`.nmea`, plus
-``ignored`` for lines of other sentence types (not checksum-verified), ``gga``, ``rmc``, ``gll``, ``no_position``,
-``zda``, ``fixes`` and ``leap_second`` for a 23:59:60 time, which a datetime cannot hold).
-Sentences with a non-empty field that does not parse (time, date, a latitude beyond 90,
-minutes >= 60, a hemisphere other than N/S/E/W) are ``malformed`` and yield no record --
-except that an invalid position in a sentence that itself says "no fix" (GGA quality 0,
-RMC/GLL status V or mode N) is a receiver's placeholder (``8960.000000,N``, ``36000.0000,N``):
-that record is kept without a position and counted as ``placeholder_position``.
+Everything else is skipped and counted in ``stats``: the keys of :mod:`.lines` and
+:mod:`.nmea`, ``ignored`` (other sentence types), ``gga``, ``rmc``, ``gll``, ``zda``,
+``fixes``, ``no_position`` and ``leap_second`` (23:59:60, which a datetime cannot hold).
+A non-empty field that does not parse (time, date, latitude beyond 90, minutes >= 60, a
+hemisphere other than N/S/E/W) makes the sentence ``malformed``, except an invalid
+position in a sentence that itself says "no fix" (GGA quality 0, RMC/GLL status V or mode
+N): a receiver's placeholder (``8960.000000,N``), kept without a position and counted as
+``placeholder_position``.
 """
 
 from __future__ import annotations
@@ -104,20 +94,14 @@ def _lat_lon(msg: NMEAMessage, i: int) -> tuple[float | None, float | None]:
     return lat, lon
 
 
-def _float(msg: NMEAMessage, name: str, index: int) -> float | None:
+def _number(msg: NMEAMessage, name: str, index: int, kind: type = float) -> float | int | None:
+    """Field ``index`` (named ``name`` by pynmeagps) as a ``kind``: digits only for an int,
+    a plain decimal number for a float (float() would take "nan", "inf", "1e5")."""
     raw = _raw(msg, index)
-    if raw and not PLAIN_NUMBER.match(raw):
-        raise FieldError(name)  # float() would take "nan", "inf", "1e5"
-    value = typed_value(msg, name, raw)
-    return None if value is None else float(value)  # type: ignore[arg-type]
-
-
-def _int(msg: NMEAMessage, name: str, index: int) -> int | None:
-    raw = _raw(msg, index)
-    if raw and not raw.isdigit():
+    if raw and not (raw.isdigit() if kind is int else PLAIN_NUMBER.match(raw)):
         raise FieldError(name)
     value = typed_value(msg, name, raw)
-    return None if value is None else int(value)  # type: ignore[call-overload]
+    return None if value is None else kind(value)
 
 
 class GpsReader(SentenceReader):
@@ -146,25 +130,14 @@ class GpsReader(SentenceReader):
     def _gga(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0 time, 1-4 lat N lon E, 5 quality, 6 sats, 7 hdop, 8 alt, 9 M, 10 sep, 11 M
         tod = time_of_day(msg, "time", _raw(msg, 0), self.stats)
-        quality = _int(msg, "quality", 5)
+        quality = _number(msg, "quality", 5, int)
         lat, lon = self._position(msg, 1, fix_claimed=bool(quality))
-        alt_msl = _float(msg, "alt", 8)
-        sep = _float(msg, "sep", 10)
+        alt_msl = _number(msg, "alt", 8)
+        sep = _number(msg, "sep", 10)
         utc = None if tod is None else self.tracker.resolve(tod)
-        return GpsFix(
-            sentence="GGA",
-            talker=talker_of(line),
-            time_of_day=tod,
-            utc=utc,
-            lat=lat,
-            lon=lon,
-            alt_msl=alt_msl,
-            geoid_sep=sep,
-            alt_hae=None if alt_msl is None or sep is None else alt_msl + sep,
-            quality=quality,
-            sats=_int(msg, "numSV", 6),
-            hdop=_float(msg, "HDOP", 7),
-        )
+        return GpsFix("GGA", talker_of(line), tod, utc, lat, lon, alt_msl=alt_msl, geoid_sep=sep,
+                      alt_hae=None if alt_msl is None or sep is None else alt_msl + sep,
+                      quality=quality, sats=_number(msg, "numSV", 6, int), hdop=_number(msg, "HDOP", 7))
 
     def _rmc(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0 time, 1 status, 2-5 lat N lon E, 6 speed, 7 course, 8 date, 9-10 magvar, 11 mode
@@ -185,18 +158,8 @@ class GpsReader(SentenceReader):
             utc = self.tracker.anchor(day, tod)
         else:
             utc = self.tracker.resolve(tod)
-        return GpsFix(
-            sentence="RMC",
-            talker=talker_of(line),
-            time_of_day=tod,
-            utc=utc,
-            lat=lat,
-            lon=lon,
-            status=status,
-            mode=mode,
-            speed_knots=_float(msg, "spd", 6),
-            course=_float(msg, "cog", 7),
-        )
+        return GpsFix("RMC", talker_of(line), tod, utc, lat, lon, status=status, mode=mode,
+                      speed_knots=_number(msg, "spd", 6), course=_number(msg, "cog", 7))
 
     def _gll(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0-3 lat N lon E, 4 time, 5 status, 6 mode (NMEA >= 2.3; older: absent)
@@ -206,16 +169,8 @@ class GpsReader(SentenceReader):
         status = _raw(msg, 5) or None
         mode = _raw(msg, 6) or None
         lat, lon = self._position(msg, 0, fix_claimed=status == "A" and mode != "N")
-        return GpsFix(
-            sentence="GLL",
-            talker=talker_of(line),
-            time_of_day=tod,
-            utc=None if tod is None else self.tracker.resolve(tod),
-            lat=lat,
-            lon=lon,
-            status=status,
-            mode=mode,
-        )
+        utc = None if tod is None else self.tracker.resolve(tod)
+        return GpsFix("GLL", talker_of(line), tod, utc, lat, lon, status=status, mode=mode)
 
     def _position(self, msg: NMEAMessage, index: int, fix_claimed: bool) -> tuple[float | None, float | None]:
         """Validated position; an invalid one is dropped (not the sentence) when the

@@ -25,6 +25,7 @@ from collections import Counter
 from pynmeagps import NMEAMessage
 
 from .nmea import FieldError, parse_checked
+from .utc import DayTracker
 
 DEFAULT_MAX_LINE = 256
 
@@ -117,8 +118,6 @@ class SentenceReader:
     """
 
     def __init__(self, *, tracker=None, max_line: int = DEFAULT_MAX_LINE, stats: Counter[str] | None = None) -> None:
-        from .utc import DayTracker  # here, not at the top: utc has no need of lines
-
         self.stats: Counter[str] = Counter() if stats is None else stats
         self.tracker = DayTracker() if tracker is None else tracker
         self._lines = LineSplitter(max_line, self.stats)

@@ -108,12 +108,5 @@ class MavlinkAttitudeReader:
             st["malformed"] += 1
             return None
         st["attitudes"] += 1
-        return Attitude(
-            time_of_day=None,
-            utc=None,
-            heading=heading,
-            roll=roll,
-            pitch=pitch,
-            quaternion=tuple(float(c) + 0.0 for c in q),  # + 0.0: no -0.0 in the logs
-            time_boot_ms=int(msg.time_boot_ms),
-        )
+        q = tuple(float(c) + 0.0 for c in q)  # + 0.0: no -0.0 in the logs
+        return Attitude(None, None, heading, roll, pitch, q, time_boot_ms=int(msg.time_boot_ms))

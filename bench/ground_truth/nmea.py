@@ -64,11 +64,9 @@ def parse_checked(line: bytes, stats: Counter[str]) -> NMEAMessage | None:
         stats["bad_checksum"] += 1  # the only NMEAParseError parse() raises with VALCKSUM alone
         return None
     except Exception:  # noqa: BLE001 -- see the module docstring
-        stats["malformed"] += 1
-        return None
+        msg = None
     if msg is None:
         stats["malformed"] += 1
-        return None
     return msg
 
 

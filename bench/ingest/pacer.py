@@ -10,13 +10,13 @@ as fast as possible).
 from __future__ import annotations
 
 import heapq
+import itertools
 import threading
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from emulator.cli_types import speed_value
-from firmware_proto.errors import InputError
 
 from ..session import RawLog, RawRead, session_logs
 
@@ -47,22 +47,15 @@ class ReplayPacer:
     def run(self, deliver: Callable[[str, RawRead], None]) -> bool:
         """Deliver every read (``deliver(name, read)``); False if stopped before the end.
         Each device's reads are taken one at a time from its iterable."""
-        streams = {name: iter(r) for name, r in self.reads.items()}
-        queue = []
-        for i, (name, it) in enumerate(streams.items()):
-            first = next(it, None)
-            if first is not None:
-                queue.append((first.mono, i, name, first))
-        heapq.heapify(queue)
-        t0 = queue[0][0] if queue else 0.0
-        start = time.monotonic()
-        stop = self.stop
-        while queue:
+        stop, start, t0 = self.stop, time.monotonic(), None
+        streams = (zip(itertools.repeat(name), reads) for name, reads in self.reads.items())
+        # One pending read per device in a heap; of equal stamps, the device listed first goes first.
+        for name, read in heapq.merge(*streams, key=lambda item: item[1].mono):
             if stop.is_set():
                 return False
-            mono, i, name, read = heapq.heappop(queue)
+            t0 = read.mono if t0 is None else t0
             if self.speed > 0:
-                due = start + (mono - t0) / self.speed
+                due = start + (read.mono - t0) / self.speed
                 delay = due - time.monotonic()
                 while delay > 0:
                     if stop.wait(delay if self.tick is None else min(delay, self.tick_interval)):
@@ -72,7 +65,4 @@ class ReplayPacer:
                     delay = due - time.monotonic()
             deliver(name, read)
             self.sent += 1
-            following = next(streams[name], None)
-            if following is not None:
-                heapq.heappush(queue, (following.mono, i, name, following))
         return not stop.is_set()

@@ -2,36 +2,27 @@
 
 Modelled on python-can's ``Notifier``/``Listener``: a :class:`Notifier` reads a set of
 :class:`Device` objects and hands every read, decoded, to each :class:`Listener` (the
-session writer of ``arva-bench log``, the dashboard's feeds, the live status line).
+session writer of ``arva-bench log``, the dashboard's feeds). The **I/O thread** reads
+every device with a descriptor in one selector and a port without one gets a small
+thread, as docs/bench.md ("How devices are read") describes; the I/O thread does nothing
+but read and stamp, so no device's decoding or disk writing delays another's stamp (with
+``switch_interval`` the GIL comes back to it within that time). Besides:
 
-How devices are read (three threads, plus one per port without a descriptor):
-
-* The **I/O thread** waits on every device with a file descriptor (serial ports, ptys,
-  ``socket://``) in one selector. When ``select`` returns, every ready descriptor is read
-  (``os.read``, up to :data:`READ_CHUNK` bytes, whatever is there), all stamped with the
-  same clock reading, and handed on. It does nothing else, so no device's decoding or
-  disk writing delays another device's stamp (with ``switch_interval`` the GIL comes back
-  to it within that time).
-* A port without a descriptor (pyserial's ``loop://``, ``arvaemu://``, ``usb://``,
-  ``cp2110://``) gets a small thread that blocks in ``read`` for the first byte, takes
-  whatever else is waiting (chunks, not bytes) and stamps the read.
-* The **work thread** decodes each read (the stamp rule of :mod:`bench.ingest.stamp`) and
-  notifies the listeners, one read at a time and each device's reads in order; it also
-  releases a quiet link's pending records and reopens stale devices every :data:`TICK`.
-* The **opener** opens devices (opening can block). A device that is absent is retried
-  every :data:`RETRY_INTERVAL` s (no growing backoff); a device that vanishes is reopened
-  at once, and the reopen keeps what the OS buffered meanwhile
-  (``open_device(keep_input=True)``), so a reconnect loses at most about
-  :data:`RETRY_INTERVAL` beyond the outage itself.
+* the **work thread** decodes each read (:mod:`bench.ingest.stamp`) and notifies the
+  listeners, each device's reads in order; every :data:`TICK` it releases a quiet link's
+  pending records and closes stale devices;
+* the **opener** opens devices (opening can block): an absent one every
+  :data:`RETRY_INTERVAL` s, a vanished one at once, keeping what the OS buffered meanwhile
+  (``open_device(keep_input=True)``).
 
 A listener raising :class:`~firmware_proto.errors.LinkError` (a full disk) is reported
-through ``on_error`` and removed; the others keep receiving.
-
-Times: ``mono`` is this process's ``time.monotonic()`` (s), ``utc`` POSIX seconds.
+through ``on_error`` and removed; the others keep receiving. Times: ``mono`` is this
+process's ``time.monotonic()`` (s), ``utc`` POSIX seconds.
 """
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import logging
 import os
@@ -190,10 +181,8 @@ class _Port:
 
     def close(self) -> None:
         self.closed = True
-        try:
+        with contextlib.suppress(serial.SerialException, OSError):
             self.port.close()
-        except (serial.SerialException, OSError):
-            pass
 
 
 class Notifier:
@@ -229,13 +218,6 @@ class Notifier:
         self._ever_open: set[Device] = set()
         self._unavailable: dict[Device, str] = {}
 
-    # -- listeners (safe from any thread) -------------------------------------------------
-    def add_listener(self, listener: Listener) -> None:
-        self._listeners = self._listeners + (listener,)
-
-    def remove_listener(self, listener: Listener) -> None:
-        self._listeners = tuple(li for li in self._listeners if li is not listener)
-
     # -- lifetime --------------------------------------------------------------------------
     def start(self) -> None:
         if self.switch_interval is not None:
@@ -268,10 +250,8 @@ class Notifier:
             self._wake_r = self._wake_w = -1  # closed only once nobody can write to it
 
     def _wake(self) -> None:
-        try:
+        with contextlib.suppress(OSError):  # already awake (pipe full)
             os.write(self._wake_w, b"x")
-        except OSError:
-            pass  # already awake (pipe full)
 
     # -- the I/O thread: wait, read, stamp; nothing else ------------------------------------
     def _io_loop(self) -> None:
@@ -304,19 +284,19 @@ class Notifier:
                         continue
                     work.put(("read", p, data, mono, utc))
                 for item in _drained(self._io_inbox):
-                    if item[0] == "open":
-                        p = item[1]
-                        ports[:] = [q for q in ports if not q.closed]  # ports read by threads close themselves
-                        ports.append(p)
-                        work.put(("up", p))  # before any of its reads
-                        if p.fd is not None:
-                            sel.register(p.fd, selectors.EVENT_READ, p)
-                        else:
-                            p.thread = threading.Thread(target=self._thread_read, args=(p,),
-                                                        name=f"read-{p.device.spec.name}", daemon=True)  # fmt: skip
-                            p.thread.start()
-                    elif item[0] == "close" and item[1] in ports:
-                        self._io_close(sel, ports, item[1], item[2])
+                    match item:
+                        case ("open", p):
+                            ports[:] = [q for q in ports if not q.closed]  # ports read by threads close themselves
+                            ports.append(p)
+                            work.put(("up", p))  # before any of its reads
+                            if p.fd is not None:
+                                sel.register(p.fd, selectors.EVENT_READ, p)
+                            else:
+                                p.thread = threading.Thread(target=self._thread_read, args=(p,),
+                                                            name=f"read-{p.device.spec.name}", daemon=True)  # fmt: skip
+                                p.thread.start()
+                        case ("close", p, reason) if p in ports:
+                            self._io_close(sel, ports, p, reason)
         finally:
             for p in ports:
                 p.close()
@@ -335,10 +315,8 @@ class Notifier:
 
     def _io_close(self, sel, ports: list[_Port], p: _Port, reason: str) -> None:
         if p.fd is not None:
-            try:
+            with contextlib.suppress(KeyError, ValueError):
                 sel.unregister(p.fd)
-            except (KeyError, ValueError):
-                pass
         p.close()
         if p in ports:
             ports.remove(p)
@@ -380,7 +358,7 @@ class Notifier:
             return Read(mono, utc, data, [])
 
     def _dropped(self, listener: Listener, exc: Exception) -> None:
-        self.remove_listener(listener)
+        self._listeners = tuple(li for li in self._listeners if li is not listener)
         if self.on_error is not None:
             self.on_error(exc)
 
@@ -397,21 +375,17 @@ class Notifier:
                     item = work.get(timeout=max(0.0, next_tick - time.monotonic()))
                 except queue.Empty:
                     item = None
-                if item is not None:
-                    kind = item[0]
-                    if kind == "read":
-                        _, p, data, mono, utc = item
+                match item:
+                    case ("read", p, data, mono, utc):
                         p.quiet_since = mono
                         self._notify("on_read", p.device, self._ingest(p, data, mono, utc))
-                    elif kind == "up":
-                        self._up(item[1])
-                    elif kind == "lost":
-                        self._lost(item[1], item[2])
-                    elif kind == "unavailable":
-                        _, dev, reason = item
-                        if dev not in self._ever_open:  # after a gap, the gap already says so
-                            self._link(dev, "unavailable", reason)
-                    elif kind == "end":
+                    case ("up", p):
+                        self._up(p)
+                    case ("lost", p, reason):
+                        self._lost(p, reason)
+                    case ("unavailable", dev, reason) if dev not in self._ever_open:  # after a gap, the gap says so
+                        self._link(dev, "unavailable", reason)
+                    case ("end",):
                         break
                 now = time.monotonic()
                 if now >= next_tick:

@@ -1,63 +1,32 @@
 """``usb://VID:PID[?serial=S&interface=N&endpoint=0x81&out=0x01&timeout_ms=T]``: a USB endpoint.
 
 A pyserial port over a raw USB device, through pyusb: reads come from a bulk or
-interrupt IN endpoint, writes go to a bulk or interrupt OUT endpoint. For receivers
-and ground-truth devices that stream bytes over USB without being a serial port
-(no ``/dev/ttyACM*``, no HID UART bridge).
-
-VID and PID are hexadecimal (as ``lsusb`` and ``arva-bench devices`` print them).
-Options:
-
-``serial``
-    pick, among devices with that VID:PID, the one with this serial number string
-    (``arva-bench devices`` shows it); without it, the first device found is opened.
-``interface``
-    bInterfaceNumber to claim (default: the first interface of the active configuration,
-    or the one holding ``endpoint`` when that is given). Alternate setting 0 is used.
-``endpoint``
-    bEndpointAddress of the IN endpoint to read (``0x81`` or ``129``; default: the first
-    bulk or interrupt IN endpoint of the interface).
-``out``
-    bEndpointAddress of the OUT endpoint to write (default: the first bulk or interrupt
-    OUT endpoint of the interface; with none, ``write`` raises ``SerialException``).
-``timeout_ms``
-    time limit of one USB transfer, in milliseconds (default 1000): a blocking read is a
-    series of transfers no longer than this (and no longer than the time left of the
-    port's ``timeout``); a write gives up after this long unless the port has a
-    ``write_timeout``.
+interrupt IN endpoint, writes go to a bulk or interrupt OUT endpoint, for devices that
+stream bytes over USB without being a serial port or a HID UART bridge. VID and PID are
+hexadecimal; the options, and which interface and endpoints are used without them, are
+in docs/transports.md ("Notes per transport"). ``timeout_ms`` (default 1000) is the time
+limit of one USB transfer; a read waits no longer than the port's ``timeout`` either.
 
 Reads follow pyserial's timeout rules: ``timeout=None`` blocks until ``size`` bytes came,
 ``timeout=0`` returns what is already there (after a 1 ms poll), ``timeout=T`` waits at
 most T seconds. Each transfer asks for exactly one packet (wMaxPacketSize bytes), so a
-transfer completes as soon as the device sends anything and a timed-out transfer never
-holds data (pyusb drops the bytes of a transfer that times out half-way); bytes beyond
-``size`` are kept for the next read. ``in_waiting`` polls the endpoint (1 ms per poll,
-until it is empty) and returns the number of buffered bytes.
-
-Baud rate, parity and modem lines mean nothing to a USB endpoint: they are accepted and
-ignored. The kernel driver bound to the interface, if any, is detached while the port is
-open and re-attached on close (where the platform supports it: Linux).
-
-Errors (bad URL, no such device, access denied, no usable endpoint) raise
-``serial.SerialException`` with one line naming the URL and the reason.
+timed-out transfer never holds data (pyusb drops the bytes of a transfer that times out
+half-way); bytes beyond ``size`` are kept for the next read. Baud rate, parity and modem
+lines are accepted and ignored. The interface's kernel driver, if any, is detached while
+the port is open (Linux). Errors raise ``serial.SerialException``: one line naming the
+URL and the reason.
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import math
 import re
 import urllib.parse
 from dataclasses import dataclass
 
-from serial.serialutil import (
-    PortNotOpenError,
-    SerialBase,
-    SerialException,
-    SerialTimeoutException,
-    Timeout,
-    to_bytes,
-)
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException, SerialTimeoutException, Timeout, to_bytes
 
 from emulator.output.virtual_line import VirtualLine
 
@@ -111,39 +80,31 @@ def parse_url(url: str) -> UsbUrl:
         pairs = urllib.parse.parse_qsl(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
     except ValueError:
         raise SerialException(f"{url}: expected {USAGE}") from None
-    opt: dict[str, str] = {}
-    for key, value in pairs:
+    opt = dict(pairs)  # the last of a repeated option
+    for key in opt:
         if key not in OPTIONS:
             raise SerialException(f"{url}: unknown option {key!r} (known: {', '.join(OPTIONS)})")
-        opt[key] = value
-    serial_number = opt.get("serial")
-    if serial_number == "":
+    if opt.get("serial") == "":
         raise SerialException(f"{url}: serial=: expected a serial number")
-    interface = _integer(url, opt, "interface", 0, 255, "an interface number 0-255")
-    endpoint = _integer(url, opt, "endpoint", 0x81, 0x8F, "an IN endpoint address 0x81-0x8f")
-    out = _integer(url, opt, "out", 0x01, 0x0F, "an OUT endpoint address 0x01-0x0f")
-    timeout_ms = _integer(url, opt, "timeout_ms", 1, 3_600_000, "a whole number of milliseconds >= 1")
     return UsbUrl(
         vid=int(match.group(1), 16),
         pid=int(match.group(2), 16),
-        serial=serial_number,
-        interface=interface,
-        endpoint=endpoint,
-        out=out,
-        timeout_ms=DEFAULT_TIMEOUT_MS if timeout_ms is None else timeout_ms,
+        serial=opt.get("serial"),
+        interface=_integer(url, opt, "interface", 0, 255, "an interface number 0-255"),
+        endpoint=_integer(url, opt, "endpoint", 0x81, 0x8F, "an IN endpoint address 0x81-0x8f"),
+        out=_integer(url, opt, "out", 0x01, 0x0F, "an OUT endpoint address 0x01-0x0f"),
+        timeout_ms=_integer(url, opt, "timeout_ms", 1, 3_600_000, "a whole number of milliseconds >= 1")
+        or DEFAULT_TIMEOUT_MS,
     )
 
 
 def _integer(url: str, opt: dict[str, str], key: str, low: int, high: int, what: str) -> int | None:
     if key not in opt:
         return None
-    try:
-        value = int(opt[key], 0)
-    except ValueError:
-        value = None
-    if value is None or not low <= value <= high:
-        raise SerialException(f"{url}: {key}={opt[key]}: expected {what}")
-    return value
+    with contextlib.suppress(ValueError):
+        if low <= (value := int(opt[key], 0)) <= high:
+            return value
+    raise SerialException(f"{url}: {key}={opt[key]}: expected {what}")
 
 
 def usb_reason(exc: BaseException) -> str:
@@ -244,9 +205,7 @@ class Serial(VirtualLine, SerialBase):
             return False
 
         try:
-            device = usb.core.find(
-                idVendor=url.vid, idProduct=url.pid, custom_match=serial_matches, backend=BACKEND
-            )
+            device = usb.core.find(idVendor=url.vid, idProduct=url.pid, custom_match=serial_matches, backend=BACKEND)
         except usb.core.NoBackendError:
             raise self._fail(NO_BACKEND) from None
         except usb.core.USBError as exc:
@@ -281,7 +240,8 @@ class Serial(VirtualLine, SerialBase):
             if not chosen:
                 raise self._fail(f"no interface {url.interface} (interfaces: {numbers})")
         elif url.endpoint is not None:
-            chosen = [intf for intf in interfaces if _find_ep(intf, url.endpoint) is not None]
+            chosen = [intf for intf in interfaces
+                      if usb.util.find_descriptor(intf, bEndpointAddress=url.endpoint) is not None]
             if not chosen:
                 raise self._fail(f"no endpoint 0x{url.endpoint:02x} on any interface")
         else:
@@ -291,33 +251,17 @@ class Serial(VirtualLine, SerialBase):
         intf = chosen[0]
         number = intf.bInterfaceNumber
 
-        streaming = (usb.util.ENDPOINT_TYPE_BULK, usb.util.ENDPOINT_TYPE_INTR)
         if url.endpoint is not None:
-            self._in_ep = _find_ep(intf, url.endpoint)
-            if self._in_ep is None:
-                raise self._fail(f"interface {number} has no endpoint 0x{url.endpoint:02x}")
+            self._in_ep = self._named_ep(usb, intf, url.endpoint)
         else:
-            self._in_ep = _first_ep(usb, intf, usb.util.ENDPOINT_IN, streaming)
+            self._in_ep = _first_ep(usb, intf, usb.util.ENDPOINT_IN)
             if self._in_ep is None:
-                others = [
-                    str(i.bInterfaceNumber)
-                    for i in interfaces
-                    if _first_ep(usb, i, usb.util.ENDPOINT_IN, streaming) is not None
-                ]
+                others = [str(i.bInterfaceNumber) for i in interfaces
+                          if _first_ep(usb, i, usb.util.ENDPOINT_IN) is not None]
                 hint = f" (interface {', '.join(others)} has one: add interface=N)" if others else ""
                 raise self._fail(f"interface {number} has no bulk or interrupt IN endpoint{hint}")
-        if usb.util.endpoint_type(self._in_ep.bmAttributes) not in streaming:
-            raise self._fail(
-                f"endpoint 0x{self._in_ep.bEndpointAddress:02x} is neither bulk nor interrupt"
-            )
-        if url.out is not None:
-            self._out_ep = _find_ep(intf, url.out)
-            if self._out_ep is None:
-                raise self._fail(f"interface {number} has no endpoint 0x{url.out:02x}")
-            if usb.util.endpoint_type(self._out_ep.bmAttributes) not in streaming:
-                raise self._fail(f"endpoint 0x{url.out:02x} is neither bulk nor interrupt")
-        else:
-            self._out_ep = _first_ep(usb, intf, usb.util.ENDPOINT_OUT, streaming)
+        out = url.out
+        self._out_ep = _first_ep(usb, intf, usb.util.ENDPOINT_OUT) if out is None else self._named_ep(usb, intf, out)
 
         try:
             active = device.is_kernel_driver_active(number)
@@ -337,6 +281,15 @@ class Serial(VirtualLine, SerialBase):
         except usb.core.USBError as exc:
             raise self._fail(f"cannot claim interface {number}: {usb_reason(exc)}") from None
 
+    def _named_ep(self, usb, intf, address: int):  # type: ignore[no-untyped-def]
+        """The endpoint ``address`` of ``intf``, which must be bulk or interrupt."""
+        endpoint = usb.util.find_descriptor(intf, bEndpointAddress=address)
+        if endpoint is None:
+            raise self._fail(f"interface {intf.bInterfaceNumber} has no endpoint 0x{address:02x}")
+        if usb.util.endpoint_type(endpoint.bmAttributes) not in _streaming(usb):
+            raise self._fail(f"endpoint 0x{address:02x} is neither bulk nor interrupt")
+        return endpoint
+
     def _release(self) -> None:
         """Give the interface back (and its kernel driver), close the device handle."""
         device, number, self._device = self._device, self._interface, None
@@ -344,15 +297,11 @@ class Serial(VirtualLine, SerialBase):
             return
         usb = self._usb
         if number is not None:
-            try:
+            with contextlib.suppress(usb.core.USBError):  # unplugged: nothing to release
                 usb.util.release_interface(device, number)
-            except usb.core.USBError:
-                pass  # unplugged: nothing to release
             if self._reattach:
-                try:
+                with contextlib.suppress(usb.core.USBError, NotImplementedError):
                     device.attach_kernel_driver(number)
-                except (usb.core.USBError, NotImplementedError):
-                    pass
         self._interface = None
         self._reattach = False
         usb.util.dispose_resources(device)
@@ -427,10 +376,8 @@ class Serial(VirtualLine, SerialBase):
             raise self._fail(f"interface {self._interface} has no OUT endpoint: the device cannot be written to")
         if not data:
             return 0
-        if self._write_timeout is None:
-            limit_ms = self._url.timeout_ms
-        else:
-            limit_ms = max(1, math.ceil(self._write_timeout * 1000))
+        timeout_s = self._write_timeout
+        limit_ms = self._url.timeout_ms if timeout_s is None else max(1, math.ceil(timeout_s * 1000))
         usb = self._usb
         try:
             return int(self._device.write(self._out_ep.bEndpointAddress, data, timeout=limit_ms))
@@ -446,18 +393,15 @@ class Serial(VirtualLine, SerialBase):
         self._buffer.clear()
 
 
-def _find_ep(interface, address: int):  # type: ignore[no-untyped-def]
-    for endpoint in interface:
-        if endpoint.bEndpointAddress == address:
-            return endpoint
-    return None
+def _streaming(usb) -> tuple[int, int]:  # type: ignore[no-untyped-def]
+    return usb.util.ENDPOINT_TYPE_BULK, usb.util.ENDPOINT_TYPE_INTR
 
 
-def _first_ep(usb, interface, direction: int, types: tuple[int, ...]):  # type: ignore[no-untyped-def]
-    for endpoint in interface:
-        if (
-            usb.util.endpoint_direction(endpoint.bEndpointAddress) == direction
-            and usb.util.endpoint_type(endpoint.bmAttributes) in types
-        ):
-            return endpoint
-    return None
+def _first_ep(usb, interface, direction: int):  # type: ignore[no-untyped-def]
+    """The first bulk or interrupt endpoint of ``interface`` in ``direction``, or None."""
+
+    def streams(e) -> bool:  # type: ignore[no-untyped-def]
+        return (usb.util.endpoint_direction(e.bEndpointAddress) == direction
+                and usb.util.endpoint_type(e.bmAttributes) in _streaming(usb))  # fmt: skip
+
+    return usb.util.find_descriptor(interface, custom_match=streams)
