@@ -278,7 +278,7 @@ def pose_error_timing(seeds: int) -> str:
 The rows of a 1 Hz walk of 28 hours whose logged receiver poses carry Gauss-Markov GPS error
 1 m / 1.5 m (tau 30 s) and 2 deg attitude error (tau 30 s), fitted with the default
 errors-in-variables model (`arva-bench fit`: kappa_eq, r_en, gps_sigma, attitude_sigma;
-sandwich standard errors). Target (issue 15): at most 10 s on 2 cores. Measured on
+sandwich standard errors). Targets: at most 10 s on 2 cores (issue 15), at most 5 s wall (issue 28). Measured on
 {machine()}; the load average says how much other jobs shared the 2 cores.
 
 {markdown_table(header, rows)}
