@@ -15,29 +15,11 @@
   pitch positive nose up, roll positive right side down; intrinsic Z-Y-X on NED/FRD).
   Its conversions are re-exported here.
 
-Every sentence is assembled by ``pynmeagps.NMEAMessage(talker, msgID, GET, payload=...)``,
-which parses each field back by its type (a self-check) and computes the checksum, and
-``.serialize()`` adds ``$``, ``*hh`` and CR LF. We format the field strings ourselves
-because pynmeagps's keyword path prints floats with ``str()`` (``0.30000000000000004``),
-truncates rather than rounds the time, and can print 60 minutes (``4460.0000000``) when a
-latitude rounds up to the next degree.
-
-Precision (what the bench reader gets back, exactly to these digits):
-
-* time: centiseconds for GGA/RMC (``hhmmss.ss``), milliseconds for PASHR (``.sss``). The
-  datetime is rounded *before* it is split into time and date, so 23:59:59.996 becomes
-  00:00:00.00 of the next day in both the time and the RMC date.
-* latitude / longitude: ``lat_lon_decimals`` decimals of arc-minutes, default 7 (0.19 mm,
-  as u-blox "high precision NMEA"). With 7, a GGA fits NMEA's 82 characters only with
-  ``short=True`` (HDOP and geoid separation without trailing zeros), as the emulator's
-  streams send it; 4-5 fit either way.
-* altitude: GGA carries height above mean sea level and the geoid separation N, with
-  HAE = MSL + N. We take the height above the ellipsoid (HAE, as in
-  :mod:`emulator.frames.geodesy`) and a separation (default 0.0: then MSL = HAE), and print both
-  to millimetres, so a reader adds them back to HAE to the millimetre.
-* speed over ground in knots (3 decimals), course over ground in degrees true
-  (2 decimals), from an ENU velocity in m/s; the course is left empty when the speed
-  is zero (it is undefined), as receivers do.
+Every sentence is assembled by ``pynmeagps.NMEAMessage(talker, msgID, GET, payload=...)``
+(a self-check of each field, and the checksum) from field strings formatted here;
+precision and why we format the fields ourselves: docs/emulator.md "Sentence format and
+precision". Latitude and longitude in degrees, altitude in metres above the WGS-84
+ellipsoid, velocities ENU in m/s, speed in knots, course in degrees true.
 
 Timestamps: an aware datetime is converted to UTC; a naive one is taken as UTC.
 Bad arguments raise :class:`~firmware_proto.errors.InputError` naming the argument.

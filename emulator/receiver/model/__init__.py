@@ -5,21 +5,13 @@ scene units. Frames (BRIEF 2): world = local ENU in metres; body x forward, y le
 the transmitter dipole points along its +x; quaternions ``[w, x, y, z]`` rotate body into
 world.
 
-Modules:
-
-* :mod:`.types`: ModelParams, Measurement, zone and range constants;
-* :mod:`.reference`: the formula of BRIEF 3 (general path: every receiver class, noise,
-  the field, moving transmitters), block by block;
-* :mod:`.fast`: the same integers for the common case (ideal 3-antenna receiver, static
-  transmitters, no field) in fewer numpy passes; it hands every pair it cannot decide
-  safely to the reference formula;
-* :mod:`.channels`: channel selection (Epochs);
-* here: :func:`measure` (input checks, blocks, threads, which path) and
-  :func:`measure_one`.
-
-``KERNEL`` (from the environment variable ARVA_MODEL_KERNEL at import, checked on every
-call): "fast" (the default: the fast path where it applies) or "general" (the reference
-formula for every pair: slower, the same integers; for checking and benchmarks).
+Here: :func:`measure` (input checks, blocks, threads, which path) and :func:`measure_one`.
+:mod:`.reference` is the formula of BRIEF 3 (the general path); :mod:`.fast` gives the
+same integers for the common case (ideal 3-antenna receiver, static transmitters, no
+field) and hands every pair it cannot decide safely to it; :mod:`.channels` selects the
+channels, :mod:`.types` holds ModelParams, Measurement and the constants. ``KERNEL``
+(ARVA_MODEL_KERNEL): "fast" (default) or "general", see docs/model.md "One fast path,
+and the switch".
 """
 
 from __future__ import annotations

@@ -29,15 +29,8 @@ separation (|p_r|^2 + |p_t|^2 > 1e5 s: the expanded s and a = R^T p_r - R^T p_t 
 more than ~1e-11 to cancellation), and receiver quaternions whose |q|^2 leaves
 [1e-16, 1e290].
 
-Why numpy and not compiled code (issue 30, docs/architecture.md): a C version of this
-loop was 1.15-1.17x this path on the model alone and made no measurable difference on a whole
-``arva-emulate`` run, at the price of a compiler at install and a second implementation
-to keep bit-identical; it was removed. Fusing these passes with numexpr was measured and
-dropped too (issue 20, 2026-12-01, in-process A/B, CPU time, numexpr 2.14.2 on one
-thread): its PyPI wheel runs scalar loops over strided operands while numpy's passes
-here are AVX-512, so on blocks held in L2 the fused G_x = a m - s b costs 1.10
-ns/element vs 0.85 for numpy's three passes, and the batch was 30.3 ns/pair with the
-per-pose work in numexpr, 32.0 with the G chain, vs 30.2 as is.
+Why numpy and not compiled code or numexpr (measured): docs/model.md "One fast path, and
+the switch".
 """
 
 from __future__ import annotations
