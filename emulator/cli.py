@@ -8,7 +8,6 @@ summary go to stderr.
 from __future__ import annotations
 
 import argparse
-import logging
 import signal
 import sys
 import threading
@@ -29,11 +28,6 @@ from emulator.output.realtime import request_realtime
 from emulator.output.scheduler import EpochScheduler, status_printer, summary_line
 from emulator.pipeline import Pipeline
 from emulator.receiver.profile import profile_table
-
-log = logging.getLogger("arva-emulate")
-
-_PARITIES = {"N": "N", "E": "E", "O": "O", "M": "M", "S": "S"}
-
 
 def _stream_port(text: str) -> tuple[str, str]:
     label, sep, port = text.partition("=")
@@ -109,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     serial_opts = p.add_argument_group("serial device options (device paths and URLs)")
     serial_opts.add_argument("--baud", type=baud_rate, default=115200, help="baud rate (default 115200)")
     serial_opts.add_argument("--bytesize", type=int, choices=(5, 6, 7, 8), default=8)
-    serial_opts.add_argument("--parity", choices=sorted(_PARITIES), default="N")
+    serial_opts.add_argument("--parity", choices=("E", "M", "N", "O", "S"), default="N")
     serial_opts.add_argument("--stopbits", type=float, choices=(1, 1.5, 2), default=1)
     serial_opts.add_argument("--rtscts", action="store_true", help="hardware flow control")
     serial_opts.add_argument("--xonxoff", action="store_true", help="software flow control")
@@ -169,10 +163,14 @@ def run(args: argparse.Namespace) -> int:
     pipe = Pipeline(scene)
     specs = assign_ports(pipe.labels, args.port, args.stream)
     stop = threading.Event()
-    _stop_on_signals(stop)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda _signum, _frame: stop.set())
     # Pty announcements go to stdout, unless a stream's data does (--stream arva=-).
     announce_to = sys.stderr if "-" in specs.values() else sys.stdout
-    announce = _announcer(announce_to)
+
+    def announce(port: Port) -> None:
+        _say(announce_to, f"{port.label} {port.path}")
+
     ports: dict[str, Port] = {}
     options = port_options(args)
     try:
@@ -250,21 +248,6 @@ def _say(stream, line: str) -> None:
     too (``print`` writes text and newline apart, and one of theirs could land between)."""
     stream.write(line + "\n")
     stream.flush()
-
-
-def _announcer(stream):
-    def announce(port: Port) -> None:
-        _say(stream, f"{port.label} {port.path}")
-
-    return announce
-
-
-def _stop_on_signals(stop: threading.Event) -> None:
-    def handler(signum, frame):  # noqa: ARG001
-        stop.set()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
