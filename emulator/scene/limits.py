@@ -68,21 +68,3 @@ VEHICLE_LIMITS: dict[str, tuple[float, float]] = {
     "yaw": (-1e6, 1e6),  # degrees
 }
 
-
-def stream_labels(n_receivers: int, receivers_truth: list[tuple[int, bool, bool]],
-                  transmitters_truth: list[tuple[int, bool, bool]]) -> list[str]:
-    """Labels of the streams a scene emits (BRIEF 6): ``arva`` (``arva:<id>`` with several
-    receivers), then ``gps`` / ``attitude`` (suffixed ``:rx``, ``:rx<id>``, ``:tx<id>``
-    when several devices stream the same kind). ``*_truth`` are (id, gps, attitude).
-
-    ``emulator.pipeline.stream_layout`` names its streams the same way
-    (tests/integration/test_malformed_inputs.py checks that they agree).
-    """
-    several = n_receivers > 1
-    labels = [f"arva:{rid}" if several else "arva" for rid, _, _ in receivers_truth]
-    devices = [(f"rx{rid}" if several else "rx", gps, att) for rid, gps, att in receivers_truth]
-    devices += [(f"tx{tid}", gps, att) for tid, gps, att in transmitters_truth]
-    for k, kind in enumerate(("gps", "attitude")):
-        carriers = [name for name, *flags in devices if flags[k]]
-        labels += [kind if len(carriers) == 1 else f"{kind}:{name}" for name in carriers]
-    return labels

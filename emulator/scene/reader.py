@@ -31,9 +31,9 @@ from emulator.receiver.model import ModelParams
 from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
-from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S, stream_labels
+from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S
 from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint, toml_document, toml_file
-from emulator.scene.types import SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter
+from emulator.scene.types import SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter, truth_streams
 from emulator.schema import given, type_name
 from emulator.truth.error import GroundTruthErrorConfig
 
@@ -87,11 +87,9 @@ def parse_scene(data: dict, source: str) -> Scene:
         if quantize is not None:
             _check_quantized_range(rd, rx.model or model, quantize)
     if effects.link_fault_streams:
-        labels = stream_labels(
-            len(receivers),
-            [(rx.id, rx.gps, rx.attitude) for rx in receivers],
-            [(tx.id, tx.gps, tx.attitude) for tx in transmitters],
-        )
+        several = len(receivers) > 1
+        labels = [f"arva:{rx.id}" if several else "arva" for rx in receivers]
+        labels += [label for label, _, _ in truth_streams(receivers, transmitters)]
         for i, label in enumerate(effects.link_fault_streams):
             if label not in labels:
                 raise rd.fail(f"link_faults.streams[{i}]", f"no stream {label!r} in this scene (streams: {', '.join(labels)})")
