@@ -420,21 +420,14 @@ def _os_error_line(exc: OSError) -> str:
 
 def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[argparse.Namespace], int],
              *, bare_scene_errors: bool = False) -> int:
-    """Parse, run, and map every expected failure to one stderr line and an exit status.
-
-    - argparse errors: one line (:class:`OneLineParser`), status 2; ``--help``: 0.
-    - :class:`InputError` (bad input, incl. a missing extra) and :class:`LinkError` (a port
-      or device): ``PROG: MESSAGE``, status 2. A :class:`SceneError` is printed bare
-      (``FILE: key: reason``, the form editors jump to) when ``bare_scene_errors``.
-    - any other :class:`OSError` (a user path: permission, no space, not a directory):
-      ``PROG: PATH: REASON``, status 2; a closed stdout (``| head``) ends quietly, status 0.
-    - Ctrl-C (:class:`KeyboardInterrupt`): ``PROG: interrupted``, status 130.
-
-    Logging goes to stderr as ``PROG: MESSAGE``, at WARNING less 10 per ``-v`` of the
-    parsed ``verbose`` count (a command without ``-v``: WARNING).
-
-    Anything else is a bug and keeps its traceback. An :class:`OSError` of an argument's
-    type (a path the system refuses to look at) is reported as at run time.
+    """Parse, run, and map every expected failure to one stderr line and an exit status
+    (docs/reliability.md "Guarantees"): argparse errors one line, 2 (``--help``: 0);
+    :class:`InputError` (incl. a missing extra) and :class:`LinkError` ``PROG: MESSAGE``, 2
+    (a :class:`SceneError` bare, ``FILE: key: reason``, with ``bare_scene_errors``); any
+    other :class:`OSError`, also from an argument's type, ``PROG: PATH: REASON``, 2; a
+    closed stdout (``| head``) quietly 0; Ctrl-C ``PROG: interrupted``, 130. Anything else
+    is a bug and keeps its traceback. Logging goes to stderr as ``PROG: MESSAGE`` at
+    WARNING less 10 per ``-v`` of the parsed ``verbose`` count.
     """
     try:
         args = parse()

@@ -318,8 +318,7 @@ class Pipeline:
 
     def release_receiver(self, index: int = 0) -> None:
         """Hand receiver ``index`` back to its scene path."""
-        rx = self._receiver(index)
-        self._move_receiver(index, rx, None)
+        self._move_receiver(index, self._receiver(index), None)
 
     def fault(self, label: str, kind: str, amount: float) -> None:
         """Inject a fault on stream ``label``'s port, starting with its next epoch (at that

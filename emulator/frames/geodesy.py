@@ -70,14 +70,18 @@ class GeodeticError(InputError):
         super().__init__(f"{field}: {reason}")
 
 
-def _as_float_array(value: ArrayLike, field: str) -> NDArray[np.float64]:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise GeodeticError(field, f"not a number: {value!r}") from exc
-    if not np.all(np.isfinite(arr)):
-        raise GeodeticError(field, "must be finite")
-    return arr
+def _float_arrays(**values: ArrayLike) -> list[NDArray[np.float64]]:
+    """Each value as a float64 array; a GeodeticError names the first one that is not
+    finite numbers."""
+    out = []
+    for field, value in values.items():
+        try:
+            out.append(np.asarray(value, dtype=np.float64))
+        except (TypeError, ValueError) as exc:
+            raise GeodeticError(field, f"not a number: {value!r}") from exc
+        if not np.all(np.isfinite(out[-1])):
+            raise GeodeticError(field, "must be finite")
+    return out
 
 
 def _check_lat_lon(lat: NDArray[np.float64], lon: NDArray[np.float64], prefix: str) -> None:
@@ -135,9 +139,7 @@ class Origin:
 
 def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, alt: ArrayLike) -> Vec3:
     """ECEF metres of geodetic (deg, deg, m HAE). Raises GeodeticError on bad input."""
-    lat_a = _as_float_array(lat, "lat")
-    lon_a = _as_float_array(lon, "lon")
-    alt_a = _as_float_array(alt, "alt")
+    lat_a, lon_a, alt_a = _float_arrays(lat=lat, lon=lon, alt=alt)
     _check_lat_lon(lat_a, lon_a, "")
     phi = np.radians(lat_a)
     lam = np.radians(lon_a)
@@ -155,10 +157,7 @@ def ecef_to_geodetic(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Vec3:
 
     Longitude is in [-180, 180]; on the polar axis it is 0 (any value is correct there).
     """
-    xa = _as_float_array(x, "x")
-    ya = _as_float_array(y, "y")
-    za = _as_float_array(z, "z")
-    xa, ya, za = np.broadcast_arrays(xa, ya, za)
+    xa, ya, za = np.broadcast_arrays(*_float_arrays(x=x, y=y, z=z))
     p = np.hypot(xa, ya)
     beta = np.arctan2(za, (1.0 - WGS84_F) * p)
     phi = beta
@@ -174,9 +173,7 @@ def ecef_to_geodetic(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Vec3:
 
 def ecef_to_enu(x: ArrayLike, y: ArrayLike, z: ArrayLike, origin: Origin) -> Vec3:
     """ENU metres about ``origin`` of ECEF metres."""
-    xa = _as_float_array(x, "x")
-    ya = _as_float_array(y, "y")
-    za = _as_float_array(z, "z")
+    xa, ya, za = _float_arrays(x=x, y=y, z=z)
     # Subtract first: both are ~6.4e6 m, so the difference is exact to ~1e-9 m and the
     # rotation then acts on small numbers.
     dx, dy, dz = xa - origin.ecef[0], ya - origin.ecef[1], za - origin.ecef[2]
@@ -190,9 +187,7 @@ def ecef_to_enu(x: ArrayLike, y: ArrayLike, z: ArrayLike, origin: Origin) -> Vec
 
 def enu_to_ecef(e: ArrayLike, n: ArrayLike, u: ArrayLike, origin: Origin) -> Vec3:
     """ECEF metres of ENU metres about ``origin``."""
-    ea = _as_float_array(e, "e")
-    na = _as_float_array(n, "n")
-    ua = _as_float_array(u, "u")
+    ea, na, ua = _float_arrays(e=e, n=n, u=u)
     r = origin.enu_rotation  # orthonormal: the inverse is the transpose
     x = r[0, 0] * ea + r[1, 0] * na + r[2, 0] * ua + origin.ecef[0]
     y = r[0, 1] * ea + r[1, 1] * na + r[2, 1] * ua + origin.ecef[1]

@@ -35,6 +35,7 @@ the switch".
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 
@@ -121,18 +122,10 @@ class FastPath:
         reference.measure_pairs(b, general)
 
 
-_TABLES: dict = {}
-
-
+@functools.lru_cache(maxsize=16)
 def tables(params: ModelParams) -> FastTables:
     """The fast path's tables for ``params`` (cached: a few hundred KB, built once)."""
-    tab = _TABLES.get(params)
-    if tab is None:
-        if len(_TABLES) > 16:
-            _TABLES.clear()
-        tab = _TABLES[params] = FastTables(params)
-    return tab
-
+    return FastTables(params)
 
 
 def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):
