@@ -1,13 +1,7 @@
 """Streaming, hostile-stream-tolerant decoder of ``$PARVA`` / ``$PARVH`` (BRIEF section 4).
 
-Usage::
-
-    dec = Decoder()
-    for chunk in chunks:                 # any split of the byte stream
-        for event in dec.feed(chunk):    # Parva, Parvh, DecodeError, Epoch
-            ...
-    rest = dec.flush()                   # end of stream
-    print(dec.stats)
+Usage: ``Decoder().feed(chunk)`` for each chunk, then ``flush()`` at the end of the
+stream; each returns the events it completes (docs/protocol.md section 4).
 
 Framing is a byte-level machine, the same in the C codec: outside a sentence every byte
 but ``$`` is garbage (counted); ``$`` starts a sentence (an open one is ``TRUNCATED``), LF

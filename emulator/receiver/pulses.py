@@ -1,11 +1,9 @@
 """Transmitter pulses and signal overlap (BRIEF 3.1 ``pulses``, Appendix A).
 
-An avalanche transmitter does not radiate continuously: ETSI EN 300 718 has it pulse with
-a period of 1000 +- 300 ms, on for at least 70 ms and off for more than 400 ms. A receiver
-can only update a transmitter when one of its pulses has just ended, and when two pulses
-overlap in time at the receiver it cannot separate them: the weaker is lost (or both, per
-the scene). This is the multi-burial "signal overlap" problem; transmitters whose periods
-differ slightly drift into and out of overlap at the beat period 1 / |1/P1 - 1/P2|.
+Transmitters pulse (ETSI EN 300 718; docs/emulator.md "pulses"): a receiver updates a
+transmitter only when one of its pulses has just ended, and loses the weaker (or both)
+of two pulses that overlap; periods that differ slightly drift into and out of overlap
+at the beat period 1 / |1/P1 - 1/P2|.
 
 Timing model (all in seconds). Transmitter j pulses forever (also before t = 0) with
 period P_j and phase phi_j in [0, P_j): pulse n (any integer n) is on over

@@ -1,11 +1,10 @@
 """Scene files (BRIEF 5): versioned TOML describing transmitters, a receiver and effects.
 
-Validation is strict, in the pyvisa-sim manner: the document is converted to the schema
-structs of :mod:`emulator.scene.tables` (every key known, every value's type, length and
-range checked), then the rules across keys are checked here (ids unique, waypoint times
-increasing, quaternions normalisable, effects enabled for their tables...). The first
-problem raises :class:`SceneError` whose text is ``FILE: key.path: reason`` (one line,
-naming the exact key). The result is a :class:`~emulator.scene.types.Scene`.
+The document is converted to the schema structs of :mod:`emulator.scene.tables` (every
+key, type and range), then the rules across keys are checked here (ids unique, waypoint
+times increasing, quaternions normalisable, effects enabled for their tables...). The
+first problem is a one-line :class:`SceneError`, ``FILE: key.path: reason``; the result
+a :class:`~emulator.scene.types.Scene`.
 """
 
 from __future__ import annotations
