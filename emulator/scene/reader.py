@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_proto.errors import InputError, PoseError, SceneError
+from firmware_proto.errors import InputError, PoseError
 from firmware_proto.sentences import MAX_D_CM
 
 from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
