@@ -84,13 +84,6 @@ def _float_arrays(**values: ArrayLike) -> list[NDArray[np.float64]]:
     return out
 
 
-def _check_lat_lon(lat: NDArray[np.float64], lon: NDArray[np.float64], prefix: str) -> None:
-    if np.any(np.abs(lat) > 90.0):
-        raise GeodeticError(prefix + "lat", "latitude must be in [-90, 90] degrees")
-    if np.any(np.abs(lon) > 180.0):
-        raise GeodeticError(prefix + "lon", "longitude must be in [-180, 180] degrees")
-
-
 @dataclass(frozen=True)
 class Origin:
     """The geodetic point (degrees, degrees, metres HAE) at which a local ENU frame sits.
@@ -140,7 +133,10 @@ class Origin:
 def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, alt: ArrayLike) -> Vec3:
     """ECEF metres of geodetic (deg, deg, m HAE). Raises GeodeticError on bad input."""
     lat_a, lon_a, alt_a = _float_arrays(lat=lat, lon=lon, alt=alt)
-    _check_lat_lon(lat_a, lon_a, "")
+    if np.any(np.abs(lat_a) > 90.0):
+        raise GeodeticError("lat", "latitude must be in [-90, 90] degrees")
+    if np.any(np.abs(lon_a) > 180.0):
+        raise GeodeticError("lon", "longitude must be in [-180, 180] degrees")
     phi = np.radians(lat_a)
     lam = np.radians(lon_a)
     sp, cp = np.sin(phi), np.cos(phi)

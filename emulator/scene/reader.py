@@ -215,13 +215,6 @@ def _profile_rate(rd: TableReader, profiles: list[ReceiverProfile | None]) -> fl
     return next(iter(rates), 1.0)
 
 
-def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, model_keys: dict, r: ReceiverTable) -> ModelParams:
-    """Defaults, then the profile, then the scene's ``[model]`` keys, then ``antennas``."""
-    base = profile.model if profile is not None else ModelParams()
-    antennas = base.antennas if r.antennas is None else r.antennas
-    return rd.build("model", partial(replace, base), **model_keys, antennas=antennas)  # each within MODEL_LIMITS
-
-
 def _receivers(
     rd: TableReader,
     tables: list[tuple[ReceiverTable, str]],
@@ -243,7 +236,10 @@ def _receivers(
             raise rd.fail(f"{path}.id", f"duplicate id {rx_id} (also {seen[rx_id]}.id)")
         seen[rx_id] = path
         channels = r.channels if r.channels is not None else profile.channels if profile else 1
-        model = _receiver_model(rd, profile, model_keys, r)
+        # Defaults, then the profile, then the scene's [model] keys, then antennas.
+        base = profile.model if profile is not None else ModelParams()
+        antennas = base.antennas if r.antennas is None else r.antennas
+        model = rd.build("model", partial(replace, base), **model_keys, antennas=antennas)  # each within MODEL_LIMITS
         display = profile.display if profile is not None and not scene_sets_quantize else None
         vehicle = _vehicle(rd, r, path, rate_hz) if r.vehicle is not None else None
         trajectory = _trajectory(rd, r, path) if vehicle is None else _start_pose(vehicle)

@@ -95,8 +95,10 @@ class GroundTruthError:
         self._sigma = np.array(config.gps_sigma_m)
         self._bias = np.array(config.gps_bias_m)
         self._noisy = bool(self._sigma.any())
-        self._dropout = config.gps_dropout > 0
-        self._threshold = _normal_quantile(config.gps_dropout) if self._dropout else -math.inf
+        p = config.gps_dropout
+        self._dropout = p > 0
+        # A fix is dropped when its normal is below Phi^-1(p); +inf at p = 1 (every fix).
+        self._threshold = -math.inf if p == 0 else math.inf if p >= 1 else NormalDist().inv_cdf(p)
         self._att_sigma = math.radians(config.attitude_sigma_deg)
         self._rng_gps = _rng(seed, stream, _GPS)
         self._rng_att = _rng(seed, stream, _ATTITUDE)
@@ -147,11 +149,6 @@ class GroundTruthError:
 
     def stats(self) -> dict[str, int]:
         return {"fixes": self.fixes, "fixes_dropped": self.fixes_dropped}
-
-
-def _normal_quantile(p: float) -> float:
-    """Phi^-1(p) for p in (0, 1]; +inf at 1 (every fix dropped)."""
-    return math.inf if p >= 1.0 else NormalDist().inv_cdf(p)
 
 
 def _rng(seed, stream: int, part: int) -> np.random.Generator:

@@ -79,7 +79,9 @@ def measure(
     parallel threads (same results; worth it only for large N on idle cores).
     """
     batch = _checked_batch(rx_position, rx_orientation, tx_position, tx_orientation, params, noise, want_field)
-    use_fast = _fast_path_enabled() and fast.applies(batch)  # the switch is checked on every call
+    if KERNEL not in KERNELS:  # the switch is checked on every call
+        raise InputError(f"ARVA_MODEL_KERNEL: must be one of {', '.join(KERNELS)}, got {KERNEL!r}")
+    use_fast = KERNEL == "fast" and fast.applies(batch)
     n, m = batch.d.shape
     if use_fast:
         # The fast path writes d and delta of the mid (and inner) pairs only: the rest are
@@ -132,13 +134,6 @@ def _in_threads(run: Callable[[int, int], None], n: int, rows: int, threads: int
     with ThreadPoolExecutor(max_workers=parts) as pool:
         for job in [pool.submit(run, lo, min(n, lo + step)) for lo in range(0, n, step)]:
             job.result()  # re-raises a worker's error (e.g. a PoseError)
-
-
-def _fast_path_enabled() -> bool:
-    """Whether the fast path may run (KERNEL; see the module docstring)."""
-    if KERNEL not in KERNELS:
-        raise InputError(f"ARVA_MODEL_KERNEL: must be one of {', '.join(KERNELS)}, got {KERNEL!r}")
-    return KERNEL == "fast"
 
 
 def _positions(p: ArrayLike, field_name: str) -> NDArray[np.float64]:
