@@ -12,30 +12,11 @@ Units and frames
 All functions accept scalars or arrays of any broadcastable shape and return a tuple of
 three float64 arrays of the broadcast shape (0-d arrays for scalar inputs).
 
-ECEF -> geodetic
-----------------
-Bowring's iteration (B. R. Bowring, "Transformation from spatial to geographical
-coordinates", Survey Review 23(181), 1976) on the parametric latitude beta::
-
-    beta_0 = atan2(z, (1 - f) p)                                       p = hypot(x, y)
-    phi_k  = atan2(z + e'^2 b sin^3 beta_k, p - e^2 a cos^3 beta_k)
-    beta_k+1 = atan2((1 - f) sin phi_k, cos phi_k)
-
-written with atan2 throughout, so the poles (p = 0) and the equator (z = 0) need no
-special case. Convergence is fast (Bowring's single step is already good to ~1e-11 deg at
-the surface); we always take three steps, which measured against more steps reach float64
-round-off (< 1e-13 deg) for heights from -5,000 km to +40,000 km. The height is then
-``h = p cos(phi) + z sin(phi) - a sqrt(1 - e^2 sin^2 phi)``, which is insensitive to a
-residual latitude error (second order) and exact at the poles, unlike the textbook
-``p / cos(phi) - N``.
-
-The transformation is not unique within ~43 km of the earth's centre (inside the evolute
-of the meridian ellipse); results there are a valid but arbitrary solution. No earthly
-use comes near it.
-
-Accuracy (tested in ``tests/emulator/frames/test_geodesy.py``): geodetic -> ECEF -> geodetic returns the
-latitude to < 1e-9 deg and the height to < 1e-6 m at every latitude including +-90,
-for heights from -5,000 km to 40,000 km.
+ECEF -> geodetic is Bowring's iteration, three steps, written with atan2 so the poles
+and the equator need no special case: geodetic -> ECEF -> geodetic returns the latitude
+to < 1e-9 deg and the height to < 1e-6 m for heights from -5,000 km to 40,000 km
+(``tests/emulator/frames/test_geodesy.py``). The formulas and why: docs/emulator.md
+"Geodesy".
 """
 
 from __future__ import annotations
