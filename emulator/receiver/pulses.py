@@ -1,20 +1,11 @@
 """Transmitter pulses and signal overlap (BRIEF 3.1 ``pulses``, Appendix A).
 
-Transmitters pulse (ETSI EN 300 718; docs/emulator.md "pulses"): a receiver updates a
-transmitter only when one of its pulses has just ended, and loses the weaker (or both)
-of two pulses that overlap; periods that differ slightly drift into and out of overlap
-at the beat period 1 / |1/P1 - 1/P2|.
-
-Timing model (all in seconds). Transmitter j pulses forever (also before t = 0) with
-period P_j and phase phi_j in [0, P_j): pulse n (any integer n) is on over
-[phi_j + n P_j, phi_j + n P_j + W] with W = pulse_ms / 1000. Pulse times are a pure
-function of time, so the output for an epoch depends only on that epoch's inputs and any
-chunking of epochs gives identical results. Two pulses overlap when their open intervals
-intersect (pulses that merely touch do not).
-
-Each transmitter's period, clock error and phase come from its own seeded stream keyed by
-its id, so adding or removing a transmitter never changes the others' timing, and every
-receiver of a scene hears the same pulse trains.
+Transmitters pulse (ETSI EN 300 718): a receiver updates a transmitter only when one of
+its pulses has just ended, and loses the weaker (or both) of two pulses that overlap.
+Times in seconds here (milliseconds in the scene). Pulse times are a pure function of
+time and each transmitter's seeded stream (keyed by its id), so chunking epochs, adding a
+transmitter or a second receiver changes no other timing. The timing model in full:
+docs/emulator.md "pulses".
 """
 
 from __future__ import annotations
