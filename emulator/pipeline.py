@@ -258,13 +258,8 @@ class Pipeline:
         return self.epoch
 
     # -- changes between epochs -------------------------------------------------------
-    def set_transmitter(
-        self,
-        tx_id: int,
-        position: Sequence[float] | None = None,
-        orientation: Sequence[float] | None = None,
-        enabled: bool | None = None,
-    ) -> None:
+    def set_transmitter(self, tx_id: int, position: Sequence[float] | None = None,
+                        orientation: Sequence[float] | None = None, enabled: bool | None = None) -> None:
         """Move, turn, silence or re-enable transmitter ``tx_id``; an unknown id adds one
         (``position`` required). Takes effect from the next epoch rendered.
 

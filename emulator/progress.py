@@ -81,13 +81,8 @@ def _columns(unit: str):
 
 
 @contextmanager
-def progress(
-    description: str,
-    total: float | None = None,
-    unit: str = "",
-    stream=None,
-    enabled: bool | None = None,
-) -> Iterator[Tracker]:
+def progress(description: str, total: float | None = None, unit: str = "", stream=None,
+             enabled: bool | None = None) -> Iterator[Tracker]:
     """A transient progress bar on ``stream`` (default stderr) while the block runs.
 
     ``enabled`` defaults to "``stream`` is a terminal"; disabled, the tracker is a no-op

@@ -129,15 +129,7 @@ class EpochAssembler:
             self.stats.epochs_complete += 1
         else:
             self.stats.epochs_incomplete += 1
-        out.append(
-            Epoch(
-                cur.seq,
-                cur.n,
-                complete,
-                tuple(cur.slots),
-                None if cur.fields is None else tuple(cur.fields),
-                cur.gap,
-            )
-        )
+        fields = None if cur.fields is None else tuple(cur.fields)
+        out.append(Epoch(cur.seq, cur.n, complete, tuple(cur.slots), fields, cur.gap))
         self._cur = None
         self._holding = False

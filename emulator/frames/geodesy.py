@@ -102,13 +102,9 @@ class Origin:
         """R (3, 3) with ``enu = R @ (ecef - origin.ecef)``; rows are e, n, u in ECEF."""
         phi, lam = math.radians(self.lat), math.radians(self.lon)
         sp, cp, sl, cl = math.sin(phi), math.cos(phi), math.sin(lam), math.cos(lam)
-        return np.array(
-            [
-                [-sl, cl, 0.0],
-                [-sp * cl, -sp * sl, cp],
-                [cp * cl, cp * sl, sp],
-            ]
-        )
+        return np.array([[-sl, cl, 0.0],
+                         [-sp * cl, -sp * sl, cp],
+                         [cp * cl, cp * sl, sp]])
 
 
 def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, alt: ArrayLike) -> Vec3:

@@ -69,12 +69,7 @@ class PulseConfig:
     def __post_init__(self) -> None:
         lo_ok, hi_ok = PERIOD_RANGE_MS
         rng = tuple(self.period_ms) if isinstance(self.period_ms, (tuple, list)) else None
-        if (
-            rng is None
-            or len(rng) != 2
-            or not all(_is_number(v) for v in rng)
-            or not lo_ok <= rng[0] <= rng[1] <= hi_ok
-        ):
+        if rng is None or len(rng) != 2 or not all(map(_is_number, rng)) or not lo_ok <= rng[0] <= rng[1] <= hi_ok:
             raise InputError(
                 f"pulses.period_ms: must be [lo, hi] with {lo_ok:g} <= lo <= hi <= {hi_ok:g}, "
                 f"got {self.period_ms!r}"
@@ -168,13 +163,8 @@ class PulseEffect:
     def stats(self) -> dict[str, int]:
         return {"pulses_ended": self.pulses_ended, "pulses_hidden": self.pulses_hidden}
 
-    def reported(
-        self,
-        t_prev: ArrayLike,
-        t_now: ArrayLike,
-        strength: ArrayLike,
-        present: ArrayLike,
-    ) -> NDArray[np.bool_]:
+    def reported(self, t_prev: ArrayLike, t_now: ArrayLike, strength: ArrayLike,
+                 present: ArrayLike) -> NDArray[np.bool_]:
         """(N, M) mask: transmitter j is reported in the epoch with window (t_prev, t_now].
 
         Reported means present (received at that epoch) and at least one of its pulses

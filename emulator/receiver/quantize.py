@@ -95,9 +95,7 @@ class QuantizeEffect:
     def __init__(self, config: QuantizeConfig) -> None:
         self.config = config
 
-    def apply(
-        self, d: ArrayLike, delta: ArrayLike, outer: ArrayLike
-    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    def apply(self, d: ArrayLike, delta: ArrayLike, outer: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """New (d, delta) int64 arrays of the same shape; ``outer`` entries stay (-1, -1).
 
         Works on any shape: the model's (N, M) Measurement arrays or the (N, channels)

@@ -30,14 +30,7 @@ from emulator.receiver.model import fast, reference
 from emulator.receiver.model.channels import Epochs, select_channels
 from emulator.receiver.model.reference import round_half_away
 from emulator.receiver.model.types import (
-    ANTENNAS,
-    MAX_DELTA_DEG,
-    ZONE_INNER,
-    ZONE_MID,
-    ZONE_OUTER,
-    Batch,
-    Measurement,
-    ModelParams,
+    ANTENNAS, MAX_DELTA_DEG, ZONE_INNER, ZONE_MID, ZONE_OUTER, Batch, Measurement, ModelParams,
 )
 from firmware_proto.errors import InputError, PoseError
 
