@@ -86,11 +86,8 @@ def encode_parvh(seq: int, k: int, tx_id: int, h: Sequence[float]) -> bytes:
     return frame(f"PARVH,{seq},{k},{tx_id},{hx},{hy},{hz}")
 
 
-def encode_epoch(
-    seq: int,
-    slots: Sequence[tuple[int, int, int]],
-    fields: Sequence[Sequence[float] | None] | None = None,
-) -> bytes:
+def encode_epoch(seq: int, slots: Sequence[tuple[int, int, int]],
+                 fields: Sequence[Sequence[float] | None] | None = None) -> bytes:
     """All sentences of one epoch: a ``$PARVA`` per slot, each followed by its
     ``$PARVH`` when ``fields`` is given (``None`` entries, e.g. empty slots, get none)."""
     seq %= SEQ_MODULO
@@ -108,10 +105,7 @@ def _as_lists(x):
 
 
 def encode_epochs(
-    k0: int,
-    ids: Sequence[Sequence[int]],
-    d: Sequence[Sequence[int]],
-    delta: Sequence[Sequence[int]],
+    k0: int, ids: Sequence[Sequence[int]], d: Sequence[Sequence[int]], delta: Sequence[Sequence[int]],
     fields: Sequence[Sequence[Sequence[float]]] | None = None,
 ) -> bytes:
     """Consecutive epochs ``k0, k0 + 1, ...`` at once; rows are epochs, columns slots.

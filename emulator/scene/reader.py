@@ -216,12 +216,8 @@ def _profile_rate(rd: TableReader, profiles: list[ReceiverProfile | None]) -> fl
 
 
 def _receivers(
-    rd: TableReader,
-    tables: list[tuple[ReceiverTable, str]],
-    rate_hz: float,
-    profiles: list[ReceiverProfile | None],
-    model_keys: dict,
-    scene_sets_quantize: bool,
+    rd: TableReader, tables: list[tuple[ReceiverTable, str]], rate_hz: float, profiles: list[ReceiverProfile | None],
+    model_keys: dict, scene_sets_quantize: bool,
 ) -> tuple[ReceiverSpec, ...]:
     """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port).
 

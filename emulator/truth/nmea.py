@@ -157,18 +157,9 @@ def speed_course_from_enu(v_east: float, v_north: float) -> tuple[float, float |
 
 
 def gga_sentence(
-    utc: datetime,
-    lat: float | None,
-    lon: float | None,
-    alt: float | None,
-    *,
-    geoid_sep: float = 0.0,
-    quality: int = 1,
-    sats: int = 12,
-    hdop: float = 0.8,
-    talker: str = "GP",
-    lat_lon_decimals: int = 7,
-    short: bool = False,
+    utc: datetime, lat: float | None, lon: float | None, alt: float | None, *,
+    geoid_sep: float = 0.0, quality: int = 1, sats: int = 12, hdop: float = 0.8,
+    talker: str = "GP", lat_lon_decimals: int = 7, short: bool = False,
 ) -> bytes:
     """One ``$xxGGA`` sentence (bytes, CR LF terminated).
 
@@ -199,17 +190,9 @@ def gga_sentence(
 
 
 def rmc_sentence(
-    utc: datetime,
-    lat: float | None,
-    lon: float | None,
-    *,
-    velocity_enu: ArrayLike | None = None,
-    speed_knots: float | None = None,
-    course: float | None = None,
-    valid: bool = True,
-    mode: str = "A",
-    talker: str = "GP",
-    lat_lon_decimals: int = 7,
+    utc: datetime, lat: float | None, lon: float | None, *,
+    velocity_enu: ArrayLike | None = None, speed_knots: float | None = None, course: float | None = None,
+    valid: bool = True, mode: str = "A", talker: str = "GP", lat_lon_decimals: int = 7,
 ) -> bytes:
     """One ``$xxRMC`` sentence (NMEA 2.3 layout, with the FAA mode indicator).
 
@@ -253,16 +236,8 @@ def _course_text(cog: float) -> str:
 
 
 def gps_sentences(
-    utc: datetime,
-    lat: float,
-    lon: float,
-    alt: float,
-    *,
-    velocity_enu: ArrayLike | None = None,
-    quality: int = 1,
-    talker: str = "GP",
-    lat_lon_decimals: int = 7,
-    **gga_options: Any,
+    utc: datetime, lat: float, lon: float, alt: float, *, velocity_enu: ArrayLike | None = None,
+    quality: int = 1, talker: str = "GP", lat_lon_decimals: int = 7, **gga_options: Any,
 ) -> bytes:
     """RMC then GGA for one epoch, the order u-blox receivers use: a reader starting on
     this stream dates the GGA with the RMC's date at once. The RMC's FAA mode follows
@@ -295,17 +270,9 @@ def _accuracy(value: float | None, field: str) -> str:
 
 
 def pashr_sentence(
-    utc: datetime,
-    heading: float,
-    roll: float,
-    pitch: float,
-    *,
-    heave: float = 0.0,
-    roll_accuracy: float | None = 0.05,
-    pitch_accuracy: float | None = 0.05,
-    heading_accuracy: float | None = 0.1,
-    gps_quality: int = 1,
-    ins_status: int = 1,
+    utc: datetime, heading: float, roll: float, pitch: float, *, heave: float = 0.0,
+    roll_accuracy: float | None = 0.05, pitch_accuracy: float | None = 0.05, heading_accuracy: float | None = 0.1,
+    gps_quality: int = 1, ins_status: int = 1,
 ) -> bytes:
     """One ``$PASHR`` sentence (layout in the module docstring), angles in degrees.
 

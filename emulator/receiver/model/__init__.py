@@ -50,13 +50,8 @@ KERNEL = os.environ.get("ARVA_MODEL_KERNEL", "fast")
 
 
 def measure(
-    rx_position: ArrayLike,
-    rx_orientation: ArrayLike,
-    tx_position: ArrayLike,
-    tx_orientation: ArrayLike,
-    params: ModelParams = ModelParams(),
-    noise: NDArray[np.float64] | None = None,
-    want_field: bool = False,
+    rx_position: ArrayLike, rx_orientation: ArrayLike, tx_position: ArrayLike, tx_orientation: ArrayLike,
+    params: ModelParams = ModelParams(), noise: NDArray[np.float64] | None = None, want_field: bool = False,
     threads: int = 1,
 ) -> Measurement:
     """Evaluate N receiver poses against M transmitters.
@@ -157,11 +152,8 @@ def _quaternions(q: ArrayLike, field: str) -> NDArray[np.float64]:
 
 
 def measure_one(
-    rx_position: ArrayLike,
-    rx_orientation: ArrayLike,
-    tx_position: ArrayLike,
-    tx_orientation: ArrayLike = (1.0, 0.0, 0.0, 0.0),
-    params: ModelParams = ModelParams(),
+    rx_position: ArrayLike, rx_orientation: ArrayLike, tx_position: ArrayLike,
+    tx_orientation: ArrayLike = (1.0, 0.0, 0.0, 0.0), params: ModelParams = ModelParams(),
 ) -> tuple[int, int]:
     """(d [cm], delta [deg]) of one receiver pose and one transmitter, ideal receiver.
 
