@@ -77,10 +77,8 @@ def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva 
 
     The caller guarantees what framing guarantees: ``line`` starts with ``$``, ends with
     LF, is at most 82 bytes, and every other byte is printable ASCII (not ``$``) or CR.
-    Checks, in this order (the first failure decides the kind): ``*hh`` CR LF framing with
-    two upper-case hex digits (MALFORMED), checksum (BAD_CHECKSUM), address (UNKNOWN_SENTENCE),
-    field count and syntax (MALFORMED), field limits (OUT_OF_RANGE; ``d`` above
-    ``max_d_cm``, the receiver's maximum range when the caller knows it, is out of range too).
+    Checks in the order of docs/protocol.md section 2, the first failure naming the kind;
+    ``d`` above ``max_d_cm`` (the receiver's range, when the caller knows it) is OUT_OF_RANGE.
     """
     if len(line) < 6 or line[-2] != 13 or line[-5] != 42:
         return ErrorKind.MALFORMED

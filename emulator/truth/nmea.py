@@ -164,9 +164,8 @@ def gga_sentence(
     """One ``$xxGGA`` sentence (bytes, CR LF terminated).
 
     ``short``: HDOP and the geoid separation with the fewest decimals that keep their
-    value (up to 2 and 3: ``0.8``, ``0.0``, ``48.25``), the three characters that keep a
-    GGA with 7 decimals of arc-minutes within NMEA's 82 (for altitudes above -10 km and
-    below 1000 km); the emulator's ground-truth streams use it.
+    value (``0.8``, ``48.25``), which keeps a GGA within NMEA's 82 characters (the
+    emulator's streams use it; docs/emulator.md "Sentence format and precision").
 
     ``lat``/``lon`` in degrees, ``alt`` in metres above the WGS-84 ellipsoid; the sentence
     carries MSL = alt - geoid_sep and the separation. ``quality``: 0 no fix, 1 GPS,
