@@ -8,7 +8,6 @@ summary go to stderr.
 from __future__ import annotations
 
 import argparse
-import logging
 import signal
 import sys
 import threading
@@ -30,11 +29,6 @@ from emulator.output.scheduler import EpochScheduler, status_printer, summary_li
 from emulator.pipeline import Pipeline
 from emulator.receiver.profile import profile_table
 
-log = logging.getLogger("arva-emulate")
-
-_PARITIES = {"N": "N", "E": "E", "O": "O", "M": "M", "S": "S"}
-
-
 def _stream_port(text: str) -> tuple[str, str]:
     label, sep, port = text.partition("=")
     if not sep or not label or not port:
@@ -43,15 +37,11 @@ def _stream_port(text: str) -> tuple[str, str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = OneLineParser(
-        prog="arva-emulate",
-        description="Emulate an ARVA receiver: stream $PARVA sentences for a scene to a port.",
-    )
+    p = OneLineParser(prog="arva-emulate",
+                      description="Emulate an ARVA receiver: stream $PARVA sentences for a scene to a port.")
     p.add_argument("--scene", type=scene_file, metavar="FILE", help="scene TOML file (default: the embedded paper case study)")
     p.add_argument(
-        "--port",
-        default="-",
-        metavar="PORT",
+        "--port", default="-", metavar="PORT",
         help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
         "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
         "'rfc2217-server:HOST:PORT' or 'tcp-server:HOST:PORT' (served to network clients; "
@@ -59,57 +49,33 @@ def build_parser() -> argparse.ArgumentParser:
         "or any other path: a file to write",
     )
     p.add_argument(
-        "--stream",
-        type=_stream_port,
-        action="append",
-        default=[],
-        metavar="LABEL=PORT",
+        "--stream", type=_stream_port, action="append", default=[], metavar="LABEL=PORT",
         help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
         "(as --port: -, pty, a device, a URL or a file)",
     )
-    p.add_argument(
-        "--serve-any-host",
-        action="store_true",
-        help="let rfc2217-server/tcp-server ports listen on non-loopback addresses (a lab network)",
-    )
+    p.add_argument("--serve-any-host", action="store_true",
+                   help="let rfc2217-server/tcp-server ports listen on non-loopback addresses (a lab network)")
     p.add_argument("--link", type=output_dir, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
     p.add_argument("--frames", type=non_negative_int, metavar="N", help="stop after N epochs (default: run forever)")
+    p.add_argument("--speed", type=speed, default=1.0, metavar="X",
+                   help="run X times real time; 0 = as fast as possible (default 1)")
+    p.add_argument("--realtime", action="store_true",
+                   help="real-time epochs: ask for SCHED_FIFO and locked memory where permitted "
+                   "(one stderr line if not)")
     p.add_argument(
-        "--speed",
-        type=speed,
-        default=1.0,
-        metavar="X",
-        help="run X times real time; 0 = as fast as possible (default 1)",
-    )
-    p.add_argument(
-        "--realtime",
-        action="store_true",
-        help="real-time epochs: ask for SCHED_FIFO and locked memory where permitted (one stderr line if not)",
-    )
-    p.add_argument(
-        "--realtime-workers",
-        action="store_true",
+        "--realtime-workers", action="store_true",
         help="with --realtime: also run the kernel's unbound workqueue workers (they carry a pty's bytes to "
         "its reader) at SCHED_FIFO 1 for the run; host-wide, undone at exit (one stderr line if not permitted)",
     )
-    p.add_argument(
-        "--timing-log",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="real-time runs: write each epoch's deadline and write() start/end (monotonic s) to FILE at exit",
-    )
-    p.add_argument(
-        "--delay",
-        type=seconds,
-        default=0.0,
-        metavar="S",
-        help="wait S seconds after announcing ptys before the first epoch (time for clients to open them)",
-    )
+    p.add_argument("--timing-log", type=Path, default=None, metavar="FILE",
+                   help="real-time runs: write each epoch's deadline and write() start/end (monotonic s) "
+                   "to FILE at exit")
+    p.add_argument("--delay", type=seconds, default=0.0, metavar="S",
+                   help="wait S seconds after announcing ptys before the first epoch (time for clients to open them)")
     serial_opts = p.add_argument_group("serial device options (device paths and URLs)")
     serial_opts.add_argument("--baud", type=baud_rate, default=115200, help="baud rate (default 115200)")
     serial_opts.add_argument("--bytesize", type=int, choices=(5, 6, 7, 8), default=8)
-    serial_opts.add_argument("--parity", choices=sorted(_PARITIES), default="N")
+    serial_opts.add_argument("--parity", choices=("E", "M", "N", "O", "S"), default="N")
     serial_opts.add_argument("--stopbits", type=float, choices=(1, 1.5, 2), default=1)
     serial_opts.add_argument("--rtscts", action="store_true", help="hardware flow control")
     serial_opts.add_argument("--xonxoff", action="store_true", help="software flow control")
@@ -169,10 +135,14 @@ def run(args: argparse.Namespace) -> int:
     pipe = Pipeline(scene)
     specs = assign_ports(pipe.labels, args.port, args.stream)
     stop = threading.Event()
-    _stop_on_signals(stop)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda _signum, _frame: stop.set())
     # Pty announcements go to stdout, unless a stream's data does (--stream arva=-).
     announce_to = sys.stderr if "-" in specs.values() else sys.stdout
-    announce = _announcer(announce_to)
+
+    def announce(port: Port) -> None:
+        _say(announce_to, f"{port.label} {port.path}")
+
     ports: dict[str, Port] = {}
     options = port_options(args)
     try:
@@ -188,15 +158,8 @@ def run(args: argparse.Namespace) -> int:
         routes = pipe.bind(bound, args.speed if args.clock == "real" else 0)
         real = args.clock == "real"
         status = status_printer() if sys.stderr.isatty() and args.speed != 0 and real else None
-        scheduler = EpochScheduler(
-            routes,
-            args.speed,
-            args.frames,
-            status=status,
-            stop_event=stop,
-            scene_clock=pipe.clock,
-            fast_batch=pipe.fast_batch,
-        )
+        scheduler = EpochScheduler(routes, args.speed, args.frames, status=status, stop_event=stop,
+                                   scene_clock=pipe.clock, fast_batch=pipe.fast_batch)
         timing = []
         if args.timing_log is not None:
             try:  # a bad path is an input error now, not after the run
@@ -250,21 +213,6 @@ def _say(stream, line: str) -> None:
     too (``print`` writes text and newline apart, and one of theirs could land between)."""
     stream.write(line + "\n")
     stream.flush()
-
-
-def _announcer(stream):
-    def announce(port: Port) -> None:
-        _say(stream, f"{port.label} {port.path}")
-
-    return announce
-
-
-def _stop_on_signals(stop: threading.Event) -> None:
-    def handler(signum, frame):  # noqa: ARG001
-        stop.set()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

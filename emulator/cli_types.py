@@ -2,43 +2,11 @@
 
 One module, shared by ``arva-emulate``, every ``arva-bench`` sub-command and
 ``arva-sweep`` (in the spirit of python-can's ``can/cli.py``): each type is a callable
-``str -> value`` for argparse's ``type=``, with a documented range, that raises
+``str -> value`` for argparse's ``type=``, with a documented range (the table:
+docs/reliability.md "Option value ranges"), that raises
 :class:`argparse.ArgumentTypeError` with a one-line reason; argparse then prints
 ``PROG: error: argument --opt: REASON`` (one line, see :class:`OneLineParser`) and
 exits with status 2.
-
-Ranges (all closed unless said otherwise; every float is finite: nan and inf are refused):
-
-==========================  ======================================================
-``real(lo, hi)``            a finite float in [lo, hi] (open ends with ``lo_open``)
-``integer(lo, hi)``         a whole number in [lo, hi] (decimal, no float syntax);
-                            ``positive_int`` 1 .. 1e9, ``non_negative_int`` 0 .. 1e12
-``baud_rate``               an integer in :data:`BAUD_LIMITS` (50 .. 12,000,000)
-``real_list(n, lo, hi)``    n (or n_min..n_max) comma-separated reals in range
-``choice_list(names)``      one or more comma-separated names from ``names``
-every path                  no part longer than NAME_MAX (255) bytes, at most PATH_MAX
-                            (4095) bytes in all, no NUL byte
-``input_file``              an existing regular file one can read; ``''`` is refused
-                            (``scene_file``: the same, for ``--scene``)
-``session_dir``             an existing directory
-``output_file(suffixes)``   a file that can be created or overwritten: not a
-                            directory, in an existing writable directory
-``output_dir``              an existing writable directory, or one that can be
-                            created (its nearest existing parent is writable)
-``device_spec(kind, fmts)`` ``URL[,role=R][,format=F]`` with a known role / format
-``speed``                   0 (as fast as possible) or MIN_SPEED .. MAX_SPEED
-``seconds``                 0 .. MAX_SECONDS (``positive_seconds``: > 0;
-                            ``signed_seconds``: -MAX_SECONDS .. MAX_SECONDS)
-``seed``                    0 .. 2**63 - 1
-``utf8_text``               text whose bytes are UTF-8 (a note stored in a manifest)
-``origin``, ``tx_pose``     latitude -90..90, longitude -180..360, altitude in
-                            ALT_LIMITS, angles -360..360 degrees; tx id 0..65535
-``scheduler_address``       ``[SCHEME://]HOST:PORT`` (tcp, tls, ucx, ws, wss)
-==========================  ======================================================
-
-``probe_writable(path)`` creates and removes a file to prove it can be written (for an
-output written only after a long run); ``probe_creatable_dir(path)`` does the same for a
-directory made later (``dash --record-dir``).
 
 Times are seconds, speeds are multiples of real time. The limits of the numeric options
 are constants next to the options that use them (e.g. :data:`MAX_SECONDS`): large
@@ -452,21 +420,14 @@ def _os_error_line(exc: OSError) -> str:
 
 def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[argparse.Namespace], int],
              *, bare_scene_errors: bool = False) -> int:
-    """Parse, run, and map every expected failure to one stderr line and an exit status.
-
-    - argparse errors: one line (:class:`OneLineParser`), status 2; ``--help``: 0.
-    - :class:`InputError` (bad input, incl. a missing extra) and :class:`LinkError` (a port
-      or device): ``PROG: MESSAGE``, status 2. A :class:`SceneError` is printed bare
-      (``FILE: key: reason``, the form editors jump to) when ``bare_scene_errors``.
-    - any other :class:`OSError` (a user path: permission, no space, not a directory):
-      ``PROG: PATH: REASON``, status 2; a closed stdout (``| head``) ends quietly, status 0.
-    - Ctrl-C (:class:`KeyboardInterrupt`): ``PROG: interrupted``, status 130.
-
-    Logging goes to stderr as ``PROG: MESSAGE``, at WARNING less 10 per ``-v`` of the
-    parsed ``verbose`` count (a command without ``-v``: WARNING).
-
-    Anything else is a bug and keeps its traceback. An :class:`OSError` of an argument's
-    type (a path the system refuses to look at) is reported as at run time.
+    """Parse, run, and map every expected failure to one stderr line and an exit status
+    (docs/reliability.md "Guarantees"): argparse errors one line, 2 (``--help``: 0);
+    :class:`InputError` (incl. a missing extra) and :class:`LinkError` ``PROG: MESSAGE``, 2
+    (a :class:`SceneError` bare, ``FILE: key: reason``, with ``bare_scene_errors``); any
+    other :class:`OSError`, also from an argument's type, ``PROG: PATH: REASON``, 2; a
+    closed stdout (``| head``) quietly 0; Ctrl-C ``PROG: interrupted``, 130. Anything else
+    is a bug and keeps its traceback. Logging goes to stderr as ``PROG: MESSAGE`` at
+    WARNING less 10 per ``-v`` of the parsed ``verbose`` count.
     """
     try:
         args = parse()

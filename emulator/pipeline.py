@@ -1,30 +1,13 @@
 """The emulator pipeline: the one path from a scene to bytes on ports, for every door.
 
-::
+Scene -> poses -> model -> measurement effects -> channel selection -> display ->
+sentences -> link faults -> ports; the diagram, the stream order (which seeds each
+stream's link faults), the doors and the clocks are in docs/architecture.md "The
+pipeline". ``arva-emulate``, ``arvaemu://`` and the control channel all build a
+:class:`Pipeline`, so the same scene gives the same bytes through every door; changes
+between epochs (:meth:`Pipeline.set_transmitter`, :meth:`Pipeline.pin_receiver`,
+:meth:`Pipeline.fault`, ...) take effect from the next epoch rendered.
 
-    Scene ──> poses ──> model ──> measurement effects ──> channel ──> display      ──> sentences ──> link   ──> ports
-    (TOML)   (paths,    (dipole,   (noise in the model,   selection   quantisation     ($PARVA,      faults     (stdout, pty,
-              vehicle,   BRIEF 3)   pulses)                                             $PARVH,                  serial, memory)
-              pins)                                                                     RMC/GGA, $PASHR)
-
-``arva-emulate`` (:mod:`emulator.cli`), the in-process ``arvaemu://`` port
-(:mod:`emulator.urlhandler.protocol_arvaemu`) and a control channel all build a
-:class:`Pipeline` from a :class:`~emulator.scene.reader.Scene`, :meth:`Pipeline.bind` its
-streams to ports (each wrapped in the scene's link faults exactly when the scene says so)
-and write epochs through :class:`~emulator.output.scheduler.Route`: so the same scene gives
-the same bytes through every door. Sweeps and the closed loop evaluate receivers through
-the same :class:`~emulator.receiver.receiver.Receiver` (the model and effects stages) and
-stop there: they need epochs, not sentences.
-
-Streams (:func:`stream_layout`): every receiver first (``arva``, or ``arva:<id>`` with
-several), then the ground-truth GPS streams, then the attitude streams. A stream's
-position in that list seeds its link faults, so a door that builds only some streams
-(``arvaemu://?receiver=2``) still draws what ``arva-emulate`` draws for them.
-
-Between epochs the pipeline can be changed (:meth:`Pipeline.set_transmitter`,
-:meth:`Pipeline.remove_transmitter`, :meth:`Pipeline.pin_receiver`,
-:meth:`Pipeline.fault`); changes take effect from the next epoch rendered.
-:meth:`Pipeline.step` writes epochs of every stream in scene-time order (the step clock).
 Times are scene seconds; positions world ENU metres; quaternions [w, x, y, z] body to
 world (BRIEF 2).
 """
@@ -275,13 +258,8 @@ class Pipeline:
         return self.epoch
 
     # -- changes between epochs -------------------------------------------------------
-    def set_transmitter(
-        self,
-        tx_id: int,
-        position: Sequence[float] | None = None,
-        orientation: Sequence[float] | None = None,
-        enabled: bool | None = None,
-    ) -> None:
+    def set_transmitter(self, tx_id: int, position: Sequence[float] | None = None,
+                        orientation: Sequence[float] | None = None, enabled: bool | None = None) -> None:
         """Move, turn, silence or re-enable transmitter ``tx_id``; an unknown id adds one
         (``position`` required). Takes effect from the next epoch rendered.
 
@@ -335,8 +313,7 @@ class Pipeline:
 
     def release_receiver(self, index: int = 0) -> None:
         """Hand receiver ``index`` back to its scene path."""
-        rx = self._receiver(index)
-        self._move_receiver(index, rx, None)
+        self._move_receiver(index, self._receiver(index), None)
 
     def fault(self, label: str, kind: str, amount: float) -> None:
         """Inject a fault on stream ``label``'s port, starting with its next epoch (at that

@@ -1,14 +1,10 @@
 """Progress on long work (a sweep, a replay, an export, a fit), drawn with rich on stderr
 only when stderr is a terminal.
 
-Nothing changes on stdout or in a pipe: with stderr redirected (a file, a pipe, a CI
-log) :func:`progress` yields a tracker whose methods do nothing and nothing is drawn.
-On a terminal the bar is transient (erased when the work ends) and stdout is never
-redirected, so data piped from stdout stays byte for byte what it was. Lines other code
-prints on ``sys.stderr`` while a bar is up appear above it.
-
-Used by the emulator (``arva-sweep``) and the bench (``arva-bench replay/export/fit``);
-it lives in ``emulator`` so both can import it (bench -> emulator, never back).
+With stderr redirected :func:`progress` yields a tracker whose methods do nothing; on
+a terminal the bar is transient and stdout is never redirected, so data piped from
+stdout stays byte for byte what it was (stderr lines printed meanwhile appear above the
+bar). In ``emulator`` so that ``arva-sweep`` and ``arva-bench`` can both import it.
 
 Units are the caller's: ``advance(n)`` adds ``n`` of ``unit`` (runs, seconds of session
 time, rows); ``note`` is a free text column (e.g. ``1,234x real time``).
@@ -85,13 +81,8 @@ def _columns(unit: str):
 
 
 @contextmanager
-def progress(
-    description: str,
-    total: float | None = None,
-    unit: str = "",
-    stream=None,
-    enabled: bool | None = None,
-) -> Iterator[Tracker]:
+def progress(description: str, total: float | None = None, unit: str = "", stream=None,
+             enabled: bool | None = None) -> Iterator[Tracker]:
     """A transient progress bar on ``stream`` (default stderr) while the block runs.
 
     ``enabled`` defaults to "``stream`` is a terminal"; disabled, the tracker is a no-op

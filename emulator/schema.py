@@ -1,14 +1,11 @@
 """The one schema layer (issue 30): typed structs checked by msgspec, errors in our words.
 
 Scenes, control requests and receiver profiles declare their keys as :class:`Strict`
-structs whose fields carry their rules (types, lengths, ranges) as ``Annotated`` types
-built here: each value's rule is written once. :func:`convert` checks decoded data
-(TOML tables, JSON objects) against such a type and turns msgspec's error
-(``Expected `int` >= 0 - at `$.transmitters[0].id```) into :class:`SchemaError` with
-the key path (``transmitters[0].id``) and a reason in the project's words, naming the
-range and the value given (``must be in 0..65535, got -3``). Callers wrap it in their
-own one-line error (``SceneError``, ``ControlError``). Cross-field rules (waypoint
-order, quaternion norms) stay with the callers, after the conversion.
+structs whose fields carry their rules as ``Annotated`` types built here (each value's
+rule written once); :func:`convert` turns msgspec's error into :class:`SchemaError`
+(``transmitters[0].id``: ``must be in 0..65535, got -3``), which callers wrap in their
+own one-line error. Cross-field rules stay with the callers. The choice and the error
+mapping: docs/architecture.md "The schema library".
 """
 
 from __future__ import annotations

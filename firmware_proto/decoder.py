@@ -1,25 +1,13 @@
 """Streaming, hostile-stream-tolerant decoder of ``$PARVA`` / ``$PARVH`` (BRIEF section 4).
 
-Usage::
+Usage: ``Decoder().feed(chunk)`` for each chunk, then ``flush()`` at the end of the
+stream; each returns the events it completes (docs/protocol.md section 4).
 
-    dec = Decoder()
-    for chunk in chunks:                 # any split of the byte stream
-        for event in dec.feed(chunk):    # Parva, Parvh, DecodeError, Epoch
-            ...
-    rest = dec.flush()                   # end of stream
-    print(dec.stats)
-
-Framing, byte by byte (the C codec implements exactly the same machine):
-
-* Outside a sentence every byte except ``$`` is a garbage byte (counted, no event).
-* ``$`` always starts a new sentence; a sentence still open is rejected as ``TRUNCATED``.
-* LF ends the sentence, which is then parsed (:func:`parse_line`).
-* A byte outside printable ASCII (0x20-0x7E), other than CR, rejects it as ``NON_ASCII``.
-* An 82nd byte that is not LF rejects it as ``TOO_LONG`` (a line is at most 82 bytes,
-  ``$`` and CR LF included); the decoder never buffers more than 81 bytes.
-* After a rejection the decoder is outside a sentence again: what follows up to the
-  next ``$`` is garbage. The end of the stream (:meth:`Decoder.flush`) truncates an
-  open sentence.
+Framing is a byte-level machine, the same in the C codec: outside a sentence every byte
+but ``$`` is garbage (counted); ``$`` starts a sentence (an open one is ``TRUNCATED``), LF
+ends it and it is parsed (:func:`parse_line`); a non-printable byte other than CR
+(``NON_ASCII``) or an 82nd byte that is not LF (``TOO_LONG``) rejects it, so at most 81
+bytes are buffered. The rules and the error order: docs/protocol.md section 2.
 
 The result of feeding a stream does not depend on how it is split into chunks.
 """
@@ -89,10 +77,8 @@ def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva 
 
     The caller guarantees what framing guarantees: ``line`` starts with ``$``, ends with
     LF, is at most 82 bytes, and every other byte is printable ASCII (not ``$``) or CR.
-    Checks, in this order (the first failure decides the kind): ``*hh`` CR LF framing with
-    two upper-case hex digits (MALFORMED), checksum (BAD_CHECKSUM), address (UNKNOWN_SENTENCE),
-    field count and syntax (MALFORMED), field limits (OUT_OF_RANGE; ``d`` above
-    ``max_d_cm``, the receiver's maximum range when the caller knows it, is out of range too).
+    Checks in the order of docs/protocol.md section 2, the first failure naming the kind;
+    ``d`` above ``max_d_cm`` (the receiver's range, when the caller knows it) is OUT_OF_RANGE.
     """
     if len(line) < 6 or line[-2] != 13 or line[-5] != 42:
         return ErrorKind.MALFORMED
@@ -125,14 +111,8 @@ def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva 
                 return ErrorKind.MALFORMED
         seq, k, tx_id = map(int, parts[1:4])
         h = (float(parts[4]), float(parts[5]), float(parts[6]))
-        if not (
-            0 <= seq < SEQ_MODULO
-            and 1 <= k <= MAX_CHANNELS
-            and (tx_id == -1 or 0 <= tx_id <= MAX_ID)
-            and isfinite(h[0])
-            and isfinite(h[1])
-            and isfinite(h[2])
-        ):
+        in_range = 0 <= seq < SEQ_MODULO and 1 <= k <= MAX_CHANNELS and (tx_id == -1 or 0 <= tx_id <= MAX_ID)
+        if not (in_range and all(map(isfinite, h))):
             return ErrorKind.OUT_OF_RANGE
         return Parvh(offset, seq, k, tx_id, h)
     return ErrorKind.UNKNOWN_SENTENCE

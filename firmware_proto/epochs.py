@@ -1,22 +1,10 @@
 """Epoch assembly: group decoded sentences into epochs (all slots of one seq).
 
-Rules (identical in the C codec, ``arva_codec.c``):
-
-* A ``$PARVA`` joins the epoch being assembled when it has the same ``seq`` and ``n`` and a
-  ``k`` above the last slot received; otherwise that epoch is emitted first and the
-  sentence starts a new one (a seq change, a repeated or backward ``k``, a different ``n``).
-* An epoch is emitted when its slot ``k = n`` arrives. Once a ``$PARVH`` has been seen in
-  the stream (or ``expect_fields`` is set), the decoder instead *holds* it for one more
-  sentence, because the research sentence of the last slot comes right after it; the next
-  sentence, the next error, :meth:`idle` or :meth:`flush` releases it.
-* A rejected sentence between the first and the last slot makes the epoch incomplete,
-  as does any missing slot (reported as ``None``). Garbage bytes between sentences do not.
-* A ``$PARVH`` attaches to slot ``k`` of the epoch being assembled when seq, k and id
-  match a slot that arrived and has no field yet; otherwise it is counted as orphaned.
-* When an epoch starts, ``gap = (seq - previous_seq - 1) mod 65536`` (0 for the first
-  epoch and for a repeated seq); a non-zero gap is counted in ``seq_gaps`` and summed in
-  ``seqs_missing``. The wrap 65535 -> 0 is not a gap; an epoch whose seq is below the
-  previous one is counted in ``seq_wraps`` (the counter went round, or the sender restarted).
+The rules, identical in the C codec (``arva_codec.c``), are docs/protocol.md section 3:
+a ``$PARVA`` joins the epoch being assembled when seq and n match and k rises, else that
+epoch is emitted first; the last slot emits it, or holds it for its ``$PARVH`` once one
+has been seen (``expect_fields``); a rejected sentence inside it makes it incomplete;
+``gap = (seq - previous_seq - 1) mod 65536``.
 """
 
 from __future__ import annotations
@@ -141,15 +129,7 @@ class EpochAssembler:
             self.stats.epochs_complete += 1
         else:
             self.stats.epochs_incomplete += 1
-        out.append(
-            Epoch(
-                cur.seq,
-                cur.n,
-                complete,
-                tuple(cur.slots),
-                None if cur.fields is None else tuple(cur.fields),
-                cur.gap,
-            )
-        )
+        fields = None if cur.fields is None else tuple(cur.fields)
+        out.append(Epoch(cur.seq, cur.n, complete, tuple(cur.slots), fields, cur.gap))
         self._cur = None
         self._holding = False

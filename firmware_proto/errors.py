@@ -37,10 +37,8 @@ class SceneError(InputError):
 
 
 class PoseError(InputError):
-    """A pose that cannot be used: non-finite, or a quaternion of norm < 1e-9.
-
-    ``field`` names the offending input (e.g. ``receiver.orientation``).
-    """
+    """A pose that cannot be used (non-finite, or a quaternion of norm < 1e-9); ``field``
+    names the offending input (e.g. ``receiver.orientation``)."""
 
     def __init__(self, field: str, reason: str) -> None:
         self.field = field
@@ -49,11 +47,8 @@ class PoseError(InputError):
 
 
 class MissingExtra(InputError):
-    """A feature whose optional dependency is not installed; says which extra to install.
-
-    An :class:`InputError`: asking for the feature was the input this installation cannot
-    serve, and the command line reports it in one line with exit status 2.
-    """
+    """A feature whose optional dependency (a pip extra) is not installed: an input this
+    installation cannot serve, so one line and exit status 2 like any :class:`InputError`."""
 
     def __init__(self, feature: str, package: str, extra: str) -> None:
         self.feature = feature

@@ -12,7 +12,7 @@ The :class:`ErrorKind` numbers are the same in the C codec (``arva_error_kind``)
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 Slot = tuple[int, int, int]
 Field = tuple[float, float, float]
@@ -122,17 +122,7 @@ class DecoderStats:
 
     def as_dict(self) -> dict[str, int]:
         """Flat ``name -> count`` mapping (error kinds as ``errors.<KIND>``)."""
-        out = {
-            "bytes": self.bytes,
-            "garbage_bytes": self.garbage_bytes,
-            "sentences_ok": self.sentences_ok,
-            "epochs_complete": self.epochs_complete,
-            "epochs_incomplete": self.epochs_incomplete,
-            "seq_gaps": self.seq_gaps,
-            "seqs_missing": self.seqs_missing,
-            "seq_wraps": self.seq_wraps,
-            "fields_orphaned": self.fields_orphaned,
-        }
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "errors"}
         for kind in ErrorKind:
             out[f"errors.{kind.name}"] = self.errors[kind]
         return out

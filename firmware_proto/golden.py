@@ -51,8 +51,7 @@ def event_to_json(ev: Event) -> dict[str, Any]:
         return {"type": "parvh", "offset": ev.offset, "seq": ev.seq, "k": ev.k, "id": ev.id, "h": list(ev.h)}
     if isinstance(ev, DecodeError):
         return {"type": "error", "kind": ev.kind.name, "offset": ev.offset, "length": ev.length}
-    out = {"type": "epoch", **ev.to_json(), "n": ev.n, "gap": ev.gap}
-    return out
+    return {"type": "epoch", **ev.to_json(), "n": ev.n, "gap": ev.gap}
 
 
 def event_from_json(d: dict[str, Any]) -> Event:
@@ -152,7 +151,6 @@ def c_table() -> str:
         kind = case["sentence"]
         args = case["args"]
         expect = case["bytes"]
-        ints = ["0"] * 6
         doubles = ["0.0"] * 3
         slots = "0"
         nslots = 0

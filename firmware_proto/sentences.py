@@ -37,7 +37,7 @@ def checksum(body: bytes) -> int:
 def frame(body: str) -> bytes:
     """Wrap an ASCII sentence body as ``$body*HH\\r\\n``; raise if over 82 bytes."""
     raw = body.encode("ascii")
-    out = b"$%s*%02X\r\n" % (raw, reduce(xor, raw, 0))
+    out = b"$%s*%02X\r\n" % (raw, checksum(raw))
     if len(out) > MAX_SENTENCE:
         raise ProtocolError(f"sentence of {len(out)} bytes exceeds {MAX_SENTENCE}: {body!r}")
     return out
@@ -86,11 +86,8 @@ def encode_parvh(seq: int, k: int, tx_id: int, h: Sequence[float]) -> bytes:
     return frame(f"PARVH,{seq},{k},{tx_id},{hx},{hy},{hz}")
 
 
-def encode_epoch(
-    seq: int,
-    slots: Sequence[tuple[int, int, int]],
-    fields: Sequence[Sequence[float] | None] | None = None,
-) -> bytes:
+def encode_epoch(seq: int, slots: Sequence[tuple[int, int, int]],
+                 fields: Sequence[Sequence[float] | None] | None = None) -> bytes:
     """All sentences of one epoch: a ``$PARVA`` per slot, each followed by its
     ``$PARVH`` when ``fields`` is given (``None`` entries, e.g. empty slots, get none)."""
     seq %= SEQ_MODULO
@@ -108,10 +105,7 @@ def _as_lists(x):
 
 
 def encode_epochs(
-    k0: int,
-    ids: Sequence[Sequence[int]],
-    d: Sequence[Sequence[int]],
-    delta: Sequence[Sequence[int]],
+    k0: int, ids: Sequence[Sequence[int]], d: Sequence[Sequence[int]], delta: Sequence[Sequence[int]],
     fields: Sequence[Sequence[Sequence[float]]] | None = None,
 ) -> bytes:
     """Consecutive epochs ``k0, k0 + 1, ...`` at once; rows are epochs, columns slots.
@@ -167,10 +161,6 @@ def _tables() -> dict[str, np.ndarray]:
     return _TABLES
 
 
-def _xor(data: bytes) -> int:
-    return reduce(xor, data, 0)
-
-
 def _encode_parva_arrays(k0: int, ids: np.ndarray, d: np.ndarray, delta: np.ndarray) -> bytes | None:
     """$PARVA sentences of whole epochs, built column-wise with numpy string ufuncs.
 
@@ -195,13 +185,13 @@ def _encode_parva_arrays(k0: int, ids: np.ndarray, d: np.ndarray, delta: np.ndar
     seq = (k0 + np.arange(n_epochs, dtype=np.int64)) % SEQ_MODULO + off
     heads = [f",{n},{k}," for k in range(1, n + 1)]
     head = np.array([h.encode() for h in heads], dtype="S8")
-    head_x = np.array([_xor(h.encode()) for h in heads], dtype=np.uint8)
+    head_x = np.array([checksum(h.encode()) for h in heads], dtype=np.uint8)
     i1, d1, e1 = ids + off, d + off, delta + off
     add = _STRING_ADD
     out = add(add(b"$PARVA,", text[seq])[:, None], head[None, :])
     out = add(add(add(out, text[i1]), comma[d1]), comma[e1])
     # body = PARVA, seq head id ,d ,delta : its XOR from the parts (',' xor ',' cancels).
-    check = tx[seq][:, None] ^ head_x[None, :] ^ tx[i1] ^ tx[d1] ^ tx[e1] ^ np.uint8(_xor(b"PARVA,"))
+    check = tx[seq][:, None] ^ head_x[None, :] ^ tx[i1] ^ tx[d1] ^ tx[e1] ^ np.uint8(checksum(b"PARVA,"))
     out = add(add(out, b"*"), _HEX_CRLF[check])
     raw = np.frombuffer(np.ascontiguousarray(out).tobytes(), dtype=np.uint8)
     return raw[raw != 0].tobytes()

@@ -18,30 +18,11 @@ marine/aviation AHRS use the aerospace Tait-Bryan convention instead:
 
   (right-handed rotations about the NED down axis, then the new y, then the new x).
 
-Written in our frames, the same rotation is (P swaps ENU and NED, F flips FLU to FRD)::
-
-      R_enu<-flu = P R_ned<-frd F,   P = [[0,1,0],[1,0,0],[0,0,-1]],  F = diag(1,-1,-1)
-                 = Rz(90 deg - psi) Ry(-theta) Rx(phi)       (intrinsic Z-Y'-X'' again)
-
-which is what :func:`hpr_to_quaternion` builds. Consequences, all tested:
-
-* heading 0: body x points north; heading 90: body x points **east**;
-* pitch +30: body x has an up component of +sin 30 = 0.5;
-* roll +30: body y (the left side) has an up component of +0.5, i.e. the right side is down.
-
-Inverse (:func:`quaternion_to_hpr`), from R = R_enu<-flu::
-
-      heading = atan2(R[0,0], R[1,0])   (east over north component of body x), wrapped to [0, 360)
-      pitch   = atan2(R[2,0], hypot(R[0,0], R[1,0]))
-      roll    = the angle of Rx(roll) = Ry(-pitch)^T Rz(90 deg - heading)^T R
-
-(the last equals atan2(R[2,1], R[2,2]) but stays accurate near gimbal lock, where those
-two entries vanish; computed from the residual, the three angles always rebuild R).
-
-At gimbal lock (pitch = +-90 deg; ``hypot(R[0,0], R[1,0]) < 1e-10``) heading and roll
-are not separately defined; we then return roll = 0 and put the whole rotation about the
-vertical into the heading, ``heading = 90 deg - atan2(-R[0,1], R[1,1])``, so the returned
-angles still rebuild the same rotation.
+In our frames that is R_enu<-flu = Rz(90 deg - psi) Ry(-theta) Rx(phi) (intrinsic again),
+which :func:`hpr_to_quaternion` builds: heading 90 points body x east, pitch +30 gives
+body x an up component of +0.5, roll +30 gives body y (left) one of +0.5. The
+derivation, the inverse and gimbal lock (pitch +-90 deg: roll 0, the whole vertical
+rotation in the heading): docs/emulator.md "Attitude convention".
 """
 
 from __future__ import annotations
@@ -113,9 +94,7 @@ def quaternion_to_hpr(q: ArrayLike, field: str = "orientation") -> HPR:
     theta = np.arctan2(r20, cos_pitch)  # pitch
     # alpha = 90 deg - heading: the ENU yaw of body x, counter-clockwise from east.
     alpha = np.where(locked, np.arctan2(-r01, r11), np.arctan2(r10, r00))
-    # Roll from what is left of R after undoing yaw and pitch, Rx(phi) = Ry(-theta)^T Rz(alpha)^T R,
-    # rather than atan2(R[2,1], R[2,2]): those two shrink with cos(pitch), so near gimbal
-    # lock that formula loses digits, and its error would not match the heading's.
+    # Roll from the residual Rx(phi) = Ry(-theta)^T Rz(alpha)^T R (docs: exact near gimbal lock).
     sa, ca = np.sin(alpha), np.cos(alpha)
     sin_roll = -np.sin(theta) * (ca * r01 + sa * r11) + np.cos(theta) * r21
     cos_roll = ca * r11 - sa * r01

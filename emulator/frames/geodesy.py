@@ -12,30 +12,11 @@ Units and frames
 All functions accept scalars or arrays of any broadcastable shape and return a tuple of
 three float64 arrays of the broadcast shape (0-d arrays for scalar inputs).
 
-ECEF -> geodetic
-----------------
-Bowring's iteration (B. R. Bowring, "Transformation from spatial to geographical
-coordinates", Survey Review 23(181), 1976) on the parametric latitude beta::
-
-    beta_0 = atan2(z, (1 - f) p)                                       p = hypot(x, y)
-    phi_k  = atan2(z + e'^2 b sin^3 beta_k, p - e^2 a cos^3 beta_k)
-    beta_k+1 = atan2((1 - f) sin phi_k, cos phi_k)
-
-written with atan2 throughout, so the poles (p = 0) and the equator (z = 0) need no
-special case. Convergence is fast (Bowring's single step is already good to ~1e-11 deg at
-the surface); we always take three steps, which measured against more steps reach float64
-round-off (< 1e-13 deg) for heights from -5,000 km to +40,000 km. The height is then
-``h = p cos(phi) + z sin(phi) - a sqrt(1 - e^2 sin^2 phi)``, which is insensitive to a
-residual latitude error (second order) and exact at the poles, unlike the textbook
-``p / cos(phi) - N``.
-
-The transformation is not unique within ~43 km of the earth's centre (inside the evolute
-of the meridian ellipse); results there are a valid but arbitrary solution. No earthly
-use comes near it.
-
-Accuracy (tested in ``tests/emulator/frames/test_geodesy.py``): geodetic -> ECEF -> geodetic returns the
-latitude to < 1e-9 deg and the height to < 1e-6 m at every latitude including +-90,
-for heights from -5,000 km to 40,000 km.
+ECEF -> geodetic is Bowring's iteration, three steps, written with atan2 so the poles
+and the equator need no special case: geodetic -> ECEF -> geodetic returns the latitude
+to < 1e-9 deg and the height to < 1e-6 m for heights from -5,000 km to 40,000 km
+(``tests/emulator/frames/test_geodesy.py``). The formulas and why: docs/emulator.md
+"Geodesy".
 """
 
 from __future__ import annotations
@@ -70,21 +51,18 @@ class GeodeticError(InputError):
         super().__init__(f"{field}: {reason}")
 
 
-def _as_float_array(value: ArrayLike, field: str) -> NDArray[np.float64]:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise GeodeticError(field, f"not a number: {value!r}") from exc
-    if not np.all(np.isfinite(arr)):
-        raise GeodeticError(field, "must be finite")
-    return arr
-
-
-def _check_lat_lon(lat: NDArray[np.float64], lon: NDArray[np.float64], prefix: str) -> None:
-    if np.any(np.abs(lat) > 90.0):
-        raise GeodeticError(prefix + "lat", "latitude must be in [-90, 90] degrees")
-    if np.any(np.abs(lon) > 180.0):
-        raise GeodeticError(prefix + "lon", "longitude must be in [-180, 180] degrees")
+def _float_arrays(**values: ArrayLike) -> list[NDArray[np.float64]]:
+    """Each value as a float64 array; a GeodeticError names the first one that is not
+    finite numbers."""
+    out = []
+    for field, value in values.items():
+        try:
+            out.append(np.asarray(value, dtype=np.float64))
+        except (TypeError, ValueError) as exc:
+            raise GeodeticError(field, f"not a number: {value!r}") from exc
+        if not np.all(np.isfinite(out[-1])):
+            raise GeodeticError(field, "must be finite")
+    return out
 
 
 @dataclass(frozen=True)
@@ -124,21 +102,18 @@ class Origin:
         """R (3, 3) with ``enu = R @ (ecef - origin.ecef)``; rows are e, n, u in ECEF."""
         phi, lam = math.radians(self.lat), math.radians(self.lon)
         sp, cp, sl, cl = math.sin(phi), math.cos(phi), math.sin(lam), math.cos(lam)
-        return np.array(
-            [
-                [-sl, cl, 0.0],
-                [-sp * cl, -sp * sl, cp],
-                [cp * cl, cp * sl, sp],
-            ]
-        )
+        return np.array([[-sl, cl, 0.0],
+                         [-sp * cl, -sp * sl, cp],
+                         [cp * cl, cp * sl, sp]])
 
 
 def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, alt: ArrayLike) -> Vec3:
     """ECEF metres of geodetic (deg, deg, m HAE). Raises GeodeticError on bad input."""
-    lat_a = _as_float_array(lat, "lat")
-    lon_a = _as_float_array(lon, "lon")
-    alt_a = _as_float_array(alt, "alt")
-    _check_lat_lon(lat_a, lon_a, "")
+    lat_a, lon_a, alt_a = _float_arrays(lat=lat, lon=lon, alt=alt)
+    if np.any(np.abs(lat_a) > 90.0):
+        raise GeodeticError("lat", "latitude must be in [-90, 90] degrees")
+    if np.any(np.abs(lon_a) > 180.0):
+        raise GeodeticError("lon", "longitude must be in [-180, 180] degrees")
     phi = np.radians(lat_a)
     lam = np.radians(lon_a)
     sp, cp = np.sin(phi), np.cos(phi)
@@ -155,10 +130,7 @@ def ecef_to_geodetic(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Vec3:
 
     Longitude is in [-180, 180]; on the polar axis it is 0 (any value is correct there).
     """
-    xa = _as_float_array(x, "x")
-    ya = _as_float_array(y, "y")
-    za = _as_float_array(z, "z")
-    xa, ya, za = np.broadcast_arrays(xa, ya, za)
+    xa, ya, za = np.broadcast_arrays(*_float_arrays(x=x, y=y, z=z))
     p = np.hypot(xa, ya)
     beta = np.arctan2(za, (1.0 - WGS84_F) * p)
     phi = beta
@@ -174,9 +146,7 @@ def ecef_to_geodetic(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Vec3:
 
 def ecef_to_enu(x: ArrayLike, y: ArrayLike, z: ArrayLike, origin: Origin) -> Vec3:
     """ENU metres about ``origin`` of ECEF metres."""
-    xa = _as_float_array(x, "x")
-    ya = _as_float_array(y, "y")
-    za = _as_float_array(z, "z")
+    xa, ya, za = _float_arrays(x=x, y=y, z=z)
     # Subtract first: both are ~6.4e6 m, so the difference is exact to ~1e-9 m and the
     # rotation then acts on small numbers.
     dx, dy, dz = xa - origin.ecef[0], ya - origin.ecef[1], za - origin.ecef[2]
@@ -190,9 +160,7 @@ def ecef_to_enu(x: ArrayLike, y: ArrayLike, z: ArrayLike, origin: Origin) -> Vec
 
 def enu_to_ecef(e: ArrayLike, n: ArrayLike, u: ArrayLike, origin: Origin) -> Vec3:
     """ECEF metres of ENU metres about ``origin``."""
-    ea = _as_float_array(e, "e")
-    na = _as_float_array(n, "n")
-    ua = _as_float_array(u, "u")
+    ea, na, ua = _float_arrays(e=e, n=n, u=u)
     r = origin.enu_rotation  # orthonormal: the inverse is the transpose
     x = r[0, 0] * ea + r[1, 0] * na + r[2, 0] * ua + origin.ecef[0]
     y = r[0, 1] * ea + r[1, 1] * na + r[2, 1] * ua + origin.ecef[1]

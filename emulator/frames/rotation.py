@@ -1,11 +1,8 @@
 """Unit quaternions ``[w, x, y, z]`` (scalar first) rotating body vectors into ENU.
 
-The few rotation operations the emulator needs beyond matrices (Hamilton products, the
-exponential and logarithm maps, and so slerp) are written here in numpy rather than taken
-from scipy's :class:`~scipy.spatial.transform.Rotation`: importing ``scipy.spatial`` costs
-~0.3 s of CPU (measured 2026-12-02: half of ``arva-emulate``'s start-up), paid by every
-emulator process a test harness or a sweep starts. They follow scipy's formulas (the same
-small-angle series), so they agree with it to rounding.
+Hamilton products, the exponential and logarithm maps (and so slerp) are written here in
+numpy following scipy's formulas, not taken from scipy's ``Rotation``: importing
+``scipy.spatial`` cost half of ``arva-emulate``'s start-up (docs/model.md section 1).
 
 The batch model works *component-major*: quaternions as (4, N) and rotation matrices as
 (3, 3, N), so that each entry is one contiguous array and the element-wise arithmetic

@@ -9,11 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from emulator.frames.rotation import (
-    normalize_quaternions,
-    quaternion_conjugates,
-    quaternion_products,
-    quaternion_rotvecs,
-    rotvec_quaternions,
+    normalize_quaternions, quaternion_conjugates, quaternion_products, quaternion_rotvecs, rotvec_quaternions,
 )
 
 IDENTITY = (1.0, 0.0, 0.0, 0.0)
@@ -30,11 +26,8 @@ class Trajectory:
 
     @classmethod
     def static(cls, position: ArrayLike, orientation: ArrayLike = IDENTITY) -> "Trajectory":
-        return cls(
-            np.zeros(1),
-            np.asarray(position, dtype=np.float64).reshape(1, 3),
-            np.asarray(orientation, dtype=np.float64).reshape(1, 4),
-        )
+        pos, quat = (np.asarray(v, dtype=np.float64) for v in (position, orientation))
+        return cls(np.zeros(1), pos.reshape(1, 3), quat.reshape(1, 4))
 
     @property
     def is_static(self) -> bool:
@@ -44,10 +37,7 @@ class Trajectory:
         """Positions (N, 3) and orientations (N, 4) at times ``t`` (N,) in seconds."""
         t = np.asarray(t, dtype=np.float64).reshape(-1)
         if self.is_static:
-            return (
-                np.broadcast_to(self.positions[0], (t.size, 3)),
-                np.broadcast_to(self.orientations[0], (t.size, 4)),
-            )
+            return np.broadcast_to(self.positions[0], (t.size, 3)), np.broadcast_to(self.orientations[0], (t.size, 4))
         # np.interp holds the end values outside [t0, tK], as a held pose should.
         pos = np.stack([np.interp(t, self.times, self.positions[:, i]) for i in range(3)], axis=1)
         clipped = np.clip(t, self.times[0], self.times[-1])

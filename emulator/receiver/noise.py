@@ -8,12 +8,9 @@ from numpy.typing import NDArray
 
 class NoiseEffect:
     """EMI noise (BRIEF 3.2): one point uniform in the unit ball per (epoch, transmitter),
-    in the world frame; the model scales it by w_en and maps it by Q R_r^T.
-
-    A uniform point of the 3-ball is drawn as the first three coordinates of a uniform
-    point on the 4-sphere in R^5 (five standard normals, normalised). That uses a single
-    ``standard_normal`` call per batch, so drawing N epochs at once or one at a time gives
-    the same stream: output does not depend on how the scheduler chunks epochs.
+    in the world frame; the model scales it by w_en and maps it by Q R_r^T. One
+    ``standard_normal`` call per batch, so chunking never changes the stream (how:
+    docs/model.md section 3).
     """
 
     name = "noise"

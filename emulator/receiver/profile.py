@@ -1,13 +1,9 @@
 """Named receiver profiles: declarative TOML files describing a class of receiver.
 
-A profile (``emulator/receiver/profiles/NAME.toml``, shipped with the package, in the
-manner of pyvisa-sim's device files) fixes what a scene would otherwise have to spell
-out for a receiver: antennas (2 or 3, :class:`~emulator.receiver.model.ModelParams`),
-channels, the epoch rate (Hz), the zone radii and range (``[model]`` r_inner, r_outer,
-metres), kappa_eq, the EMI parameters (r_en in metres, q) and the display quantisation
-(``[display]``, the keys of a scene's ``[quantize]`` table). A scene selects one with
-``[receiver] profile = "NAME"``; every key the scene gives itself overrides the
-profile's (see :func:`emulator.scene.reader.parse_scene`).
+A profile (``emulator/receiver/profiles/NAME.toml``) fixes what a scene would otherwise
+spell out for a receiver; a scene selects one with ``[receiver] profile = "NAME"`` and
+every key it gives itself wins (docs/model.md section 9). Units: rate in Hz, radii and
+r_en in metres.
 
 File format (``format = 1``)::
 
@@ -21,9 +17,8 @@ File format (``format = 1``)::
     [model]                 # optional keys: kappa_eq, r_inner, r_outer, r_en, q
     [display]               # optional: profile, delta_step_deg, d_step_cm, d_far_cm, d_step_far_cm
 
-Validation is strict: an unknown key, a wrong type or an out-of-range value raises
-:class:`~firmware_proto.errors.SceneError` naming ``FILE: key.path: reason``. The
-transmitter's ``moment`` is not a receiver property and is not accepted here.
+Validation is strict (:class:`~firmware_proto.errors.SceneError`, ``FILE: key.path:
+reason``); the transmitter's ``moment`` is not a receiver property and is refused.
 """
 
 from __future__ import annotations

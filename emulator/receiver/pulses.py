@@ -1,22 +1,11 @@
 """Transmitter pulses and signal overlap (BRIEF 3.1 ``pulses``, Appendix A).
 
-An avalanche transmitter does not radiate continuously: ETSI EN 300 718 has it pulse with
-a period of 1000 +- 300 ms, on for at least 70 ms and off for more than 400 ms. A receiver
-can only update a transmitter when one of its pulses has just ended, and when two pulses
-overlap in time at the receiver it cannot separate them: the weaker is lost (or both, per
-the scene). This is the multi-burial "signal overlap" problem; transmitters whose periods
-differ slightly drift into and out of overlap at the beat period 1 / |1/P1 - 1/P2|.
-
-Timing model (all in seconds). Transmitter j pulses forever (also before t = 0) with
-period P_j and phase phi_j in [0, P_j): pulse n (any integer n) is on over
-[phi_j + n P_j, phi_j + n P_j + W] with W = pulse_ms / 1000. Pulse times are a pure
-function of time, so the output for an epoch depends only on that epoch's inputs and any
-chunking of epochs gives identical results. Two pulses overlap when their open intervals
-intersect (pulses that merely touch do not).
-
-Each transmitter's period, clock error and phase come from its own seeded stream keyed by
-its id, so adding or removing a transmitter never changes the others' timing, and every
-receiver of a scene hears the same pulse trains.
+Transmitters pulse (ETSI EN 300 718): a receiver updates a transmitter only when one of
+its pulses has just ended, and loses the weaker (or both) of two pulses that overlap.
+Times in seconds here (milliseconds in the scene). Pulse times are a pure function of
+time and each transmitter's seeded stream (keyed by its id), so chunking epochs, adding a
+transmitter or a second receiver changes no other timing. The timing model in full:
+docs/emulator.md "pulses".
 """
 
 from __future__ import annotations
@@ -80,12 +69,7 @@ class PulseConfig:
     def __post_init__(self) -> None:
         lo_ok, hi_ok = PERIOD_RANGE_MS
         rng = tuple(self.period_ms) if isinstance(self.period_ms, (tuple, list)) else None
-        if (
-            rng is None
-            or len(rng) != 2
-            or not all(_is_number(v) for v in rng)
-            or not lo_ok <= rng[0] <= rng[1] <= hi_ok
-        ):
+        if rng is None or len(rng) != 2 or not all(map(_is_number, rng)) or not lo_ok <= rng[0] <= rng[1] <= hi_ok:
             raise InputError(
                 f"pulses.period_ms: must be [lo, hi] with {lo_ok:g} <= lo <= hi <= {hi_ok:g}, "
                 f"got {self.period_ms!r}"
@@ -179,13 +163,8 @@ class PulseEffect:
     def stats(self) -> dict[str, int]:
         return {"pulses_ended": self.pulses_ended, "pulses_hidden": self.pulses_hidden}
 
-    def reported(
-        self,
-        t_prev: ArrayLike,
-        t_now: ArrayLike,
-        strength: ArrayLike,
-        present: ArrayLike,
-    ) -> NDArray[np.bool_]:
+    def reported(self, t_prev: ArrayLike, t_now: ArrayLike, strength: ArrayLike,
+                 present: ArrayLike) -> NDArray[np.bool_]:
         """(N, M) mask: transmitter j is reported in the epoch with window (t_prev, t_now].
 
         Reported means present (received at that epoch) and at least one of its pulses

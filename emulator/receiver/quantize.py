@@ -1,19 +1,10 @@
 """Receiver display profiles (BRIEF 3.1 ``quantize``): coarser delta and/or d.
 
-Real receivers do not show 1 cm and 1 degree: many show the direction on a row of LEDs
-and the distance in 0.1 m (near) or 1 m (far) steps. This effect maps the model's
-integers to what such a receiver shows; it draws no random numbers.
-
-* delta: rounded to the nearest multiple of ``delta_step_deg`` (halves away from zero),
-  then clamped to [-89, 89] like every delta. With 5 LEDs (36 degrees) the values are
-  {-72, -36, 0, 36, 72}: +-89 gives +-72 (89/36 = 2.47 rounds to 2) and the LED changes
-  at +-18 and +-54 degrees. With a step whose nearest multiple of 89 is 90 or more
-  (e.g. 30 or 45) the extreme values come out as +-89, the largest delta the protocol
-  can carry, rather than jumping back to a smaller multiple.
-* d: rounded to the nearest multiple of ``d_step_cm``; from ``d_far_cm`` on, to the
-  nearest multiple of ``d_step_far_cm``. ``d_far_cm`` must be a multiple of both steps,
-  which keeps the displayed distance monotone in the true one.
-* Outer-zone entries (-1, -1) are left as they are.
+Maps the model's integers (``d`` cm, ``delta`` degrees) to what a receiver with LEDs or a
+0.1 m / 1 m display shows: each rounded to the nearest multiple of its step, halves away
+from zero (``d`` with a second step from ``d_far_cm`` on), ``delta`` clamped to +-89;
+outer-zone entries (-1, -1) stay. No random draws. The rules with their examples (why
++-89 shows as +-72 on 5 LEDs): docs/emulator.md "quantize".
 """
 
 from __future__ import annotations
@@ -104,9 +95,7 @@ class QuantizeEffect:
     def __init__(self, config: QuantizeConfig) -> None:
         self.config = config
 
-    def apply(
-        self, d: ArrayLike, delta: ArrayLike, outer: ArrayLike
-    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    def apply(self, d: ArrayLike, delta: ArrayLike, outer: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """New (d, delta) int64 arrays of the same shape; ``outer`` entries stay (-1, -1).
 
         Works on any shape: the model's (N, M) Measurement arrays or the (N, channels)

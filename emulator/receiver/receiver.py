@@ -3,7 +3,7 @@ pipeline and channel selection, producing epochs in order."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,10 +28,9 @@ class EpochBatch:
 class Receiver:
     """Produces the receiver's epochs for a scene, in order.
 
-    Epoch k uses the scene state at t_k = k / rate_hz (BRIEF 3 step 7). The effects
-    pipeline is assembled here, once: stages that act on the raw measurement (pulses)
-    run before channel selection, display stages (quantize) after it. A disabled
-    effect is simply not in the lists. Effects with random draws consume their
+    Epoch k uses the scene state at t_k = k / rate_hz (BRIEF 3 step 7). Effects that act
+    on the raw measurement (pulses) run before channel selection, display ones (quantize)
+    after it; a disabled effect is None. Effects with random draws consume their
     streams in epoch order, so call :meth:`next_batch` sequentially; the batch size
     does not change the output.
     """
@@ -50,9 +49,6 @@ class Receiver:
         self.model = scene.receiver_model(index)
         display = self.spec.display or fx.quantize  # the profile's display unless the scene sets one
         self.quantize = QuantizeEffect(display) if display else None
-        self._after_selection: list[Callable[[Epochs], None]] = []
-        if self.quantize is not None:
-            self._after_selection.append(self._apply_quantize)
         self.next_k = 0
         #: Where the receiver is: the scene trajectory, or a pose pinned by :meth:`pin`.
         self.trajectory: Trajectory = self.spec.trajectory
@@ -70,9 +66,6 @@ class Receiver:
         self.ids = np.array([tx.id for tx in txs], dtype=np.int64)
         fx = self.scene.effects
         self.pulses = PulseEffect(fx.pulses, self.ids, self.scene.seed) if fx.pulses and len(self.ids) else None
-        self._before_selection: list[Callable[[np.ndarray, Measurement], None]] = []
-        if self.pulses is not None:
-            self._before_selection.append(self._apply_pulses)
         self._static_tx = all(tx.trajectory.is_static for tx in txs)
         if self._static_tx and txs:
             self._tx_pos = np.stack([tx.trajectory.positions[0] for tx in txs])
@@ -112,11 +105,11 @@ class Receiver:
             tx_quat = np.stack([q for _, q in poses], axis=1)
         noise = self.noise.draw(n, m) if self.noise is not None else None
         meas = measure(rx_pos, rx_quat, tx_pos, tx_quat, self.model, noise, self.want_field)
-        for stage in self._before_selection:
-            stage(t, meas)
+        if self.pulses is not None:  # acts on the raw measurement, before channel selection
+            self._apply_pulses(t, meas)
         epochs = select_channels(meas, self.ids, self.channels)
-        for stage in self._after_selection:
-            stage(epochs)
+        if self.quantize is not None:  # the display, after it
+            epochs.d, epochs.delta = self.quantize.apply(epochs.d, epochs.delta, epochs.ids < 0)
         return epochs
 
     def _apply_pulses(self, t: np.ndarray, meas: Measurement) -> None:
@@ -129,6 +122,3 @@ class Receiver:
         meas.zone[silent] = ZONE_OUTER
         meas.d[silent] = -1
         meas.delta[silent] = -1
-
-    def _apply_quantize(self, epochs: Epochs) -> None:
-        epochs.d, epochs.delta = self.quantize.apply(epochs.d, epochs.delta, epochs.ids < 0)

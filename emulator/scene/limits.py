@@ -2,32 +2,20 @@
 
 A scene that validates must run: no reading the encoder refuses, no division by zero, no
 overflow, no loop without end (issue 16). Each limit below says which of these it rules
-out; ``docs/emulator.md`` lists them for users. Units: metres, seconds, Hz.
-
-* Readings. The receiver reports ``d`` = 100 * d3 in the inner zone (d3 <= r_inner) and
-  100 * dxy in the mid zone (dxy <= r_outer), rounded half away from zero; the protocol
-  carries 0 .. 9,999,999 cm (``firmware_proto.sentences.MAX_D_CM``). So ``r_inner`` and
-  ``r_outer`` are at most :data:`MAX_READING_M` = 99,999.99 m and *every* reading fits,
-  whatever ``kappa_eq``, the moment or the poses (a larger estimate is the outer zone).
-* Noise. ``w_en = s / (2 pi max(q) r_en^3)`` and ``cbrt(kappa_eq / (4 pi w_en))`` must be
-  finite and non-zero: ``r_en`` in :data:`R_EN_LIMITS_M`, ``kappa_eq`` and ``moment`` in
-  :data:`STRENGTH_LIMITS`, ``q`` in [:data:`MIN_Q`, 1] keep every intermediate within
-  about 1e-60 .. 1e60 (r_en = 1e-300 or 1e300 used to end in ZeroDivisionError /
-  OverflowError).
-* Vehicles (closed loop). The loop takes ``control_rate_hz / rate_hz`` control steps per
-  epoch: at most :data:`MAX_CONTROL_STEPS_PER_EPOCH` (1e308 Hz used to loop for ever).
-  Speeds, gains and coordinates have physical limits (:data:`VEHICLE_LIMITS`) so a
-  position can never leave the float range (v_max = 1e308 reached inf in one step).
+out; docs/emulator.md "Limits: what a scene may ask for" lists them for users with the
+reasons. Units: metres, seconds, Hz.
 """
 
 from __future__ import annotations
 
 from firmware_proto.sentences import MAX_D_CM
 
-#: Largest distance a reading can carry: 9,999,999 cm.
+#: Largest distance a reading can carry: 9,999,999 cm. With r_inner and r_outer at most
+#: this, every reading fits whatever kappa_eq, the moment or the poses.
 MAX_READING_M = MAX_D_CM / 100.0
 
-#: (lo, hi) of the model's lengths and strengths.
+#: (lo, hi) of the model's lengths and strengths; r_en, kappa_eq, moment and q keep w_en
+#: and cbrt(kappa_eq / (4 pi w_en)) within about 1e-60 .. 1e60 (noise on).
 R_ZONE_LIMITS_M = (1e-6, MAX_READING_M)  # r_inner, r_outer
 R_EN_LIMITS_M = (1e-6, 1e9)
 STRENGTH_LIMITS = (1e-30, 1e30)  # kappa_eq, moment (scene units)
@@ -45,13 +33,15 @@ MODEL_LIMITS: dict[str, tuple[float, float]] = {
 #: overflowed).
 MIN_WAYPOINT_DT_S = 1e-6
 
-#: Control steps per epoch a closed loop may take (control_rate_hz / rate_hz).
+#: Control steps per epoch a closed loop may take (control_rate_hz / rate_hz; 1e308 Hz
+#: used to loop for ever).
 MAX_CONTROL_STEPS_PER_EPOCH = 1000
 
 #: Coordinates of a vehicle's start, search area and terrain origin: +-1000 km.
 MAX_VEHICLE_COORD_M = 1e6
 
 #: receiver.vehicle numbers: (lo, hi); lo 0 means "> 0" for keys that must be positive.
+#: Physical limits, so a position never leaves the float range (v_max = 1e308 did).
 VEHICLE_LIMITS: dict[str, tuple[float, float]] = {
     "v_max": (0.0, 100.0),  # m/s
     "v_z_max": (0.0, 100.0),
@@ -68,21 +58,3 @@ VEHICLE_LIMITS: dict[str, tuple[float, float]] = {
     "yaw": (-1e6, 1e6),  # degrees
 }
 
-
-def stream_labels(n_receivers: int, receivers_truth: list[tuple[int, bool, bool]],
-                  transmitters_truth: list[tuple[int, bool, bool]]) -> list[str]:
-    """Labels of the streams a scene emits (BRIEF 6): ``arva`` (``arva:<id>`` with several
-    receivers), then ``gps`` / ``attitude`` (suffixed ``:rx``, ``:rx<id>``, ``:tx<id>``
-    when several devices stream the same kind). ``*_truth`` are (id, gps, attitude).
-
-    ``emulator.pipeline.stream_layout`` names its streams the same way
-    (tests/integration/test_malformed_inputs.py checks that they agree).
-    """
-    several = n_receivers > 1
-    labels = [f"arva:{rid}" if several else "arva" for rid, _, _ in receivers_truth]
-    devices = [(f"rx{rid}" if several else "rx", gps, att) for rid, gps, att in receivers_truth]
-    devices += [(f"tx{tid}", gps, att) for tid, gps, att in transmitters_truth]
-    for k, kind in enumerate(("gps", "attitude")):
-        carriers = [name for name, *flags in devices if flags[k]]
-        labels += [kind if len(carriers) == 1 else f"{kind}:{name}" for name in carriers]
-    return labels

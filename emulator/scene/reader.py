@@ -1,11 +1,10 @@
 """Scene files (BRIEF 5): versioned TOML describing transmitters, a receiver and effects.
 
-Validation is strict, in the pyvisa-sim manner: the document is converted to the schema
-structs of :mod:`emulator.scene.tables` (every key known, every value's type, length and
-range checked), then the rules across keys are checked here (ids unique, waypoint times
-increasing, quaternions normalisable, effects enabled for their tables...). The first
-problem raises :class:`SceneError` whose text is ``FILE: key.path: reason`` (one line,
-naming the exact key). The result is a :class:`~emulator.scene.types.Scene`.
+The document is converted to the schema structs of :mod:`emulator.scene.tables` (every
+key, type and range), then the rules across keys are checked here (ids unique, waypoint
+times increasing, quaternions normalisable, effects enabled for their tables...). The
+first problem is a one-line :class:`SceneError`, ``FILE: key.path: reason``; the result
+a :class:`~emulator.scene.types.Scene`.
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_proto.errors import InputError, PoseError, SceneError
+from firmware_proto.errors import InputError, PoseError
 from firmware_proto.sentences import MAX_D_CM
 
 from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
@@ -31,9 +30,9 @@ from emulator.receiver.model import ModelParams
 from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
-from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S, stream_labels
+from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S
 from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint, toml_document, toml_file
-from emulator.scene.types import SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter
+from emulator.scene.types import SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter, truth_streams
 from emulator.schema import given, type_name
 from emulator.truth.error import GroundTruthErrorConfig
 
@@ -87,11 +86,9 @@ def parse_scene(data: dict, source: str) -> Scene:
         if quantize is not None:
             _check_quantized_range(rd, rx.model or model, quantize)
     if effects.link_fault_streams:
-        labels = stream_labels(
-            len(receivers),
-            [(rx.id, rx.gps, rx.attitude) for rx in receivers],
-            [(tx.id, tx.gps, tx.attitude) for tx in transmitters],
-        )
+        several = len(receivers) > 1
+        labels = [f"arva:{rx.id}" if several else "arva" for rx in receivers]
+        labels += [label for label, _, _ in truth_streams(receivers, transmitters)]
         for i, label in enumerate(effects.link_fault_streams):
             if label not in labels:
                 raise rd.fail(f"link_faults.streams[{i}]", f"no stream {label!r} in this scene (streams: {', '.join(labels)})")
@@ -218,20 +215,9 @@ def _profile_rate(rd: TableReader, profiles: list[ReceiverProfile | None]) -> fl
     return next(iter(rates), 1.0)
 
 
-def _receiver_model(rd: TableReader, profile: ReceiverProfile | None, model_keys: dict, r: ReceiverTable) -> ModelParams:
-    """Defaults, then the profile, then the scene's ``[model]`` keys, then ``antennas``."""
-    base = profile.model if profile is not None else ModelParams()
-    antennas = base.antennas if r.antennas is None else r.antennas
-    return rd.build("model", partial(replace, base), **model_keys, antennas=antennas)  # each within MODEL_LIMITS
-
-
 def _receivers(
-    rd: TableReader,
-    tables: list[tuple[ReceiverTable, str]],
-    rate_hz: float,
-    profiles: list[ReceiverProfile | None],
-    model_keys: dict,
-    scene_sets_quantize: bool,
+    rd: TableReader, tables: list[tuple[ReceiverTable, str]], rate_hz: float, profiles: list[ReceiverProfile | None],
+    model_keys: dict, scene_sets_quantize: bool,
 ) -> tuple[ReceiverSpec, ...]:
     """``[receiver]`` (one) or ``[[receivers]]`` (several, each on its own port).
 
@@ -246,7 +232,10 @@ def _receivers(
             raise rd.fail(f"{path}.id", f"duplicate id {rx_id} (also {seen[rx_id]}.id)")
         seen[rx_id] = path
         channels = r.channels if r.channels is not None else profile.channels if profile else 1
-        model = _receiver_model(rd, profile, model_keys, r)
+        # Defaults, then the profile, then the scene's [model] keys, then antennas.
+        base = profile.model if profile is not None else ModelParams()
+        antennas = base.antennas if r.antennas is None else r.antennas
+        model = rd.build("model", partial(replace, base), **model_keys, antennas=antennas)  # each within MODEL_LIMITS
         display = profile.display if profile is not None and not scene_sets_quantize else None
         vehicle = _vehicle(rd, r, path, rate_hz) if r.vehicle is not None else None
         trajectory = _trajectory(rd, r, path) if vehicle is None else _start_pose(vehicle)

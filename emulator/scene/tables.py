@@ -2,9 +2,7 @@
 length and range, written once. :mod:`emulator.scene.reader` converts a decoded TOML
 document to :class:`SceneTable` and builds the scene from it; receiver profiles share the
 model, display and rate rules. Units: metres, seconds, Hz; quaternions ``[w, x, y, z]``.
-
-:class:`TableReader` turns the errors into :class:`~firmware_proto.errors.SceneError`
-(``FILE: key.path: reason``), also for the tables a scene's parts convert themselves
+:class:`TableReader` words the errors, also for tables a scene's parts convert themselves
 (:func:`emulator.closed_loop.vehicle.parse_vehicle`).
 """
 

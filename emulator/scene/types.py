@@ -8,6 +8,7 @@ stage of the pipeline. Positions are world ENU metres, orientations unit quatern
 from __future__ import annotations
 
 import datetime as _dt
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,3 +116,21 @@ class Scene:
     @property
     def transmitter_ids(self) -> np.ndarray:
         return np.array([tx.id for tx in self.transmitters], dtype=np.int64)
+
+
+def truth_streams(
+    receivers: Sequence[ReceiverSpec], transmitters: Sequence[Transmitter]
+) -> list[tuple[str, str, ReceiverSpec | Transmitter]]:
+    """(label, kind, device) of every GPS, then every attitude stream (BRIEF 6), receivers
+    first: ``gps`` / ``attitude`` when one device streams that kind, else suffixed with
+    the device, ``gps:rx`` (``gps:rx<id>`` with several receivers), ``gps:tx<id>``."""
+    several_rx = len(receivers) > 1
+    devices: list[tuple[str, ReceiverSpec | Transmitter]] = [
+        (f"rx{rx.id}" if several_rx else "rx", rx) for rx in receivers
+    ]
+    devices += [(f"tx{tx.id}", tx) for tx in transmitters]
+    out = []
+    for kind in ("gps", "attitude"):
+        carriers = [(name, dev) for name, dev in devices if getattr(dev, kind)]
+        out += [(kind if len(carriers) == 1 else f"{kind}:{name}", kind, dev) for name, dev in carriers]
+    return out

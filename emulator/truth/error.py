@@ -1,21 +1,11 @@
 """Errors on the emulated ground-truth streams (BRIEF 3.1 ``ground_truth_error``).
 
-The emulator can also play the GPS and attitude sensors that a field team carries with
-the receiver; real ones are not perfect. This effect degrades the true poses the way such
-sensors do:
-
-* GPS: a constant ENU bias, independent Gaussian noise per axis, and fixes that go
-  missing with a given probability (the ``valid`` mask; the position of a missing fix
-  is still finite but must not be emitted as a fix).
-* Attitude: a small random rotation per sample, rotation vector Gaussian with the same
-  sigma on each body axis, composed on the body side (R_noisy = R_true R_noise, so the
-  error is expressed in the sensor's own axes).
-
-Determinism: GPS and attitude each have their own generator, derived from the scene seed
-and a ``stream`` number (one per emulated device), and each method makes exactly one
-``standard_normal`` call of shape (N, k) per batch, so drawing N samples at once or one
-by one gives the same numbers, and interleaving GPS and attitude calls changes nothing.
-A dropout is ``z < Phi^-1(p)`` on its own normal column: probability exactly p.
+GPS: a constant ENU bias (m), Gaussian noise per axis (m) and dropped fixes (the
+``valid`` mask). Attitude: a random rotation per sample, composed on the body side
+(R_noisy = R_true R_noise, the sensor's own axes). GPS and attitude each draw from their
+own generator (scene seed, ``stream`` per device) with one ``standard_normal`` call per
+batch, so batching and interleaving change nothing. The model in full:
+docs/emulator.md "ground_truth_error".
 """
 
 from __future__ import annotations
@@ -95,8 +85,10 @@ class GroundTruthError:
         self._sigma = np.array(config.gps_sigma_m)
         self._bias = np.array(config.gps_bias_m)
         self._noisy = bool(self._sigma.any())
-        self._dropout = config.gps_dropout > 0
-        self._threshold = _normal_quantile(config.gps_dropout) if self._dropout else -math.inf
+        p = config.gps_dropout
+        self._dropout = p > 0
+        # A fix is dropped when its normal is below Phi^-1(p); +inf at p = 1 (every fix).
+        self._threshold = -math.inf if p == 0 else math.inf if p >= 1 else NormalDist().inv_cdf(p)
         self._att_sigma = math.radians(config.attitude_sigma_deg)
         self._rng_gps = _rng(seed, stream, _GPS)
         self._rng_att = _rng(seed, stream, _ATTITUDE)
@@ -147,11 +139,6 @@ class GroundTruthError:
 
     def stats(self) -> dict[str, int]:
         return {"fixes": self.fixes, "fixes_dropped": self.fixes_dropped}
-
-
-def _normal_quantile(p: float) -> float:
-    """Phi^-1(p) for p in (0, 1]; +inf at 1 (every fix dropped)."""
-    return math.inf if p >= 1.0 else NormalDist().inv_cdf(p)
 
 
 def _rng(seed, stream: int, part: int) -> np.random.Generator:

@@ -15,29 +15,11 @@
   pitch positive nose up, roll positive right side down; intrinsic Z-Y-X on NED/FRD).
   Its conversions are re-exported here.
 
-Every sentence is assembled by ``pynmeagps.NMEAMessage(talker, msgID, GET, payload=...)``,
-which parses each field back by its type (a self-check) and computes the checksum, and
-``.serialize()`` adds ``$``, ``*hh`` and CR LF. We format the field strings ourselves
-because pynmeagps's keyword path prints floats with ``str()`` (``0.30000000000000004``),
-truncates rather than rounds the time, and can print 60 minutes (``4460.0000000``) when a
-latitude rounds up to the next degree.
-
-Precision (what the bench reader gets back, exactly to these digits):
-
-* time: centiseconds for GGA/RMC (``hhmmss.ss``), milliseconds for PASHR (``.sss``). The
-  datetime is rounded *before* it is split into time and date, so 23:59:59.996 becomes
-  00:00:00.00 of the next day in both the time and the RMC date.
-* latitude / longitude: ``lat_lon_decimals`` decimals of arc-minutes, default 7 (0.19 mm,
-  as u-blox "high precision NMEA"). With 7, a GGA fits NMEA's 82 characters only with
-  ``short=True`` (HDOP and geoid separation without trailing zeros), as the emulator's
-  streams send it; 4-5 fit either way.
-* altitude: GGA carries height above mean sea level and the geoid separation N, with
-  HAE = MSL + N. We take the height above the ellipsoid (HAE, as in
-  :mod:`emulator.frames.geodesy`) and a separation (default 0.0: then MSL = HAE), and print both
-  to millimetres, so a reader adds them back to HAE to the millimetre.
-* speed over ground in knots (3 decimals), course over ground in degrees true
-  (2 decimals), from an ENU velocity in m/s; the course is left empty when the speed
-  is zero (it is undefined), as receivers do.
+Every sentence is assembled by ``pynmeagps.NMEAMessage(talker, msgID, GET, payload=...)``
+(a self-check of each field, and the checksum) from field strings formatted here;
+precision and why we format the fields ourselves: docs/emulator.md "Sentence format and
+precision". Latitude and longitude in degrees, altitude in metres above the WGS-84
+ellipsoid, velocities ENU in m/s, speed in knots, course in degrees true.
 
 Timestamps: an aware datetime is converted to UTC; a naive one is taken as UTC.
 Bad arguments raise :class:`~firmware_proto.errors.InputError` naming the argument.
@@ -175,25 +157,15 @@ def speed_course_from_enu(v_east: float, v_north: float) -> tuple[float, float |
 
 
 def gga_sentence(
-    utc: datetime,
-    lat: float | None,
-    lon: float | None,
-    alt: float | None,
-    *,
-    geoid_sep: float = 0.0,
-    quality: int = 1,
-    sats: int = 12,
-    hdop: float = 0.8,
-    talker: str = "GP",
-    lat_lon_decimals: int = 7,
-    short: bool = False,
+    utc: datetime, lat: float | None, lon: float | None, alt: float | None, *,
+    geoid_sep: float = 0.0, quality: int = 1, sats: int = 12, hdop: float = 0.8,
+    talker: str = "GP", lat_lon_decimals: int = 7, short: bool = False,
 ) -> bytes:
     """One ``$xxGGA`` sentence (bytes, CR LF terminated).
 
     ``short``: HDOP and the geoid separation with the fewest decimals that keep their
-    value (up to 2 and 3: ``0.8``, ``0.0``, ``48.25``), the three characters that keep a
-    GGA with 7 decimals of arc-minutes within NMEA's 82 (for altitudes above -10 km and
-    below 1000 km); the emulator's ground-truth streams use it.
+    value (``0.8``, ``48.25``), which keeps a GGA within NMEA's 82 characters (the
+    emulator's streams use it; docs/emulator.md "Sentence format and precision").
 
     ``lat``/``lon`` in degrees, ``alt`` in metres above the WGS-84 ellipsoid; the sentence
     carries MSL = alt - geoid_sep and the separation. ``quality``: 0 no fix, 1 GPS,
@@ -217,17 +189,9 @@ def gga_sentence(
 
 
 def rmc_sentence(
-    utc: datetime,
-    lat: float | None,
-    lon: float | None,
-    *,
-    velocity_enu: ArrayLike | None = None,
-    speed_knots: float | None = None,
-    course: float | None = None,
-    valid: bool = True,
-    mode: str = "A",
-    talker: str = "GP",
-    lat_lon_decimals: int = 7,
+    utc: datetime, lat: float | None, lon: float | None, *,
+    velocity_enu: ArrayLike | None = None, speed_knots: float | None = None, course: float | None = None,
+    valid: bool = True, mode: str = "A", talker: str = "GP", lat_lon_decimals: int = 7,
 ) -> bytes:
     """One ``$xxRMC`` sentence (NMEA 2.3 layout, with the FAA mode indicator).
 
@@ -271,16 +235,8 @@ def _course_text(cog: float) -> str:
 
 
 def gps_sentences(
-    utc: datetime,
-    lat: float,
-    lon: float,
-    alt: float,
-    *,
-    velocity_enu: ArrayLike | None = None,
-    quality: int = 1,
-    talker: str = "GP",
-    lat_lon_decimals: int = 7,
-    **gga_options: Any,
+    utc: datetime, lat: float, lon: float, alt: float, *, velocity_enu: ArrayLike | None = None,
+    quality: int = 1, talker: str = "GP", lat_lon_decimals: int = 7, **gga_options: Any,
 ) -> bytes:
     """RMC then GGA for one epoch, the order u-blox receivers use: a reader starting on
     this stream dates the GGA with the RMC's date at once. The RMC's FAA mode follows
@@ -313,17 +269,9 @@ def _accuracy(value: float | None, field: str) -> str:
 
 
 def pashr_sentence(
-    utc: datetime,
-    heading: float,
-    roll: float,
-    pitch: float,
-    *,
-    heave: float = 0.0,
-    roll_accuracy: float | None = 0.05,
-    pitch_accuracy: float | None = 0.05,
-    heading_accuracy: float | None = 0.1,
-    gps_quality: int = 1,
-    ins_status: int = 1,
+    utc: datetime, heading: float, roll: float, pitch: float, *, heave: float = 0.0,
+    roll_accuracy: float | None = 0.05, pitch_accuracy: float | None = 0.05, heading_accuracy: float | None = 0.1,
+    gps_quality: int = 1, ins_status: int = 1,
 ) -> bytes:
     """One ``$PASHR`` sentence (layout in the module docstring), angles in degrees.
 

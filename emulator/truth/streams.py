@@ -1,16 +1,11 @@
 """Emulated ground truth: a GPS (NMEA RMC + GGA) and an attitude unit ($PASHR) riding on
 a receiver or a transmitter, each on its own port, from the device's scene trajectory.
 
-Epoch k of a ground-truth stream is at scene time k / rate and carries the UTC time
-``ground_truth.start_utc + k / rate``. ENU positions are mapped to WGS-84 through the
-scene's ``[origin]``; velocity (for RMC speed and course) is that of the path segment
-being travelled (:meth:`~emulator.frames.trajectory.Trajectory.velocity`: at a waypoint,
-the segment that starts there; zero once the path has ended). GGA carries HDOP and the
-geoid separation in their short form (``0.8``, ``0.0``), so every sentence stays within
-NMEA's 82 characters for every ``lat_lon_decimals`` a scene accepts (4-7; altitudes
-above -10 km and below 1000 km). With the ``ground_truth_error`` effect, positions get
-bias, noise and dropouts (a dropped fix is sent as a no-fix RMC + GGA, as a receiver
-does) and attitudes get body-side angular noise.
+Epoch k of a ground-truth stream is at scene time k / rate (s) and carries the UTC time
+``ground_truth.start_utc + k / rate``. ENU positions (metres) are mapped to WGS-84
+through the scene's ``[origin]``; velocity (m/s, for RMC speed and course) is that of
+the path segment being travelled. With ``ground_truth_error`` a dropped fix is sent as
+a no-fix RMC + GGA, as a receiver does. Details: docs/emulator.md "Ground-truth streams".
 """
 
 from __future__ import annotations
@@ -23,7 +18,7 @@ import numpy as np
 from emulator.truth.error import GroundTruthError
 from emulator.frames.geodesy import enu_to_geodetic
 from emulator.truth.nmea import gga_sentence, gps_sentences, pashr_from_quaternions, rmc_sentence
-from emulator.scene.types import ReceiverSpec, Scene, Transmitter
+from emulator.scene.types import ReceiverSpec, Scene, Transmitter, truth_streams
 from emulator.output.streams import Stream
 from emulator.frames.trajectory import Trajectory
 
@@ -94,25 +89,11 @@ class TruthCarrier:
 
 
 def ground_truth_carriers(scene: Scene) -> list[TruthCarrier]:
-    """GPS and attitude streams of every device that asks for them, receivers first
-    (GPS streams before attitude streams).
-
-    Labels: ``gps`` / ``attitude`` when one device streams that kind, else suffixed
-    with the device, ``gps:rx`` (``gps:rx<id>`` with several receivers), ``gps:tx<id>``.
-    """
-    several_rx = len(scene.receivers) > 1
-    devices: list[tuple[str, ReceiverSpec | Transmitter]] = [
-        (f"rx{rx.id}" if several_rx else "rx", rx) for rx in scene.receivers
-    ]
-    devices += [(f"tx{tx.id}", tx) for tx in scene.transmitters]
-    out: list[TruthCarrier] = []
-    for kind in ("gps", "attitude"):
-        carriers = [(name, dev) for name, dev in devices if getattr(dev, kind)]
-        for name, dev in carriers:
-            label = kind if len(carriers) == 1 else f"{kind}:{name}"
-            # One error stream per ground-truth stream, after the receivers' noise streams.
-            out.append(TruthCarrier(label, kind, dev, 1000 + len(out)))
-    return out
+    """GPS and attitude streams of every device that asks for them, in
+    :func:`~emulator.scene.types.truth_streams` order (labels from there too)."""
+    # One error stream per ground-truth stream, after the receivers' noise streams.
+    return [TruthCarrier(label, kind, dev, 1000 + i)
+            for i, (label, kind, dev) in enumerate(truth_streams(scene.receivers, scene.transmitters))]
 
 
 def ground_truth_stream(scene: Scene, carrier: TruthCarrier) -> Stream:
@@ -122,7 +103,3 @@ def ground_truth_stream(scene: Scene, carrier: TruthCarrier) -> Stream:
     cls = GpsStream if carrier.kind == "gps" else AttitudeStream
     return cls(scene, carrier.device.trajectory, carrier.label, error)
 
-
-def ground_truth_streams(scene: Scene) -> list[Stream]:
-    """Every ground-truth stream of the scene, in :func:`ground_truth_carriers` order."""
-    return [ground_truth_stream(scene, c) for c in ground_truth_carriers(scene)]

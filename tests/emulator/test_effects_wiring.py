@@ -36,7 +36,6 @@ def parva(seq, n, k, tx, d, delta):
 def test_ideal_scene_builds_no_effect_at_all():
     r = Receiver(default_scene())
     assert (r.noise, r.pulses, r.quantize) == (None, None, None)
-    assert r._before_selection == [] and r._after_selection == []
 
 
 def test_quantize_leds5_exact_sentences():

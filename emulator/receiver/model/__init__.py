@@ -5,21 +5,13 @@ scene units. Frames (BRIEF 2): world = local ENU in metres; body x forward, y le
 the transmitter dipole points along its +x; quaternions ``[w, x, y, z]`` rotate body into
 world.
 
-Modules:
-
-* :mod:`.types`: ModelParams, Measurement, zone and range constants;
-* :mod:`.reference`: the formula of BRIEF 3 (general path: every receiver class, noise,
-  the field, moving transmitters), block by block;
-* :mod:`.fast`: the same integers for the common case (ideal 3-antenna receiver, static
-  transmitters, no field) in fewer numpy passes; it hands every pair it cannot decide
-  safely to the reference formula;
-* :mod:`.channels`: channel selection (Epochs);
-* here: :func:`measure` (input checks, blocks, threads, which path) and
-  :func:`measure_one`.
-
-``KERNEL`` (from the environment variable ARVA_MODEL_KERNEL at import, checked on every
-call): "fast" (the default: the fast path where it applies) or "general" (the reference
-formula for every pair: slower, the same integers; for checking and benchmarks).
+Here: :func:`measure` (input checks, blocks, threads, which path) and :func:`measure_one`.
+:mod:`.reference` is the formula of BRIEF 3 (the general path); :mod:`.fast` gives the
+same integers for the common case (ideal 3-antenna receiver, static transmitters, no
+field) and hands every pair it cannot decide safely to it; :mod:`.channels` selects the
+channels, :mod:`.types` holds ModelParams, Measurement and the constants. ``KERNEL``
+(ARVA_MODEL_KERNEL): "fast" (default) or "general", see docs/model.md "One fast path,
+and the switch".
 """
 
 from __future__ import annotations
@@ -38,14 +30,7 @@ from emulator.receiver.model import fast, reference
 from emulator.receiver.model.channels import Epochs, select_channels
 from emulator.receiver.model.reference import round_half_away
 from emulator.receiver.model.types import (
-    ANTENNAS,
-    MAX_DELTA_DEG,
-    ZONE_INNER,
-    ZONE_MID,
-    ZONE_OUTER,
-    Batch,
-    Measurement,
-    ModelParams,
+    ANTENNAS, MAX_DELTA_DEG, ZONE_INNER, ZONE_MID, ZONE_OUTER, Batch, Measurement, ModelParams,
 )
 from firmware_proto.errors import InputError, PoseError
 
@@ -65,13 +50,8 @@ KERNEL = os.environ.get("ARVA_MODEL_KERNEL", "fast")
 
 
 def measure(
-    rx_position: ArrayLike,
-    rx_orientation: ArrayLike,
-    tx_position: ArrayLike,
-    tx_orientation: ArrayLike,
-    params: ModelParams = ModelParams(),
-    noise: NDArray[np.float64] | None = None,
-    want_field: bool = False,
+    rx_position: ArrayLike, rx_orientation: ArrayLike, tx_position: ArrayLike, tx_orientation: ArrayLike,
+    params: ModelParams = ModelParams(), noise: NDArray[np.float64] | None = None, want_field: bool = False,
     threads: int = 1,
 ) -> Measurement:
     """Evaluate N receiver poses against M transmitters.
@@ -87,7 +67,9 @@ def measure(
     parallel threads (same results; worth it only for large N on idle cores).
     """
     batch = _checked_batch(rx_position, rx_orientation, tx_position, tx_orientation, params, noise, want_field)
-    use_fast = _fast_path_enabled() and fast.applies(batch)  # the switch is checked on every call
+    if KERNEL not in KERNELS:  # the switch is checked on every call
+        raise InputError(f"ARVA_MODEL_KERNEL: must be one of {', '.join(KERNELS)}, got {KERNEL!r}")
+    use_fast = KERNEL == "fast" and fast.applies(batch)
     n, m = batch.d.shape
     if use_fast:
         # The fast path writes d and delta of the mid (and inner) pairs only: the rest are
@@ -142,13 +124,6 @@ def _in_threads(run: Callable[[int, int], None], n: int, rows: int, threads: int
             job.result()  # re-raises a worker's error (e.g. a PoseError)
 
 
-def _fast_path_enabled() -> bool:
-    """Whether the fast path may run (KERNEL; see the module docstring)."""
-    if KERNEL not in KERNELS:
-        raise InputError(f"ARVA_MODEL_KERNEL: must be one of {', '.join(KERNELS)}, got {KERNEL!r}")
-    return KERNEL == "fast"
-
-
 def _positions(p: ArrayLike, field_name: str) -> NDArray[np.float64]:
     """float64 positions (..., 3); non-finite values are a :class:`PoseError`."""
     p = np.asarray(p, dtype=np.float64)
@@ -177,11 +152,8 @@ def _quaternions(q: ArrayLike, field: str) -> NDArray[np.float64]:
 
 
 def measure_one(
-    rx_position: ArrayLike,
-    rx_orientation: ArrayLike,
-    tx_position: ArrayLike,
-    tx_orientation: ArrayLike = (1.0, 0.0, 0.0, 0.0),
-    params: ModelParams = ModelParams(),
+    rx_position: ArrayLike, rx_orientation: ArrayLike, tx_position: ArrayLike,
+    tx_orientation: ArrayLike = (1.0, 0.0, 0.0, 0.0), params: ModelParams = ModelParams(),
 ) -> tuple[int, int]:
     """(d [cm], delta [deg]) of one receiver pose and one transmitter, ideal receiver.
 

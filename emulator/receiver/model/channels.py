@@ -40,15 +40,12 @@ def select_channels(meas: Measurement, ids: ArrayLike, channels: int) -> Epochs:
     key = np.where(meas.zone == ZONE_OUTER, np.iinfo(np.int64).max, meas.d)
     order = np.argsort(key, axis=1, kind="stable")[:, :channels]
     kept = np.take_along_axis(meas.zone, order, axis=1) != ZONE_OUTER
-    out_ids = np.full((n, channels), -1, dtype=np.int64)
-    out_d = np.full((n, channels), -1, dtype=np.int64)
-    out_delta = np.full((n, channels), -1, dtype=np.int64)
-    out_idx = np.full((n, channels), -1, dtype=np.int64)
     width = order.shape[1]
-    out_ids[:, :width] = np.where(kept, ids[order], -1)
-    out_d[:, :width] = np.where(kept, np.take_along_axis(meas.d, order, axis=1), -1)
-    out_delta[:, :width] = np.where(kept, np.take_along_axis(meas.delta, order, axis=1), -1)
-    out_idx[:, :width] = np.where(kept, order, -1)
+    d, delta = (np.take_along_axis(a, order, axis=1) for a in (meas.d, meas.delta))
+    selected = (ids[order], d, delta, order)
+    out_ids, out_d, out_delta, out_idx = (np.full((n, channels), -1, dtype=np.int64) for _ in selected)
+    for out, values in zip((out_ids, out_d, out_delta, out_idx), selected):
+        out[:, :width] = np.where(kept, values, -1)
     fld = None
     if meas.field is not None:
         fld = np.zeros((n, channels, 3))

@@ -4,44 +4,20 @@ transmitters, no field. Same integers as :mod:`emulator.receiver.model.reference
 Units and frames as there: positions in metres in the world frame (local ENU),
 quaternions ``[w, x, y, z]`` body to world, ``d`` in centimetres, ``delta`` in degrees.
 
-Same model, fewer numpy passes. With d = p_r - p_t, s = |d|^2 and a, b the receiver-frame
-d and dipole axis (a = R_r^T d, b = R_r^T m), the receiver-frame field direction scaled
-by s is G = 3 (m.d) a - s b (= s g: no sqrt, no division per component), and
-
-    (200 dxy)^6 = s^5 / (lam^2 (G_x^2 + G_y^2)),   lam = (200 c)^-3,  c = distance_scale
-
-(lam is folded into b and m.d, so the scaled G costs nothing extra). a_x, a_y, b_x, b_y,
-3 m.d and s = |p_r|^2 - 2 p_r.p_t + |p_t|^2 are bilinear in per-pose and
-per-transmitter values: one small BLAS product each (K = 4 or 5) instead of five numpy
-passes. The zone test is on (200 dxy)^6 against (200 r_outer)^6, so sqrt, cbrt and atan
-run only for the mid-zone pairs (gathered); d = floor((200 dxy + 1) / 2) and delta =
-floor(degrees(atan(G_y / G_x)) + 90.5) - 90 (clipped, a table). Inner pairs are rare and
-found from s alone (|g| <= 2). Rounding and zone tests thus happen on different but
-equivalent expressions, good to ~1e-11 (relative); a pair within 1e-8 of a zone or
-rounding boundary (or 1e-6 degrees of atan's fold at +-90) is handed to the general
-path, so the integers are the general path's for every pair
-(tests/emulator/receiver/test_model_fast.py: millions of random pairs, hairs from each boundary).
-
-Pairs where this formulation could lose accuracy go to the general path, pair by pair
-(so the result of a pair never depends on its block): s outside [1e-50, 1e50] (r = 0,
-r below 1e-25 m or above 1e25 m, huge coordinates), coordinates large against the
-separation (|p_r|^2 + |p_t|^2 > 1e5 s: the expanded s and a = R^T p_r - R^T p_t lose
-more than ~1e-11 to cancellation), and receiver quaternions whose |q|^2 leaves
-[1e-16, 1e290].
-
-Why numpy and not compiled code (issue 30, docs/architecture.md): a C version of this
-loop was 1.15-1.17x this path on the model alone and made no measurable difference on a whole
-``arva-emulate`` run, at the price of a compiler at install and a second implementation
-to keep bit-identical; it was removed. Fusing these passes with numexpr was measured and
-dropped too (issue 20, 2026-12-01, in-process A/B, CPU time, numexpr 2.14.2 on one
-thread): its PyPI wheel runs scalar loops over strided operands while numpy's passes
-here are AVX-512, so on blocks held in L2 the fused G_x = a m - s b costs 1.10
-ns/element vs 0.85 for numpy's three passes, and the batch was 30.3 ns/pair with the
-per-pose work in numexpr, 32.0 with the G chain, vs 30.2 as is.
+Same model, fewer numpy passes: the receiver-frame field direction scaled by
+s = |p_r - p_t|^2, G = 3 (m.d) a - s b, needs no sqrt or division; the zone test runs on
+(200 dxy)^6 = s^5 / (lam^2 (G_x^2 + G_y^2)), so sqrt, cbrt and atan run only for mid-zone
+pairs; per-pose and per-transmitter factors meet in small BLAS products. A pair within
+1e-8 of a zone or rounding boundary (1e-6 deg of atan's fold), or where this form could
+lose accuracy, goes to the general path pair by pair, so the integers are the general
+path's for every pair (tests/emulator/receiver/test_model_fast.py). The derivation, the
+accuracy bounds and why numpy rather than C or numexpr: docs/model.md "One fast path,
+and the switch".
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 
@@ -128,18 +104,10 @@ class FastPath:
         reference.measure_pairs(b, general)
 
 
-_TABLES: dict = {}
-
-
+@functools.lru_cache(maxsize=16)
 def tables(params: ModelParams) -> FastTables:
     """The fast path's tables for ``params`` (cached: a few hundred KB, built once)."""
-    tab = _TABLES.get(params)
-    if tab is None:
-        if len(_TABLES) > 16:
-            _TABLES.clear()
-        tab = _TABLES[params] = FastTables(params)
-    return tab
-
+    return FastTables(params)
 
 
 def _fast_block(rx_p, rx_q, x2, tx, tab, d_out, delta_out, zone_out, buf):

@@ -5,34 +5,17 @@ field in scene units. Frames (BRIEF 2): world = local ENU in metres; body x forw
 left, z up; the transmitter dipole points along its +x; quaternions ``[w, x, y, z]``
 rotate body into world.
 
-Numerical formulation (BRIEF 3.3). With p = R_t^T (p_r - p_t), r = |p| (a norm that
-neither under- nor overflows) and the unit direction p/r = (x, y, z), the field is
-
-    h = s / (4 pi r^3) * u,    u = R_r^T R_t [2x^2 - y^2 - z^2, 3xy, 3xz],   1 <= |u| <= 2
-
-computed as u = R_r^T (3 x n - m) with n = (p_r - p_t)/r in the world and m = R_t e_x
-the dipole axis (the same vector: [2x^2-y^2-z^2, 3xy, 3xz] = 3x(x, y, z) - e_x),
-
-so without noise every output follows from u and r alone:
+Scale-free form (derivation in docs/model.md section 2): with r the separation, n the
+world unit vector from transmitter to receiver and m = R_t e_x the dipole axis, the
+field is h = s / (4 pi r^3) * u with u = R_r^T (3 (m.n) n - m), 1 <= |u| <= 2, so
 
     d3  = r * cbrt(kappa_eq / s) / cbrt(|u|)
     dxy = r * cbrt(kappa_eq / s) / cbrt(|(u_x, u_y)|)
     delta = atan(u_y / u_x)
 
-and no intermediate over- or underflows for any finite r > 0.
-
-Receiver classes (``ModelParams.antennas``). A 3-antenna receiver (the default, BRIEF 3)
-takes d3 in the inner zone and dxy outside it. A 2-antenna receiver has only the two
-horizontal antennas: every zone uses dxy (inner when dxy <= r_inner, delta 0; mid when
-dxy <= r_outer; outer otherwise, and (h_x, h_y) = (0, 0) is outer: directly above a
-vertical transmitter it reads no signal, the 2-antenna "spike"). r = 0 exactly is inner
-with (0, 0) for both classes. The same scale-free g, so the same stability.
-
-With noise, h = a u + b v
-(a = s/(4 pi r^3), b = w_en, v = Q R_r^T w/w_en, |w/w_en| <= 1). We factor out the larger
-of a and b: g = u + (b/a) v with distance scale r * cbrt(kappa_eq/s) when b <= a, else
-g = (a/b) u + v with scale cbrt(kappa_eq / (4 pi w_en)). The ratio b/a = (2/max q)(r/r_en)^3
-may overflow to inf; its reciprocal is then 0 and nothing ever computes inf * 0.
+and no intermediate over- or underflows for any finite r > 0. With noise the larger of
+the signal and noise terms is factored out, so inf * 0 never occurs (docs/model.md
+section 4); the 2-antenna class uses dxy in every zone (section 8).
 
 This is the general path: every receiver class, noise, the field, moving transmitters.
 :mod:`emulator.receiver.model.fast` computes the common case faster and hands back every
@@ -206,11 +189,9 @@ def measure_block(rx, rr, tx, tm, f, params, noise, d_out, delta_out, zone_out, 
     """One block of pairs. Every array argument broadcasts to the block's 2-D shape.
 
     ``rx`` receiver positions (3 rows), ``rr`` its rotation (3 x 3 rows), ``tx``
-    transmitter positions and ``tm`` dipole axes (3 rows each), world frame, metres.
-    Only the dipole axis m = R_t e_x (first column of R_t) matters: with n the world unit
-    vector from transmitter to receiver and x = m.n (the transmitter-frame x of p/r),
-    A(p)/r^2 = 3 x (p/r) - e_x in the transmitter frame, i.e. u_w = 3 x n - m in the
-    world frame. Same field as eq. 1 rotated by R_t, in 3x fewer operations.
+    transmitter positions and ``tm`` dipole axes m = R_t e_x (3 rows each), world frame,
+    metres: u_w = 3 (m.n) n - m is eq. 1 rotated by R_t, in 3x fewer operations
+    (docs/model.md section 2, steps 1-2).
 
     Written with ``out=`` into preallocated buffers and in-place ufuncs (no temporaries
     on the common path) and the same floating-point operations in the same order as the
@@ -431,7 +412,10 @@ def _round_half_up_exact(x, params) -> bool:
 
 
 def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
-    """Add EMI (BRIEF 3.2) in the scaled form described in the module docstring."""
+    """Add EMI (BRIEF 3.2): h = a u + b v (a = s / (4 pi r^3), b = w_en) with the larger
+    of a and b factored out: g = u + (b/a) v at distance scale r * cbrt(kappa_eq / s) when
+    b <= a, else g = (a/b) u + v at cbrt(kappa_eq / (4 pi w_en)); b/a may be inf, its
+    reciprocal is then 0 and nothing computes inf * 0."""
     q = params.q
     # v = Q R_r^T w_hat: receiver-frame noise, per unit of w_en.
     wx, wy, wz = noise
