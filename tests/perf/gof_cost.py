@@ -8,6 +8,7 @@ Usage: python tests/perf/gof_cost.py exact|pose-error ROUNDS
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import time
@@ -23,7 +24,11 @@ from fit_campaign import PoseError, emulate_campaign  # noqa: E402
 
 
 def main(argv: list[str]) -> int:
-    kind, rounds = argv[0], int(argv[1])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("kind", choices=("exact", "pose-error"))
+    ap.add_argument("rounds", type=int, help="fits with and without the check, alternating")
+    args = ap.parse_args(argv)
+    kind, rounds = args.kind, args.rounds
     truth = ModelParams(kappa_eq=1.542, r_en=80.0)
     if kind == "exact":
         table, opts = emulate_campaign(0, truth, seed=1000, n_rows=100_000), FitOptions()

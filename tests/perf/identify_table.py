@@ -9,6 +9,7 @@ Usage: python tests/perf/identify_table.py [SEEDS]
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -24,7 +25,9 @@ from bench.fit.identify import noise_shows  # noqa: E402
 
 
 def main() -> None:
-    seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 10
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("seeds", type=int, nargs="?", default=10, help="tuning seeds 0..SEEDS-1 per walk (default 10)")
+    seeds = ap.parse_args().seeds
     for cond in ("radial-gm", "level-gm", "spiral-gm", "near-gm", "far-gm", "drone-gm"):
         frac, rows = [], []
         for seed in range(seeds):

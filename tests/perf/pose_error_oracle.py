@@ -165,7 +165,16 @@ import os
 OFF = int(os.environ.get("OFF", "9000"))
 SH = float(os.environ.get("SH", "1.0"))
 if __name__ == "__main__":
-    minutes, seeds, modes, path = float(sys.argv[1]), range(int(sys.argv[2]), int(sys.argv[3])), sys.argv[4].split(","), sys.argv[5]
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("minutes", type=float)
+    ap.add_argument("first_seed", type=int)
+    ap.add_argument("end_seed", type=int)
+    ap.add_argument("modes", help="comma-separated: plain, omean, ovar, ofull, exact, exacteiv (+ _sg, _sp, _sm)")
+    ap.add_argument("out", help="JSON lines appended here")
+    a = ap.parse_args()
+    minutes, seeds, modes, path = a.minutes, range(a.first_seed, a.end_seed), a.modes.split(","), a.out
     with open(path, "a") as f:
         for s in seeds:
             run(minutes, s, modes, f)

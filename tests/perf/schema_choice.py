@@ -11,6 +11,7 @@ Run: python tests/perf/schema_choice.py   (needs `pip install msgspec pydantic`)
 
 from __future__ import annotations
 
+import argparse
 import statistics
 import sys
 import timeit
@@ -19,7 +20,13 @@ from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import msgspec
-import pydantic
+
+if __name__ == "__main__":
+    argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog="Needs pydantic: pip install pydantic").parse_args()
+try:
+    import pydantic
+except ImportError:
+    raise SystemExit("schema_choice.py: this comparison needs pydantic v2 (pip install pydantic); msgspec alone is the project's") from None
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
