@@ -70,7 +70,7 @@ class ControlClient:
             sock.close()
             raise EmulatorError(f"cannot connect to the control channel {address}: {exc}") from None
         self._sock = sock
-        self._replies = sock.makefile("rb")  # each read waits at most `timeout` (the socket's)
+        self._buf = bytearray()
         self._lock = threading.Lock()
         self._transcript = open(transcript, "a", encoding="utf-8") if transcript is not None else None
 
@@ -95,15 +95,26 @@ class ControlClient:
         return json.loads(reply)
 
     def _read_line(self) -> str:
-        try:
-            line = self._replies.readline()
-        except TimeoutError:
-            raise EmulatorError(f"control channel {self.address}: no reply within {self.timeout} s") from None
-        except OSError as exc:
-            raise EmulatorError(f"control channel {self.address}: {exc}") from None
-        if not line.endswith(b"\n"):
-            raise EmulatorError(f"control channel {self.address}: closed by the emulator")
-        return line[:-1].decode("utf-8")
+        deadline = time.monotonic() + self.timeout
+        while True:
+            nl = self._buf.find(b"\n")
+            if nl >= 0:
+                line = bytes(self._buf[:nl])
+                del self._buf[: nl + 1]
+                return line.decode("utf-8")
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise EmulatorError(f"control channel {self.address}: no reply within {self.timeout} s")
+            self._sock.settimeout(left)
+            try:
+                data = self._sock.recv(65536)
+            except socket.timeout:
+                continue
+            except OSError as exc:
+                raise EmulatorError(f"control channel {self.address}: {exc}") from None
+            if not data:
+                raise EmulatorError(f"control channel {self.address}: closed by the emulator")
+            self._buf += data
 
     def request(self, op: str, **fields: Any) -> dict:
         """``{"op": op, **fields}`` -> the reply; :class:`ControlReplyError` if not ok."""
@@ -120,7 +131,6 @@ class ControlClient:
         self.close()
 
     def close(self) -> None:
-        self._replies.close()
         self._sock.close()
         if self._transcript is not None:
             self._transcript.close()
