@@ -99,11 +99,25 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
     With the errors-in-variables model and the time offset neither fitted nor given, the
     fit then scans for one (:func:`offset_scan`) and, when the poses fit better at an
     offset by more than :data:`OFFSET_GAIN` nats, fits again with ``time_offset`` free;
-    either way one note says what the scan found."""
+    either way one note says what the scan found. A step that replaces the fit by another
+    (the fit without GPS outliers, the attitude held, exact poses, the offset fitted) puts
+    its note first, and the notes of the steps before it stay, in order."""
     options = FitOptions() if options is None else options
-    res, options = without_outliers_if_stuck(table, options, fit_restarted(table, options))
-    res, options = held_attitude(table, options, res)
-    res, options = exact_if_invisible(table, options, res)
+    res = fit_restarted(table, options)
+    steps: list[str] = []  # the first note of each step that replaced the fit
+    for step in (without_outliers_if_stuck, held_attitude, exact_if_invisible):
+        new, options = step(table, options, res)
+        if new is not res:
+            steps.append(new.notes[0])
+        res = new
+    res = offset_fitted(table, options, res)
+    res.notes[:0] = [n for n in steps if n not in res.notes]
+    return res
+
+
+def offset_fitted(table: Table, options: FitOptions, res: FitResult) -> FitResult:
+    """:func:`fit`'s clock-offset step: ``res`` with a note, or the fit with ``time_offset``
+    free when the scan finds one."""
     eiv = res.params.gps_sigma > 0 or res.params.attitude_sigma > 0
     if not (options.scan_offset and eiv and res.converged and "time_offset" not in res.free and options.base.time_offset == 0.0):
         return res
@@ -232,7 +246,9 @@ def exact_if_invisible(table: Table, options: FitOptions, res: FitResult) -> tup
     """``res`` and ``options``, or, when the errors-in-variables fit put both pose-error
     sigmas on their floors (5 mm, 0.05 deg: the data show no pose error), the fit of
     exact poses (the relative model, ``--gps-sigma 0 --attitude-sigma 0``: pose_sigma
-    fitted, rows independent, the inverse Hessian) with a note, and its options.
+    fitted, rows independent, the inverse Hessian; when pose_sigma lands on its bound,
+    held at :data:`EXACT_POSE_SIGMA` instead: :func:`held_pose_sigma`) with a note, and
+    its options.
 
     Why (issue 28, exact-pose r_en intervals): the floors are not zero. The model then
     spreads every row's signal by 0.05 deg of attitude and 5 mm of position, which on a
@@ -291,7 +307,8 @@ def exact_if_invisible(table: Table, options: FitOptions, res: FitResult) -> tup
 #: smooths the noise edge and r_en comes out high; held at 1e-5 (searched from the
 #: bound's estimate) r_en's mean z went +0.40 -> +0.09 (radial walk), +0.51 -> +0.34
 #: (level), +0.25 -> +0.18 (far-only), its coverage 94 -> 98 %, 90 -> 94 %, 90 -> 91 %.
-#: The bound itself stays: the library's fits of exact poses are unchanged.
+#: The bound itself stays: fits of exact poses asked for (``--gps-sigma 0 --attitude-sigma 0``,
+#: the library's default options) are unchanged.
 EXACT_POSE_SIGMA = 1e-5
 
 
@@ -305,11 +322,14 @@ def held_pose_sigma(table: Table, exact: FitResult, options: FitOptions, as_give
     # From the smooth fit's estimate: at 1e-5 the likelihood is rough in r_en, and a search
     # from the pilot stopped in a side valley 42 nats down (level walk, report seed 1,000,009).
     held = fit_restarted(table, replace(held_options, start=replace(exact.params, pose_sigma=EXACT_POSE_SIGMA)))
+    bound = f"its bound {BOUNDS['pose_sigma'][0]:g}"
     if not held.converged:
+        exact.notes.append(f"pose_sigma stays on {bound}: the fit with it held at {EXACT_POSE_SIGMA:g} did not converge "
+                           f"({held.message}), so r_en may be high (the bound smooths the noise edge)")
         return exact, options, as_given
     held.seconds += exact.seconds
     held.n_evals += exact.n_evals
-    return held, held_options, f"{as_given}; pose_sigma held at {EXACT_POSE_SIGMA:g}, off its bound 1e-4, which smooths the noise edge"
+    return held, held_options, f"{as_given}; pose_sigma held at {EXACT_POSE_SIGMA:g}, off {bound}, which smooths the noise edge"
 
 
 def without_outliers_if_stuck(table: Table, options: FitOptions, res: FitResult) -> tuple[FitResult, FitOptions]:

@@ -293,7 +293,7 @@ rows, their gradients by forward differences (4 evaluations, not 8), until the d
 is below 2e-2 nats (0.2 standard errors), then the quasi-Newton step, the gradient and the
 Hessian by central differences on all rows there and one Newton step with it, not
 evaluated, to the estimate (the sandwich's scores reuse that last gradient's per-row
-values). The last pass integrates the pose error in pieces of at most 4 s.d. of 8 nodes
+values). The all-row stage integrates the pose error in pieces of at most 4 s.d. of 8 nodes
 (as accurate as the 2 s.d. of 6 nodes the passes before it keep, 12-15 % less CPU per
 evaluation; docs/calibration.md). The code
 before this design (every pass on all rows, gradient steps, the 60-node rule near the

@@ -49,7 +49,7 @@ def test_summary(campaign, capsys):
     assert "; converged; " in lines[3]
     assert lines[5].startswith(
         "note: no pose error is visible (GPS and attitude error at their floors, 5 mm and 0.05 deg): fitted as exact "
-        "poses (as --gps-sigma 0 --attitude-sigma 0; pose_sigma held at 1e-05, off its bound 1e-4, which smooths the "
+        "poses (as --gps-sigma 0 --attitude-sigma 0; pose_sigma held at 1e-05, off its bound 0.0001, which smooths the "
         "noise edge; with the floors r_en was "
     )
 

@@ -46,7 +46,7 @@ def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible():
     assert on_bound.params.pose_sigma == 1e-4  # the library's fit of exact poses: on the bound
     m = re.fullmatch(
         r"no pose error is visible \(GPS and attitude error at their floors, 5 mm and 0\.05 deg\): fitted as exact "
-        r"poses \(as --gps-sigma 0 --attitude-sigma 0; pose_sigma held at 1e-05, off its bound 1e-4, which smooths "
+        r"poses \(as --gps-sigma 0 --attitude-sigma 0; pose_sigma held at 1e-05, off its bound 0.0001, which smooths "
         r"the noise edge; with the floors r_en was ([0-9.]+)\)",
         res.notes[0],
     )

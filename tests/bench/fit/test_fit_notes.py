@@ -109,3 +109,34 @@ def test_a_sigma_without_measurable_curvature_is_held_for_the_others():
     assert keep.tolist() == [0, 1, 2, 3] and name is None
     keep, name = measurable(bad_att, np.array([0, 1, 2]), free)  # attitude already held: nothing to drop
     assert keep.tolist() == [0, 1, 2] and name is None
+
+
+def test_a_step_that_replaces_the_fit_keeps_the_notes_of_the_steps_before_it(monkeypatch):
+    """fit() runs its steps in order (the fit without GPS outliers, the attitude held,
+    exact poses, the clock offset); each that replaces the fit brings a fresh result with
+    only its own notes, so fit() puts the earlier steps' first notes back, in order."""
+    import numpy as np
+
+    from bench.fit import estimate
+    from bench.fit.params import Params
+    from bench.fit.result import FitResult
+
+    def result(*notes):
+        return FitResult(source="x", params=Params(), free=("kappa_eq",), estimate={"kappa_eq": 1.5}, se={"kappa_eq": 0.01},
+                         cov_theta=np.eye(1), log_likelihood=-1.0, n_rows=1, n_censored=0, n_used=1, converged=True,
+                         message="converged", iterations=1, n_evals=1, seconds=0.0, naive={}, exact_fraction=0.0,
+                         notes=list(notes))
+
+    def replacing(note):
+        return lambda table, options, res: (result(note, "its own routine note"), options)
+
+    monkeypatch.setattr(estimate, "fit_restarted", lambda table, options: result("first fit"))
+    monkeypatch.setattr(estimate, "without_outliers_if_stuck", replacing("no outliers"))
+    monkeypatch.setattr(estimate, "held_attitude", lambda table, options, res: (res, options))  # keeps the fit
+    monkeypatch.setattr(estimate, "exact_if_invisible", replacing("exact poses"))
+    monkeypatch.setattr(estimate, "offset_fitted", lambda table, options, res: result("offset fitted"))
+    res = estimate.fit(None, estimate.FitOptions())
+    assert res.notes == ["no outliers", "exact poses", "offset fitted"]
+    monkeypatch.setattr(estimate, "offset_fitted", lambda table, options, res: res)  # keeps the fit
+    res = estimate.fit(None, estimate.FitOptions())
+    assert res.notes == ["no outliers", "exact poses", "its own routine note"]
