@@ -109,6 +109,8 @@ class GroundTruthRecords(RecordDecoder):
     """
 
     def __init__(self, fmt: str = "nmea") -> None:
+        if fmt not in ("nmea", "mavlink"):
+            raise ValueError(f"ground-truth format must be nmea or mavlink, got {fmt!r}")
         self.format = fmt
         if fmt == "mavlink":
             from bench.ground_truth.mavlink import MavlinkAttitudeReader  # the optional extra

@@ -590,7 +590,9 @@ def read_jsonl(path: str | Path) -> Iterator[dict]:
             continue
         try:
             obj = _json(line, f"{path}: line {number}")
-        except (json.JSONDecodeError, UnicodeDecodeError):
+        except InputError:  # nested too deep
+            raise
+        except ValueError:  # not JSON (incl. an integer of over 4300 digits), or not UTF-8
             if not complete:
                 return
             bad = number

@@ -1,6 +1,7 @@
 """Starting one of our own modules as a child process (``python -P -m PACKAGE.MODULE``).
 
-Used by the ``--realtime-workers`` keeper, the HIL harness and the fit's worker.
+Used by the ``--realtime-workers`` keeper, the HIL harness and the fit's worker; it lives
+in ``emulator`` so all can import it (bench -> emulator, never back).
 
 The child is isolated from the caller's working directory: plain ``python -m`` puts the
 working directory first on ``sys.path``, so a user's repository with its own top-level

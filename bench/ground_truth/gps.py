@@ -4,11 +4,14 @@
 :class:`GpsFix` per checksum-verified GGA, RMC or GLL sentence (GP, GN, GL, GA, BD/GB,
 GQ, ... talkers), with or without a position: a receiver without a fix still reports that
 it is alive. Records are not merged across sentences (a GGA and an RMC of one epoch are
-two records with the same ``utc``). Degrees (north / east positive, as pynmeagps parses
-them, rounded to 1e-10), metres, knots:
+two records with the same ``utc``). GLL (position and time, no date, no altitude) is read
+because some Garmins send an extra GLL fix between their GGA/RMC pairs. Degrees (north /
+east positive, as pynmeagps parses them, rounded to 1e-10), metres, knots:
 
 * ``alt_hae = alt_msl + geoid_sep`` (GGA's height above the WGS-84 ellipsoid, the one
-  :mod:`emulator.frames.geodesy` uses) when both are sent, else None: no geoid model.
+  :mod:`emulator.frames.geodesy` uses) when both are sent, else None: receivers that leave
+  the separation empty may put the ellipsoid height in the MSL field, and we have no geoid
+  model to tell.
 * ``utc`` (aware) is dated by a :class:`~bench.ground_truth.utc.DayTracker`: RMC's own
   date, GGA's and GLL's by the last date seen; ``ZDA`` (time and date, no position: some
   receivers send GGA + ZDA and no RMC) only sets that date. None until a date is known.

@@ -94,7 +94,8 @@ def quaternion_to_hpr(q: ArrayLike, field: str = "orientation") -> HPR:
     theta = np.arctan2(r20, cos_pitch)  # pitch
     # alpha = 90 deg - heading: the ENU yaw of body x, counter-clockwise from east.
     alpha = np.where(locked, np.arctan2(-r01, r11), np.arctan2(r10, r00))
-    # Roll from the residual Rx(phi) = Ry(-theta)^T Rz(alpha)^T R (docs: exact near gimbal lock).
+    # Roll from the residual Rx(phi) = Ry(-theta)^T Rz(alpha)^T R (docs/emulator.md,
+    # "Attitude convention": exact near gimbal lock).
     sa, ca = np.sin(alpha), np.cos(alpha)
     sin_roll = -np.sin(theta) * (ca * r01 + sa * r11) + np.cos(theta) * r21
     cos_roll = ca * r11 - sa * r01

@@ -126,7 +126,7 @@ def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, alt: ArrayLike) -> Vec3:
 
 
 def ecef_to_geodetic(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Vec3:
-    """Geodetic (deg, deg, m HAE) of ECEF metres by Bowring's iteration (module docstring).
+    """Geodetic (deg, deg, m HAE) of ECEF metres by Bowring's iteration (docs/emulator.md, "Geodesy").
 
     Longitude is in [-180, 180]; on the polar axis it is 0 (any value is correct there).
     """

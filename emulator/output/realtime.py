@@ -2,9 +2,10 @@
 
 Real-time epochs are written at deadlines on the monotonic clock (seconds). SCHED_FIFO
 makes this process preempt ordinary tasks when its sleep ends, and ``mlockall`` keeps
-its pages resident so a deadline never waits on a page fault. Both need privileges;
-where refused the emulator runs as before and says so in one stderr line. Linux's RT
-throttling still caps a real-time task below a whole core, and the scheduler sleeps
+its pages resident so a deadline never waits on a page fault. Both need privileges
+(root, CAP_SYS_NICE / CAP_IPC_LOCK, or an rtprio / memlock limit); where refused the
+emulator runs as before and says so in one stderr line. Linux's RT throttling
+(sched_rt_runtime_us) still caps a real-time task below a whole core, and the scheduler sleeps
 between epochs, so this never starves the host. What it cannot help (a hypervisor's
 steal time, a pty's kernel worker: emulator/output/kworkers.py): docs/emulator.md,
 "Sub-millisecond timing at the device under test".

@@ -257,3 +257,14 @@ def test_a_jsonl_line_longer_than_the_cap_is_refused_without_reading_it_whole(tm
     path.write_bytes(b'{"n": 1}\n"' + b"x" * MAX_JSONL_LINE + b'"\n')
     with pytest.raises(InputError, match=rf"a.jsonl: line 2: longer than {MAX_JSONL_LINE} bytes \(not a JSON lines line\)$"):
         list(read_jsonl(path))
+
+
+def test_a_jsonl_line_json_refuses_for_its_size_is_one_error_line(tmp_path):
+    """Python's json refuses integers of more than 4300 digits with a plain ValueError
+    (not a JSONDecodeError): still "not JSON", not a traceback; as a torn tail, skipped."""
+    path = tmp_path / "events.jsonl"
+    path.write_bytes(b'{"n": 1}\n{"n": ' + b"9" * 5000 + b"}\n")
+    with pytest.raises(InputError, match=r"events.jsonl: line 2: not JSON$"):
+        list(read_jsonl(path))
+    path.write_bytes(b'{"n": 1}\n{"n": ' + b"9" * 5000)  # torn: no newline
+    assert list(read_jsonl(path)) == [{"n": 1}]

@@ -269,3 +269,12 @@ def test_reopening_keeps_what_the_os_buffered():
     finally:
         os.close(slave)
         os.close(master)
+
+
+def test_ground_truth_records_refuse_an_unknown_format():
+    """The stamper looks a decoder's record end up by its format: an unknown one is refused
+    where it is made, with the formats named, not later as a KeyError."""
+    from bench.records import GroundTruthRecords
+
+    with pytest.raises(ValueError, match=r"^ground-truth format must be nmea or mavlink, got 'gps'$"):
+        GroundTruthRecords("gps")
