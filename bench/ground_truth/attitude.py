@@ -95,7 +95,7 @@ class AttitudeReader(SentenceReader):
         if not (0.0 <= heading <= 360.0 and -180.0 <= roll <= 180.0 and -90.0 <= pitch <= 90.0):
             raise FieldError("angle out of range")
         q = tuple(float(c) for c in hpr_to_quaternion(heading, roll, pitch))
-        utc = None if tod is None else self.tracker.resolve(tod)
+        utc = self.tracker.resolve(tod)
         heave, roll_accuracy, pitch_accuracy, heading_accuracy = (_number(f, required=False) for f in p[5:9])
         return Attitude(tod, utc, heading, roll, pitch, q, heave, roll_accuracy, pitch_accuracy, heading_accuracy,
                         gps_quality=_flag(p[9]), ins_status=_flag(p[10]))
