@@ -251,27 +251,20 @@ class LiveSource(Notifier):
         super().__init__([f.device for f in self.feeds], self.feeds, stale_after=stale_after, name="dash")
 
 
-class ReplaySource:
+class ReplaySource(threading.Thread):
     """A thread replaying a session directory's devices with their recorded timing (the
     shared :class:`~bench.ingest.pacer.ReplayPacer`); reads are stamped when delivered."""
 
     def __init__(self, directory: str | Path, feeds: list[DeviceFeed], speed: float = 1.0) -> None:
+        super().__init__(name="dash-replay", daemon=True)
         self.directory = Path(directory)
         self.feeds = list(feeds)
         self._by_name = {f.spec.name: f for f in self.feeds}
         self.speed = speed
-        self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="dash-replay", daemon=True)
-
-    def start(self) -> None:
-        self.thread.start()
+        self.stopping = threading.Event()  # not _stop: threading.Thread has one
 
     def request_stop(self) -> None:
-        self._stop.set()
-
-    def join(self, timeout: float) -> None:
-        if self.thread.is_alive():
-            self.thread.join(timeout)
+        self.stopping.set()
 
     def _tick(self) -> None:
         mono, utc = time.monotonic(), time.time()
@@ -285,7 +278,7 @@ class ReplaySource:
         feed = self._by_name[name]
         feed.on_read(feed.device, feed.device.ingest(raw.data, time.monotonic(), time.time()))
 
-    def _run(self) -> None:
+    def run(self) -> None:
         reads: dict[str, RawLog] = {}
         try:
             logs = session_logs(self.directory, self._by_name)
@@ -301,12 +294,12 @@ class ReplaySource:
                 feed.set_state("down", str(exc))
             else:
                 feed.set_state("up")
-        ReplayPacer(reads, self.speed, self._stop, tick=self._tick, tick_interval=READ_TIMEOUT).run(self._deliver)
+        ReplayPacer(reads, self.speed, self.stopping, tick=self._tick, tick_interval=READ_TIMEOUT).run(self._deliver)
         mono, utc = time.monotonic(), time.time()
         for feed in self.feeds:
             feed.on_read(feed.device, feed.device.stop(mono, utc))
             feed.stop()
-            if not self._stop.is_set():
+            if not self.stopping.is_set():
                 feed.set_state("ended", "end of the session")
 
 
