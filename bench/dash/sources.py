@@ -105,7 +105,6 @@ class DeviceFeed(Listener):
         self.post = post
         self.truth = truth
         self.recorder = None  # set and cleared by the app (an attribute write is atomic)
-        self.records = 0
         self.checksum_errors = 0
         self.errors = 0
         self.rejected_bytes = 0
@@ -113,7 +112,7 @@ class DeviceFeed(Listener):
         self.reason = ""
         self._last_status = -1e9
         self._dirty = False
-        self._counts = {"epoch": 0, "GGA": 0, "RMC": 0, "GLL": 0, "attitude": 0}
+        self._counts = {"epoch": 0, "GGA": 0, "RMC": 0, "GLL": 0, "attitude": 0}  # every record is one of these
         self._tokens = POST_BURST
         self._token_mono: float | None = None
         self._held: list | None = None  # the latest record's messages not posted yet
@@ -154,7 +153,6 @@ class DeviceFeed(Listener):
             if "suppressed" in rec or "error" in rec:
                 self._count_errors(rec)
                 continue
-            self.records += 1
             counts = self._counts
             if "seq" in rec:
                 counts["epoch"] += 1
@@ -221,7 +219,7 @@ class DeviceFeed(Listener):
             seq_gaps, dropped = 0, dec.reader.stats["junk_bytes"]
         st = self.device.stats
         return LinkCounters(
-            reads=st.reads, bytes=st.bytes, records=self.records, checksum_errors=self.checksum_errors,
+            reads=st.reads, bytes=st.bytes, records=sum(self._counts.values()), checksum_errors=self.checksum_errors,
             errors=self.errors, seq_gaps=seq_gaps, dropped_bytes=dropped, reconnects=self.device.reconnects,
             last_data_mono=st.last_data_mono,
         )  # fmt: skip
