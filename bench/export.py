@@ -289,14 +289,13 @@ def write_csv(columns: dict[str, np.ndarray], path: str | Path, tracker: Tracker
     block at a time."""
     n = columns["t"].size
     names = COLUMNS + tuple(c for c in GPS_QUALITY_COLUMNS if c in columns)
-    fmt = {"t": "%.6f", "seq": "%d", "id": "%d", "d": "%d", "delta": "%d", "fix_quality": "%d", "hdop": "%s"}
     cols = [np.asarray(columns[c]) for c in names]
     if "hdop" in columns:
         h = np.asarray(columns["hdop"], dtype=np.float64)
         cols[names.index("hdop")] = np.array(["" if v != v else f"{v:.2f}" for v in h.tolist()], dtype=object)
     with open(path, "w", newline="") as f:
         f.write(",".join(names) + "\n")
-        formats = [fmt.get(c, "%.9f" if "_q" in c else "%.6f") for c in names]
+        formats = ["%d" if c in INT_COLUMNS else "%s" if c == "hdop" else "%.9f" if "_q" in c else "%.6f" for c in names]
         line = ",".join(formats) + "\n"
         for i in range(n):
             f.write(line % tuple(col[i] for col in cols))
