@@ -48,7 +48,7 @@ from emulator.progress import Tracker, progress
 from firmware_proto.errors import InputError
 
 from .ingest.stamp import Stamped, StampedDecoder
-from .records import ArvaRecords, decoder_for, is_positioned_fix
+from .records import decoder_for, is_positioned_fix
 from .session import MANIFEST, Manifest, RawLog, load_manifest, session_logs
 
 COLUMNS = (
@@ -198,12 +198,13 @@ def export_rows(directory: str | Path, origin: list[float] | None = None, latenc
     epochs: dict[str, list] = {}
     for name, log in logs.items():
         dev = devices[name]
+        stamped = _decode(log, decoder_for(dev.kind, dev.format), dev.baudrate)
         if dev.kind == "arva":
-            epochs[name] = [(s.mono, s.utc, s.record) for s in _decode(log, ArvaRecords(), dev.baudrate) if "seq" in s.record]
+            epochs[name] = [(s.mono, s.utc, s.record) for s in stamped if "seq" in s.record]
             if log.bytes and not epochs[name]:
                 raise InputError(f"{log.path}: {log.bytes} bytes decode to no $PARVA epoch (is {name} an ARVA receiver?)")
         else:
-            for s in _decode(log, decoder_for(dev.kind, dev.format), dev.baudrate):
+            for s in stamped:
                 r = s.record
                 if is_positioned_fix(r):
                     hdop = np.nan if r.get("hdop") is None else r["hdop"]
