@@ -318,14 +318,8 @@ class Manifest:
     raw: dict  # the JSON object as read
 
     @classmethod
-    def from_json(cls, obj, path: Path) -> Manifest:
-        try:
-            return cls._parse(obj)
-        except ValueError as exc:
-            raise InputError(f"{path}: {exc}") from None
-
-    @classmethod
-    def _parse(cls, obj) -> Manifest:
+    def parse(cls, obj) -> Manifest:
+        """The manifest of a parsed JSON value; ValueError saying what is wrong."""
         if not isinstance(obj, dict):
             raise ValueError(f"not a session manifest (a JSON object), got {type_name(obj, 'an object')}")
         if obj.get("format") != FORMAT:
@@ -448,11 +442,6 @@ class RawFile:
     torn_tail: bool
 
 
-def _parse_raw_line(line: bytes) -> RawRead:
-    mono, utc, b64 = line.split(b"\t")
-    return RawRead(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
-
-
 @dataclass(frozen=True)
 class SessionClock:
     """The reference of a session's stamps: its first read (the earliest ``mono`` of any
@@ -515,7 +504,8 @@ class RawLog:
             if not line:
                 continue
             try:
-                read = _parse_raw_line(line)
+                mono, utc, b64 = line.split(b"\t")
+                read = RawRead(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
             except (ValueError, binascii.Error) as exc:
                 bad = bad or (number, exc)
                 continue
@@ -621,4 +611,8 @@ def load_manifest(directory: str | Path) -> Manifest:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
-    return Manifest.from_json(loads_json(text, path), path)
+    obj = loads_json(text, path)
+    try:
+        return Manifest.parse(obj)
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
