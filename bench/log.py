@@ -108,19 +108,18 @@ def manifest(args: argparse.Namespace, specs: list[DeviceSpec], argv: list[str])
 class _FirstFixOrigin:
     """Without ``--origin``, the first receiver GGA fix becomes the session's origin, written
     into the manifest as soon as it arrives (export would pick the same fix; storing it
-    makes the session say where its ENU frame is)."""
+    makes the session say where its ENU frame is). Called by the session's listener, in
+    the notifier's one work thread."""
 
     def __init__(self, writer: SessionWriter, on_fatal) -> None:
         self.writer = writer
         self.on_fatal = on_fatal
-        self.lock = threading.Lock()
         self.done = False
 
     def __call__(self, lat: float, lon: float, alt: float) -> None:
-        with self.lock:
-            if self.done:
-                return
-            self.done = True
+        if self.done:
+            return
+        self.done = True
         try:
             self.writer.update_manifest(origin={"lat": lat, "lon": lon, "alt": alt, "source": "first receiver fix"})
         except LinkError as exc:
