@@ -88,10 +88,10 @@ class SceneTruth:
         """The receiver's and transmitters' poses at epoch k (t = k / rate_hz)."""
         t = k / self.rate
         pos, q = self.rx.trajectory.at([t])
-        out = [TruthPose(self.rx_role, tuple(pos[0]), tuple(q[0]), "scene", mono)]
+        out = [TruthPose(self.rx_role, pos[0], q[0], "scene", mono)]  # made float tuples by the message
         for tx in self.transmitters:
             p, tq = tx.trajectory.at([t])
-            out.append(TruthPose(f"tx{tx.id}", tuple(p[0]), tuple(tq[0]), "scene", mono))
+            out.append(TruthPose(f"tx{tx.id}", p[0], tq[0], "scene", mono))
         return out
 
 
