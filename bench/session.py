@@ -416,15 +416,6 @@ def _json(text: str | bytes, where: str | Path) -> object:
     raise InputError(f"{where}: JSON nested more than {MAX_JSON_DEPTH} deep")
 
 
-def loads_json(text: str, where: str | Path) -> object:
-    """JSON ``text`` parsed, at most :data:`MAX_JSON_DEPTH` deep; :class:`InputError`
-    naming ``where`` otherwise."""
-    try:
-        return _json(text, where)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{where}: not JSON (line {exc.lineno} column {exc.colno}: {exc.msg})") from None
-
-
 @dataclass(frozen=True)
 class RawRead:
     """One logged read: ``mono`` (s, logger's monotonic clock), ``utc`` (POSIX s)."""
@@ -611,7 +602,10 @@ def load_manifest(directory: str | Path) -> Manifest:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
-    obj = loads_json(text, path)
+    try:
+        obj = _json(text, path)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not JSON (line {exc.lineno} column {exc.colno}: {exc.msg})") from None
     try:
         return Manifest.parse(obj)
     except ValueError as exc:
