@@ -83,10 +83,9 @@ class TruthState:
             lat, lon, alt, *hrp = values
             pose.geodetic = (lat, lon, alt)
             pose.via = "surveyed"
-            if hrp:
-                heading, roll, pitch = (list(hrp) + [0.0, 0.0])[:3]
-                pose.hpr = (heading, roll, pitch)
-                pose.q = tuple(float(v) for v in hpr_to_quaternion(heading, roll, pitch))
+            if hrp:  # heading[, roll[, pitch]]: the missing ones 0
+                pose.hpr = tuple((hrp + [0.0, 0.0])[:3])
+                pose.q = tuple(float(v) for v in hpr_to_quaternion(*pose.hpr))
             if self.origin is not None:
                 pose.position = self._enu(lat, lon, alt)
 
