@@ -147,21 +147,19 @@ class DeviceFeed(Listener):
         self._release()
 
     def _handle(self, records: list[Stamped]) -> None:
-        name, role = self.spec.name, self.spec.role
+        name, role, counts, truth = self.spec.name, self.spec.role, self._counts, self.truth
         for stamped in records:
             rec, mono = stamped.record, stamped.mono
             if "suppressed" in rec or "error" in rec:
                 self._count_errors(rec)
                 continue
-            counts = self._counts
             if "seq" in rec:
                 counts["epoch"] += 1
-                k = self.truth.on_epoch(rec["seq"]) if self.truth is not None else 0
+                k = truth.on_epoch(rec["seq"]) if truth is not None else 0
                 epoch = EpochReceived(name, role, rec["seq"], rec["slots"], mono, rec["complete"], rec.get("gap", 0),
                                       count=counts["epoch"])  # fmt: skip
-                truth = self.truth
 
-                def make(truth=truth, k=k, epoch=epoch, mono=mono) -> list:
+                def make(k=k, epoch=epoch, mono=mono) -> list:
                     return ([] if truth is None else truth.poses(k, mono)) + [epoch]
 
                 self._offer(make, mono)
