@@ -26,7 +26,7 @@ from typing import Protocol
 from emulator.cli_types import baud_rate, positive_int, positive_seconds
 from firmware_proto.decoder import Decoder
 from firmware_proto.errors import LinkError
-from firmware_proto.events import DecoderStats, Epoch
+from firmware_proto.events import Epoch
 
 #: Silence after which an epoch held for its last ``$PARVH`` is released (seconds).
 IDLE_SECONDS = 0.1
@@ -102,11 +102,6 @@ def open_source(spec: str, baud: int = 115200) -> Source:
         raise LinkError(f"cat: {spec}: {reason}") from None
     except ValueError as exc:  # pyserial: malformed URL or option
         raise LinkError(f"cat: {spec}: {exc}") from None
-
-
-def summary(stats: DecoderStats) -> str:
-    """The stderr line: every counter as ``name=value``."""
-    return "arva-bench: cat: " + " ".join(f"{k}={v}" for k, v in stats.as_dict().items())
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -212,5 +207,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
         source.close()
-    print(summary(dec.stats), file=sys.stderr)
+    counters = " ".join(f"{k}={v}" for k, v in dec.stats.as_dict().items())
+    print(f"arva-bench: cat: {counters}", file=sys.stderr)
     return status

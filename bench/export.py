@@ -48,7 +48,7 @@ from emulator.progress import Tracker, progress
 from firmware_proto.errors import InputError
 
 from .ingest.stamp import Stamped, StampedDecoder
-from .records import ArvaRecords, decoder_for, is_positioned_fix
+from .records import decoder_for, is_positioned_fix
 from .session import MANIFEST, Manifest, RawLog, load_manifest, session_logs
 
 COLUMNS = (
@@ -198,12 +198,13 @@ def export_rows(directory: str | Path, origin: list[float] | None = None, latenc
     epochs: dict[str, list] = {}
     for name, log in logs.items():
         dev = devices[name]
+        stamped = _decode(log, decoder_for(dev.kind, dev.format), dev.baudrate)
         if dev.kind == "arva":
-            epochs[name] = [(s.mono, s.utc, s.record) for s in _decode(log, ArvaRecords(), dev.baudrate) if "seq" in s.record]
+            epochs[name] = [(s.mono, s.utc, s.record) for s in stamped if "seq" in s.record]
             if log.bytes and not epochs[name]:
                 raise InputError(f"{log.path}: {log.bytes} bytes decode to no $PARVA epoch (is {name} an ARVA receiver?)")
         else:
-            for s in _decode(log, decoder_for(dev.kind, dev.format), dev.baudrate):
+            for s in stamped:
                 r = s.record
                 if is_positioned_fix(r):
                     hdop = np.nan if r.get("hdop") is None else r["hdop"]
@@ -289,14 +290,13 @@ def write_csv(columns: dict[str, np.ndarray], path: str | Path, tracker: Tracker
     block at a time."""
     n = columns["t"].size
     names = COLUMNS + tuple(c for c in GPS_QUALITY_COLUMNS if c in columns)
-    fmt = {"t": "%.6f", "seq": "%d", "id": "%d", "d": "%d", "delta": "%d", "fix_quality": "%d", "hdop": "%s"}
     cols = [np.asarray(columns[c]) for c in names]
     if "hdop" in columns:
         h = np.asarray(columns["hdop"], dtype=np.float64)
         cols[names.index("hdop")] = np.array(["" if v != v else f"{v:.2f}" for v in h.tolist()], dtype=object)
     with open(path, "w", newline="") as f:
         f.write(",".join(names) + "\n")
-        formats = [fmt.get(c, "%.9f" if "_q" in c else "%.6f") for c in names]
+        formats = ["%d" if c in INT_COLUMNS else "%s" if c == "hdop" else "%.9f" if "_q" in c else "%.6f" for c in names]
         line = ",".join(formats) + "\n"
         for i in range(n):
             f.write(line % tuple(col[i] for col in cols))

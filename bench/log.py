@@ -108,19 +108,18 @@ def manifest(args: argparse.Namespace, specs: list[DeviceSpec], argv: list[str])
 class _FirstFixOrigin:
     """Without ``--origin``, the first receiver GGA fix becomes the session's origin, written
     into the manifest as soon as it arrives (export would pick the same fix; storing it
-    makes the session say where its ENU frame is)."""
+    makes the session say where its ENU frame is). Called by the session's listener, in
+    the notifier's one work thread."""
 
     def __init__(self, writer: SessionWriter, on_fatal) -> None:
         self.writer = writer
         self.on_fatal = on_fatal
-        self.lock = threading.Lock()
         self.done = False
 
     def __call__(self, lat: float, lon: float, alt: float) -> None:
-        with self.lock:
-            if self.done:
-                return
-            self.done = True
+        if self.done:
+            return
+        self.done = True
         try:
             self.writer.update_manifest(origin={"lat": lat, "lon": lon, "alt": alt, "source": "first receiver fix"})
         except LinkError as exc:
@@ -133,8 +132,6 @@ STOP_TIMEOUT = 120.0
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.duration is not None and not (0 < args.duration < float("inf")):
-        raise InputError(f"log: --duration {args.duration}: must be a finite number of seconds > 0")
     specs = device_specs(args)
     check_sources(specs, "log")  # a source that can never work is an error, not hours of nothing
     writer = SessionWriter(args.out, manifest(args, specs, sys.argv))
@@ -154,11 +151,12 @@ def run(args: argparse.Namespace) -> int:
     notifier = Notifier(devices, [session], on_error=on_fatal, name="log", switch_interval=SWITCH_INTERVAL)
     notifier.start()
     t0 = time.monotonic()
+    deadline = t0 + (float("inf") if args.duration is None else args.duration)
     status = LiveStatus(devices) if sys.stderr.isatty() else None
     live = status.start() if status is not None else None
     try:
-        while not stop.wait(0.25 if args.duration is None else min(0.25, max(0.0, t0 + args.duration - time.monotonic()))):
-            if args.duration is not None and time.monotonic() - t0 >= args.duration:
+        while not stop.wait(min(0.25, max(0.0, deadline - time.monotonic()))):
+            if time.monotonic() >= deadline:
                 stopped_by = "duration"
                 break
             if status is not None:

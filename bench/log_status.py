@@ -22,10 +22,10 @@ def si(value: float, unit: str) -> str:
     """``1234.5, "B/s"`` -> ``"1.2 kB/s"``: three significant figures at most."""
     for prefix in ("", "k", "M", "G"):
         if abs(value) < 999.5 or prefix == "G":
-            text = f"{value:.1f}" if abs(value) < 99.95 else f"{value:.0f}"
-            return f"{text} {prefix}{unit}"
+            break
         value /= 1000.0
-    raise AssertionError("unreachable")
+    text = f"{value:.1f}" if abs(value) < 99.95 else f"{value:.0f}"
+    return f"{text} {prefix}{unit}"
 
 
 class LiveStatus:

@@ -66,14 +66,13 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    stack = contextlib.ExitStack()  # the progress bar, closed before the summary line
-    try:
+    with contextlib.ExitStack() as stack:  # the ports and the progress bar, closed before the summary line
         # Announcements go to stdout, unless a device's data does.
         announce_to = sys.stderr if "-" in ports_for.values() else sys.stdout
         options = PortOptions(link_dir=args.link, serve_any_host=args.serve_any_host,
                               notify=stderr_notifier("arva-bench: replay"))
         for name in names:
-            ports[name] = open_port(name, ports_for[name], options)
+            ports[name] = stack.enter_context(open_port(name, ports_for[name], options))
             if isinstance(ports[name], (PtyPort, ServerPort)):
                 print(f"{name} {ports[name].path}", file=announce_to, flush=True)
         if args.speed == 0:
@@ -92,10 +91,6 @@ def run(args: argparse.Namespace) -> int:
         pacer = ReplayPacer(reads, args.speed, stop)
         pacer.run(deliver)
         sent = pacer.sent
-    finally:
-        stack.close()
-        for port in ports.values():
-            port.close()
     dropped = sum(p.bytes_dropped for p in ports.values())
     written = sum(p.bytes_written for p in ports.values())
     print(f"arva-bench: replay: {sent} reads, {written} bytes written, {dropped} bytes dropped", file=sys.stderr)

@@ -155,13 +155,15 @@ class SessionWriter(contextlib.AbstractContextManager):
             except OSError as exc:
                 raise LinkError(f"{self.dir / MANIFEST}: write failed: {exc.strerror or exc}") from None
 
+    def _manifest_text(self) -> bytes:
+        return json.dumps(self.manifest, indent=2, sort_keys=True).encode() + b"\n"
+
     def _write_manifest(self) -> None:
         """Atomic rewrite (a crash leaves the old manifest or the new one). The file is padded
         with spaces (JSON allows trailing white space) to at least :data:`MANIFEST_RESERVE`
         bytes beyond its text, so that when a full disk refuses the new file the final
         manifest can still be written over the blocks the old one already holds."""
-        data = json.dumps(self.manifest, indent=2, sort_keys=True).encode() + b"\n"
-        data += b" " * MANIFEST_RESERVE + b"\n"
+        data = self._manifest_text() + b" " * MANIFEST_RESERVE + b"\n"
         tmp = self.dir / (MANIFEST + ".tmp")
         try:
             with open(tmp, "wb") as f:
@@ -183,7 +185,7 @@ class SessionWriter(contextlib.AbstractContextManager):
         """The last resort of a full disk: the manifest written in place, over the old one's
         blocks (no allocation), its text padded with spaces to the old length."""
         path = self.dir / MANIFEST
-        text = json.dumps(self.manifest, indent=2, sort_keys=True).encode() + b"\n"
+        text = self._manifest_text()
         size = path.stat().st_size
         if len(text) + 1 > size:
             raise OSError(errno.ENOSPC, "no room for the final manifest")
@@ -316,14 +318,8 @@ class Manifest:
     raw: dict  # the JSON object as read
 
     @classmethod
-    def from_json(cls, obj, path: Path) -> Manifest:
-        try:
-            return cls._parse(obj)
-        except ValueError as exc:
-            raise InputError(f"{path}: {exc}") from None
-
-    @classmethod
-    def _parse(cls, obj) -> Manifest:
+    def parse(cls, obj) -> Manifest:
+        """The manifest of a parsed JSON value; ValueError saying what is wrong."""
         if not isinstance(obj, dict):
             raise ValueError(f"not a session manifest (a JSON object), got {type_name(obj, 'an object')}")
         if obj.get("format") != FORMAT:
@@ -340,15 +336,16 @@ class Manifest:
                 raise ValueError(f"devices.{name}.format: a {dev.kind} device cannot speak {json.dumps(dev.format)}")
         if not devices:
             raise ValueError("devices: none listed (a session logs at least one device)")
-        if any(not tx.isdigit() for tx in doc.tx_poses):
-            raise ValueError(f"tx_poses: {next(tx for tx in doc.tx_poses if not tx.isdigit())!r} is not a transmitter ID")
+        for tx in doc.tx_poses:
+            if not tx.isdigit():
+                raise ValueError(f"tx_poses: {tx!r} is not a transmitter ID")
         poses = {int(tx): _typed(pose, GeoPose, f"tx_poses.{tx}") for tx, pose in doc.tx_poses.items()}
-        for key in ("start_utc", "stop_utc"):
+        for key, text in (("start_utc", doc.start_utc), ("stop_utc", doc.stop_utc)):
             try:
-                getattr(doc, key) is None or parse_utc(getattr(doc, key))
+                text is None or parse_utc(text)
             except ValueError:
                 raise ValueError(f"{key}: expected a UTC time like 2026-01-15T10:00:00.000000Z, "
-                                 f"got {json.dumps(getattr(doc, key))}") from None
+                                 f"got {json.dumps(text)}") from None
         return cls(doc.version, devices, doc.start_utc, doc.stop_utc, doc.origin, poses, doc.summary, obj)
 
 
@@ -419,15 +416,6 @@ def _json(text: str | bytes, where: str | Path) -> object:
     raise InputError(f"{where}: JSON nested more than {MAX_JSON_DEPTH} deep")
 
 
-def loads_json(text: str, where: str | Path) -> object:
-    """JSON ``text`` parsed, at most :data:`MAX_JSON_DEPTH` deep; :class:`InputError`
-    naming ``where`` otherwise."""
-    try:
-        return _json(text, where)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{where}: not JSON (line {exc.lineno} column {exc.colno}: {exc.msg})") from None
-
-
 @dataclass(frozen=True)
 class RawRead:
     """One logged read: ``mono`` (s, logger's monotonic clock), ``utc`` (POSIX s)."""
@@ -443,11 +431,6 @@ class RawFile:
 
     reads: list[RawRead]
     torn_tail: bool
-
-
-def _parse_raw_line(line: bytes) -> RawRead:
-    mono, utc, b64 = line.split(b"\t")
-    return RawRead(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
 
 
 @dataclass(frozen=True)
@@ -512,7 +495,8 @@ class RawLog:
             if not line:
                 continue
             try:
-                read = _parse_raw_line(line)
+                mono, utc, b64 = line.split(b"\t")
+                read = RawRead(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
             except (ValueError, binascii.Error) as exc:
                 bad = bad or (number, exc)
                 continue
@@ -537,18 +521,14 @@ class RawLog:
 
     def first_read(self) -> RawRead | None:
         """The first read whose ``mono`` is a finite number (no stamp check), or None."""
-        for read in RawLog(self.path):
-            if math.isfinite(read.mono):
-                return read
-        return None
+        return next((read for read in RawLog(self.path) if math.isfinite(read.mono)), None)
 
 
 def read_raw(path: str | Path) -> RawFile:
     """All reads in a ``.raw`` file, in a list (small files: tests, tools); the commands
     stream with :class:`RawLog`."""
     log = RawLog(path)
-    reads = list(log)
-    return RawFile(reads, log.torn_tail)
+    return RawFile(list(log), log.torn_tail)  # torn_tail once the pass is over
 
 
 def raw_path(directory: str | Path, name: str) -> Path | None:
@@ -582,10 +562,7 @@ def session_logs(directory: str | Path, names: Iterable[str]) -> dict[str, RawLo
 def read_jsonl(path: str | Path) -> Iterator[dict]:
     """Objects of a ``.jsonl`` file, one line at a time (at most :data:`MAX_JSONL_LINE`
     bytes, :data:`MAX_JSON_DEPTH` deep); a torn last line is skipped."""
-    bad: int | None = None  # a line that is not JSON: an error unless it is the torn tail
     for number, line, complete in _lines(Path(path), MAX_JSONL_LINE, "JSON lines"):
-        if bad is not None:
-            break
         if not line:
             continue
         try:
@@ -593,13 +570,10 @@ def read_jsonl(path: str | Path) -> Iterator[dict]:
         except InputError:  # nested too deep
             raise
         except ValueError:  # not JSON (incl. an integer of over 4300 digits), or not UTF-8
-            if not complete:
+            if not complete:  # the torn tail
                 return
-            bad = number
-            continue
+            raise InputError(f"{path}: line {number}: not JSON") from None
         yield obj
-    if bad is not None:
-        raise InputError(f"{path}: line {bad}: not JSON")
 
 
 def read_manifest(directory: str | Path) -> dict:
@@ -630,4 +604,11 @@ def load_manifest(directory: str | Path) -> Manifest:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
-    return Manifest.from_json(loads_json(text, path), path)
+    try:
+        obj = _json(text, path)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not JSON (line {exc.lineno} column {exc.colno}: {exc.msg})") from None
+    try:
+        return Manifest.parse(obj)
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None

@@ -259,8 +259,8 @@ class DashApp(App):
 
     def action_record(self) -> None:
         if self.recorder is not None:
-            directory = self._stop_recording()
-            self.message = f"saved {directory}"
+            self._stop_recording()
+            self.message = f"saved {self.last_session}"
         else:
             self._start_recording()
         self._refresh_status()
@@ -293,14 +293,12 @@ class DashApp(App):
         self._attach(recorder)
         self.message = ""
 
-    def _stop_recording(self) -> Path | None:
+    def _stop_recording(self) -> None:
         recorder, self.recorder = self.recorder, None
-        if recorder is None:
-            return None
-        self._attach(None)
-        recorder.close()
-        self.last_session = recorder.directory
-        return recorder.directory
+        if recorder is not None:
+            self._attach(None)
+            recorder.close()
+            self.last_session = recorder.directory
 
     def _attach(self, recorder: SessionRecorder | None) -> None:
         """Every feed hands its reads to ``recorder`` (None: to nobody)."""

@@ -54,13 +54,13 @@ class AttitudeReceived(Message):
     heading: float
     roll: float
     pitch: float
-    q: list[float]
+    q: tuple[float, ...]
     mono: float
     count: int | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        self.q = list(self.q)
+        self.q = tuple(float(v) for v in self.q)
 
 
 @dataclass

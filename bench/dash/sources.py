@@ -88,10 +88,10 @@ class SceneTruth:
         """The receiver's and transmitters' poses at epoch k (t = k / rate_hz)."""
         t = k / self.rate
         pos, q = self.rx.trajectory.at([t])
-        out = [TruthPose(self.rx_role, tuple(pos[0]), tuple(q[0]), "scene", mono)]
+        out = [TruthPose(self.rx_role, pos[0], q[0], "scene", mono)]  # made float tuples by the message
         for tx in self.transmitters:
             p, tq = tx.trajectory.at([t])
-            out.append(TruthPose(f"tx{tx.id}", tuple(p[0]), tuple(tq[0]), "scene", mono))
+            out.append(TruthPose(f"tx{tx.id}", p[0], tq[0], "scene", mono))
         return out
 
 
@@ -105,7 +105,6 @@ class DeviceFeed(Listener):
         self.post = post
         self.truth = truth
         self.recorder = None  # set and cleared by the app (an attribute write is atomic)
-        self.records = 0
         self.checksum_errors = 0
         self.errors = 0
         self.rejected_bytes = 0
@@ -113,7 +112,7 @@ class DeviceFeed(Listener):
         self.reason = ""
         self._last_status = -1e9
         self._dirty = False
-        self._counts = {"epoch": 0, "GGA": 0, "RMC": 0, "GLL": 0, "attitude": 0}
+        self._counts = {"epoch": 0, "GGA": 0, "RMC": 0, "GLL": 0, "attitude": 0}  # every record is one of these
         self._tokens = POST_BURST
         self._token_mono: float | None = None
         self._held: list | None = None  # the latest record's messages not posted yet
@@ -148,22 +147,19 @@ class DeviceFeed(Listener):
         self._release()
 
     def _handle(self, records: list[Stamped]) -> None:
-        name, role = self.spec.name, self.spec.role
+        name, role, counts, truth = self.spec.name, self.spec.role, self._counts, self.truth
         for stamped in records:
             rec, mono = stamped.record, stamped.mono
             if "suppressed" in rec or "error" in rec:
                 self._count_errors(rec)
                 continue
-            self.records += 1
-            counts = self._counts
             if "seq" in rec:
                 counts["epoch"] += 1
-                k = self.truth.on_epoch(rec["seq"]) if self.truth is not None else 0
+                k = truth.on_epoch(rec["seq"]) if truth is not None else 0
                 epoch = EpochReceived(name, role, rec["seq"], rec["slots"], mono, rec["complete"], rec.get("gap", 0),
                                       count=counts["epoch"])  # fmt: skip
-                truth = self.truth
 
-                def make(truth=truth, k=k, epoch=epoch, mono=mono) -> list:
+                def make(k=k, epoch=epoch, mono=mono) -> list:
                     return ([] if truth is None else truth.poses(k, mono)) + [epoch]
 
                 self._offer(make, mono)
@@ -221,7 +217,7 @@ class DeviceFeed(Listener):
             seq_gaps, dropped = 0, dec.reader.stats["junk_bytes"]
         st = self.device.stats
         return LinkCounters(
-            reads=st.reads, bytes=st.bytes, records=self.records, checksum_errors=self.checksum_errors,
+            reads=st.reads, bytes=st.bytes, records=sum(self._counts.values()), checksum_errors=self.checksum_errors,
             errors=self.errors, seq_gaps=seq_gaps, dropped_bytes=dropped, reconnects=self.device.reconnects,
             last_data_mono=st.last_data_mono,
         )  # fmt: skip
@@ -251,27 +247,20 @@ class LiveSource(Notifier):
         super().__init__([f.device for f in self.feeds], self.feeds, stale_after=stale_after, name="dash")
 
 
-class ReplaySource:
+class ReplaySource(threading.Thread):
     """A thread replaying a session directory's devices with their recorded timing (the
     shared :class:`~bench.ingest.pacer.ReplayPacer`); reads are stamped when delivered."""
 
     def __init__(self, directory: str | Path, feeds: list[DeviceFeed], speed: float = 1.0) -> None:
+        super().__init__(name="dash-replay", daemon=True)
         self.directory = Path(directory)
         self.feeds = list(feeds)
         self._by_name = {f.spec.name: f for f in self.feeds}
         self.speed = speed
-        self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="dash-replay", daemon=True)
-
-    def start(self) -> None:
-        self.thread.start()
+        self.stopping = threading.Event()  # not _stop: threading.Thread has one
 
     def request_stop(self) -> None:
-        self._stop.set()
-
-    def join(self, timeout: float) -> None:
-        if self.thread.is_alive():
-            self.thread.join(timeout)
+        self.stopping.set()
 
     def _tick(self) -> None:
         mono, utc = time.monotonic(), time.time()
@@ -285,7 +274,7 @@ class ReplaySource:
         feed = self._by_name[name]
         feed.on_read(feed.device, feed.device.ingest(raw.data, time.monotonic(), time.time()))
 
-    def _run(self) -> None:
+    def run(self) -> None:
         reads: dict[str, RawLog] = {}
         try:
             logs = session_logs(self.directory, self._by_name)
@@ -301,12 +290,12 @@ class ReplaySource:
                 feed.set_state("down", str(exc))
             else:
                 feed.set_state("up")
-        ReplayPacer(reads, self.speed, self._stop, tick=self._tick, tick_interval=READ_TIMEOUT).run(self._deliver)
+        ReplayPacer(reads, self.speed, self.stopping, tick=self._tick, tick_interval=READ_TIMEOUT).run(self._deliver)
         mono, utc = time.monotonic(), time.time()
         for feed in self.feeds:
             feed.on_read(feed.device, feed.device.stop(mono, utc))
             feed.stop()
-            if not self._stop.is_set():
+            if not self.stopping.is_set():
                 feed.set_state("ended", "end of the session")
 
 

@@ -83,10 +83,9 @@ class TruthState:
             lat, lon, alt, *hrp = values
             pose.geodetic = (lat, lon, alt)
             pose.via = "surveyed"
-            if hrp:
-                heading, roll, pitch = (list(hrp) + [0.0, 0.0])[:3]
-                pose.hpr = (heading, roll, pitch)
-                pose.q = tuple(float(v) for v in hpr_to_quaternion(heading, roll, pitch))
+            if hrp:  # heading[, roll[, pitch]]: the missing ones 0
+                pose.hpr = tuple((hrp + [0.0, 0.0])[:3])
+                pose.q = tuple(float(v) for v in hpr_to_quaternion(*pose.hpr))
             if self.origin is not None:
                 pose.position = self._enu(lat, lon, alt)
 
@@ -115,18 +114,19 @@ class TruthState:
         if self.origin is not None:
             pose.position = self._enu(*pose.geodetic)
 
-    def on_attitude(self, role: str, heading: float, roll: float, pitch: float, q) -> None:
+    # The messages (bench.dash.messages) hand positions and quaternions over as float tuples.
+    def on_attitude(self, role: str, heading: float, roll: float, pitch: float, q: tuple[float, ...]) -> None:
         pose = self.poses.setdefault(role, Pose())
         pose.hpr = (heading, roll, pitch)
-        pose.q = tuple(float(v) for v in q)
+        pose.q = q
 
-    def on_pose(self, role: str, position, q, via: str) -> None:
+    def on_pose(self, role: str, position: tuple[float, float, float], q: tuple[float, ...] | None, via: str) -> None:
         pose = self.poses.setdefault(role, Pose())
-        pose.position = tuple(float(v) for v in position)
+        pose.position = position
         pose.via = via
         if q is not None:
-            pose.q = tuple(float(v) for v in q)
-            h, r, p = quaternion_to_hpr(pose.q)
+            pose.q = q
+            h, r, p = quaternion_to_hpr(q)
             pose.hpr = (float(h), float(r), float(p))
 
     # -- outputs ---------------------------------------------------------------------

@@ -92,12 +92,12 @@ class DirectionIndicator(_TextWidget):
     slots: reactive[tuple] = reactive(tuple, always_update=True)
 
     def lines(self, width: int) -> list[str]:
+        def directed(s) -> bool:  # a transmitter heard in the mid zone (zone() is "mid" only for d >= 0)
+            return s is not None and s[0] >= 0 and render.zone(s[1], s[2]) == "mid"
+
         first = self.slots[0] if self.slots else None
-        delta = None
-        if first is not None and first[0] >= 0 and first[1] >= 0 and render.zone(first[1], first[2]) == "mid":
-            delta = first[2]
-        marks = [(s[0], s[2]) for s in self.slots[1:] if s is not None and s[0] >= 0 and s[1] >= 0
-                 and render.zone(s[1], s[2]) == "mid"]  # fmt: skip
+        delta = first[2] if directed(first) else None
+        marks = [(s[0], s[2]) for s in self.slots[1:] if directed(s)]
         out = render.dial(delta, marks, width=width)
         caption = render.dial_caption(first) if self.slots else "no epoch yet"
         return out + [caption.center(width).rstrip()[:width]]

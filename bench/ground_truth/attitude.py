@@ -88,14 +88,11 @@ class AttitudeReader(SentenceReader):
         if len(msg.payload) > 11:
             raise FieldError("too many fields")
         tod = time_of_day(msg, "utctime", p[0], self.stats)
-        heading = _number(p[1], required=True)
-        roll = _number(p[3], required=True)
-        pitch = _number(p[4], required=True)
-        assert heading is not None and roll is not None and pitch is not None
+        heading, roll, pitch = (_number(p[i], required=True) for i in (1, 3, 4))  # floats: required
         if not (0.0 <= heading <= 360.0 and -180.0 <= roll <= 180.0 and -90.0 <= pitch <= 90.0):
             raise FieldError("angle out of range")
         q = tuple(float(c) for c in hpr_to_quaternion(heading, roll, pitch))
-        utc = None if tod is None else self.tracker.resolve(tod)
+        utc = self.tracker.resolve(tod)
         heave, roll_accuracy, pitch_accuracy, heading_accuracy = (_number(f, required=False) for f in p[5:9])
         return Attitude(tod, utc, heading, roll, pitch, q, heave, roll_accuracy, pitch_accuracy, heading_accuracy,
                         gps_quality=_flag(p[9]), ins_status=_flag(p[10]))

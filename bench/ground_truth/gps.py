@@ -137,7 +137,7 @@ class GpsReader(SentenceReader):
         lat, lon = self._position(msg, 1, fix_claimed=bool(quality))
         alt_msl = _number(msg, "alt", 8)
         sep = _number(msg, "sep", 10)
-        utc = None if tod is None else self.tracker.resolve(tod)
+        utc = self.tracker.resolve(tod)
         return GpsFix("GGA", talker_of(line), tod, utc, lat, lon, alt_msl=alt_msl, geoid_sep=sep,
                       alt_hae=None if alt_msl is None or sep is None else alt_msl + sep,
                       quality=quality, sats=_number(msg, "numSV", 6, int), hdop=_number(msg, "HDOP", 7))
@@ -155,12 +155,7 @@ class GpsReader(SentenceReader):
                 raise FieldError("date")
             day = typed_value(msg, "date", raw_date)
             assert isinstance(day, date)
-        if tod is None:
-            utc = None
-        elif day is not None:
-            utc = self.tracker.anchor(day, tod)
-        else:
-            utc = self.tracker.resolve(tod)
+        utc = self.tracker.anchor(day, tod) if tod is not None and day is not None else self.tracker.resolve(tod)
         return GpsFix("RMC", talker_of(line), tod, utc, lat, lon, status=status, mode=mode,
                       speed_knots=_number(msg, "spd", 6), course=_number(msg, "cog", 7))
 
@@ -172,7 +167,7 @@ class GpsReader(SentenceReader):
         status = _raw(msg, 5) or None
         mode = _raw(msg, 6) or None
         lat, lon = self._position(msg, 0, fix_claimed=status == "A" and mode != "N")
-        utc = None if tod is None else self.tracker.resolve(tod)
+        utc = self.tracker.resolve(tod)
         return GpsFix("GLL", talker_of(line), tod, utc, lat, lon, status=status, mode=mode)
 
     def _position(self, msg: NMEAMessage, index: int, fix_claimed: bool) -> tuple[float | None, float | None]:

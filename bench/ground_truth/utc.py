@@ -32,10 +32,11 @@ class DayTracker:
         self.latest = dt
         return dt
 
-    def resolve(self, tod: time) -> datetime | None:
-        """``tod`` dated to the day that puts it nearest to the latest datetime."""
+    def resolve(self, tod: time | None) -> datetime | None:
+        """``tod`` dated to the day that puts it nearest to the latest datetime (None
+        without a ``tod`` or a date)."""
         latest = self.latest
-        if latest is None:
+        if tod is None or latest is None:
             return None
         base = datetime.combine(latest.date(), tod, tzinfo=timezone.utc)
         # Nearest wins; an exact 12-hour tie goes forward, as time does.

@@ -266,11 +266,9 @@ class Notifier:
                 for key, _ in ready:
                     p = key.data
                     if p is None:
-                        try:
+                        with contextlib.suppress(BlockingIOError):  # emptied
                             while os.read(self._wake_r, 4096):
                                 pass
-                        except BlockingIOError:
-                            pass
                         continue
                     try:
                         data = os.read(p.fd, READ_CHUNK)

@@ -136,12 +136,6 @@ class StampedDecoder:
                 if "error" not in rec or sampler.allow(rec, mono):
                     out.append(Stamped(mono, utc, rec))
 
-    def _release(self, out: list[Stamped], mono: float, utc: float, force: bool) -> None:
-        """The pending summary, when its second is over (``force``: at the end)."""
-        sampler = self.sampler
-        if sampler.pending and (force or sampler.due(max(mono, self._last))):
-            out.append(Stamped(*self._monotone(mono, utc), sampler.summary()))
-
     def _feed(self, out: list[Stamped], data: bytes, start: int, end: int, mono: float, utc: float) -> None:
         """Feed ``data[start:end]`` in slices of at most FEED_SLICE bytes; the records of
         a slice are stamped at its last byte (``data`` is the whole read, ending at ``mono``)."""
@@ -164,27 +158,27 @@ class StampedDecoder:
         self._feed(out, data, start, len(data), mono, utc)
         return out
 
+    def _released(self, records: list[dict], mono: float, utc: float, force: bool) -> list[Stamped]:
+        """``records`` released at ``mono``/``utc``, then the pending error summary when
+        its second is over (``force``: at the end, always)."""
+        out: list[Stamped] = []
+        self._stamp(out, records, mono, utc)
+        sampler = self.sampler
+        if sampler.pending and (force or sampler.due(max(mono, self._last))):
+            out.append(Stamped(*self._monotone(mono, utc), sampler.summary()))
+        return out
+
     def idle(self, mono: float, utc: float) -> list[Stamped]:
         """Records a quiet link releases (a receiver epoch held for a ``$PARVH``)."""
-        out: list[Stamped] = []
         idle = getattr(self.decoder, "idle", None)
-        if idle is not None:
-            self._stamp(out, idle(), mono, utc)
-        self._release(out, mono, utc, force=False)
-        return out
+        return self._released([] if idle is None else idle(), mono, utc, force=False)
 
     def stop(self, mono: float, utc: float) -> tuple[list[Stamped], int]:
         """The records pending when the reading stops, and the length of a sentence the
         stop cut (not an error: see :meth:`bench.records.RecordDecoder.stop`)."""
         records, cut = self.decoder.stop()
-        out: list[Stamped] = []
-        self._stamp(out, records, mono, utc)
-        self._release(out, mono, utc, force=True)
-        return out, cut
+        return self._released(records, mono, utc, force=True), cut
 
     def flush(self, mono: float, utc: float) -> list[Stamped]:
         """The rest at end of input."""
-        out: list[Stamped] = []
-        self._stamp(out, self.decoder.flush(), mono, utc)
-        self._release(out, mono, utc, force=True)
-        return out
+        return self._released(self.decoder.flush(), mono, utc, force=True)

@@ -320,9 +320,9 @@ class Serial(VirtualLine, SerialBase):
         self._buffer += data
         return len(data)
 
-    def _drain(self) -> None:
-        """Poll until the endpoint has nothing more (or DRAIN_LIMIT bytes are buffered)."""
-        while len(self._buffer) < DRAIN_LIMIT and self._transfer(POLL_MS):
+    def _drain(self, limit: int = DRAIN_LIMIT) -> None:
+        """Poll until the endpoint has nothing more (or ``limit`` bytes are buffered)."""
+        while len(self._buffer) < limit and self._transfer(POLL_MS):
             pass
 
     @property
@@ -340,8 +340,7 @@ class Serial(VirtualLine, SerialBase):
         timeout = Timeout(self._timeout)
         while len(self._buffer) < size:
             if timeout.is_non_blocking:
-                while len(self._buffer) < size and self._transfer(POLL_MS):
-                    pass
+                self._drain(size)
                 break
             if timeout.is_infinite:
                 wait_ms = self._url.timeout_ms
