@@ -89,7 +89,7 @@ def make_vehicle(scene: Scene, index: int, dt: float) -> tuple[UAV, Controller]:
     """The simulated vehicle of receiver ``index`` at its start, with its seeded range
     sensor, and its onboard controller ticking every ``dt`` seconds."""
     spec = scene.receivers[index].vehicle
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(scene.seed, spawn_key=(index, RANGE_STREAM))))
+    rng = np.random.default_rng(np.random.SeedSequence(scene.seed, spawn_key=(index, RANGE_STREAM)))
     uav = UAV(spec.terrain, spec.start, spec.height_start, spec.yaw_deg, spec.v_max, spec.v_z_max, spec.range_sigma_m, rng)
     controller = make_controller(spec, scene.receiver_model(index))
     controller.dt = dt
