@@ -96,7 +96,7 @@ def arva_stream(scene: Scene, index: int = 0) -> ArvaStream:
     """Receiver ``index``'s ``$PARVA`` stream, labelled as in :func:`stream_layout`."""
     if not 0 <= index < len(scene.receivers):
         raise InputError(f"no receiver index {index} (the scene has {len(scene.receivers)})")
-    return ArvaStream(stream_layout(scene)[index].label, scene.rate_hz, receiver_source(scene, index))
+    return build_stream(scene, stream_layout(scene)[index])
 
 
 def scene_streams(scene: Scene) -> list[Stream]:

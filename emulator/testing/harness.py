@@ -190,13 +190,9 @@ class EmulatorProcess:
 
     def wait_announcement(self, count: int, timeout: float = 10.0) -> str:
         """The ``count``-th announcement line (1-based), waiting up to ``timeout`` s."""
-        deadline = time.monotonic() + timeout
         with self._announced:
-            while len(self.announcements) < count:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise EmulatorError(f"no announcement #{count} within {timeout} s: {self.announcements}")
-                self._announced.wait(left)
+            if not self._announced.wait_for(lambda: len(self.announcements) >= count, timeout):
+                raise EmulatorError(f"no announcement #{count} within {timeout} s: {self.announcements}")
             return self.announcements[count - 1]
 
     def _read_stderr(self) -> None:
