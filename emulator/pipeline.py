@@ -17,6 +17,7 @@ from __future__ import annotations
 import heapq
 import time
 from collections.abc import Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -32,7 +33,7 @@ from emulator.output.ports import Port
 from emulator.output.scheduler import Route, SceneClock, epochs_before
 from emulator.output.streams import ArvaStream, EpochSource, Stream
 from emulator.receiver.receiver import Receiver
-from emulator.scene.types import Scene, Transmitter
+from emulator.scene.types import Scene, Transmitter, arva_labels
 from emulator.schema import Int, SchemaError, Vector3, Vector4, convert, join_key
 from emulator.truth.streams import TruthCarrier, ground_truth_carriers, ground_truth_stream
 
@@ -65,11 +66,7 @@ class EpochRef:
 
 def stream_layout(scene: Scene) -> tuple[StreamInfo, ...]:
     """Every stream the scene asks for, in order: receivers, then ground truth."""
-    several = len(scene.receivers) > 1
-    out = [
-        StreamInfo(i, f"arva:{rx.id}" if several else "arva", "arva", scene.rate_hz, receiver=i)
-        for i, rx in enumerate(scene.receivers)
-    ]
+    out = [StreamInfo(i, label, "arva", scene.rate_hz, receiver=i) for i, label in enumerate(arva_labels(scene.receivers))]
     gt = scene.ground_truth
     for c in ground_truth_carriers(scene):
         rate = gt.gps_rate_hz if c.kind == "gps" else gt.attitude_rate_hz
@@ -136,7 +133,7 @@ def _pose_at(trajectory: Trajectory, t: float) -> tuple[list[float], list[float]
     return [float(v) for v in pos[0]], [float(v) for v in quat[0]]
 
 
-class Pipeline:
+class Pipeline(AbstractContextManager):
     """A scene's streams, bound to ports, written epoch by epoch.
 
     ``labels`` picks the streams to build (default: all of them); the others are not
@@ -200,9 +197,6 @@ class Pipeline:
             if r.stream.label == label:
                 return r
         raise InputError(f"no stream {label!r} (streams: {', '.join(r.stream.label for r in self.routes)})")
-
-    def __enter__(self) -> "Pipeline":
-        return self
 
     def __exit__(self, *exc_info) -> None:
         self.close()

@@ -41,7 +41,7 @@ class ControlReplyError(ArvaError, RuntimeError):
         super().__init__(f"arva-emulate refused {json.dumps(request)}: {error}")
 
 
-class ControlClient:
+class ControlClient(contextlib.AbstractContextManager):
     """One connection to a control channel (``unix:PATH`` or ``tcp:HOST:PORT``).
 
     :meth:`request` sends one request and returns its reply (raising
@@ -113,9 +113,6 @@ class ControlClient:
             raise ControlReplyError(req, str(reply.get("error")))
         return reply
 
-    def __enter__(self) -> "ControlClient":
-        return self
-
     def __exit__(self, *exc_info) -> None:
         self.close()
 
@@ -127,7 +124,7 @@ class ControlClient:
             self._transcript = None
 
 
-class EmulatorProcess:
+class EmulatorProcess(contextlib.AbstractContextManager):
     """``arva-emulate ARGS`` in a subprocess (add ``--port pty`` to get ptys).
 
     Waits until ``streams`` ptys are announced, and, with ``--control``, the control
@@ -229,9 +226,6 @@ class EmulatorProcess:
             raise
         return rc, self.stderr()
 
-    def __enter__(self) -> "EmulatorProcess":
-        return self
-
     def __exit__(self, *exc_info) -> None:
         self.kill()
 
@@ -243,7 +237,7 @@ class EmulatorProcess:
             t.join(timeout=2)
 
 
-class Emulator:
+class Emulator(contextlib.AbstractContextManager):
     """The handle of an emulator with a control channel (what ``arva_emulator`` returns).
 
     ``port`` is the first receiver's port (a stable symlink to its pty, which follows a
@@ -413,9 +407,6 @@ class Emulator:
                 # Its symlinks went with the ptys: no empty folder among the artefacts.
                 with contextlib.suppress(OSError):
                     (self.artefacts / "pty").rmdir()
-
-    def __enter__(self) -> "Emulator":
-        return self
 
     def __exit__(self, *exc) -> None:
         self.stop()
