@@ -356,17 +356,6 @@ def _pyarrow():
     return pa, pq
 
 
-def check_output(path: Path) -> None:
-    """Refuse an output the sweep could not write, before hours of work, not after."""
-    if path.suffix not in (".csv", ".parquet"):
-        raise InputError(f"--out {path}: give a .csv or .parquet file")
-    if not path.parent.is_dir():
-        raise InputError(f"--out {path}: directory {path.parent} does not exist")
-    if path.suffix == ".parquet":
-        _pyarrow()
-    probe_writable(path, "--out")
-
-
 def write_table(rows: list[dict], path: str | Path) -> None:
     """CSV (header :data:`COLUMNS`), or Parquet for ``*.parquet`` (the ``parquet`` extra),
     with the same columns in the same order (NaN where a CSV cell is empty)."""
@@ -454,8 +443,10 @@ def run(args: argparse.Namespace) -> int:
         area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
         noise=not args.no_noise, engine=args.engine, bootstrap=args.bootstrap, antennas=args.antennas,
     )
-    if args.out is not None:
-        check_output(args.out)
+    if args.out is not None:  # refused before hours of work, not after (--out's type checked the name)
+        if args.out.suffix == ".parquet":
+            _pyarrow()
+        probe_writable(args.out, "--out")
     with progress_bar("arva-sweep", total=len(config.tasks()), unit="runs") as bar:
         result = sweep(config, workers=args.workers, scheduler=args.scheduler, progress=bar)
     if args.out is not None:
