@@ -342,19 +342,19 @@ class BatchLoop:
             t_end[live] = self.next_k / self.rate_hz
             live = live[~done]
         wall = time.perf_counter() - wall
-        return [self._result(j, float(t_end[j]), wall / n) for j in range(n)]
+        return [
+            run_result(
+                self.scenes[j], self.channels, ([], []), [], located=list(self.found[j]), t_end=float(t_end[j]),
+                exhausted=bool(self._exhausted(np.array([j]))[0]), wall_s=wall / n,
+                ground_contacts=int(self.contacts[j]), path_length=float(self.path[j]),
+            )
+            for j in range(n)
+        ]
 
     def _exhausted(self, rows: np.ndarray) -> np.ndarray:
         """Controller.exhausted: searching, and no strip left."""
         phase = np.where(self.is_flux[rows], self.flux.phase[rows], self.rx.phase[rows])
         return (phase == SEARCH) & self.has_strips[rows] & (self.wp_next[rows] >= self.wp_count[rows])
-
-    def _result(self, j: int, t_end: float, wall_s: float) -> RunResult:
-        return run_result(
-            self.scenes[j], self.channels, ([], []), [], located=list(self.found[j]), t_end=t_end,
-            exhausted=bool(self._exhausted(np.array([j]))[0]), wall_s=wall_s, ground_contacts=int(self.contacts[j]),
-            path_length=float(self.path[j]),
-        )
 
 
 def run_batch(scenes: list[Scene], t_max: float, index: int = 0, stop_when_found: bool = True) -> list[RunResult]:
