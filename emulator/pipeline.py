@@ -147,16 +147,12 @@ class Pipeline(AbstractContextManager):
     def __init__(self, scene: Scene, labels: Sequence[str] | None = None) -> None:
         self.scene = scene
         self.layout = stream_layout(scene)
-        known = {info.label: info for info in self.layout}
-        if labels is None:
-            chosen = list(self.layout)
-        else:
-            for label in labels:
-                if label not in known:
-                    raise InputError(f"no stream {label!r} in this scene (streams: {', '.join(known)})")
-            chosen = [info for info in self.layout if info.label in set(labels)]
-        self.infos: dict[str, StreamInfo] = {info.label: info for info in chosen}
-        self.streams: dict[str, Stream] = {info.label: build_stream(scene, info) for info in chosen}
+        known = [info.label for info in self.layout]
+        for label in labels or ():
+            if label not in known:
+                raise InputError(f"no stream {label!r} in this scene (streams: {', '.join(known)})")
+        self.infos: dict[str, StreamInfo] = {i.label: i for i in self.layout if labels is None or i.label in labels}
+        self.streams: dict[str, Stream] = {label: build_stream(scene, info) for label, info in self.infos.items()}
         self.clock = SceneClock()
         self.routes: list[Route] = []
         self.speed = 1.0
@@ -329,15 +325,11 @@ class Pipeline(AbstractContextManager):
         """Each receiver stream's pose at scene time ``t``: the scene path or a pin, the
         simulated vehicle's, or the autopilot's (MAVLink)."""
         out = []
-        for info in self.layout:
-            if info.kind != "arva" or info.label not in self.streams:
-                continue
-            src = self.streams[info.label].receiver
-            if isinstance(src, ClosedLoop):
-                pos, quat = src.current_pose()
-            else:
-                pos, quat = _pose_at(src.trajectory, t)
-            out.append(Pose(self.scene.receivers[info.receiver].id, pos, quat))
+        for label, info in self.infos.items():  # the built streams, in layout order
+            if info.kind == "arva":
+                src = self.streams[label].receiver
+                pos, quat = src.current_pose() if isinstance(src, ClosedLoop) else _pose_at(src.trajectory, t)
+                out.append(Pose(self.scene.receivers[info.receiver].id, pos, quat))
         return out
 
     def transmitter_poses(self, t: float) -> list[Pose]:
@@ -350,12 +342,8 @@ class Pipeline(AbstractContextManager):
         return self.routes[0].t_next if self.routes else 0.0
 
     def _receivers(self) -> list[Receiver]:
-        out = []
-        for s in self.streams.values():
-            if isinstance(s, ArvaStream):
-                src = s.receiver
-                out.append(src.receiver if isinstance(src, ClosedLoop) else src)
-        return out
+        sources = [s.receiver for s in self.streams.values() if isinstance(s, ArvaStream)]
+        return [src.receiver if isinstance(src, ClosedLoop) else src for src in sources]
 
     def _push_transmitters(self) -> None:
         heard = [tx for tx_id, tx in self.transmitters.items() if tx_id not in self.silenced]
