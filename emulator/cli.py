@@ -112,18 +112,6 @@ def assign_ports(labels: list[str], default: str, overrides: list[tuple[str, str
     return ports
 
 
-def port_options(args: argparse.Namespace) -> PortOptions:
-    """The command line's port settings."""
-    return PortOptions(
-        line=LineSettings(args.baud, args.bytesize, args.parity, args.stopbits),
-        rtscts=args.rtscts,
-        xonxoff=args.xonxoff,
-        link_dir=args.link,
-        serve_any_host=args.serve_any_host,
-        notify=stderr_notifier("arva-emulate"),
-    )
-
-
 def run(args: argparse.Namespace) -> int:
     if args.list_profiles:
         sys.stdout.write(profile_table())
@@ -144,7 +132,9 @@ def run(args: argparse.Namespace) -> int:
         _say(announce_to, f"{port.label} {port.path}")
 
     ports: dict[str, Port] = {}
-    options = port_options(args)
+    options = PortOptions(LineSettings(args.baud, args.bytesize, args.parity, args.stopbits), rtscts=args.rtscts,
+                          xonxoff=args.xonxoff, link_dir=args.link, serve_any_host=args.serve_any_host,
+                          notify=stderr_notifier("arva-emulate"))
     try:
         for label in pipe.labels:
             port = ports[label] = open_port(label, specs[label], options)

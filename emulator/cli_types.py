@@ -16,6 +16,7 @@ enough for any real use, small enough that no accepted value overflows or hangs.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import os
@@ -439,21 +440,17 @@ def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[
     )
     try:
         return int(run(args) or 0)
-    except SceneError as exc:
-        print(one_line(exc) if bare_scene_errors else f"{prog}: {one_line(exc)}", file=sys.stderr, flush=True)
-        return 2
     except (InputError, LinkError) as exc:
-        print(f"{prog}: {one_line(exc)}", file=sys.stderr, flush=True)
+        bare = bare_scene_errors and isinstance(exc, SceneError)
+        print(one_line(exc) if bare else f"{prog}: {one_line(exc)}", file=sys.stderr, flush=True)
         return 2
     except BrokenPipeError:
         # The reader went away (e.g. `| head`): stop quietly, like any Unix filter, and
         # keep the interpreter's final flush of stdout from complaining.
-        try:
+        with contextlib.suppress(OSError):
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())
             os.close(devnull)
-        except OSError:
-            pass
         return 0
     except OSError as exc:
         print(f"{prog}: {one_line(_os_error_line(exc))}", file=sys.stderr, flush=True)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import heapq
 import time
 from collections.abc import Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -32,7 +33,7 @@ from emulator.output.ports import Port
 from emulator.output.scheduler import Route, SceneClock, epochs_before
 from emulator.output.streams import ArvaStream, EpochSource, Stream
 from emulator.receiver.receiver import Receiver
-from emulator.scene.types import Scene, Transmitter
+from emulator.scene.types import Scene, Transmitter, arva_labels
 from emulator.schema import Int, SchemaError, Vector3, Vector4, convert, join_key
 from emulator.truth.streams import TruthCarrier, ground_truth_carriers, ground_truth_stream
 
@@ -65,11 +66,7 @@ class EpochRef:
 
 def stream_layout(scene: Scene) -> tuple[StreamInfo, ...]:
     """Every stream the scene asks for, in order: receivers, then ground truth."""
-    several = len(scene.receivers) > 1
-    out = [
-        StreamInfo(i, f"arva:{rx.id}" if several else "arva", "arva", scene.rate_hz, receiver=i)
-        for i, rx in enumerate(scene.receivers)
-    ]
+    out = [StreamInfo(i, label, "arva", scene.rate_hz, receiver=i) for i, label in enumerate(arva_labels(scene.receivers))]
     gt = scene.ground_truth
     for c in ground_truth_carriers(scene):
         rate = gt.gps_rate_hz if c.kind == "gps" else gt.attitude_rate_hz
@@ -96,7 +93,7 @@ def arva_stream(scene: Scene, index: int = 0) -> ArvaStream:
     """Receiver ``index``'s ``$PARVA`` stream, labelled as in :func:`stream_layout`."""
     if not 0 <= index < len(scene.receivers):
         raise InputError(f"no receiver index {index} (the scene has {len(scene.receivers)})")
-    return ArvaStream(stream_layout(scene)[index].label, scene.rate_hz, receiver_source(scene, index))
+    return build_stream(scene, stream_layout(scene)[index])
 
 
 def scene_streams(scene: Scene) -> list[Stream]:
@@ -136,7 +133,7 @@ def _pose_at(trajectory: Trajectory, t: float) -> tuple[list[float], list[float]
     return [float(v) for v in pos[0]], [float(v) for v in quat[0]]
 
 
-class Pipeline:
+class Pipeline(AbstractContextManager):
     """A scene's streams, bound to ports, written epoch by epoch.
 
     ``labels`` picks the streams to build (default: all of them); the others are not
@@ -150,16 +147,12 @@ class Pipeline:
     def __init__(self, scene: Scene, labels: Sequence[str] | None = None) -> None:
         self.scene = scene
         self.layout = stream_layout(scene)
-        known = {info.label: info for info in self.layout}
-        if labels is None:
-            chosen = list(self.layout)
-        else:
-            for label in labels:
-                if label not in known:
-                    raise InputError(f"no stream {label!r} in this scene (streams: {', '.join(known)})")
-            chosen = [info for info in self.layout if info.label in set(labels)]
-        self.infos: dict[str, StreamInfo] = {info.label: info for info in chosen}
-        self.streams: dict[str, Stream] = {info.label: build_stream(scene, info) for info in chosen}
+        known = [info.label for info in self.layout]
+        for label in labels or ():
+            if label not in known:
+                raise InputError(f"no stream {label!r} in this scene (streams: {', '.join(known)})")
+        self.infos: dict[str, StreamInfo] = {i.label: i for i in self.layout if labels is None or i.label in labels}
+        self.streams: dict[str, Stream] = {label: build_stream(scene, info) for label, info in self.infos.items()}
         self.clock = SceneClock()
         self.routes: list[Route] = []
         self.speed = 1.0
@@ -200,9 +193,6 @@ class Pipeline:
             if r.stream.label == label:
                 return r
         raise InputError(f"no stream {label!r} (streams: {', '.join(r.stream.label for r in self.routes)})")
-
-    def __enter__(self) -> "Pipeline":
-        return self
 
     def __exit__(self, *exc_info) -> None:
         self.close()
@@ -335,15 +325,11 @@ class Pipeline:
         """Each receiver stream's pose at scene time ``t``: the scene path or a pin, the
         simulated vehicle's, or the autopilot's (MAVLink)."""
         out = []
-        for info in self.layout:
-            if info.kind != "arva" or info.label not in self.streams:
-                continue
-            src = self.streams[info.label].receiver
-            if isinstance(src, ClosedLoop):
-                pos, quat = src.current_pose()
-            else:
-                pos, quat = _pose_at(src.trajectory, t)
-            out.append(Pose(self.scene.receivers[info.receiver].id, pos, quat))
+        for label, info in self.infos.items():  # the built streams, in layout order
+            if info.kind == "arva":
+                src = self.streams[label].receiver
+                pos, quat = src.current_pose() if isinstance(src, ClosedLoop) else _pose_at(src.trajectory, t)
+                out.append(Pose(self.scene.receivers[info.receiver].id, pos, quat))
         return out
 
     def transmitter_poses(self, t: float) -> list[Pose]:
@@ -356,12 +342,8 @@ class Pipeline:
         return self.routes[0].t_next if self.routes else 0.0
 
     def _receivers(self) -> list[Receiver]:
-        out = []
-        for s in self.streams.values():
-            if isinstance(s, ArvaStream):
-                src = s.receiver
-                out.append(src.receiver if isinstance(src, ClosedLoop) else src)
-        return out
+        sources = [s.receiver for s in self.streams.values() if isinstance(s, ArvaStream)]
+        return [src.receiver if isinstance(src, ClosedLoop) else src for src in sources]
 
     def _push_transmitters(self) -> None:
         heard = [tx for tx_id, tx in self.transmitters.items() if tx_id not in self.silenced]

@@ -18,6 +18,7 @@ import sys
 from typing import Annotated, Any
 
 import msgspec
+import numpy as np
 from msgspec import inspect as mi
 
 from firmware_proto.errors import InputError
@@ -35,6 +36,12 @@ class SchemaError(InputError):
     def __init__(self, key: str, reason: str) -> None:
         super().__init__(f"{key}: {reason}" if key else reason)
         self.key, self.reason = key, reason
+
+
+def is_number(value: Any) -> bool:
+    """A finite int or float (numpy's too), not a boolean: the check of the effects'
+    settings built in code, where no schema has converted them."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def Int(lo: int, hi: int) -> Any:

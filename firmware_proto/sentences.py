@@ -8,7 +8,7 @@ no ``+``, no leading zeros), which is exactly what ``str(int)`` produces.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from functools import reduce
+from functools import cache, reduce
 from operator import xor
 
 import numpy as np
@@ -143,22 +143,18 @@ def encode_epochs(
     return b"".join(out)
 
 
-#: Tables built on first use, indexed by value + 89 for value in -89 .. 65535: the decimal
-#: text (str(value)), the same with a leading comma, and the XOR of that text's bytes.
-_TABLES: dict[str, np.ndarray] = {}
 #: Element-wise concatenation of bytes arrays (np.strings from numpy 2.0, np.char before).
 _STRING_ADD = getattr(np, "strings", np.char).add
 _HEX_CRLF = np.array([b"%02X\r\n" % i for i in range(256)], dtype="S4")
 
 
-def _tables() -> dict[str, np.ndarray]:
-    if not _TABLES:
-        text = np.arange(-MAX_ABS_DELTA, 65536).astype("S6")
-        width = text.dtype.itemsize
-        _TABLES["text"] = text
-        _TABLES["comma"] = _STRING_ADD(b",", text)
-        _TABLES["xor"] = np.bitwise_xor.reduce(text.view(np.uint8).reshape(-1, width), axis=1)
-    return _TABLES
+@cache
+def _tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Built on first use, indexed by value + 89 for value in -89 .. 65535: the decimal
+    text (str(value)), the same with a leading comma, and the XOR of that text's bytes."""
+    text = np.arange(-MAX_ABS_DELTA, 65536).astype("S6")
+    xor_of_text = np.bitwise_xor.reduce(text.view(np.uint8).reshape(-1, text.dtype.itemsize), axis=1)
+    return text, _STRING_ADD(b",", text), xor_of_text
 
 
 def _encode_parva_arrays(k0: int, ids: np.ndarray, d: np.ndarray, delta: np.ndarray) -> bytes | None:
@@ -179,8 +175,7 @@ def _encode_parva_arrays(k0: int, ids: np.ndarray, d: np.ndarray, delta: np.ndar
     valid = (ids >= 0) & (ids <= MAX_ID) & (d >= 0) & (d <= 65535) & (np.abs(delta) <= MAX_ABS_DELTA)
     if not np.all(empty | valid):
         return None  # includes d beyond 655.35 m: the loop formats those
-    t = _tables()
-    text, comma, tx = t["text"], t["comma"], t["xor"]
+    text, comma, tx = _tables()
     off = MAX_ABS_DELTA
     seq = (k0 + np.arange(n_epochs, dtype=np.int64)) % SEQ_MODULO + off
     heads = [f",{n},{k}," for k in range(1, n + 1)]

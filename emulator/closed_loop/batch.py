@@ -34,23 +34,18 @@ from emulator.closed_loop.controllers import (
     PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, EpochArrays, FluxFollower, FluxParams, FluxState, Located, RxParams,
     RxState, fly_back, flux_epoch, rx_arrive, rx_epoch, rx_plan, strip_velocity,
 )
-from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle
+from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle, run_result
+from emulator.closed_loop.strategy import atan2, exact, hypot
 from emulator.closed_loop.vehicle import FlatTerrain
 from emulator.receiver.model import measure, select_channels
 from emulator.receiver.noise import NoiseEffect, ball_points
 from emulator.scene.types import Scene
 
-# The exact Python functions, element by element (see the module docstring).
-_hypot = np.frompyfunc(math.hypot, 2, 1)
+# The exact Python function, element by element (see the module docstring).
 _hypot3 = np.frompyfunc(math.hypot, 3, 1)
-_atan2 = np.frompyfunc(math.atan2, 2, 1)
 
 #: A padding transmitter sits this far below the origin: its field never leaves the outer zone.
 _FAR = -1.0e7
-
-
-def _f64(obj: np.ndarray) -> np.ndarray:
-    return obj.astype(np.float64)
 
 
 class BatchLoop:
@@ -212,7 +207,7 @@ class BatchLoop:
         head = rows[heads & ((vx[rows] != 0.0) | (vy[rows] != 0.0))]
         if head.size:
             j = live[head]
-            self.rx.heading[j], self.rx.headed[j] = _f64(_atan2(vy[head], vx[head])), True
+            self.rx.heading[j], self.rx.headed[j] = exact(atan2, vy[head], vx[head]), True
 
     def _decide(self, live: np.ndarray, t: float, ep) -> None:
         """The epoch tick: the controllers of the live runs decide on their new epoch
@@ -258,7 +253,7 @@ class BatchLoop:
         # sqrt(vx^2 + vy^2) is within a few ulp of it (1e-12 is far beyond that).
         near = np.flatnonzero(~(np.sqrt(vx * vx + vy * vy) < v_max * (1.0 - 1e-12)))
         if near.size:
-            speed = _f64(_hypot(vx[near], vy[near]))
+            speed = exact(hypot, vx[near], vy[near])
             over = speed > v_max[near]
             if over.any():
                 o = near[over]
@@ -341,40 +336,25 @@ class BatchLoop:
         while live.size and self.next_k < k_max:
             last = (self.x[live], self.y[live], self.z[live])
             self._epoch(live)
-            step = _f64(_hypot3(self.x[live] - last[0], self.y[live] - last[1], self.z[live] - last[2]))
+            step = exact(_hypot3, self.x[live] - last[0], self.y[live] - last[1], self.z[live] - last[2])
             self.path[live] += step
             done = (stop_when_found & (self.n_marked[live] >= self.m[live])) | self._exhausted(live)
             t_end[live] = self.next_k / self.rate_hz
             live = live[~done]
         wall = time.perf_counter() - wall
-        return [self._result(j, float(t_end[j]), wall / n) for j in range(n)]
+        return [
+            run_result(
+                self.scenes[j], self.channels, ([], []), [], located=list(self.found[j]), t_end=float(t_end[j]),
+                exhausted=bool(self._exhausted(np.array([j]))[0]), wall_s=wall / n,
+                ground_contacts=int(self.contacts[j]), path_length=float(self.path[j]),
+            )
+            for j in range(n)
+        ]
 
     def _exhausted(self, rows: np.ndarray) -> np.ndarray:
         """Controller.exhausted: searching, and no strip left."""
         phase = np.where(self.is_flux[rows], self.flux.phase[rows], self.rx.phase[rows])
         return (phase == SEARCH) & self.has_strips[rows] & (self.wp_next[rows] >= self.wp_count[rows])
-
-    def _result(self, j: int, t_end: float, wall_s: float) -> RunResult:
-        s = self.scenes[j]
-        ch = self.channels
-        located = self.found[j]
-        exhausted = bool(self._exhausted(np.array([j]))[0])
-        return RunResult(
-            t=np.array([]),
-            position=np.zeros((0, 3)),
-            epoch_t=np.array([]),
-            ids=np.zeros((0, ch), dtype=np.int64),
-            d=np.zeros((0, ch), dtype=np.int64),
-            delta=np.zeros((0, ch), dtype=np.int64),
-            located=list(located),
-            tx_ids=s.transmitter_ids,
-            tx_position=np.array([tx.trajectory.positions[0] for tx in s.transmitters]).reshape(-1, 3),
-            t_end=t_end,
-            exhausted=exhausted,
-            wall_s=wall_s,
-            ground_contacts=int(self.contacts[j]),
-            path_length=float(self.path[j]),
-        )
 
 
 def run_batch(scenes: list[Scene], t_max: float, index: int = 0, stop_when_found: bool = True) -> list[RunResult]:

@@ -53,9 +53,7 @@ def load_case(case: int, controller: str | None = None, **vehicle) -> Scene:
     its ``[receiver.vehicle]`` (e.g. ``k_c=0.4``)."""
     scene = load_scene(scene_path(case))
     rx = scene.receivers[0]
-    changes = dict(vehicle)
-    if controller is not None:
-        changes["controller"] = controller
+    changes = vehicle if controller is None else {**vehicle, "controller": controller}
     if changes:
         rx = replace(rx, vehicle=replace(rx.vehicle, **changes))
         scene = replace(scene, receivers=(rx,))

@@ -131,13 +131,10 @@ class FluxFollower(Controller):
     def command(self, obs: Observation) -> tuple[float, float, float]:
         vz = self.height_hold(obs)
         if obs.new_epoch:
-            self._on_epoch(obs)
+            marks, ids = flux_epoch(self.state, EpochArrays.of(obs, self.marked), self.params)
+            if marks[0]:
+                self.record(int(ids[0]), obs.t, obs.x, obs.y)
         if self.phase == "search":
             vx, vy = self.search_velocity(obs)
             return vx, vy, vz
         return self._v[0], self._v[1], vz
-
-    def _on_epoch(self, obs: Observation) -> None:
-        marks, ids = flux_epoch(self.state, EpochArrays.of(obs, self.marked), self.params)
-        if marks[0]:
-            self.record(int(ids[0]), obs.t, obs.x, obs.y)

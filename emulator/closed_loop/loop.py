@@ -79,6 +79,18 @@ class RunResult:
         return out
 
 
+def run_result(scene: Scene, channels: int, ticks: tuple[list, list], epochs: list, **summary) -> RunResult:
+    """A run's :class:`RunResult`: ``ticks`` (times, positions) and ``epochs`` ((t, ids, d,
+    delta) each) as recorded (empty lists: not recorded); ``summary`` the other fields
+    (``located``, ``t_end``, ``exhausted``, ``wall_s``, ``ground_contacts``, ``path_length``)."""
+    column = lambda i: np.array([e[i] for e in epochs], dtype=np.int64).reshape(-1, channels)  # noqa: E731
+    return RunResult(
+        t=np.array(ticks[0]), position=np.array(ticks[1]).reshape(-1, 3), epoch_t=np.array([e[0] for e in epochs]),
+        ids=column(1), d=column(2), delta=column(3), tx_ids=scene.transmitter_ids,
+        tx_position=np.array([tx.trajectory.positions[0] for tx in scene.transmitters]).reshape(-1, 3), **summary,
+    )
+
+
 def control_ticks(scene: Scene, index: int = 0) -> tuple[int, float]:
     """(control ticks per epoch, tick length dt in s) of receiver ``index``'s vehicle."""
     ticks = max(1, round(scene.receivers[index].vehicle.control_rate_hz / scene.rate_hz))
@@ -89,7 +101,7 @@ def make_vehicle(scene: Scene, index: int, dt: float) -> tuple[UAV, Controller]:
     """The simulated vehicle of receiver ``index`` at its start, with its seeded range
     sensor, and its onboard controller ticking every ``dt`` seconds."""
     spec = scene.receivers[index].vehicle
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(scene.seed, spawn_key=(index, RANGE_STREAM))))
+    rng = np.random.default_rng(np.random.SeedSequence(scene.seed, spawn_key=(index, RANGE_STREAM)))
     uav = UAV(spec.terrain, spec.start, spec.height_start, spec.yaw_deg, spec.v_max, spec.v_z_max, spec.range_sigma_m, rng)
     controller = make_controller(spec, scene.receiver_model(index))
     controller.dt = dt
@@ -227,25 +239,10 @@ class ClosedLoop:
         return self.result(time.perf_counter() - wall, path)
 
     def result(self, wall_s: float = 0.0, path_length: float = 0.0) -> RunResult:
-        txs = self.scene.transmitters
-        tx_pos = np.array([tx.trajectory.positions[0] for tx in txs]).reshape(-1, 3)
-        ch = self.channels
-        ep = self._epochs
-        return RunResult(
-            t=np.array(self._ticks_t),
-            position=np.array(self._ticks_p).reshape(-1, 3),
-            epoch_t=np.array([e[0] for e in ep]),
-            ids=np.array([e[1] for e in ep], dtype=np.int64).reshape(-1, ch),
-            d=np.array([e[2] for e in ep], dtype=np.int64).reshape(-1, ch),
-            delta=np.array([e[3] for e in ep], dtype=np.int64).reshape(-1, ch),
-            located=list(self.controller.located),
-            tx_ids=self.scene.transmitter_ids,
-            tx_position=tx_pos,
-            t_end=self.next_k / self.rate_hz,
-            exhausted=self.controller.exhausted,
-            wall_s=wall_s,
-            ground_contacts=self.uav.ground_contacts,
-            path_length=path_length,
+        return run_result(
+            self.scene, self.channels, (self._ticks_t, self._ticks_p), self._epochs, located=list(self.controller.located),
+            t_end=self.next_k / self.rate_hz, exhausted=self.controller.exhausted, wall_s=wall_s,
+            ground_contacts=self.uav.ground_contacts, path_length=path_length,
         )
 
     def close(self) -> None:

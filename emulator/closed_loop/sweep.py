@@ -99,7 +99,7 @@ class SweepResult:
 # --------------------------------------------------------------------------- burials
 def burial(config: SweepConfig, i: int) -> list[dict]:
     """The transmitters of burial ``i``: [{id, position, orientation, depth}]."""
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(config.seed, spawn_key=(i,))))
+    rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(i,)))
     n_tx = int(rng.integers(1, config.max_transmitters + 1))
     xmin, ymin, xmax, ymax = config.area
     out = []
@@ -144,23 +144,6 @@ def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: 
     return parse_scene(data, f"<sweep burial {i}>"), txs
 
 
-def run_one(config: SweepConfig, strategy: str, v_max: float, k_c: float, i: int) -> tuple[list[dict], float]:
-    """Fly one burial with the per-run :class:`ClosedLoop`; its rows and the scene time flown."""
-    scene, txs = burial_scene(config, i, strategy, v_max, k_c)
-    result = ClosedLoop(scene, record=False).run(config.t_max)
-    return run_rows(strategy, v_max, k_c, i, txs, result), result.t_end
-
-
-def run_batch_rows(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
-    """Fly several runs together (:class:`BatchLoop`; strategies and gains may differ
-    within a batch): the rows :func:`run_one` gives for each task, in order, and the
-    scene time flown."""
-    made = [burial_scene(config, i, strategy, v_max, k_c) for strategy, v_max, k_c, i in tasks]
-    results = run_batch([scene for scene, _ in made], config.t_max)
-    rows = [row for task, (_, txs), result in zip(tasks, made, results) for row in run_rows(*task, txs, result)]
-    return rows, sum(r.t_end for r in results)
-
-
 def run_rows(strategy: str, v_max: float, k_c: float, i: int, txs: list[dict], result) -> list[dict]:
     """The :data:`COLUMNS` rows of burial ``i``'s :class:`RunResult`."""
     found = result.found()
@@ -175,12 +158,18 @@ def run_rows(strategy: str, v_max: float, k_c: float, i: int, txs: list[dict], r
 
 
 def run_chunk(config: SweepConfig, tasks: list[tuple[str, float, float, int]]) -> tuple[list[dict], float]:
-    """Several runs in one worker call: one batch with the batch engine, else one after
-    the other. Rows in task order either way."""
-    if config.engine != "run":
-        return run_batch_rows(config, tasks)
-    parts = [run_one(config, *task) for task in tasks]
-    return [row for rows, _ in parts for row in rows], sum(t for _, t in parts)
+    """Several runs in one worker call: with the batch engine flown together
+    (:class:`BatchLoop`; strategies and gains may differ within a batch), else one after
+    the other with the per-run :class:`ClosedLoop`. The rows in task order and the scene
+    time flown."""
+    made = [burial_scene(config, i, strategy, v_max, k_c) for strategy, v_max, k_c, i in tasks]
+    scenes = [scene for scene, _ in made]
+    if config.engine == "run":
+        results = [ClosedLoop(scene, record=False).run(config.t_max) for scene in scenes]
+    else:
+        results = run_batch(scenes, config.t_max)
+    rows = [row for task, (_, txs), result in zip(tasks, made, results) for row in run_rows(*task, txs, result)]
+    return rows, sum(r.t_end for r in results)
 
 
 #: Largest number of runs per task with the batch engine (memory stays ~100 MB).
@@ -286,7 +275,7 @@ def bootstrap_tail(
     out = {"p99": (math.nan, math.nan), "max": (math.nan, math.nan)}
     if values.size == 0 or resamples < 1:
         return out
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(0xB007,))))
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0xB007,)))
     order = np.argsort(values, kind="stable")
     v, b = values[order], burial[order]
     p99 = np.empty(resamples)
@@ -365,17 +354,6 @@ def _pyarrow():
     except ImportError:
         raise MissingExtra("Parquet output", "pyarrow", "parquet") from None
     return pa, pq
-
-
-def check_output(path: Path) -> None:
-    """Refuse an output the sweep could not write, before hours of work, not after."""
-    if path.suffix not in (".csv", ".parquet"):
-        raise InputError(f"--out {path}: give a .csv or .parquet file")
-    if not path.parent.is_dir():
-        raise InputError(f"--out {path}: directory {path.parent} does not exist")
-    if path.suffix == ".parquet":
-        _pyarrow()
-    probe_writable(path, "--out")
 
 
 def write_table(rows: list[dict], path: str | Path) -> None:
@@ -465,8 +443,10 @@ def run(args: argparse.Namespace) -> int:
         area=(0.0, 0.0, *args.area), max_transmitters=args.max_transmitters, t_max=args.t_max,
         noise=not args.no_noise, engine=args.engine, bootstrap=args.bootstrap, antennas=args.antennas,
     )
-    if args.out is not None:
-        check_output(args.out)
+    if args.out is not None:  # refused before hours of work, not after (--out's type checked the name)
+        if args.out.suffix == ".parquet":
+            _pyarrow()
+        probe_writable(args.out, "--out")
     with progress_bar("arva-sweep", total=len(config.tasks()), unit="runs") as bar:
         result = sweep(config, workers=args.workers, scheduler=args.scheduler, progress=bar)
     if args.out is not None:

@@ -91,16 +91,13 @@ class GridTerrain:
             z = np.array(rows, dtype=np.float64)
         return cls(z, float(origin[0]), float(origin[1]), float(spacing[0]), float(spacing[1]))
 
-    def _cell(self, x: float, y: float) -> tuple[int, int, float, float]:
+    def height(self, x: float, y: float) -> float:
         ny, nx = self.z.shape
         fx = min(max((x - self.x0) / self.dx, 0.0), nx - 1.0)
         fy = min(max((y - self.y0) / self.dy, 0.0), ny - 1.0)
         i = min(int(fx), nx - 2)
         j = min(int(fy), ny - 2)
-        return i, j, fx - i, fy - j
-
-    def height(self, x: float, y: float) -> float:
-        i, j, tx, ty = self._cell(x, y)
+        tx, ty = fx - i, fy - j
         r0, r1 = self._rows[j], self._rows[j + 1]
         a = r0[i] + tx * (r0[i + 1] - r0[i])
         b = r1[i] + tx * (r1[i + 1] - r1[i])

@@ -13,6 +13,7 @@ each request does: docs/hil_testing.md, "Protocol".
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import asdict
 
 from firmware_proto.errors import InputError
 
@@ -125,17 +126,11 @@ class Controller:
             return self._epoch()
         if isinstance(req, rq.Truth):
             t = self._t()
-            return {**self._epoch(), "t": t, "receivers": self._receivers(t), "transmitters": self._transmitters(t)}
+            receivers = [{"id": p.id, "position": p.position, "orientation": p.orientation} for p in pipe.receiver_poses(t)]
+            return {**self._epoch(), "t": t, "receivers": receivers, "transmitters": list(map(asdict, pipe.transmitter_poses(t)))}
         if isinstance(req, rq.Quit):
             return {}
         raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
-
-    def _receivers(self, t: float) -> list[dict]:
-        return [{"id": p.id, "position": p.position, "orientation": p.orientation} for p in self.pipe.receiver_poses(t)]
-
-    def _transmitters(self, t: float) -> list[dict]:
-        return [{"id": p.id, "position": p.position, "orientation": p.orientation, "enabled": p.enabled}
-                for p in self.pipe.transmitter_poses(t)]
 
 
 class StepJob:

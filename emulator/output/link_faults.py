@@ -38,6 +38,7 @@ import numpy as np
 from firmware_proto.errors import InputError, LinkError
 
 from emulator.output.ports import Port, PortWrapper
+from emulator.schema import is_number
 
 #: Most bytes a held stall keeps (a UART FIFO plus a driver buffer, generously).
 MAX_HELD = 65536
@@ -51,10 +52,6 @@ INJECTABLE = {"disconnect": "seconds", "stall": "ms", "corrupt": "bytes"}
 #: The counters of :meth:`FaultyPort.summary`, in order.
 COUNTERS = ("bytes_offered", "bytes_written", "bytes_dropped", "bytes_lost", "bytes_corrupted", "bytes_disconnected",
             "writes", "writes_split", "stalls", "disconnects")
-
-
-def _finite(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 @dataclass(frozen=True)
@@ -75,15 +72,15 @@ class LinkFaultConfig:
     def __post_init__(self) -> None:
         for name in ("loss", "corrupt", "split", "stall"):
             v = getattr(self, name)
-            if not _finite(v) or not 0 <= v <= 1:
+            if not is_number(v) or not 0 <= v <= 1:
                 raise InputError(f"link_faults.{name}: must be a probability in [0, 1], got {v!r}")
-        if not _finite(self.stall_ms) or self.stall_ms < 0:
+        if not is_number(self.stall_ms) or self.stall_ms < 0:
             raise InputError(f"link_faults.stall_ms: must be >= 0, got {self.stall_ms!r}")
-        if not _finite(self.disconnect_every_s) or self.disconnect_every_s < 0:
+        if not is_number(self.disconnect_every_s) or self.disconnect_every_s < 0:
             raise InputError(
                 f"link_faults.disconnect_every_s: must be >= 0 (0 = never), got {self.disconnect_every_s!r}"
             )
-        if not _finite(self.disconnect_s) or self.disconnect_s <= 0:
+        if not is_number(self.disconnect_s) or self.disconnect_s <= 0:
             raise InputError(f"link_faults.disconnect_s: must be > 0, got {self.disconnect_s!r}")
         if self.disconnect_every_s > 0 and self.disconnect_s >= self.disconnect_every_s:
             raise InputError(
@@ -124,9 +121,7 @@ class FaultyPort(PortWrapper):
             clock = lambda: time.monotonic() - t0  # noqa: E731
         self._sleep = sleep
         self._clock = clock
-        rng = lambda part: np.random.Generator(  # noqa: E731
-            np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(_TAG, stream, part)))
-        )
+        rng = lambda part: np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_TAG, stream, part)))  # noqa: E731
         self._rng_stall = rng(_STALL) if config.stall > 0 else None
         self._rng_bytes = rng(_BYTES) if config.loss > 0 or config.corrupt > 0 else None
         self._rng_split = rng(_SPLIT) if config.split > 0 else None
@@ -178,7 +173,7 @@ class FaultyPort(PortWrapper):
         if kind not in INJECTABLE:
             raise InputError(f"fault kind {kind!r}: expected one of {', '.join(INJECTABLE)}")
         unit = INJECTABLE[kind]
-        if not _finite(amount) or amount <= 0 or (kind == "corrupt" and int(amount) != amount):
+        if not is_number(amount) or amount <= 0 or (kind == "corrupt" and int(amount) != amount):
             what = "a whole number > 0" if kind == "corrupt" else "a finite number > 0"
             raise InputError(f"fault {kind}: {unit} must be {what}, got {amount!r}")
         if kind == "disconnect":

@@ -17,6 +17,7 @@ import sys
 import termios
 import time
 import tty
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 from firmware_proto.errors import LinkError
@@ -32,7 +33,7 @@ def file_name(label: str) -> str:
     return label.replace(":", "-")
 
 
-class Port:
+class Port(AbstractContextManager):
     """Base class of all ports. ``label`` names the stream (``arva``, ``gps:rx`` ...)."""
 
     #: Path announced to the user (``/dev/pts/3``), or None for ports that need none.
@@ -60,9 +61,6 @@ class Port:
 
     def close(self) -> None:
         pass
-
-    def __enter__(self) -> "Port":
-        return self
 
     def __exit__(self, *exc_info) -> None:
         self.close()

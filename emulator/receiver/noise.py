@@ -17,7 +17,7 @@ class NoiseEffect:
 
     def __init__(self, seed: int, stream: int = 0) -> None:
         # One independent stream per receiver, derived from the scene seed.
-        self._rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(stream,))))
+        self._rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(stream,)))
 
     def draw(self, n_epochs: int, n_transmitters: int) -> NDArray[np.float64]:
         """(n_epochs, n_transmitters, 3) points uniform in the unit ball, epoch-major."""

@@ -10,7 +10,6 @@ docs/emulator.md "pulses".
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -19,6 +18,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from firmware_proto.errors import InputError
+
+from emulator.schema import is_number
 
 #: ETSI EN 300 718 pulse period range, ms (1000 +- 300).
 PERIOD_RANGE_MS = (700.0, 1300.0)
@@ -34,12 +35,8 @@ OVERLAP_MODES = ("weaker", "both")
 _TAG = 0x50554C53
 
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _fmt(v) -> str:
-    return f"{v:g}" if _is_number(v) else repr(v)
+    return f"{v:g}" if is_number(v) else repr(v)
 
 
 @dataclass(frozen=True)
@@ -69,7 +66,7 @@ class PulseConfig:
     def __post_init__(self) -> None:
         lo_ok, hi_ok = PERIOD_RANGE_MS
         rng = tuple(self.period_ms) if isinstance(self.period_ms, (tuple, list)) else None
-        if rng is None or len(rng) != 2 or not all(map(_is_number, rng)) or not lo_ok <= rng[0] <= rng[1] <= hi_ok:
+        if rng is None or len(rng) != 2 or not all(map(is_number, rng)) or not lo_ok <= rng[0] <= rng[1] <= hi_ok:
             raise InputError(
                 f"pulses.period_ms: must be [lo, hi] with {lo_ok:g} <= lo <= hi <= {hi_ok:g}, "
                 f"got {self.period_ms!r}"
@@ -85,7 +82,7 @@ class PulseConfig:
             if ph < 0:
                 raise InputError(f"pulses.phases_ms.{tx_id}: must be >= 0, got {ph:g}")
         object.__setattr__(self, "phases_ms", MappingProxyType(phases))
-        if not _is_number(self.pulse_ms) or self.pulse_ms < MIN_PULSE_MS:
+        if not is_number(self.pulse_ms) or self.pulse_ms < MIN_PULSE_MS:
             raise InputError(f"pulses.pulse_ms: must be >= {MIN_PULSE_MS:g}, got {_fmt(self.pulse_ms)}")
         shortest = min([rng[0], *periods.values()])
         if shortest - self.pulse_ms < MIN_OFF_MS:
@@ -93,7 +90,7 @@ class PulseConfig:
                 f"pulses.pulse_ms: must leave >= {MIN_OFF_MS:g} ms off in the shortest period "
                 f"({shortest:g} ms), got {self.pulse_ms:g}"
             )
-        if not _is_number(self.drift_ppm) or not 0 <= self.drift_ppm <= MAX_DRIFT_PPM:
+        if not is_number(self.drift_ppm) or not 0 <= self.drift_ppm <= MAX_DRIFT_PPM:
             raise InputError(f"pulses.drift_ppm: must be in [0, {MAX_DRIFT_PPM:g}], got {_fmt(self.drift_ppm)}")
         if self.overlap not in OVERLAP_MODES:
             raise InputError(f'pulses.overlap: must be "weaker" or "both", got {self.overlap!r}')
@@ -110,7 +107,7 @@ class PulseConfig:
                 raise InputError(f"pulses.{key}: keys must be transmitter ids, got {k!r}") from None
             if isinstance(k, bool) or tx_id < 0 or (isinstance(k, str) and not k.isdigit()):
                 raise InputError(f"pulses.{key}: keys must be transmitter ids, got {k!r}")
-            if not _is_number(v):
+            if not is_number(v):
                 raise InputError(f"pulses.{key}.{tx_id}: must be a finite number, got {v!r}")
             out[tx_id] = float(v)
         return out
@@ -149,7 +146,7 @@ class PulseEffect:
         for j, tx_id in enumerate(ids.tolist()):
             # Three draws for every transmitter, used or not, so an override of one
             # setting never shifts the others.
-            u_period, u_drift, u_phase = _rng(seed, tx_id).random(3)
+            u_period, u_drift, u_phase = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_TAG, tx_id))).random(3)
             nominal = config.periods_ms.get(tx_id, lo + (hi - lo) * u_period)
             period = nominal * (1.0 + config.drift_ppm * 1e-6 * (2.0 * u_drift - 1.0))
             periods[j] = period / 1000.0
@@ -239,7 +236,3 @@ def _overlaps(start: NDArray, width: float, phase: NDArray, period: NDArray) -> 
         s = phase + (base + dk) * period
         hit |= (s < end) & (a < s + width)
     return hit
-
-
-def _rng(seed: int | None, tx_id: int) -> np.random.Generator:
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(_TAG, tx_id))))

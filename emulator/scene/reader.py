@@ -32,7 +32,9 @@ from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
 from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S
 from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint, toml_document, toml_file
-from emulator.scene.types import SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter, truth_streams
+from emulator.scene.types import (
+    SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter, arva_labels, truth_streams,
+)
 from emulator.schema import given, type_name
 from emulator.truth.error import GroundTruthErrorConfig
 
@@ -86,9 +88,7 @@ def parse_scene(data: dict, source: str) -> Scene:
         if quantize is not None:
             _check_quantized_range(rd, rx.model or model, quantize)
     if effects.link_fault_streams:
-        several = len(receivers) > 1
-        labels = [f"arva:{rx.id}" if several else "arva" for rx in receivers]
-        labels += [label for label, _, _ in truth_streams(receivers, transmitters)]
+        labels = arva_labels(receivers) + [label for label, _, _ in truth_streams(receivers, transmitters)]
         for i, label in enumerate(effects.link_fault_streams):
             if label not in labels:
                 raise rd.fail(f"link_faults.streams[{i}]", f"no stream {label!r} in this scene (streams: {', '.join(labels)})")

@@ -118,6 +118,11 @@ class Scene:
         return np.array([tx.id for tx in self.transmitters], dtype=np.int64)
 
 
+def arva_labels(receivers: Sequence[ReceiverSpec]) -> list[str]:
+    """Each receiver's ``$PARVA`` stream label: ``arva``, or ``arva:<id>`` with several."""
+    return [f"arva:{rx.id}" if len(receivers) > 1 else "arva" for rx in receivers]
+
+
 def truth_streams(
     receivers: Sequence[ReceiverSpec], transmitters: Sequence[Transmitter]
 ) -> list[tuple[str, str, ReceiverSpec | Transmitter]]:

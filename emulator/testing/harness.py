@@ -41,7 +41,7 @@ class ControlReplyError(ArvaError, RuntimeError):
         super().__init__(f"arva-emulate refused {json.dumps(request)}: {error}")
 
 
-class ControlClient:
+class ControlClient(contextlib.AbstractContextManager):
     """One connection to a control channel (``unix:PATH`` or ``tcp:HOST:PORT``).
 
     :meth:`request` sends one request and returns its reply (raising
@@ -124,9 +124,6 @@ class ControlClient:
             raise ControlReplyError(req, str(reply.get("error")))
         return reply
 
-    def __enter__(self) -> "ControlClient":
-        return self
-
     def __exit__(self, *exc_info) -> None:
         self.close()
 
@@ -137,7 +134,7 @@ class ControlClient:
             self._transcript = None
 
 
-class EmulatorProcess:
+class EmulatorProcess(contextlib.AbstractContextManager):
     """``arva-emulate ARGS`` in a subprocess (add ``--port pty`` to get ptys).
 
     Waits until ``streams`` ptys are announced, and, with ``--control``, the control
@@ -200,13 +197,9 @@ class EmulatorProcess:
 
     def wait_announcement(self, count: int, timeout: float = 10.0) -> str:
         """The ``count``-th announcement line (1-based), waiting up to ``timeout`` s."""
-        deadline = time.monotonic() + timeout
         with self._announced:
-            while len(self.announcements) < count:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise EmulatorError(f"no announcement #{count} within {timeout} s: {self.announcements}")
-                self._announced.wait(left)
+            if not self._announced.wait_for(lambda: len(self.announcements) >= count, timeout):
+                raise EmulatorError(f"no announcement #{count} within {timeout} s: {self.announcements}")
             return self.announcements[count - 1]
 
     def _read_stderr(self) -> None:
@@ -243,9 +236,6 @@ class EmulatorProcess:
             raise
         return rc, self.stderr()
 
-    def __enter__(self) -> "EmulatorProcess":
-        return self
-
     def __exit__(self, *exc_info) -> None:
         self.kill()
 
@@ -257,7 +247,7 @@ class EmulatorProcess:
             t.join(timeout=2)
 
 
-class Emulator:
+class Emulator(contextlib.AbstractContextManager):
     """The handle of an emulator with a control channel (what ``arva_emulator`` returns).
 
     ``port`` is the first receiver's port (a stable symlink to its pty, which follows a
@@ -427,9 +417,6 @@ class Emulator:
                 # Its symlinks went with the ptys: no empty folder among the artefacts.
                 with contextlib.suppress(OSError):
                     (self.artefacts / "pty").rmdir()
-
-    def __enter__(self) -> "Emulator":
-        return self
 
     def __exit__(self, *exc) -> None:
         self.stop()

@@ -19,6 +19,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 import firmware_proto
@@ -71,7 +72,7 @@ def build_firmware(source_dir: str | Path, out_dir: str | Path, target: str = "s
     return out / target
 
 
-class Board:
+class Board(AbstractContextManager):
     """``qemu-system-arm`` running one firmware; see the module docstring."""
 
     def __init__(
@@ -187,14 +188,11 @@ class Board:
             port.close()
         self._out.close()
 
-    def __enter__(self) -> "Board":
-        return self
-
     def __exit__(self, *exc) -> None:
         self.stop()
 
 
-class FirmwareLoop:
+class FirmwareLoop(AbstractContextManager):
     """A :class:`Board` whose UART0 the emulator ``emu`` writes the receiver stream into.
 
     ``decisions()`` parses the firmware's JSON lines that carry a ``seq``; ``decision(seq)``
@@ -253,9 +251,6 @@ class FirmwareLoop:
             self.board.stop()
             if self._cleanup is not None:
                 shutil.rmtree(self._cleanup, ignore_errors=True)
-
-    def __enter__(self) -> "FirmwareLoop":
-        return self
 
     def __exit__(self, *exc) -> None:
         self.stop()

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from emulator.frames.rotation import quaternion_products, rotvec_quaternions
+from emulator.schema import is_number
 from firmware_proto.errors import InputError, PoseError
 
 #: Spawn-key tag of this effect's random streams ("GTER"), distinct from every other effect.
@@ -25,12 +26,8 @@ _TAG = 0x47544552
 _GPS, _ATTITUDE = 0, 1
 
 
-def _finite(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _triple(name: str, value, nonneg: bool) -> tuple[float, float, float]:
-    ok = isinstance(value, (tuple, list)) and len(value) == 3 and all(_finite(v) for v in value)
+    ok = isinstance(value, (tuple, list)) and len(value) == 3 and all(is_number(v) for v in value)
     if not ok or (nonneg and any(v < 0 for v in value)):
         what = "3 finite numbers >= 0 [east, north, up]" if nonneg else "3 finite numbers [east, north, up]"
         raise InputError(f"ground_truth_error.{name}: must be {what}, got {value!r}")
@@ -57,9 +54,9 @@ class GroundTruthErrorConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "gps_sigma_m", _triple("gps_sigma_m", self.gps_sigma_m, True))
         object.__setattr__(self, "gps_bias_m", _triple("gps_bias_m", self.gps_bias_m, False))
-        if not _finite(self.gps_dropout) or not 0 <= self.gps_dropout <= 1:
+        if not is_number(self.gps_dropout) or not 0 <= self.gps_dropout <= 1:
             raise InputError(f"ground_truth_error.gps_dropout: must be a probability in [0, 1], got {self.gps_dropout!r}")
-        if not _finite(self.attitude_sigma_deg) or not 0 <= self.attitude_sigma_deg < 180:
+        if not is_number(self.attitude_sigma_deg) or not 0 <= self.attitude_sigma_deg < 180:
             raise InputError(
                 f"ground_truth_error.attitude_sigma_deg: must be in [0, 180), got {self.attitude_sigma_deg!r}"
             )
@@ -90,8 +87,8 @@ class GroundTruthError:
         # A fix is dropped when its normal is below Phi^-1(p); +inf at p = 1 (every fix).
         self._threshold = -math.inf if p == 0 else math.inf if p >= 1 else NormalDist().inv_cdf(p)
         self._att_sigma = math.radians(config.attitude_sigma_deg)
-        self._rng_gps = _rng(seed, stream, _GPS)
-        self._rng_att = _rng(seed, stream, _ATTITUDE)
+        self._rng_gps = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_TAG, stream, _GPS)))
+        self._rng_att = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_TAG, stream, _ATTITUDE)))
         self.fixes = 0
         self.fixes_dropped = 0
 
@@ -139,7 +136,3 @@ class GroundTruthError:
 
     def stats(self) -> dict[str, int]:
         return {"fixes": self.fixes, "fixes_dropped": self.fixes_dropped}
-
-
-def _rng(seed, stream: int, part: int) -> np.random.Generator:
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(_TAG, stream, part))))

@@ -23,7 +23,7 @@ from firmware_proto.errors import InputError
 from emulator.cli_types import non_negative_int, seconds, speed
 from emulator.output.ports import BufferPort
 from emulator.output.scheduler import Route
-from emulator.pipeline import Pipeline
+from emulator.pipeline import Pipeline, stream_layout
 from emulator.scene.reader import default_scene, load_scene
 from emulator.scene.types import Scene
 from emulator.output.virtual_line import VirtualLine
@@ -50,7 +50,7 @@ class Serial(VirtualLine, SerialBase):
     def _configure(self, url: str) -> None:
         u = parse_url(url)
         self._speed = u.speed
-        label = f"arva:{u.scene.receivers[u.index].id}" if len(u.scene.receivers) > 1 else "arva"
+        label = stream_layout(u.scene)[u.index].label
         if self._pipeline is not None:
             self._pipeline.close_sources()
         self._pipeline = Pipeline(u.scene, [label])

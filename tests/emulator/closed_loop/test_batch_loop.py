@@ -14,7 +14,7 @@ import pytest
 from emulator.closed_loop.batch import BatchLoop, run_batch
 from emulator.closed_loop.case_study import load_case
 from emulator.closed_loop.loop import ClosedLoop
-from emulator.closed_loop.sweep import SweepConfig, burial, run_batch_rows, run_one, sweep
+from emulator.closed_loop.sweep import SweepConfig, burial, run_chunk, sweep
 
 #: 50 burials, 1-4 transmitters each (most have several), EMI noise on.
 CONFIG = SweepConfig(n=50, seed=11, t_max=450.0, noise=True)
@@ -30,11 +30,9 @@ def exact(rows):
 @pytest.mark.parametrize("strategy", ["receiver_only", "flux_reverse", "flux"])
 def test_batch_rows_equal_per_run_rows(strategy):
     assert sum(len(burial(CONFIG, i)) > 1 for i in range(CONFIG.n)) >= 35  # several transmitters
-    burials = list(range(CONFIG.n))
-    reference = []
-    for i in burials:
-        reference += run_one(CONFIG, strategy, 1.0, 0.2, i)[0]
-    batched, _ = run_batch_rows(CONFIG, [(strategy, 1.0, 0.2, i) for i in burials])
+    tasks = [(strategy, 1.0, 0.2, i) for i in range(CONFIG.n)]
+    reference, _ = run_chunk(replace(CONFIG, engine="run"), tasks)
+    batched, _ = run_chunk(CONFIG, tasks)
     assert exact(batched) == exact(reference)
     found = sum(r["found"] for r in reference)
     # The comparison covers located transmitters, misses and runs that end early.
@@ -91,10 +89,8 @@ def test_the_receiver_class_passes_through():
     and not the 3-antenna rows."""
     cfg = replace(CONFIG, n=12, antennas=2)
     tasks = [("receiver_only", 1.0, 0.2, i) for i in range(cfg.n)]
-    batched, _ = run_batch_rows(cfg, tasks)
-    reference = []
-    for task in tasks:
-        reference += run_one(cfg, *task)[0]
+    batched, _ = run_chunk(cfg, tasks)
+    reference, _ = run_chunk(replace(cfg, engine="run"), tasks)
     assert exact(batched) == exact(reference)
-    three, _ = run_batch_rows(replace(cfg, antennas=3), tasks)
+    three, _ = run_chunk(replace(cfg, antennas=3), tasks)
     assert exact(three) != exact(batched)
