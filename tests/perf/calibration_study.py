@@ -60,6 +60,8 @@ ROUTINE = (
     # the default fit refitted as exact poses (both pose-error sigmas on their floors): how
     # it ran, not a warning, so it must not hide a miss from the silent count
     r"^no pose error is visible \(GPS and attitude error at their floors, [^)]*\): fitted as exact poses",
+    # the passes' attitude fixed point left for the floors (then fitted as exact poses): how it ran
+    r"^the fit kept an attitude error of [0-9.]+ deg with no GPS error visible, but searched from the floors",
 )
 
 
