@@ -136,8 +136,7 @@ def offset_fitted(table: Table, options: FitOptions, res: FitResult) -> FitResul
             f"time offset: on {scan.rows} rows the poses fit {scan.gain:.0f} nats better at t {scan.offset:+.2f} s "
             "than at t (a scan over +-3 s), so it was fitted; --time-offset SEC gives it instead",
         )
-        refit.seconds += res.seconds  # the first fit and the scan
-        refit.n_evals += res.n_evals
+        refit.add_cost(res)  # the first fit and the scan
         return refit
     res.notes.append(
         f"time offset: none found (a scan over +-3 s on {scan.rows} rows: the best, t {scan.offset:+.2f} s, fits "
@@ -185,11 +184,10 @@ def fit_restarted(table: Table, options: FitOptions) -> FitResult:
             again_options, start=start, free=tuple(m for m in options.free if m != "r_en"), base=replace(options.base, r_en=BOUNDS["r_en"][1])
         )
     again = fit_once(table, again_options)
-    again.seconds += res.seconds
-    again.n_evals += res.n_evals
     if not again.converged:
-        res.seconds, res.n_evals = again.seconds, again.n_evals
+        res.add_cost(again)
         return res
+    again.add_cost(res)
     if no_floor:
         again.separable = False
         again.notes.insert(0, no_floor_note(float(np.max(np.linalg.norm(table.rx_pos - table.tx_pos, axis=1)))))
@@ -229,8 +227,7 @@ def held_attitude(table: Table, options: FitOptions, res: FitResult) -> tuple[Fi
         return res, options
     options = replace(options, free=tuple(m for m in options.free if m != "attitude_sigma"), base=replace(options.base, attitude_sigma=grade))
     held = fit_restarted(table, options)
-    held.seconds += res.seconds
-    held.n_evals += res.n_evals
+    held.add_cost(res)
     held.notes.insert(
         0,
         f"attitude error not determined: the fit put it at {math.degrees(res.params.attitude_sigma):.1f} deg with kappa_eq "
@@ -238,6 +235,22 @@ def held_attitude(table: Table, options: FitOptions, res: FitResult) -> tuple[Fi
         f"transmitter; held at {IMU_GRADES['consumer']:g} deg, a consumer IMU's grade (--imu-grade / --attitude-sigma give another)",
     )
     return held, options
+
+
+#: The pose-error sigmas whose floors :func:`exact_if_invisible` looks at.
+POSE_SIGMAS = ("gps_sigma", "attitude_sigma")
+
+
+def sigmas_fitted(options: FitOptions, res: FitResult) -> bool:
+    """``res`` is a converged first search (no start given) with both pose-error sigmas
+    fitted and neither a height nor a time offset: the fits whose sigmas
+    :func:`floors_if_better` and :func:`exact_if_invisible` look at."""
+    return (
+        res.converged
+        and all(m in res.free for m in POSE_SIGMAS)
+        and not any(m in res.free for m in ("height_offset", "time_offset"))
+        and options.start is None
+    )
 
 
 #: How many nats the fit from the floors must gain on ``res`` (:func:`floors_if_better`).
@@ -258,22 +271,14 @@ def floors_if_better(table: Table, options: FitOptions, res: FitResult) -> tuple
     fits of that walk had kept 0.1-1.0 deg. Only this pattern is checked (GPS error on its
     floor), so a walk with GPS error pays nothing."""
     gps_floor, att_floor = BOUNDS["gps_sigma"][0], BOUNDS["attitude_sigma"][0]
-    if not (
-        res.converged
-        and all(m in res.free for m in POSE_SIGMAS)
-        and res.params.gps_sigma <= gps_floor
-        and res.params.attitude_sigma > att_floor
-        and not any(m in res.free for m in ("height_offset", "time_offset"))
-        and options.start is None
-    ):
+    if not (sigmas_fitted(options, res) and res.params.gps_sigma <= gps_floor and res.params.attitude_sigma > att_floor):
         return res, options
     again = fit_once(table, replace(options, start=replace(res.params, gps_sigma=gps_floor, attitude_sigma=att_floor)))
     gain = again.log_likelihood - res.log_likelihood
     if not (again.converged and again.n_used == res.n_used and gain > FLOORS_GAIN and again.params.attitude_sigma <= att_floor):
-        res.seconds, res.n_evals = res.seconds + again.seconds, res.n_evals + again.n_evals
+        res.add_cost(again)
         return res, options
-    again.seconds += res.seconds
-    again.n_evals += res.n_evals
+    again.add_cost(res)
     again.notes.insert(
         0,
         f"the fit kept an attitude error of {math.degrees(res.params.attitude_sigma):.2f} deg with no GPS error "
@@ -281,10 +286,6 @@ def floors_if_better(table: Table, options: FitOptions, res: FitResult) -> tuple
         "was where the passes settled, not what the data show",
     )
     return again, options
-
-
-#: The pose-error sigmas whose floors :func:`exact_if_invisible` looks at.
-POSE_SIGMAS = ("gps_sigma", "attitude_sigma")
 
 
 def exact_if_invisible(table: Table, options: FitOptions, res: FitResult) -> tuple[FitResult, FitOptions]:
@@ -303,12 +304,9 @@ def exact_if_invisible(table: Table, options: FitOptions, res: FitResult) -> tup
     campaigns' r_en moved by -0.2 to -0.5 % to the truth (tuning seeds 0-29). When the
     exact fit does not converge, ``res`` stays, with a note that its r_en may be high."""
     if not (
-        res.converged
+        sigmas_fitted(options, res)
         and res.separable  # (r_en not determined: an exact fit would only run r_en to its ceiling)
-        and all(m in res.free for m in POSE_SIGMAS)
         and all(getattr(res.params, m) <= BOUNDS[m][0] for m in POSE_SIGMAS)
-        and not any(m in res.free for m in ("height_offset", "time_offset"))
-        and options.start is None
     ):
         return res, options
     free = tuple(m for m in options.free if m not in POSE_SIGMAS + OUTLIER)  # (no GPS error: nothing to widen)
@@ -323,8 +321,7 @@ def exact_if_invisible(table: Table, options: FitOptions, res: FitResult) -> tup
         ),
     )  # fmt: skip
     exact = fit_restarted(table, exact_options)
-    exact.seconds += res.seconds
-    exact.n_evals += res.n_evals
+    exact.add_cost(res)
     as_given = "--gps-sigma 0 --attitude-sigma 0"
     if exact.converged and "pose_sigma" in exact.free and exact.params.pose_sigma <= BOUNDS["pose_sigma"][0]:
         exact, exact_options, as_given = held_pose_sigma(table, exact, exact_options, as_given)
@@ -372,8 +369,7 @@ def held_pose_sigma(table: Table, exact: FitResult, options: FitOptions, as_give
         exact.notes.append(f"pose_sigma stays on {bound}: the fit with it held at {EXACT_POSE_SIGMA:g} did not converge "
                            f"({held.message}), so r_en may be high (the bound smooths the noise edge)")
         return exact, options, as_given
-    held.seconds += exact.seconds
-    held.n_evals += exact.n_evals
+    held.add_cost(exact)
     return held, held_options, f"{as_given}; pose_sigma held at {EXACT_POSE_SIGMA:g}, off {bound}, which smooths the noise edge"
 
 
@@ -390,11 +386,10 @@ def without_outliers_if_stuck(table: Table, options: FitOptions, res: FitResult)
         options, free=tuple(m for m in options.free if m not in OUTLIER), base=replace(options.base, gps_outlier=0.0)
     )
     plain = fit_restarted(table, plain_options)
-    plain.seconds += res.seconds
-    plain.n_evals += res.n_evals
     if not plain.converged:
-        res.seconds, res.n_evals = plain.seconds, plain.n_evals
+        res.add_cost(plain)
         return res, options
+    plain.add_cost(res)
     plain.notes.insert(
         0,
         f"the fit with heavy-tailed GPS error (--fit gps_outlier) did not converge ({res.message}); "

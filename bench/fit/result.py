@@ -79,6 +79,12 @@ class FitResult:
     stamps: TimeStamps | None = None  # duplicated stamps, repeated slots and gaps in t (counted, kept)
     goodness_of_fit: GoodnessOfFit | None = None  # the PIT test (converged fits with time stamps)
 
+    def add_cost(self, other: "FitResult") -> None:
+        """Count ``other``'s time and likelihood evaluations in this result's (a fit that
+        replaces, or was tried beside, ``other``)."""
+        self.seconds += other.seconds
+        self.n_evals += other.n_evals
+
     def to_json(self) -> dict:
         out: dict = {"source": self.source}
         for name in ("kappa_eq", "r_en", "r_outer", "pose_sigma", "time_offset", "gps_sigma", "attitude_sigma", "height_offset", "dropout"):
