@@ -267,7 +267,7 @@ def floors_if_better(table: Table, options: FitOptions, res: FitResult) -> tuple
     pose-error moments at the last pass's sigmas, and on a level walk with exact poses they
     settle at an attitude error of ~0.85 deg that the likelihood does not support: on
     tuning seeds 0 and 4 of the study's level-exact walk the search from the floors stays
-    there with a log-likelihood 325 and 1251 nats higher (0.3-0.4 s more). 46 of 50 report
+    there with a log-likelihood 325 and 1251 nats higher (105-1251 on seeds 0-9). 46 of 50 report
     fits of that walk had kept 0.1-1.0 deg. Only this pattern is checked (GPS error on its
     floor), so a walk with GPS error pays nothing."""
     gps_floor, att_floor = BOUNDS["gps_sigma"][0], BOUNDS["attitude_sigma"][0]
@@ -362,7 +362,8 @@ def held_pose_sigma(table: Table, exact: FitResult, options: FitOptions, as_give
         options, free=tuple(m for m in options.free if m != "pose_sigma"), base=replace(options.base, pose_sigma=EXACT_POSE_SIGMA)
     )
     # From the smooth fit's estimate: at 1e-5 the likelihood is rough in r_en, and a search
-    # from the pilot stopped in a side valley 42 nats down (level walk, report seed 1,000,009).
+    # from the pilot stopped in a side valley 21 nats down (level walk, report seed 1,000,009;
+    # tests/perf/exact_pose_profile.py).
     held = fit_restarted(table, replace(held_options, start=replace(exact.params, pose_sigma=EXACT_POSE_SIGMA)))
     bound = f"its bound {BOUNDS['pose_sigma'][0]:g}"
     if not held.converged:

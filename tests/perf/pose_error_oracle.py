@@ -15,6 +15,7 @@ position: the real thing), ``_sm`` (the pose part from a posterior draw, the EMI
 posterior mean). Rows go to OUT (JSON lines); summarise with the fields kappa_eq, r_en
 and their _se against 1.542 and 80. Scratch tool, ~10 s per 4-hour seed and mode.
 """
+import argparse
 import sys, json, math, time
 import os
 from pathlib import Path
@@ -165,8 +166,6 @@ import os
 OFF = int(os.environ.get("OFF", "9000"))
 SH = float(os.environ.get("SH", "1.0"))
 if __name__ == "__main__":
-    import argparse
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("minutes", type=float)
     ap.add_argument("first_seed", type=int)
