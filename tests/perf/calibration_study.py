@@ -19,11 +19,16 @@ Usage::
 
     python tests/perf/calibration_study.py --seeds 50 --workers 2 [--conditions a,b] [--tuning]
     python tests/perf/calibration_study.py --table out.jsonl   # the table of earlier runs
+    python tests/perf/calibration_study.py --docs   # the docs' study table from REPORT_RUNS
     python tests/perf/calibration_study.py --conditions level-heavy \
         --with "level-heavy:--fit gps_outlier"   # also a variant with these fit options
 
 A ``--with COND:OPTIONS`` variant runs the condition's campaigns again with OPTIONS
 added to the fit (after ``--extra``), reported as its own row, ``COND [OPTIONS]``.
+
+``--docs`` writes the study table of docs/calibration.md and docs/accuracy.md (section
+``study``) from the report runs kept in tests/perf/out and named in :data:`REPORT_RUNS`
+(each row says which fit code ran it); it runs no fit.
 """
 
 from __future__ import annotations
@@ -38,11 +43,15 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
+
+import scipy.stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import study_campaigns as sc  # noqa: E402
+from _report import git_revision, replace_section  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 REPORT_SEED0 = 1_000_000
@@ -63,6 +72,29 @@ ROUTINE = (
     # the passes' attitude fixed point left for the floors (then fitted as exact poses): how it ran
     r"^the fit kept an attitude error of [0-9.]+ deg with no GPS error visible, but searched from the floors",
 )
+
+
+
+@dataclass(frozen=True)
+class ReportRun:
+    """A report-seed run (a jsonl of :func:`run_one` records in tests/perf/out) whose rows
+    go into the docs' study table, and the fit code (commit) it ran."""
+
+    file: str
+    commit: str
+
+
+#: The runs behind the docs' study table, oldest first: a condition (with its fit options)
+#: found in a later run replaces the earlier run's row. Add a run here, then ``--docs``.
+REPORT_RUNS = (
+    ReportRun("calibration_study_4h_report50_594e36d.jsonl", "594e36d"),
+    ReportRun("calibration_study_outlier_mount_f55577c.jsonl", "f55577c"),
+    ReportRun("calibration_study_student_outlier_report20_9d73015.jsonl", "9d73015"),
+    ReportRun("calibration_study_radial_far_exact_report50_ba05bac.jsonl", "ba05bac"),
+    ReportRun("calibration_study_level_exact_report50_ba05bac.jsonl", "ba05bac"),
+)
+OUT = ROOT / "tests/perf/out"
+DOCS = (ROOT / "docs/calibration.md", ROOT / "docs/accuracy.md")
 
 
 def warning_notes(notes: list[str]) -> list[str]:
@@ -195,6 +227,96 @@ def markdown(header, rows) -> str:
     return "\n".join(out)
 
 
+def row_label(rec: dict) -> str:
+    """The study row a record belongs to: its condition, with the fit options it added."""
+    if "[" in rec["condition"] or not rec.get("extra"):
+        return rec["condition"]
+    return f"{rec['condition']} [{' '.join(rec['extra'])}]"
+
+
+def describe(label: str) -> str:
+    cond = sc.CONDITIONS[label.split(" [")[0]]
+    parts = [cond.walk, cond.error, *cond.junk]
+    if cond.minutes != 60.0:
+        parts.append(f"{cond.minutes / 60:g} h")
+    return ", ".join(parts)
+
+
+def report_records(runs=REPORT_RUNS, out: Path = OUT) -> dict[str, tuple[ReportRun, list[dict]]]:
+    """Per study row, the newest run of it in ``runs`` and its records."""
+    rows: dict[str, tuple[ReportRun, list[dict]]] = {}
+    for run in runs:
+        by: dict[str, list[dict]] = {}
+        for line in (out / run.file).read_text().splitlines():
+            if line.strip():
+                rec = json.loads(line)
+                by.setdefault(row_label(rec), []).append(rec)
+        for label, recs in by.items():
+            rows.pop(label, None)  # re-inserted: rows keep the order of their newest run
+            rows[label] = (run, recs)
+    return rows
+
+
+def docs_block(rows: dict[str, tuple[ReportRun, list[dict]]]) -> str:
+    """The docs' study section: the table of every row and what it says against the issue's
+    targets, every figure computed here from the records."""
+    header, cells = None, []
+    n_conv = n_silent = 0
+    for label, (run, recs) in rows.items():
+        relabelled = [{**r, "condition": label} for r in recs]
+        h, (row,) = table(relabelled)
+        header = ["condition", "walk, pose error, junk", "fit code", "started (UTC)", *h[1:-1]]
+        started = min(r.get("started", "?") for r in recs).removesuffix(" UTC")
+        cells.append([label, describe(label), run.commit, started, *row[1:-1]])
+        n_conv += sum(r.get("status") == "converged" for r in recs)
+        n_silent += row[-2]
+    short = [c[0] for c in cells if float(c[5]) < 99]
+    cover_cols = [header.index("kappa cover %"), header.index("r_en cover %")]
+    off, unlikely = [], []
+    for c in cells:
+        for name, i in zip(("kappa_eq", "r_en"), cover_cols):
+            if c[i] == "-" or 90 <= float(c[i].split()[0]) <= 98:
+                continue
+            off.append(f"{c[0]} ({name} {c[i].split()[0]} %)")
+            k, n = (int(v) for v in c[i].split("(")[1].rstrip(")").split("/"))
+            # outside the central 95 % of Binomial(n, 0.95): what exact intervals rarely give
+            if not scipy.stats.binom.ppf(0.025, n, 0.95) <= k <= scipy.stats.binom.ppf(0.975, n, 0.95):
+                unlikely.append(f"{c[0]} ({name} {k}/{n})")
+    # P(|z| > 3) for a standard normal z, two estimates per fit
+    expected = n_conv * 2 * math.erfc(3 / math.sqrt(2))
+    lines = [
+        "Each row: the study's campaigns (`tests/perf/study_campaigns.py`: 60-minute 1 Hz walks",
+        "with a hidden truth, written apart from the fit and from `tests/fit_campaign.py`) on the",
+        f"first `runs` report seeds from {REPORT_SEED0:,} (the rules were tuned on seeds 0-49 only),",
+        "fitted by `arva-bench fit CSV --json` with its defaults and the options in brackets, by",
+        "the fit code named (a row is replaced when its condition is run again). `silent`: converged,",
+        "|z| > 3 for kappa_eq or r_en, and no warning note. `conv %` counts exit 0; `crash` a fit",
+        "with no JSON (traceback or the study's 600 s limit).",
+        "",
+        markdown(header, cells),
+        "",
+        f"Against the issue's targets: {n_conv} converged fits; conditions under 99 % converged:",
+        f"{', '.join(short) if short else 'none'}. Coverage outside 90-98 %: {'; '.join(off) if off else 'none'};",
+        "of these, outside what exact 95 % intervals give in 95 % of studies of that many fits:",
+        f"{'; '.join(unlikely) if unlikely else 'none'}.",
+        f"Silent misses: {n_silent}. With exact standard errors",
+        f"|z| > 3 happens to 0.27 % of estimates, so {expected:.1f} would be expected over these",
+        f"{n_conv} fits (two estimates each) by chance alone; 0 is a target no honest interval meets",
+        "for sure, but more than that count says the intervals are too short.",
+    ]
+    return "\n".join(lines)
+
+
+def write_docs(block: str, docs=DOCS) -> None:
+    stamp = (
+        f"_Table built {time.strftime('%Y-%m-%d', time.gmtime())} at commit {git_revision()} by "
+        "`python tests/perf/calibration_study.py --docs` from the runs in its `REPORT_RUNS`._"
+    )
+    section = f"<!-- BEGIN study -->\n{block}\n\n{stamp}\n<!-- END study -->\n"
+    for path in docs:
+        replace_section(path, "study", section)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--conditions", default=",".join(sc.CONDITIONS), help="comma-separated condition names")
@@ -209,7 +331,13 @@ def main(argv=None) -> int:
         help="also run condition COND with these fit options (space-separated), as the row 'COND [OPTIONS]'",
     )
     ap.add_argument("--table", type=Path, help="only print the table of this jsonl")
+    ap.add_argument("--docs", action="store_true", help="write the docs' study table from REPORT_RUNS (runs no fit)")
     args = ap.parse_args(argv)
+    if args.docs:
+        block = docs_block(report_records())
+        print(block)
+        write_docs(block)
+        return 0
     if args.table:
         recs = [json.loads(line) for line in args.table.read_text().splitlines() if line.strip()]
         print(markdown(*table(recs)))
@@ -238,9 +366,11 @@ def main(argv=None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     records = []
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    commit = git_revision()
     with tempfile.TemporaryDirectory() as tmp, open(args.out, "a") as fh, ThreadPoolExecutor(args.workers) as pool:
         for rec in pool.map(lambda job: run_one(job[0], job[1], job[2], Path(tmp), job[3]), jobs):
             rec["started"] = started
+            rec["commit"] = commit
             fh.write(json.dumps(rec) + "\n")
             fh.flush()
             records.append(rec)
