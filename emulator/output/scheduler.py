@@ -8,7 +8,7 @@ A live control channel (:mod:`emulator.control`) changes the scene between epoch
 render and write here happens under :attr:`EpochScheduler.lock`, which the channel holds
 while it applies a change (or steps the step clock, :meth:`emulator.pipeline.Pipeline.step`),
 so a change takes effect from the next epoch rendered (:attr:`EpochScheduler.next_epoch`).
-:meth:`EpochScheduler.pause` stops the real clock emitting: epochs keep their deadlines
+:attr:`EpochScheduler.paused` stops the real clock emitting: epochs keep their deadlines
 and are rendered, then discarded, so a resume continues with the epoch due then and
 replays nothing (as fast as possible, where nothing is ever due, pause just waits).
 """
@@ -159,13 +159,6 @@ class EpochScheduler:
         now affects (in real time the next epoch due is already rendered)."""
         r = self.routes[0]
         return r.next_k + (1 if r.pending is not None else 0)
-
-    def pause(self) -> None:
-        """Real clock: stop emitting (epochs keep their deadlines and are discarded)."""
-        self.paused = True
-
-    def resume(self) -> None:
-        self.paused = False
 
     def remaining(self) -> int | None:
         """Epochs of the first stream still to send under ``frames`` (None: no limit)."""
