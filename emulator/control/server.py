@@ -132,8 +132,6 @@ class ControlServer:
         self.handle = handle
         self.on_quit = on_quit
         self.any_host = any_host
-        self.requests = 0
-        self.errors = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._slices: queue.SimpleQueue = queue.SimpleQueue()  # (future, long request) for the worker; None: stop
         self._stop = asyncio.Event()
@@ -293,7 +291,6 @@ class ControlServer:
 
     async def _serve_line(self, line: bytes, writer: asyncio.StreamWriter) -> bool:
         """Serve one request and send its reply; False after a ``quit`` (the client is done)."""
-        self.requests += 1
         request = self._execute(lambda: parse_request(line), line[:200])
         if isinstance(request, dict):  # not a request: its error reply
             self._reply(writer, request)
@@ -347,8 +344,6 @@ class ControlServer:
             return error_reply(f"internal error: {type(exc).__name__}: {exc}")
 
     def _reply(self, writer: asyncio.StreamWriter, reply: dict) -> None:
-        if not reply.get("ok"):
-            self.errors += 1
         try:
             line = encode_reply(reply)
         except ValueError as exc:  # a NaN slipped into a reply: say so rather than die
