@@ -91,15 +91,11 @@ class Route:
         faults depend on the scene time (outages): bytes are the same either way."""
         if count <= 0:
             return
-        if getattr(self.port, "time_dependent", False):
-            for _ in range(count):
-                clock.t = self.t_next
-                self.port.write(self.stream.render(self.next_k, 1))
-                self.next_k += 1
-            return
-        clock.t = self.t_next
-        self.port.write(self.stream.render(self.next_k, count))
-        self.next_k += count
+        per_write = 1 if getattr(self.port, "time_dependent", False) else count
+        for _ in range(count // per_write):
+            clock.t = self.t_next
+            self.port.write(self.stream.render(self.next_k, per_write))
+            self.next_k += per_write
 
 
 class EpochScheduler:
