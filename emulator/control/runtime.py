@@ -4,7 +4,7 @@
 ``--control`` is given, builds a :class:`ControlSession` around its pipeline and
 scheduler: the socket server starts and ``control ADDRESS`` is announced, requests are
 served by :class:`~emulator.control.controller.Controller`, ``--capture`` copies every
-stream's bytes to files (:mod:`emulator.control.capture`), and
+stream's bytes to files (:class:`CapturePort`), and
 :meth:`ControlSession.run` replaces the scheduler's own run under the step clock.
 """
 
@@ -17,11 +17,10 @@ from pathlib import Path
 
 from firmware_proto.errors import InputError
 
-from emulator.output.ports import Port, file_name
+from emulator.output.ports import Port, PortWrapper, file_name
 from emulator.output.scheduler import EpochScheduler
 from emulator.pipeline import Pipeline
 
-from emulator.control.capture import CapturePort
 from emulator.control.controller import CLOCKS, Controller
 from emulator.control.server import ControlAddress, ControlServer, check_host, control_address
 
@@ -76,6 +75,42 @@ def wanted(args: argparse.Namespace) -> bool:
         if not args.capture.is_dir():
             raise InputError(f"--capture {args.capture}: not a directory")
     return args.control is not None
+
+
+class CapturePort(PortWrapper):
+    """``--capture``: writes through to ``inner`` and appends the same bytes to ``path``.
+
+    It sits directly on the device port (pty, serial, stdout ...), below the link faults,
+    so the file holds exactly what was offered to the device after every fault (lost
+    bytes absent, corrupted bytes corrupted, nothing during an unplug); only what a full
+    pty buffer then drops is not marked. Writes are unbuffered: a test harness may read
+    the file while the emulator runs, or after it was killed.
+    """
+
+    def __init__(self, inner: Port, path: Path) -> None:
+        super().__init__(inner)
+        self._file = open(path, "ab", buffering=0)
+
+    def write(self, data: bytes) -> int:
+        if not self._file.closed:
+            self._file.write(data)
+        return self._account(len(data), self.inner.write(data))
+
+    @property
+    def bytes_dropped(self) -> int:  # type: ignore[override]
+        return self.inner.bytes_dropped
+
+    @bytes_dropped.setter
+    def bytes_dropped(self, value: int) -> None:
+        pass  # the device port counts its own drops
+
+    def close(self, *args, **kwargs) -> None:
+        super().close(*args, **kwargs)
+        self.close_file()
+
+    def close_file(self) -> None:
+        """Stop capturing (the device port stays open)."""
+        self._file.close()
 
 
 def capture_ports(args: argparse.Namespace, ports: dict[str, Port]) -> tuple[dict[str, Port], list[CapturePort]]:
