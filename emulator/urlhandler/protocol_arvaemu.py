@@ -44,11 +44,7 @@ class Serial(VirtualLine, SerialBase):
             raise SerialException("Port is already open.")
         if self._port is None:
             raise SerialException("Port must be configured before it can be used.")
-        self._configure(self._port)
-        self.is_open = True
-
-    def _configure(self, url: str) -> None:
-        u = parse_url(url)
+        u = parse_url(self._port)
         self._speed = u.speed
         label = stream_layout(u.scene)[u.index].label
         if self._pipeline is not None:
@@ -57,6 +53,7 @@ class Serial(VirtualLine, SerialBase):
         (self._route,) = self._pipeline.bind({label: BufferPort(label, self._buffer)}, self._speed)
         self._route.end_k = u.frames  # one stream: --frames' rule is its epoch count
         self._start = time.monotonic() + u.delay
+        self.is_open = True
 
     # -- reading ----------------------------------------------------------------
     def _render_due(self, want: int) -> None:
