@@ -168,7 +168,6 @@ class ControlServer:
             bound = ControlAddress("tcp", host=a.host, port=sock.getsockname()[1])
         sock.listen(16)  # connections wait in the backlog until the loop runs
         self._listener = sock
-        self.bound = bound
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._run, args=(sock,), name="arva-control", daemon=True)
         self._thread.start()
