@@ -40,19 +40,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="arva-emulate",
                       description="Emulate an ARVA receiver: stream $PARVA sentences for a scene to a port.")
     p.add_argument("--scene", type=scene_file, metavar="FILE", help="scene TOML file (default: the embedded paper case study)")
-    p.add_argument(
-        "--port", default="-", metavar="PORT",
-        help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
+    p.add_argument("--port", default="-", metavar="PORT", help=(
+        "'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
         "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
         "'rfc2217-server:HOST:PORT' or 'tcp-server:HOST:PORT' (served to network clients; "
         "port 0: any free port; the URL to open is announced like a pty), "
-        "or any other path: a file to write",
-    )
-    p.add_argument(
-        "--stream", type=_stream_port, action="append", default=[], metavar="LABEL=PORT",
-        help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
-        "(as --port: -, pty, a device, a URL or a file)",
-    )
+        "or any other path: a file to write"))
+    p.add_argument("--stream", type=_stream_port, action="append", default=[], metavar="LABEL=PORT",
+                   help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
+                   "(as --port: -, pty, a device, a URL or a file)")
     p.add_argument("--serve-any-host", action="store_true",
                    help="let rfc2217-server/tcp-server ports listen on non-loopback addresses (a lab network)")
     p.add_argument("--link", type=output_dir, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
@@ -62,11 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--realtime", action="store_true",
                    help="real-time epochs: ask for SCHED_FIFO and locked memory where permitted "
                    "(one stderr line if not)")
-    p.add_argument(
-        "--realtime-workers", action="store_true",
-        help="with --realtime: also run the kernel's unbound workqueue workers (they carry a pty's bytes to "
-        "its reader) at SCHED_FIFO 1 for the run; host-wide, undone at exit (one stderr line if not permitted)",
-    )
+    p.add_argument("--realtime-workers", action="store_true",
+                   help="with --realtime: also run the kernel's unbound workqueue workers (they carry a "
+                   "pty's bytes to its reader) at SCHED_FIFO 1 for the run; host-wide, undone at exit "
+                   "(one stderr line if not permitted)")
     p.add_argument("--timing-log", type=Path, default=None, metavar="FILE",
                    help="real-time runs: write each epoch's deadline and write() start/end (monotonic s) "
                    "to FILE at exit")

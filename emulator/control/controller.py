@@ -92,13 +92,8 @@ class Controller:
     def _dispatch(self, req: Request) -> dict:
         sch, pipe = self.scheduler, self.pipe
         if isinstance(req, rq.Status):
-            return {
-                "epoch": sch.next_epoch,
-                "t": self._t(),
-                "clock": self.clock,
-                "paused": sch.paused,
-                "streams": {r.stream.label: r.port.path or "-" for r in sch.routes},
-            }
+            return {"epoch": sch.next_epoch, "t": self._t(), "clock": self.clock, "paused": sch.paused,
+                    "streams": {r.stream.label: r.port.path or "-" for r in sch.routes}}
         if isinstance(req, rq.Truth):
             t = self._t()
             receivers = [{"id": p.id, "position": p.position, "orientation": p.orientation} for p in pipe.receiver_poses(t)]

@@ -34,31 +34,18 @@ def _address(text: str) -> ControlAddress:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("hardware-in-the-loop testing (docs/hil_testing.md)")
-    g.add_argument(
-        "--clock",
-        choices=CLOCKS,
-        default="real",
-        help="real: epochs at their times (--speed); step: nothing is emitted until a "
-        "control 'step' request asks (needs --control). Default real",
-    )
-    g.add_argument(
-        "--control",
-        type=_address,
-        metavar="ADDRESS",
-        help="serve the JSON-lines control channel on unix:PATH (mode 0600) or tcp:HOST:PORT "
-        "(loopback only; port 0 picks one); announced as 'control ADDRESS'",
-    )
-    g.add_argument(
-        "--capture",
-        type=Path,
-        metavar="DIR",
-        help="with --control: append every byte sent on each stream to DIR/<stream>.bytes (test artefacts)",
-    )
-    g.add_argument(
-        "--control-any-host",
-        action="store_true",
-        help="allow a non-loopback HOST in --control tcp:HOST:PORT (anyone who can reach it controls the emulator)",
-    )
+    g.add_argument("--clock", choices=CLOCKS, default="real",
+                   help="real: epochs at their times (--speed); step: nothing is emitted until a "
+                   "control 'step' request asks (needs --control). Default real")
+    g.add_argument("--control", type=_address, metavar="ADDRESS",
+                   help="serve the JSON-lines control channel on unix:PATH (mode 0600) or tcp:HOST:PORT "
+                   "(loopback only; port 0 picks one); announced as 'control ADDRESS'")
+    g.add_argument("--capture", type=Path, metavar="DIR",
+                   help="with --control: append every byte sent on each stream to DIR/<stream>.bytes "
+                   "(test artefacts)")
+    g.add_argument("--control-any-host", action="store_true",
+                   help="allow a non-loopback HOST in --control tcp:HOST:PORT "
+                   "(anyone who can reach it controls the emulator)")
 
 
 def wanted(args: argparse.Namespace) -> bool:
@@ -126,14 +113,8 @@ def capture_ports(args: argparse.Namespace, ports: dict[str, Port]) -> tuple[dic
 class ControlSession:
     """The control channel of one run (see the module docstring)."""
 
-    def __init__(
-        self,
-        args: argparse.Namespace,
-        pipe: Pipeline,
-        scheduler: EpochScheduler,
-        stop: threading.Event,
-        captures: Sequence[CapturePort] = (),
-    ) -> None:
+    def __init__(self, args: argparse.Namespace, pipe: Pipeline, scheduler: EpochScheduler,
+                 stop: threading.Event, captures: Sequence[CapturePort] = ()) -> None:
         self.clock = args.clock
         self.scheduler = scheduler
         self.stop = stop

@@ -121,13 +121,8 @@ class ControlServer:
     (in the server's thread) once a ``quit`` reply has been sent, or its client has gone.
     """
 
-    def __init__(
-        self,
-        address: ControlAddress,
-        handle: Callable[[Request], dict | Sliced],
-        on_quit: Callable[[], None],
-        any_host: bool = False,
-    ) -> None:
+    def __init__(self, address: ControlAddress, handle: Callable[[Request], dict | Sliced],
+                 on_quit: Callable[[], None], any_host: bool = False) -> None:
         self.address = address
         self.handle = handle
         self.on_quit = on_quit

@@ -101,15 +101,9 @@ class FaultyPort(PortWrapper):
     ``stalls``, ``disconnects``; ``faults_injected`` sums the injected faults.
     """
 
-    def __init__(
-        self,
-        port: Port,
-        config: LinkFaultConfig,
-        seed: int | None,
-        stream: int = 0,
-        sleep: Callable[[float], None] = time.sleep,
-        clock: Callable[[], float] | None = None,
-    ) -> None:
+    def __init__(self, port: Port, config: LinkFaultConfig, seed: int | None, stream: int = 0,
+                 sleep: Callable[[float], None] = time.sleep,
+                 clock: Callable[[], float] | None = None) -> None:
         super().__init__(port)
         self.config = config
         if seed is None:

@@ -359,14 +359,8 @@ class ServerPort(Port):
     """A stream served to TCP clients (see the module docstring). ``path`` is the URL a
     pyserial client opens (``rfc2217://127.0.0.1:40123`` or ``socket://...``)."""
 
-    def __init__(
-        self,
-        label: str,
-        spec: ServerSpec,
-        settings: LineSettings | None = None,
-        serve_any_host: bool = False,
-        notify: Callable[[str], None] | None = None,
-    ) -> None:
+    def __init__(self, label: str, spec: ServerSpec, settings: LineSettings | None = None,
+                 serve_any_host: bool = False, notify: Callable[[str], None] | None = None) -> None:
         super().__init__(label)
         self.spec = spec
         self.settings = settings or LineSettings()
