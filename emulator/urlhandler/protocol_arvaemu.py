@@ -95,17 +95,10 @@ class Serial(VirtualLine, SerialBase):
         timeout = Timeout(self._timeout)
         while len(self._buffer) < size:
             self._render_due(size)
-            if len(self._buffer) >= size:
-                break
             wait = self._next_due_in()
-            if timeout.is_non_blocking or wait == math.inf:
+            if len(self._buffer) >= size or wait == math.inf or timeout.expired():  # expired: also timeout 0
                 break
-            if not timeout.is_infinite:
-                left = timeout.time_left()
-                if left <= 0:
-                    break
-                wait = min(wait, left)
-            time.sleep(wait)
+            time.sleep(wait if timeout.is_infinite else min(wait, timeout.time_left()))
         data = bytes(self._buffer[:size])
         del self._buffer[:size]
         return data
