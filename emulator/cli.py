@@ -138,9 +138,10 @@ def run(args: argparse.Namespace) -> int:
                 # reads the path from here and opens it (again after a simulated unplug).
                 port.on_reconnect = announce
                 announce(port)
-        bound, captures = control_runtime.capture_ports(args, ports) if with_control else (ports, [])
+        if with_control:  # --capture: the ports wrapped, so closed through the wrappers below
+            ports = control_runtime.capture_ports(args, ports)
         # Under the step clock a scene's link-fault stalls cost no wall time.
-        routes = pipe.bind(bound, args.speed if args.clock == "real" else 0)
+        routes = pipe.bind(ports, args.speed if args.clock == "real" else 0)
         real = args.clock == "real"
         status = status_printer() if sys.stderr.isatty() and args.speed != 0 and real else None
         scheduler = EpochScheduler(routes, args.speed, args.frames, status=status, stop_event=stop,
@@ -154,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
             scheduler.on_write = lambda r, k, *times: timing.append((r.port.label, k, *times))
         control = workers = None
         if with_control:
-            control = control_runtime.ControlSession(args, pipe, scheduler, stop, captures)
+            control = control_runtime.ControlSession(args, pipe, scheduler, stop)
             control.start(lambda line: _say(announce_to, line))
         if args.realtime and args.speed != 0 and real:
             if args.realtime_workers:  # before our own SCHED_FIFO, which the keeper would inherit

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 
 from firmware_proto.errors import InputError
@@ -93,32 +93,26 @@ class CapturePort(PortWrapper):
 
     def close(self, *args, **kwargs) -> None:
         super().close(*args, **kwargs)
-        self.close_file()
-
-    def close_file(self) -> None:
-        """Stop capturing (the device port stays open)."""
         self._file.close()
 
 
-def capture_ports(args: argparse.Namespace, ports: dict[str, Port]) -> tuple[dict[str, Port], list[CapturePort]]:
+def capture_ports(args: argparse.Namespace, ports: dict[str, Port]) -> dict[str, Port]:
     """``--capture DIR``: each device port wrapped so that what it is offered is also
     appended to ``DIR/<stream>.bytes`` (bound below any link faults: what the device was
-    offered). The ports to bind, and the captures (for :class:`ControlSession` to close)."""
-    if getattr(args, "capture", None) is None:
-        return ports, []
-    captured = {label: CapturePort(port, args.capture / (file_name(label) + ".bytes")) for label, port in ports.items()}
-    return captured, list(captured.values())
+    offered); closing a wrapper closes its device port, then its file."""
+    if args.capture is None:
+        return ports
+    return {label: CapturePort(port, args.capture / (file_name(label) + ".bytes")) for label, port in ports.items()}
 
 
 class ControlSession:
     """The control channel of one run (see the module docstring)."""
 
     def __init__(self, args: argparse.Namespace, pipe: Pipeline, scheduler: EpochScheduler,
-                 stop: threading.Event, captures: Sequence[CapturePort] = ()) -> None:
+                 stop: threading.Event) -> None:
         self.clock = args.clock
         self.scheduler = scheduler
         self.stop = stop
-        self.captures = list(captures)
         self.controller = Controller(scheduler, pipe, self.clock)
         self.server = ControlServer(args.control, self.controller.handle, stop.set, any_host=args.control_any_host)
 
@@ -138,5 +132,3 @@ class ControlSession:
 
     def close(self) -> None:
         self.server.close()
-        for capture in self.captures:
-            capture.close_file()
