@@ -155,8 +155,8 @@ def run(args: argparse.Namespace) -> int:
             scheduler.on_write = lambda r, k, *times: timing.append((r.port.label, k, *times))
         control = workers = None
         if with_control:
-            control = control_runtime.ControlSession(args, pipe, scheduler, stop)
-            control.start(lambda line: _say(announce_to, line))
+            control = control_runtime.start_server(args, pipe, scheduler, stop,
+                                                   lambda line: _say(announce_to, line))
         if args.realtime and args.speed != 0 and real:
             if args.realtime_workers:  # before our own SCHED_FIFO, which the keeper would inherit
                 workers, refused = raise_workers()
@@ -167,7 +167,11 @@ def run(args: argparse.Namespace) -> int:
                 _say(sys.stderr, refused)
         try:
             scheduler.wait(args.delay)
-            control.run() if control is not None else scheduler.run()
+            if real:
+                scheduler.run()
+            else:  # the step clock: the control thread steps; wait for quit or a signal
+                while not stop.wait(0.2):
+                    pass
         finally:
             if control is not None:
                 control.close()

@@ -1,11 +1,10 @@
 """Wiring of the step clock and the control channel into ``arva-emulate`` (BRIEF 9).
 
 ``arva-emulate`` adds this module's options (:func:`add_arguments`) and, when
-``--control`` is given, builds a :class:`ControlSession` around its pipeline and
-scheduler: the socket server starts and ``control ADDRESS`` is announced, requests are
-served by :class:`~emulator.control.controller.Controller`, ``--capture`` copies every
-stream's bytes to files (:class:`CapturePort`), and
-:meth:`ControlSession.run` replaces the scheduler's own run under the step clock.
+``--control`` is given, wraps its ports for ``--capture`` (:class:`CapturePort`) and
+starts the socket server (:func:`start_server`) around its pipeline and scheduler;
+requests are served by :class:`~emulator.control.controller.Controller`. Under the step
+clock nothing else runs: the control thread steps.
 """
 
 from __future__ import annotations
@@ -105,30 +104,11 @@ def capture_ports(args: argparse.Namespace, ports: dict[str, Port]) -> dict[str,
     return {label: CapturePort(port, args.capture / (file_name(label) + ".bytes")) for label, port in ports.items()}
 
 
-class ControlSession:
-    """The control channel of one run (see the module docstring)."""
-
-    def __init__(self, args: argparse.Namespace, pipe: Pipeline, scheduler: EpochScheduler,
-                 stop: threading.Event) -> None:
-        self.clock = args.clock
-        self.scheduler = scheduler
-        self.stop = stop
-        self.controller = Controller(scheduler, pipe, self.clock)
-        self.server = ControlServer(args.control, self.controller.handle, stop.set, any_host=args.control_any_host)
-
-    def start(self, announce: Callable[[str], None]) -> None:
-        """Listen, then announce ``control ADDRESS`` (the channel accepts from then on)."""
-        bound = self.server.start()
-        announce(f"control {bound}")
-
-    def run(self) -> None:
-        """The run's main loop: the scheduler's (real clock) or waiting for quit / a
-        signal while the control thread steps (step clock)."""
-        if self.clock == "step":
-            while not self.stop.wait(0.2):
-                pass
-        else:
-            self.scheduler.run()
-
-    def close(self) -> None:
-        self.server.close()
+def start_server(args: argparse.Namespace, pipe: Pipeline, scheduler: EpochScheduler, stop: threading.Event,
+                 announce: Callable[[str], None]) -> ControlServer:
+    """Serve this run's control channel (a ``quit`` sets ``stop``), then announce
+    ``control ADDRESS``: the channel accepts from then on."""
+    controller = Controller(scheduler, pipe, args.clock)
+    server = ControlServer(args.control, controller.handle, stop.set, any_host=args.control_any_host)
+    announce(f"control {server.start()}")
+    return server
