@@ -40,12 +40,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="arva-emulate",
                       description="Emulate an ARVA receiver: stream $PARVA sentences for a scene to a port.")
     p.add_argument("--scene", type=scene_file, metavar="FILE", help="scene TOML file (default: the embedded paper case study)")
-    p.add_argument("--port", default="-", metavar="PORT", help=(
-        "'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
-        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
-        "'rfc2217-server:HOST:PORT' or 'tcp-server:HOST:PORT' (served to network clients; "
-        "port 0: any free port; the URL to open is announced like a pty), "
-        "or any other path: a file to write"))
+    p.add_argument("--port", default="-", metavar="PORT",
+                   help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
+                   "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
+                   "'rfc2217-server:HOST:PORT' or 'tcp-server:HOST:PORT' (served to network clients; "
+                   "port 0: any free port; the URL to open is announced like a pty), "
+                   "or any other path: a file to write")
     p.add_argument("--stream", type=_stream_port, action="append", default=[], metavar="LABEL=PORT",
                    help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
                    "(as --port: -, pty, a device, a URL or a file)")
@@ -140,9 +140,9 @@ def run(args: argparse.Namespace) -> int:
                 announce(port)
         if with_control:  # --capture: the ports wrapped, so closed through the wrappers below
             ports = control_runtime.capture_ports(args, ports)
-        # Under the step clock a scene's link-fault stalls cost no wall time.
-        routes = pipe.bind(ports, args.speed if args.clock == "real" else 0)
         real = args.clock == "real"
+        # Under the step clock a scene's link-fault stalls cost no wall time.
+        routes = pipe.bind(ports, args.speed if real else 0)
         status = status_printer() if sys.stderr.isatty() and args.speed != 0 and real else None
         scheduler = EpochScheduler(routes, args.speed, args.frames, status=status, stop_event=stop,
                                    scene_clock=pipe.clock, fast_batch=pipe.fast_batch)
