@@ -27,7 +27,6 @@ import threading
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 from firmware_proto.errors import InputError, LinkError
@@ -170,9 +169,8 @@ class ControlServer:
         return bound
 
     def _bind_unix(self, path: str) -> socket.socket:
-        p = Path(path)
         try:
-            st = p.lstat()
+            st = os.lstat(path)
         except FileNotFoundError:
             st = None
         except OSError as exc:
@@ -180,15 +178,13 @@ class ControlServer:
         if st is not None:
             if not stat.S_ISSOCK(st.st_mode):
                 raise InputError(f"--control unix:{path}: exists and is not a socket (refusing to replace it)")
-            probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            try:
-                probe.connect(path)
-            except OSError:
-                p.unlink()  # stale: nobody listens
-            else:
-                raise LinkError(f"--control unix:{path}: another program is serving this socket")
-            finally:
-                probe.close()
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+                try:
+                    probe.connect(path)
+                except OSError:
+                    os.unlink(path)  # stale: nobody listens
+                else:
+                    raise LinkError(f"--control unix:{path}: another program is serving this socket")
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o177)  # created 0600: no window in which others could connect
         try:
