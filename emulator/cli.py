@@ -100,10 +100,8 @@ def assign_ports(labels: list[str], default: str, overrides: list[tuple[str, str
     for port, names in users.items():
         if len(names) > 1:
             what = "stdout" if port == "-" else port
-            raise InputError(
-                f"port {port}: {len(names)} streams ({', '.join(names)}) cannot share {what}; "
-                "use --port pty or --stream LABEL=PORT"
-            )
+            raise InputError(f"port {port}: {len(names)} streams ({', '.join(names)}) cannot share {what}; "
+                             "use --port pty or --stream LABEL=PORT")
     return ports
 
 

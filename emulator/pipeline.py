@@ -279,9 +279,8 @@ class Pipeline(AbstractContextManager):
         self.silenced.discard(tx_id)
         self._push_transmitters()
 
-    def pin_receiver(
-        self, index: int = 0, position: Sequence[float] | None = None, orientation: Sequence[float] | None = None
-    ) -> None:
+    def pin_receiver(self, index: int = 0, position: Sequence[float] | None = None,
+                     orientation: Sequence[float] | None = None) -> None:
         """Hold receiver ``index`` at a pose (fields not given keep their current value)
         from the next epoch on; its ground-truth streams follow. A vehicle-borne receiver
         cannot be pinned (its pose is the closed loop's)."""

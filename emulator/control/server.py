@@ -104,10 +104,8 @@ def is_loopback(host: str) -> bool:
 def check_host(address: ControlAddress, any_host: bool) -> None:
     """InputError unless ``address`` is unix, loopback TCP, or ``any_host`` allows any."""
     if address.kind == "tcp" and not any_host and not is_loopback(address.host):
-        raise InputError(
-            f"--control {address}: {address.host} is not a loopback address "
-            "(the channel has no authentication; add --control-any-host to serve other hosts)"
-        )
+        raise InputError(f"--control {address}: {address.host} is not a loopback address "
+                         "(the channel has no authentication; add --control-any-host to serve other hosts)")
 
 
 class ControlServer:

@@ -81,10 +81,8 @@ class LinkFaultConfig:
             if not is_number(v) or v < 0 or (positive and v == 0):
                 raise InputError(f"link_faults.{name}: must be {rule}, got {v!r}")
         if self.disconnect_every_s > 0 and self.disconnect_s >= self.disconnect_every_s:
-            raise InputError(
-                f"link_faults.disconnect_s: must be < disconnect_every_s ({self.disconnect_every_s:g}), "
-                f"got {self.disconnect_s:g}"
-            )
+            raise InputError(f"link_faults.disconnect_s: must be < disconnect_every_s "
+                             f"({self.disconnect_every_s:g}), got {self.disconnect_s:g}")
 
 
 class FaultyPort(PortWrapper):

@@ -436,9 +436,8 @@ class ServerPort(Port):
                     sock.close()
                     return
                 self._clients.append(client)
-            self.notify(
-                f"{self.label}: client {client.name} connected ({self.spec.kind}, line {client.line.settings.describe()})"
-            )
+            self.notify(f"{self.label}: client {client.name} connected "
+                        f"({self.spec.kind}, line {client.line.settings.describe()})")
             client.start()
 
     def cut(self, client: ServedClient) -> None:

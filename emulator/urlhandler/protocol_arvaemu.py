@@ -159,10 +159,9 @@ def parse_url(url: str) -> ArvaemuUrl:
         if not opt["receiver"].isdigit() or int(opt["receiver"]) not in ids:
             raise SerialException(f"{url}: receiver={opt['receiver']}: no such receiver (ids: {ids})")
         index = ids.index(int(opt["receiver"]))
-    return ArvaemuUrl(
-        scene, index, _option(opt, "speed", speed, 1.0, url), _option(opt, "frames", non_negative_int, None, url),
-        _option(opt, "delay", seconds, 0.0, url),
-    )
+    return ArvaemuUrl(scene, index, _option(opt, "speed", speed, 1.0, url),
+                      _option(opt, "frames", non_negative_int, None, url),
+                      _option(opt, "delay", seconds, 0.0, url))
 
 
 def _option(opt: dict, key: str, parse, default, url: str):
