@@ -105,19 +105,12 @@ class EpochScheduler:
     ``clock`` and ``sleep`` are injectable for tests.
     """
 
-    def __init__(
-        self,
-        routes: list[Route],
-        speed: float,
-        frames: int | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        sleep: Callable[[float], None] = time.sleep,
-        status: Callable[[list[Route]], None] | None = None,
-        stop_event: threading.Event | None = None,
-        scene_clock: SceneClock | None = None,
-        fast_batch: int | None = None,
-        on_write: Callable[[Route, int, float, float, float], None] | None = None,
-    ) -> None:
+    def __init__(self, routes: list[Route], speed: float, frames: int | None = None,
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
+                 status: Callable[[list[Route]], None] | None = None,
+                 stop_event: threading.Event | None = None, scene_clock: SceneClock | None = None,
+                 fast_batch: int | None = None,
+                 on_write: Callable[[Route, int, float, float, float], None] | None = None) -> None:
         if not routes:
             raise ValueError("nothing to schedule")
         self.routes = routes
