@@ -40,19 +40,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="arva-emulate",
                       description="Emulate an ARVA receiver: stream $PARVA sentences for a scene to a port.")
     p.add_argument("--scene", type=scene_file, metavar="FILE", help="scene TOML file (default: the embedded paper case study)")
-    p.add_argument(
-        "--port", default="-", metavar="PORT",
-        help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
-        "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
-        "'rfc2217-server:HOST:PORT' or 'tcp-server:HOST:PORT' (served to network clients; "
-        "port 0: any free port; the URL to open is announced like a pty), "
-        "or any other path: a file to write",
-    )
-    p.add_argument(
-        "--stream", type=_stream_port, action="append", default=[], metavar="LABEL=PORT",
-        help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
-        "(as --port: -, pty, a device, a URL or a file)",
-    )
+    p.add_argument("--port", default="-", metavar="PORT",
+                   help="'-' for stdout (default), 'pty' to create pseudo-terminals (one per stream, "
+                   "each announced on stdout as '<stream> <path>'), a device path or a pyserial URL, "
+                   "'rfc2217-server:HOST:PORT' or 'tcp-server:HOST:PORT' (served to network clients; "
+                   "port 0: any free port; the URL to open is announced like a pty), "
+                   "or any other path: a file to write")
+    p.add_argument("--stream", type=_stream_port, action="append", default=[], metavar="LABEL=PORT",
+                   help="send one stream (arva, arva:<id>, gps:rx, attitude:tx<id> ...) to its own port "
+                   "(as --port: -, pty, a device, a URL or a file)")
     p.add_argument("--serve-any-host", action="store_true",
                    help="let rfc2217-server/tcp-server ports listen on non-loopback addresses (a lab network)")
     p.add_argument("--link", type=output_dir, metavar="DIR", help="stable symlinks DIR/<stream> to the created ptys")
@@ -62,11 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--realtime", action="store_true",
                    help="real-time epochs: ask for SCHED_FIFO and locked memory where permitted "
                    "(one stderr line if not)")
-    p.add_argument(
-        "--realtime-workers", action="store_true",
-        help="with --realtime: also run the kernel's unbound workqueue workers (they carry a pty's bytes to "
-        "its reader) at SCHED_FIFO 1 for the run; host-wide, undone at exit (one stderr line if not permitted)",
-    )
+    p.add_argument("--realtime-workers", action="store_true",
+                   help="with --realtime: also run the kernel's unbound workqueue workers (they carry a "
+                   "pty's bytes to its reader) at SCHED_FIFO 1 for the run; host-wide, undone at exit "
+                   "(one stderr line if not permitted)")
     p.add_argument("--timing-log", type=Path, default=None, metavar="FILE",
                    help="real-time runs: write each epoch's deadline and write() start/end (monotonic s) "
                    "to FILE at exit")
@@ -105,10 +100,8 @@ def assign_ports(labels: list[str], default: str, overrides: list[tuple[str, str
     for port, names in users.items():
         if len(names) > 1:
             what = "stdout" if port == "-" else port
-            raise InputError(
-                f"port {port}: {len(names)} streams ({', '.join(names)}) cannot share {what}; "
-                "use --port pty or --stream LABEL=PORT"
-            )
+            raise InputError(f"port {port}: {len(names)} streams ({', '.join(names)}) cannot share {what}; "
+                             "use --port pty or --stream LABEL=PORT")
     return ports
 
 
@@ -143,10 +136,11 @@ def run(args: argparse.Namespace) -> int:
                 # reads the path from here and opens it (again after a simulated unplug).
                 port.on_reconnect = announce
                 announce(port)
-        bound, captures = control_runtime.capture_ports(args, ports) if with_control else (ports, [])
-        # Under the step clock a scene's link-fault stalls cost no wall time.
-        routes = pipe.bind(bound, args.speed if args.clock == "real" else 0)
+        if with_control:  # --capture: the ports wrapped, so closed through the wrappers below
+            ports = control_runtime.capture_ports(args, ports)
         real = args.clock == "real"
+        # Under the step clock a scene's link-fault stalls cost no wall time.
+        routes = pipe.bind(ports, args.speed if real else 0)
         status = status_printer() if sys.stderr.isatty() and args.speed != 0 and real else None
         scheduler = EpochScheduler(routes, args.speed, args.frames, status=status, stop_event=stop,
                                    scene_clock=pipe.clock, fast_batch=pipe.fast_batch)
@@ -159,8 +153,8 @@ def run(args: argparse.Namespace) -> int:
             scheduler.on_write = lambda r, k, *times: timing.append((r.port.label, k, *times))
         control = workers = None
         if with_control:
-            control = control_runtime.ControlSession(args, pipe, scheduler, stop, captures)
-            control.start(lambda line: _say(announce_to, line))
+            control = control_runtime.start_server(args, pipe, scheduler, stop,
+                                                   lambda line: _say(announce_to, line))
         if args.realtime and args.speed != 0 and real:
             if args.realtime_workers:  # before our own SCHED_FIFO, which the keeper would inherit
                 workers, refused = raise_workers()
@@ -171,7 +165,11 @@ def run(args: argparse.Namespace) -> int:
                 _say(sys.stderr, refused)
         try:
             scheduler.wait(args.delay)
-            control.run() if control is not None else scheduler.run()
+            if real:
+                scheduler.run()
+            else:  # the step clock: the control thread steps; wait for quit or a signal
+                while not stop.wait(0.2):
+                    pass
         finally:
             if control is not None:
                 control.close()

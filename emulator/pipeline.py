@@ -31,7 +31,7 @@ from emulator.frames.trajectory import IDENTITY, Trajectory
 from emulator.output.link_faults import FaultyPort, LinkFaultConfig
 from emulator.output.ports import Port
 from emulator.output.scheduler import Route, SceneClock, epochs_before
-from emulator.output.streams import ArvaStream, EpochSource, Stream
+from emulator.output.streams import ArvaStream, Stream
 from emulator.receiver.receiver import Receiver
 from emulator.scene.types import Scene, Transmitter, arva_labels
 from emulator.schema import Int, SchemaError, Vector3, Vector4, convert, join_key
@@ -74,19 +74,15 @@ def stream_layout(scene: Scene) -> tuple[StreamInfo, ...]:
     return tuple(out)
 
 
-def receiver_source(scene: Scene, index: int) -> EpochSource:
-    """What produces receiver ``index``'s epochs: its vehicle's closed loop (or the
-    autopilot it rides on), else a :class:`Receiver` on its scene trajectory."""
-    if scene.receivers[index].vehicle is not None:
-        return ClosedLoop(scene, index, record=False)
-    return Receiver(scene, index)
-
-
 def build_stream(scene: Scene, info: StreamInfo) -> Stream:
-    """The stream ``info`` describes (see :func:`stream_layout`)."""
-    if info.kind == "arva":
-        return ArvaStream(info.label, info.rate_hz, receiver_source(scene, info.receiver))
-    return ground_truth_stream(scene, info.carrier)
+    """The stream ``info`` describes (see :func:`stream_layout`). A receiver's epochs come
+    from its vehicle's closed loop (or the autopilot it rides on), else from a
+    :class:`Receiver` on its scene trajectory."""
+    if info.kind != "arva":
+        return ground_truth_stream(scene, info.carrier)
+    i = info.receiver
+    source = Receiver(scene, i) if scene.receivers[i].vehicle is None else ClosedLoop(scene, i, record=False)
+    return ArvaStream(info.label, info.rate_hz, source)
 
 
 def arva_stream(scene: Scene, index: int = 0) -> ArvaStream:
@@ -99,22 +95,6 @@ def arva_stream(scene: Scene, index: int = 0) -> ArvaStream:
 def scene_streams(scene: Scene) -> list[Stream]:
     """Every stream of the scene, built, in :func:`stream_layout` order."""
     return [build_stream(scene, info) for info in stream_layout(scene)]
-
-
-def link_faulted(scene: Scene, info: StreamInfo, port: Port, speed: float, clock: SceneClock) -> Port:
-    """``port`` wrapped in the scene's link faults if they apply to stream ``info``.
-
-    Stalls and split gaps are real pauses in real time; as fast as possible
-    (``speed == 0``) they cost nothing (bytes still split, stall counters still count).
-    """
-    fx = scene.effects
-    if fx.link_faults is None or (fx.link_fault_streams and info.label not in fx.link_fault_streams):
-        return port
-    return FaultyPort(port, fx.link_faults, scene.seed, stream=info.index, sleep=_sleeper(speed), clock=clock)
-
-
-def _sleeper(speed: float):
-    return time.sleep if speed > 0 else (lambda _s: None)
 
 
 @dataclass(frozen=True)
@@ -175,11 +155,22 @@ class Pipeline(AbstractContextManager):
         if missing:
             raise InputError(f"no port for stream(s) {', '.join(missing)}")
         self.speed = speed
-        self.routes = [
-            Route(stream, link_faulted(self.scene, self.infos[label], ports[label], speed, self.clock))
-            for label, stream in self.streams.items()
-        ]
+        faults, only = self.scene.effects.link_faults, self.scene.effects.link_fault_streams
+        self.routes = []
+        for label, stream in self.streams.items():
+            port = ports[label]
+            if faults is not None and (not only or label in only):
+                port = self._faulty(label, port, faults)
+            self.routes.append(Route(stream, port))
         return self.routes
+
+    def _faulty(self, label: str, port: Port, config: LinkFaultConfig) -> FaultyPort:
+        """``port`` with ``config``'s link faults, seeded by stream ``label``'s index. Stalls
+        and split gaps are real pauses in real time; as fast as possible (``speed == 0``)
+        they cost nothing (bytes still split, stall counters still count)."""
+        sleep = time.sleep if self.speed > 0 else (lambda _s: None)
+        index = self.infos[label].index
+        return FaultyPort(port, config, self.scene.seed, stream=index, sleep=sleep, clock=self.clock)
 
     @property
     def fast_batch(self) -> int | None:
@@ -288,9 +279,8 @@ class Pipeline(AbstractContextManager):
         self.silenced.discard(tx_id)
         self._push_transmitters()
 
-    def pin_receiver(
-        self, index: int = 0, position: Sequence[float] | None = None, orientation: Sequence[float] | None = None
-    ) -> None:
+    def pin_receiver(self, index: int = 0, position: Sequence[float] | None = None,
+                     orientation: Sequence[float] | None = None) -> None:
         """Hold receiver ``index`` at a pose (fields not given keep their current value)
         from the next epoch on; its ground-truth streams follow. A vehicle-borne receiver
         cannot be pinned (its pose is the closed loop's)."""
@@ -313,10 +303,7 @@ class Pipeline(AbstractContextManager):
         r = self.route(label)
         self.clock.t = r.t_next
         if not isinstance(r.port, FaultyPort):
-            info = self.infos[label]
-            r.port = FaultyPort(
-                r.port, LinkFaultConfig(), self.scene.seed, stream=info.index, sleep=_sleeper(self.speed), clock=self.clock
-            )
+            r.port = self._faulty(label, r.port, LinkFaultConfig())
         r.port.stall_hold = self.stall_hold
         r.port.inject(kind, amount)
 
@@ -383,9 +370,3 @@ def _vector(value: Sequence[float], what: str) -> np.ndarray:
 
 def _quaternion(value: Sequence[float]) -> np.ndarray:
     return normalize_quaternions(_checked(value, Vector4, "orientation"), "orientation")  # or PoseError
-
-
-__all__ = [
-    "EpochRef", "Pipeline", "StreamInfo", "arva_stream", "build_stream", "link_faulted", "receiver_source",
-    "scene_streams", "stream_layout"
-]

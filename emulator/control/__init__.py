@@ -4,7 +4,6 @@
 * :mod:`~emulator.control.server`: the unix / TCP socket server (several clients).
 * :mod:`~emulator.control.controller`: serves requests against the scheduler and the
   :class:`~emulator.pipeline.Pipeline` (changes between epochs, the step clock).
-* :mod:`~emulator.control.capture`: ``--capture``, copies of the streams' bytes.
-* :mod:`~emulator.control.runtime`: the command-line options and the wiring into
-  ``arva-emulate``.
+* :mod:`~emulator.control.runtime`: the command-line options, ``--capture`` (copies of
+  the streams' bytes) and the wiring into ``arva-emulate``.
 """

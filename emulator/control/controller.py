@@ -92,45 +92,38 @@ class Controller:
     def _dispatch(self, req: Request) -> dict:
         sch, pipe = self.scheduler, self.pipe
         if isinstance(req, rq.Status):
-            return {
-                "epoch": sch.next_epoch,
-                "t": self._t(),
-                "clock": self.clock,
-                "paused": sch.paused,
-                "streams": {r.stream.label: r.port.path or "-" for r in sch.routes},
-            }
-        if isinstance(req, (rq.Pause, rq.Resume)):
-            if self.clock != "real":
-                raise ControlError(f"{req.op}: the step clock emits only on step (pause/resume are for --clock real)")
-            sch.pause() if isinstance(req, rq.Pause) else sch.resume()
-            return self._epoch()
-        if isinstance(req, rq.SetTransmitter):
-            pipe.set_transmitter(req.id, req.position, req.orientation, req.enabled)
-            return self._epoch()
-        if isinstance(req, rq.RemoveTransmitter):
-            if req.id not in pipe.transmitters:
-                known = ", ".join(map(str, sorted(pipe.transmitters))) or "none"
-                raise ControlError(f"remove_transmitter: no transmitter {req.id} (ids: {known})")
-            pipe.remove_transmitter(req.id)
-            return self._epoch()
-        if isinstance(req, rq.SetReceiver):
-            index = self._receiver_index(req.id, "set_receiver")
-            if req.resume_path:
-                pipe.release_receiver(index)
-            else:
-                pipe.pin_receiver(index, req.position, req.orientation)
-            return self._epoch()
-        if isinstance(req, rq.Fault):
-            amount = {"disconnect": req.seconds, "stall": req.ms, "corrupt": req.count}[req.kind]
-            pipe.fault(req.stream, req.kind, amount)  # from the stream's next epoch
-            return self._epoch()
+            return {"epoch": sch.next_epoch, "t": self._t(), "clock": self.clock, "paused": sch.paused,
+                    "streams": {r.stream.label: r.port.path or "-" for r in sch.routes}}
         if isinstance(req, rq.Truth):
             t = self._t()
             receivers = [{"id": p.id, "position": p.position, "orientation": p.orientation} for p in pipe.receiver_poses(t)]
             return {**self._epoch(), "t": t, "receivers": receivers, "transmitters": list(map(asdict, pipe.transmitter_poses(t)))}
         if isinstance(req, rq.Quit):
             return {}
-        raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
+        # The changes: each takes effect from the epoch the reply names.
+        if isinstance(req, (rq.Pause, rq.Resume)):
+            if self.clock != "real":
+                raise ControlError(f"{req.op}: the step clock emits only on step (pause/resume are for --clock real)")
+            sch.paused = isinstance(req, rq.Pause)
+        elif isinstance(req, rq.SetTransmitter):
+            pipe.set_transmitter(req.id, req.position, req.orientation, req.enabled)
+        elif isinstance(req, rq.RemoveTransmitter):
+            if req.id not in pipe.transmitters:
+                known = ", ".join(map(str, sorted(pipe.transmitters))) or "none"
+                raise ControlError(f"remove_transmitter: no transmitter {req.id} (ids: {known})")
+            pipe.remove_transmitter(req.id)
+        elif isinstance(req, rq.SetReceiver):
+            index = self._receiver_index(req.id, "set_receiver")
+            if req.path == "resume":
+                pipe.release_receiver(index)
+            else:
+                pipe.pin_receiver(index, req.position, req.orientation)
+        elif isinstance(req, rq.Fault):
+            amount = {"disconnect": req.seconds, "stall": req.ms, "corrupt": req.count}[req.kind]
+            pipe.fault(req.stream, req.kind, amount)  # from the stream's next epoch
+        else:
+            raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
+        return self._epoch()
 
 
 class StepJob:

@@ -90,10 +90,6 @@ class SetReceiver(_Request, tag="set_receiver"):
     orientation: Orientation | None = None
     path: Literal["resume"] | None = None
 
-    @property
-    def resume_path(self) -> bool:
-        return self.path == "resume"
-
 
 class Fault(_Request, tag="fault"):
     """``kind`` disconnect (``seconds``), stall (``ms``) or corrupt (``bytes``, here

@@ -27,7 +27,6 @@ import threading
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 from firmware_proto.errors import InputError, LinkError
@@ -105,10 +104,8 @@ def is_loopback(host: str) -> bool:
 def check_host(address: ControlAddress, any_host: bool) -> None:
     """InputError unless ``address`` is unix, loopback TCP, or ``any_host`` allows any."""
     if address.kind == "tcp" and not any_host and not is_loopback(address.host):
-        raise InputError(
-            f"--control {address}: {address.host} is not a loopback address "
-            "(the channel has no authentication; add --control-any-host to serve other hosts)"
-        )
+        raise InputError(f"--control {address}: {address.host} is not a loopback address "
+                         "(the channel has no authentication; add --control-any-host to serve other hosts)")
 
 
 class ControlServer:
@@ -121,19 +118,12 @@ class ControlServer:
     (in the server's thread) once a ``quit`` reply has been sent, or its client has gone.
     """
 
-    def __init__(
-        self,
-        address: ControlAddress,
-        handle: Callable[[Request], dict | Sliced],
-        on_quit: Callable[[], None],
-        any_host: bool = False,
-    ) -> None:
+    def __init__(self, address: ControlAddress, handle: Callable[[Request], dict | Sliced],
+                 on_quit: Callable[[], None], any_host: bool = False) -> None:
         self.address = address
         self.handle = handle
         self.on_quit = on_quit
         self.any_host = any_host
-        self.requests = 0
-        self.errors = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._slices: queue.SimpleQueue = queue.SimpleQueue()  # (future, long request) for the worker; None: stop
         self._stop = asyncio.Event()
@@ -170,7 +160,6 @@ class ControlServer:
             bound = ControlAddress("tcp", host=a.host, port=sock.getsockname()[1])
         sock.listen(16)  # connections wait in the backlog until the loop runs
         self._listener = sock
-        self.bound = bound
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._run, args=(sock,), name="arva-control", daemon=True)
         self._thread.start()
@@ -178,9 +167,8 @@ class ControlServer:
         return bound
 
     def _bind_unix(self, path: str) -> socket.socket:
-        p = Path(path)
         try:
-            st = p.lstat()
+            st = os.lstat(path)
         except FileNotFoundError:
             st = None
         except OSError as exc:
@@ -188,15 +176,13 @@ class ControlServer:
         if st is not None:
             if not stat.S_ISSOCK(st.st_mode):
                 raise InputError(f"--control unix:{path}: exists and is not a socket (refusing to replace it)")
-            probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            try:
-                probe.connect(path)
-            except OSError:
-                p.unlink()  # stale: nobody listens
-            else:
-                raise LinkError(f"--control unix:{path}: another program is serving this socket")
-            finally:
-                probe.close()
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+                try:
+                    probe.connect(path)
+                except OSError:
+                    os.unlink(path)  # stale: nobody listens
+                else:
+                    raise LinkError(f"--control unix:{path}: another program is serving this socket")
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o177)  # created 0600: no window in which others could connect
         try:
@@ -293,7 +279,6 @@ class ControlServer:
 
     async def _serve_line(self, line: bytes, writer: asyncio.StreamWriter) -> bool:
         """Serve one request and send its reply; False after a ``quit`` (the client is done)."""
-        self.requests += 1
         request = self._execute(lambda: parse_request(line), line[:200])
         if isinstance(request, dict):  # not a request: its error reply
             self._reply(writer, request)
@@ -347,8 +332,6 @@ class ControlServer:
             return error_reply(f"internal error: {type(exc).__name__}: {exc}")
 
     def _reply(self, writer: asyncio.StreamWriter, reply: dict) -> None:
-        if not reply.get("ok"):
-            self.errors += 1
         try:
             line = encode_reply(reply)
         except ValueError as exc:  # a NaN slipped into a reply: say so rather than die

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from firmware_proto.errors import InputError
 
-from emulator.output.net_ports import LineSettings, open_server_port
+from emulator.output.net_ports import LineSettings, ServerPort, parse_server_spec
 from emulator.output.ports import FilePort, Port, PtyPort, SerialPort, StdoutPort, file_name, is_file_spec
 
 
@@ -61,9 +61,9 @@ def open_port(label: str, spec: str, options: PortOptions | None = None) -> Port
         return StdoutPort(label)
     if spec == "pty":
         return PtyPort(label, link_path(options.link_dir, label))
-    server = open_server_port(label, spec, options.line, options.serve_any_host, options.notify)
+    server = parse_server_spec(spec)
     if server is not None:
-        return server
+        return ServerPort(label, server, options.line, options.serve_any_host, options.notify)
     if is_file_spec(spec):
         return FilePort(label, spec)
     return SerialPort(label, spec, options.serial_options(spec))

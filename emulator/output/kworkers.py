@@ -180,14 +180,9 @@ def raise_workers(priority: int = PRIORITY, prog: str = "arva-emulate") -> tuple
     def refused(why: str) -> tuple[None, str]:
         return None, f"{prog}: --realtime-workers: not applied ({why}); continuing without it"
 
-    proc = subprocess.Popen(
-        module_command(__name__, str(priority)),
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env=module_env(),
-        start_new_session=True,
-    )
+    proc = subprocess.Popen(module_command(__name__, str(priority)), stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=module_env(),
+                            start_new_session=True)
     ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT)
     first = proc.stdout.readline().decode(errors="replace").strip() if ready else ""
     proc.stdout.close()

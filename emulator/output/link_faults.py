@@ -74,19 +74,15 @@ class LinkFaultConfig:
             v = getattr(self, name)
             if not is_number(v) or not 0 <= v <= 1:
                 raise InputError(f"link_faults.{name}: must be a probability in [0, 1], got {v!r}")
-        if not is_number(self.stall_ms) or self.stall_ms < 0:
-            raise InputError(f"link_faults.stall_ms: must be >= 0, got {self.stall_ms!r}")
-        if not is_number(self.disconnect_every_s) or self.disconnect_every_s < 0:
-            raise InputError(
-                f"link_faults.disconnect_every_s: must be >= 0 (0 = never), got {self.disconnect_every_s!r}"
-            )
-        if not is_number(self.disconnect_s) or self.disconnect_s <= 0:
-            raise InputError(f"link_faults.disconnect_s: must be > 0, got {self.disconnect_s!r}")
+        for name, positive, rule in (("stall_ms", False, ">= 0"),
+                                     ("disconnect_every_s", False, ">= 0 (0 = never)"),
+                                     ("disconnect_s", True, "> 0")):
+            v = getattr(self, name)
+            if not is_number(v) or v < 0 or (positive and v == 0):
+                raise InputError(f"link_faults.{name}: must be {rule}, got {v!r}")
         if self.disconnect_every_s > 0 and self.disconnect_s >= self.disconnect_every_s:
-            raise InputError(
-                f"link_faults.disconnect_s: must be < disconnect_every_s ({self.disconnect_every_s:g}), "
-                f"got {self.disconnect_s:g}"
-            )
+            raise InputError(f"link_faults.disconnect_s: must be < disconnect_every_s "
+                             f"({self.disconnect_every_s:g}), got {self.disconnect_s:g}")
 
 
 class FaultyPort(PortWrapper):
@@ -103,15 +99,9 @@ class FaultyPort(PortWrapper):
     ``stalls``, ``disconnects``; ``faults_injected`` sums the injected faults.
     """
 
-    def __init__(
-        self,
-        port: Port,
-        config: LinkFaultConfig,
-        seed: int | None,
-        stream: int = 0,
-        sleep: Callable[[float], None] = time.sleep,
-        clock: Callable[[], float] | None = None,
-    ) -> None:
+    def __init__(self, port: Port, config: LinkFaultConfig, seed: int | None, stream: int = 0,
+                 sleep: Callable[[float], None] = time.sleep,
+                 clock: Callable[[], float] | None = None) -> None:
         super().__init__(port)
         self.config = config
         if seed is None:
@@ -126,8 +116,7 @@ class FaultyPort(PortWrapper):
         self._rng_bytes = rng(_BYTES) if config.loss > 0 or config.corrupt > 0 else None
         self._rng_split = rng(_SPLIT) if config.split > 0 else None
         self._rng_xor = rng(_XOR) if config.corrupt > 0 else None
-        self._forced_rng = lambda: rng(_FORCED)  # created on the first corrupt request
-        self._rng_forced: np.random.Generator | None = None
+        self._rng_forced = rng(_FORCED)  # the values of corrupt requests (inject)
         self._window = 0  # last outage index started
         self._down = False  # inside a scheduled outage
         self._manual_until: float | None = None  # end (scene time) of an outage asked for
@@ -177,8 +166,7 @@ class FaultyPort(PortWrapper):
             what = "a whole number > 0" if kind == "corrupt" else "a finite number > 0"
             raise InputError(f"fault {kind}: {unit} must be {what}, got {amount!r}")
         if kind == "disconnect":
-            t = self._clock()
-            end = t + float(amount)
+            end = self._clock() + float(amount)
             self._manual_until = end if self._manual_until is None else max(end, self._manual_until)
             self.disconnects += 1
             self._inner_state()
@@ -251,16 +239,13 @@ class FaultyPort(PortWrapper):
             self._up()
         if k >= 1 and k > self._window:
             self._window = k
-            self._go_down()
+            self.disconnects += 1
+            self._down = True
+            self._inner_state()
             if t >= k * every + self.config.disconnect_s:  # the whole outage fell between writes
                 self._up()
 
     # --- faults --------------------------------------------------------------------------
-
-    def _go_down(self) -> None:
-        self.disconnects += 1
-        self._down = True
-        self._inner_state()
 
     def _up(self) -> None:
         self._down = False
@@ -282,8 +267,6 @@ class FaultyPort(PortWrapper):
                 self.inner.reconnect()
 
     def _corrupt_forced(self, payload: bytes) -> bytes:
-        if self._rng_forced is None:
-            self._rng_forced = self._forced_rng()
         n = min(self._corrupt_next, len(payload))
         arr = np.frombuffer(payload, dtype=np.uint8).copy()
         arr[:n] ^= 1 + np.floor(self._rng_forced.random(n) * 255.0).astype(np.uint8)

@@ -67,11 +67,12 @@ NOTIFY_SETTING_CHANGES = 20
 
 @dataclass(frozen=True)
 class ServerSpec:
-    """A parsed ``KIND:HOST:PORT`` (``port`` 0: any free port)."""
+    """A parsed ``KIND:HOST:PORT`` (``port`` 0: any free port; ``text`` as written)."""
 
     kind: str
     host: str
     port: int
+    text: str
 
 
 def parse_server_spec(text: str) -> ServerSpec | None:
@@ -91,7 +92,7 @@ def parse_server_spec(text: str) -> ServerSpec | None:
         port = -1
     if not 0 <= port <= 65535:
         raise InputError(f"port {text}: expected a TCP port number 0..65535, got {port_text!r}")
-    return ServerSpec(kind, host, port)
+    return ServerSpec(kind, host, port, text)
 
 
 def is_ephemeral(text: str) -> bool:
@@ -139,23 +140,19 @@ class UartLine:
         self.fifo = fifo
         self.clock = clock
         self._lock = threading.Lock()
-        self._settings = settings
+        self.settings = settings  # changed by set_settings
         self._level = 0.0
         self._t = clock()
 
-    @property
-    def settings(self) -> LineSettings:
-        return self._settings
-
     def _update(self) -> None:
         now = self.clock()
-        self._level = max(0.0, self._level - (now - self._t) * self._settings.bytes_per_s)
+        self._level = max(0.0, self._level - (now - self._t) * self.settings.bytes_per_s)
         self._t = now
 
     def set_settings(self, settings: LineSettings) -> None:
         with self._lock:
             self._update()
-            self._settings = settings
+            self.settings = settings
 
     def room(self) -> int:
         with self._lock:
@@ -167,7 +164,7 @@ class UartLine:
         with self._lock:
             self._update()
             excess = self._level + min(n, self.fifo) - self.fifo
-            return max(0.0, excess / self._settings.bytes_per_s)
+            return max(0.0, excess / self.settings.bytes_per_s)
 
     def offer(self, n: int) -> int:
         with self._lock:
@@ -362,28 +359,19 @@ class ServerPort(Port):
     """A stream served to TCP clients (see the module docstring). ``path`` is the URL a
     pyserial client opens (``rfc2217://127.0.0.1:40123`` or ``socket://...``)."""
 
-    def __init__(
-        self,
-        label: str,
-        spec: ServerSpec,
-        settings: LineSettings | None = None,
-        serve_any_host: bool = False,
-        notify: Callable[[str], None] | None = None,
-        spec_text: str | None = None,
-    ) -> None:
+    def __init__(self, label: str, spec: ServerSpec, settings: LineSettings | None = None,
+                 serve_any_host: bool = False, notify: Callable[[str], None] | None = None) -> None:
         super().__init__(label)
         self.spec = spec
         self.settings = settings or LineSettings()
         self.notify = notify or (lambda _line: None)
-        text = spec_text or f"{spec.kind}:{spec.host}:{spec.port}"
         try:
             addresses = socket.getaddrinfo(spec.host, spec.port, type=socket.SOCK_STREAM)
         except socket.gaierror as exc:
-            raise InputError(f"port {text}: cannot resolve {spec.host!r}: {exc.strerror}") from None
+            raise InputError(f"port {spec.text}: cannot resolve {spec.host!r}: {exc.strerror}") from None
         if not serve_any_host and not all(ipaddress.ip_address(a[4][0]).is_loopback for a in addresses):
-            raise InputError(
-                f"port {text}: {spec.host} is not a loopback address; add --serve-any-host to serve other hosts"
-            )
+            raise InputError(f"port {spec.text}: {spec.host} is not a loopback address; "
+                             "add --serve-any-host to serve other hosts")
         family, _, _, _, sockaddr = addresses[0]
         self._listener = socket.socket(family, socket.SOCK_STREAM)
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -392,7 +380,7 @@ class ServerPort(Port):
             self._listener.listen(8)
         except OSError as exc:
             self._listener.close()
-            raise LinkError(f"port {text}: cannot listen: {exc.strerror}") from None
+            raise LinkError(f"port {spec.text}: cannot listen: {exc.strerror}") from None
         self._listener.setblocking(False)  # the selector says when a client waits
         self._wake_r, self._wake_w = socket.socketpair()  # close() wakes the accept loop through it
         self._selector = selectors.DefaultSelector()
@@ -431,17 +419,14 @@ class ServerPort(Port):
                 continue
             except OSError:
                 return
-            with self._lock:
-                full = len(self._clients) >= MAX_CLIENTS
-                if full:
-                    self.clients_refused += 1
-                    refused = self.clients_refused
-            if full:
+            if self.clients >= MAX_CLIENTS:
                 _shut(sock)
-                if refused <= NOTIFY_REFUSALS:
+                self.clients_refused += 1  # by this thread only
+                n = self.clients_refused
+                if n <= NOTIFY_REFUSALS:
+                    more = "; further refusals only counted" if n == NOTIFY_REFUSALS else ""
                     self.notify(f"{self.label}: client {_format_addr(addr)} refused: {MAX_CLIENTS} clients are "
-                                f"connected (at most {MAX_CLIENTS})" + ("; further refusals only counted"
-                                                                      if refused == NOTIFY_REFUSALS else ""))
+                                f"connected (at most {MAX_CLIENTS}){more}")
                 continue
             sock.settimeout(None)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -451,9 +436,8 @@ class ServerPort(Port):
                     sock.close()
                     return
                 self._clients.append(client)
-            self.notify(
-                f"{self.label}: client {client.name} connected ({self.spec.kind}, line {client.line.settings.describe()})"
-            )
+            self.notify(f"{self.label}: client {client.name} connected "
+                        f"({self.spec.kind}, line {client.line.settings.describe()})")
             client.start()
 
     def cut(self, client: ServedClient) -> None:
@@ -469,7 +453,10 @@ class ServerPort(Port):
             self._clients.remove(client)
             self._left_written += client.bytes_sent
             self._left_dropped += client.bytes_dropped
-        self.notify(f"{self.label}: client {client.name} left: {_counts(client)}")
+        unshown = client.setting_changes - NOTIFY_SETTING_CHANGES
+        more = f", {unshown} more line-setting changes not reported" if unshown > 0 else ""
+        self.notify(f"{self.label}: client {client.name} left: {client.bytes_sent} bytes sent, "
+                    f"{client.bytes_dropped} dropped (line {client.line.settings.describe()}){more}")
 
     def write(self, data: bytes) -> int:
         with self._lock:
@@ -510,12 +497,6 @@ class ServerPort(Port):
             self.notify(f"{self.label}: {self.clients_refused} connections refused in all (at most {MAX_CLIENTS} clients at once)")
 
 
-def _counts(client: ServedClient) -> str:
-    unshown = client.setting_changes - NOTIFY_SETTING_CHANGES
-    more = f", {unshown} more line-setting changes not reported" if unshown > 0 else ""
-    return f"{client.bytes_sent} bytes sent, {client.bytes_dropped} dropped (line {client.line.settings.describe()}){more}"
-
-
 def escape_iac(data: bytes) -> bytes:
     """Telnet IAC escaping of stream data (every 0xFF doubled) by pyserial's
     ``PortManager.escape`` (a generator of single bytes that uses no state of its manager).
@@ -550,24 +531,3 @@ def stderr_notifier(prefix: str) -> Callable[[str], None]:
         sys.stderr.flush()
 
     return notify
-
-
-def open_server_port(
-    label: str,
-    text: str,
-    settings: LineSettings | None = None,
-    serve_any_host: bool = False,
-    notify: Callable[[str], None] | None = None,
-) -> ServerPort | None:
-    """The server port for a ``rfc2217-server:`` / ``tcp-server:`` spec, or None if
-    ``text`` is another kind of port (the caller's own spec parsing continues)."""
-    spec = parse_server_spec(text)
-    if spec is None:
-        return None
-    return ServerPort(label, spec, settings, serve_any_host, notify, spec_text=text)
-
-
-__all__ = [
-    "KINDS", "MAX_CLIENTS", "MAX_REPLIES_WAITING", "MAX_SUBNEGOTIATION", "LineSettings", "ServerPort", "ServerSpec",
-    "UartLine", "escape_iac", "is_ephemeral", "open_server_port", "parse_server_spec", "stderr_notifier",
-]

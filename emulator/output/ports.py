@@ -9,16 +9,20 @@ pipe should (``arva-emulate --port - | consumer`` must not lose data).
 
 from __future__ import annotations
 
+import array
 import errno
 import fcntl
 import os
 import select
+import stat
 import sys
 import termios
 import time
 import tty
 from contextlib import AbstractContextManager
 from pathlib import Path
+
+import serial
 
 from firmware_proto.errors import LinkError
 
@@ -142,8 +146,6 @@ class FilePort(Port):
 def is_file_spec(spec: str) -> bool:
     """Whether a port spec names a regular file rather than a serial device: not a URL,
     not under /dev, and not an existing character device (``gps.nmea``, ``out/att.txt``)."""
-    import stat
-
     if "://" in spec or spec.startswith("/dev/"):
         return False
     try:
@@ -263,8 +265,6 @@ class PtyPort(Port):
 
     def pending(self) -> int:
         """Bytes written but not yet read by the other side (in the kernel buffer)."""
-        import array
-
         buf = array.array("i", [0])
         fcntl.ioctl(self._slave, termios.FIONREAD, buf)
         return buf[0]
@@ -314,8 +314,6 @@ class SerialPort(Port):
 
     def __init__(self, label: str, url: str, options: dict | None = None) -> None:
         super().__init__(label)
-        import serial  # imported only when a real port is asked for
-
         self.path = url
         try:
             self._serial = serial.serial_for_url(url, **(options or {}))
@@ -338,8 +336,6 @@ class SerialPort(Port):
                 return self._account(len(data), self._writer.write(self._fd, data))
             except OSError as exc:
                 raise LinkError(f"port {self.path}: write failed: {exc.strerror}") from None
-        import serial
-
         try:
             n = self._serial.write(data)
         except serial.SerialTimeoutException:

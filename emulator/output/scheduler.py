@@ -8,7 +8,7 @@ A live control channel (:mod:`emulator.control`) changes the scene between epoch
 render and write here happens under :attr:`EpochScheduler.lock`, which the channel holds
 while it applies a change (or steps the step clock, :meth:`emulator.pipeline.Pipeline.step`),
 so a change takes effect from the next epoch rendered (:attr:`EpochScheduler.next_epoch`).
-:meth:`EpochScheduler.pause` stops the real clock emitting: epochs keep their deadlines
+:attr:`EpochScheduler.paused` stops the real clock emitting: epochs keep their deadlines
 and are rendered, then discarded, so a resume continues with the epoch due then and
 replays nothing (as fast as possible, where nothing is ever due, pause just waits).
 """
@@ -91,15 +91,11 @@ class Route:
         faults depend on the scene time (outages): bytes are the same either way."""
         if count <= 0:
             return
-        if getattr(self.port, "time_dependent", False):
-            for _ in range(count):
-                clock.t = self.t_next
-                self.port.write(self.stream.render(self.next_k, 1))
-                self.next_k += 1
-            return
-        clock.t = self.t_next
-        self.port.write(self.stream.render(self.next_k, count))
-        self.next_k += count
+        per_write = 1 if getattr(self.port, "time_dependent", False) else count
+        for _ in range(count // per_write):
+            clock.t = self.t_next
+            self.port.write(self.stream.render(self.next_k, per_write))
+            self.next_k += per_write
 
 
 class EpochScheduler:
@@ -109,19 +105,12 @@ class EpochScheduler:
     ``clock`` and ``sleep`` are injectable for tests.
     """
 
-    def __init__(
-        self,
-        routes: list[Route],
-        speed: float,
-        frames: int | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        sleep: Callable[[float], None] = time.sleep,
-        status: Callable[[list[Route]], None] | None = None,
-        stop_event: threading.Event | None = None,
-        scene_clock: SceneClock | None = None,
-        fast_batch: int | None = None,
-        on_write: Callable[[Route, int, float, float, float], None] | None = None,
-    ) -> None:
+    def __init__(self, routes: list[Route], speed: float, frames: int | None = None,
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
+                 status: Callable[[list[Route]], None] | None = None,
+                 stop_event: threading.Event | None = None, scene_clock: SceneClock | None = None,
+                 fast_batch: int | None = None,
+                 on_write: Callable[[Route, int, float, float, float], None] | None = None) -> None:
         if not routes:
             raise ValueError("nothing to schedule")
         self.routes = routes
@@ -159,13 +148,6 @@ class EpochScheduler:
         now affects (in real time the next epoch due is already rendered)."""
         r = self.routes[0]
         return r.next_k + (1 if r.pending is not None else 0)
-
-    def pause(self) -> None:
-        """Real clock: stop emitting (epochs keep their deadlines and are discarded)."""
-        self.paused = True
-
-    def resume(self) -> None:
-        self.paused = False
 
     def remaining(self) -> int | None:
         """Epochs of the first stream still to send under ``frames`` (None: no limit)."""

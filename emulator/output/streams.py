@@ -16,8 +16,6 @@ from firmware_proto.sentences import encode_epochs
 class Stream:
     """Base class: ``render(k0, count)`` returns the bytes of those epochs, in order."""
 
-    kind = "stream"
-
     def __init__(self, label: str, rate_hz: float) -> None:
         self.label = label
         self.rate_hz = rate_hz
@@ -39,8 +37,6 @@ class EpochSource(Protocol):
 
 class ArvaStream(Stream):
     """The receiver's ``$PARVA`` (and optional ``$PARVH``) sentences from an epoch source."""
-
-    kind = "arva"
 
     def __init__(self, label: str, rate_hz: float, source: EpochSource) -> None:
         super().__init__(label, rate_hz)

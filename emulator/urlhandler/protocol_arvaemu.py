@@ -44,11 +44,7 @@ class Serial(VirtualLine, SerialBase):
             raise SerialException("Port is already open.")
         if self._port is None:
             raise SerialException("Port must be configured before it can be used.")
-        self._configure(self._port)
-        self.is_open = True
-
-    def _configure(self, url: str) -> None:
-        u = parse_url(url)
+        u = parse_url(self._port)
         self._speed = u.speed
         label = stream_layout(u.scene)[u.index].label
         if self._pipeline is not None:
@@ -57,6 +53,7 @@ class Serial(VirtualLine, SerialBase):
         (self._route,) = self._pipeline.bind({label: BufferPort(label, self._buffer)}, self._speed)
         self._route.end_k = u.frames  # one stream: --frames' rule is its epoch count
         self._start = time.monotonic() + u.delay
+        self.is_open = True
 
     # -- reading ----------------------------------------------------------------
     def _render_due(self, want: int) -> None:
@@ -98,17 +95,10 @@ class Serial(VirtualLine, SerialBase):
         timeout = Timeout(self._timeout)
         while len(self._buffer) < size:
             self._render_due(size)
-            if len(self._buffer) >= size:
-                break
             wait = self._next_due_in()
-            if timeout.is_non_blocking or wait == math.inf:
+            if len(self._buffer) >= size or wait == math.inf or timeout.expired():  # expired: also timeout 0
                 break
-            if not timeout.is_infinite:
-                left = timeout.time_left()
-                if left <= 0:
-                    break
-                wait = min(wait, left)
-            time.sleep(wait)
+            time.sleep(wait if timeout.is_infinite else min(wait, timeout.time_left()))
         data = bytes(self._buffer[:size])
         del self._buffer[:size]
         return data
@@ -169,10 +159,9 @@ def parse_url(url: str) -> ArvaemuUrl:
         if not opt["receiver"].isdigit() or int(opt["receiver"]) not in ids:
             raise SerialException(f"{url}: receiver={opt['receiver']}: no such receiver (ids: {ids})")
         index = ids.index(int(opt["receiver"]))
-    return ArvaemuUrl(
-        scene, index, _option(opt, "speed", speed, 1.0, url), _option(opt, "frames", non_negative_int, None, url),
-        _option(opt, "delay", seconds, 0.0, url),
-    )
+    return ArvaemuUrl(scene, index, _option(opt, "speed", speed, 1.0, url),
+                      _option(opt, "frames", non_negative_int, None, url),
+                      _option(opt, "delay", seconds, 0.0, url))
 
 
 def _option(opt: dict, key: str, parse, default, url: str):
