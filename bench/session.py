@@ -219,10 +219,7 @@ class SessionWriter(contextlib.AbstractContextManager):
     # -- lifetime ----------------------------------------------------------------
     def _sync_loop(self) -> None:
         while not self._stop.wait(self._fsync_interval / 2):
-            self.sync()
-
-    def sync(self) -> None:
-        self._each_file(_AppendFile.sync)  # an error is reported by the next write to that file
+            self._each_file(_AppendFile.sync)  # an error is reported by the next write to that file
 
     def _each_file(self, action) -> None:
         """``action(file)`` on every open file; an OSError leaves the others to do."""
