@@ -29,6 +29,7 @@ from emulator.frames.attitude import hpr_to_quaternion
 from .lines import SentenceReader
 from .nmea import PLAIN_NUMBER, FieldError, sentence_type, time_of_day
 
+
 @dataclass(frozen=True, slots=True)
 class Attitude:
     """One attitude (``$PASHR``, or MAVLink via :mod:`.mavlink`). Degrees and metres; None
