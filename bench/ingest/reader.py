@@ -32,7 +32,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass
 
 import serial
 
@@ -71,10 +71,8 @@ class DeviceSpec:
     format: str | None = None
 
     def manifest(self) -> dict:
-        out = {"kind": self.kind, "url": self.url, "role": self.role, "baudrate": self.baudrate}
-        if self.format is not None:
-            out["format"] = self.format
-        return out
+        """The device's entry in the manifest (under its name; ``format`` only when given)."""
+        return {k: v for k, v in asdict(self).items() if k != "name" and v is not None}
 
 
 @dataclass
@@ -87,7 +85,6 @@ class DeviceStats:
     gaps: int = 0
     connected: bool = False
     last_data_mono: float | None = None
-    decoder: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
