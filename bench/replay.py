@@ -27,7 +27,7 @@ from emulator.output.ports import Port, PtyPort
 from emulator.progress import progress
 from firmware_proto.errors import InputError
 
-from .ingest.pacer import ReplayPacer, load_reads
+from .ingest.pacer import load_reads, pace
 from .session import load_manifest
 
 
@@ -88,9 +88,7 @@ def run(args: argparse.Namespace) -> int:
             ports[name].write(read.data)
             bar.update(completed=read.mono - t0)
 
-        pacer = ReplayPacer(reads, args.speed, stop)
-        pacer.run(deliver)
-        sent = pacer.sent
+        sent = pace(reads, deliver, args.speed, stop)
     dropped = sum(p.bytes_dropped for p in ports.values())
     written = sum(p.bytes_written for p in ports.values())
     print(f"arva-bench: replay: {sent} reads, {written} bytes written, {dropped} bytes dropped", file=sys.stderr)

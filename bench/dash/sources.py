@@ -26,7 +26,7 @@ from firmware_proto.errors import InputError
 
 from emulator.urlhandler.protocol_arvaemu import parse_url
 
-from ..ingest.pacer import ReplayPacer
+from ..ingest.pacer import pace
 from ..ingest.reader import Device, DeviceSpec, LinkEvent, Listener, Notifier, Read
 from ..ingest.stamp import Stamped
 from ..records import ArvaRecords, GroundTruthRecords
@@ -249,7 +249,7 @@ class LiveSource(Notifier):
 
 class ReplaySource(threading.Thread):
     """A thread replaying a session directory's devices with their recorded timing (the
-    shared :class:`~bench.ingest.pacer.ReplayPacer`); reads are stamped when delivered."""
+    shared :func:`~bench.ingest.pacer.pace`); reads are stamped when delivered."""
 
     def __init__(self, directory: str | Path, feeds: list[DeviceFeed], speed: float = 1.0) -> None:
         super().__init__(name="dash-replay", daemon=True)
@@ -290,7 +290,7 @@ class ReplaySource(threading.Thread):
                 feed.set_state("down", str(exc))
             else:
                 feed.set_state("up")
-        ReplayPacer(reads, self.speed, self.stopping, tick=self._tick, tick_interval=READ_TIMEOUT).run(self._deliver)
+        pace(reads, self._deliver, self.speed, self.stopping, tick=self._tick, tick_interval=READ_TIMEOUT)
         mono, utc = time.monotonic(), time.time()
         for feed in self.feeds:
             feed.on_read(feed.device, feed.device.stop(mono, utc))
