@@ -117,7 +117,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="stop when no byte arrives for SECONDS")
     p.add_argument("--expect-fields", action="store_true",
                    help="hold every epoch for the $PARVH of its last slot from the start (default: once one is seen)")
-    p.set_defaults(func=run)
 
     def one_line_error(message: str) -> None:  # argparse's default prints the usage too
         p.exit(2, f"arva-bench: cat: {message} (see arva-bench cat --help)\n")

@@ -221,4 +221,3 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("--json", action="store_true", help="print one JSON array instead of the table")
-    p.set_defaults(func=run)

@@ -62,7 +62,6 @@ def register(sub) -> None:
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--duration", type=positive_seconds, metavar="S", help="stop after S seconds")
     p.add_argument("--note", type=utf8_text, default="", help="free text stored in the manifest (UTF-8)")
-    p.set_defaults(func=run)
 
 
 def device_specs(args: argparse.Namespace, command: str = "log") -> list[DeviceSpec]:

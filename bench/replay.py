@@ -42,7 +42,6 @@ def register(sub) -> None:
     p.add_argument("--delay", type=seconds, default=0.0, metavar="S", help="wait S seconds after announcing the ptys")
     p.add_argument("--serve-any-host", action="store_true",
                    help="let rfc2217-server/tcp-server ports listen on non-loopback addresses")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
