@@ -61,29 +61,23 @@ def table_header(width: int) -> str:
     return (head + "d(t)")[:width].ljust(width) if width > len(head) else head[:width]
 
 
-def channel_row(slot: tuple[int, int, int] | None, true_m: float | None, history: Sequence[int | None],
-                width: int) -> str:
-    """One slot of the latest epoch. ``slot`` None: the slot never arrived intact."""
-    spark = sparkline(history, max(0, width - TABLE_FIXED))
-    if slot is None:
-        return f"{'?':>3} {'lost':>7} {DASH:>4} {DASH:<5} {DASH:>7} {DASH:>6}  {spark}"[:width]
-    tx, d, delta = slot
-    if tx < 0 or d < 0:
-        ident, d_text, dl, zn = "-", DASH, DASH, DASH
-    else:
-        ident, d_text, dl, zn = str(tx), metres(d), str(delta), zone(d, delta)
-    known = true_m is not None and d >= 0
-    true_text, err_text = (f"{true_m:.2f}", f"{d / 100 - true_m:+.2f}") if known else (DASH, DASH)
-    return f"{ident:>3} {d_text:>7} {dl:>4} {zn:<5} {true_text:>7} {err_text:>6}  {spark}"[:width]
-
-
 def channel_rows(slots: Sequence[tuple[int, int, int] | None], true_m: dict[int, float],
                  history: dict[int, Sequence[int | None]], width: int) -> list[str]:
-    """Header plus one row per slot (``history`` and ``true_m`` keyed by transmitter id)."""
+    """Header plus one row per slot of the latest epoch (``history`` and ``true_m`` keyed by
+    transmitter id); a slot None never arrived intact."""
     rows = [table_header(width)]
     for slot in slots:
-        tx = -1 if slot is None else slot[0]
-        rows.append(channel_row(slot, true_m.get(tx), history.get(tx, ()) if tx >= 0 else (), width))
+        tx, d, delta = (-1, -1, -1) if slot is None else slot
+        spark = sparkline(history.get(tx, ()) if tx >= 0 else (), max(0, width - TABLE_FIXED))
+        if slot is None:
+            ident, d_text, dl, zn = "?", "lost", DASH, DASH
+        elif tx < 0 or d < 0:
+            ident, d_text, dl, zn = "-", DASH, DASH, DASH
+        else:
+            ident, d_text, dl, zn = str(tx), metres(d), str(delta), zone(d, delta)
+        true = true_m.get(tx) if d >= 0 else None
+        true_text, err_text = (DASH, DASH) if true is None else (f"{true:.2f}", f"{d / 100 - true:+.2f}")
+        rows.append(f"{ident:>3} {d_text:>7} {dl:>4} {zn:<5} {true_text:>7} {err_text:>6}  {spark}"[:width])
     return rows
 
 
