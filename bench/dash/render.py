@@ -193,13 +193,12 @@ def truth_lines(poses: dict, roles: Sequence[str], width: int) -> list[str]:
         pose = poses[role]
         head = f"{role:<4} {pose.via or '—':<8}"
         if pose.position is not None:
-            e, n, u = pose.position
-            out.append(f"{head:<{TRUTH_HEAD}} {num(e, 7, 2)} {num(n, 7, 2)} {num(u, 6, 2)}"[:width])
+            where = " ".join(num(v, w, 2) for v, w in zip(pose.position, (7, 7, 6)))
         elif pose.geodetic is not None:
-            lat, lon, alt = pose.geodetic
-            out.append(f"{head:<{TRUTH_HEAD}} {lat:.6f} {lon:.6f} {alt:.1f}"[:width])
+            where = "{:.6f} {:.6f} {:.1f}".format(*pose.geodetic)
         else:
-            out.append(f"{head:<{TRUTH_HEAD}} {DASH}"[:width])
+            where = DASH
+        out.append(f"{head:<{TRUTH_HEAD}} {where}"[:width])
         if pose.via == "gps":
             out.append(f"     {_fix_summary(pose.fix)}"[:width])
         if pose.hpr is not None and not (pose.via in ("scene", "surveyed") and role.startswith("tx")):
