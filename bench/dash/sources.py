@@ -99,12 +99,12 @@ class DeviceFeed(Listener):
     """Messages and link counters of one device: a listener of the notifier (or replay
     pacer) that reads and decodes it. Calls come from that one thread."""
 
-    def __init__(self, device: Device | DeviceSpec, post: Post, truth: SceneTruth | None = None) -> None:
-        self.device = device if isinstance(device, Device) else Device(device)
-        self.spec = self.device.spec
+    def __init__(self, spec: DeviceSpec, post: Post, truth: SceneTruth | None = None) -> None:
+        self.spec = spec
+        self.device = Device(spec)
         self.post = post
         self.truth = truth
-        self.recorder = None  # set and cleared by the app (an attribute write is atomic)
+        self.recorder = None  # set and cleared by the app (an attribute write is atomic: read it once)
         self.checksum_errors = 0
         self.errors = 0
         self.rejected_bytes = 0
@@ -119,8 +119,7 @@ class DeviceFeed(Listener):
 
     # -- from the reader -------------------------------------------------------------------
     def on_read(self, device: Device, read: Read) -> None:
-        recorder = self.recorder
-        if recorder is not None:
+        if (recorder := self.recorder) is not None:
             recorder.on_read(device, read)
         self._handle(read.records)
         if read.data:  # reads, bytes and the last data's time are the device's stats
@@ -128,8 +127,7 @@ class DeviceFeed(Listener):
             self.status(read.mono)
 
     def on_link(self, device: Device, event: LinkEvent) -> None:
-        recorder = self.recorder
-        if recorder is not None:
+        if (recorder := self.recorder) is not None:
             recorder.on_link(device, event)
         if event.kind in ("up", "reconnect"):
             if self.truth is not None:
