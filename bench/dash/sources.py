@@ -1,14 +1,7 @@
 """Readers for the dashboard: the bench's one ingest (:mod:`bench.ingest`), with a
 :class:`DeviceFeed` listener per device that turns reads into messages (docs/dashboard.md,
-"How it works").
-
-A :class:`DeviceFeed` gets each device's reads already stamped and decoded, keeps link
-counters, and posts :mod:`bench.dash.messages` with ``post`` (the app's thread-safe
-``post_message``; the reader thread touches nothing else of the UI). It also hands every
-read and link event to the app's recorder (:class:`bench.dash.recorder.SessionRecorder`)
-while one is set. :class:`LiveSource` reads every live device with one notifier,
-:class:`ReplaySource` replays a session directory with the shared replay pacer, and
-:class:`SceneTruth` gives an ``arvaemu://`` source's true poses (epoch k at t = k / rate_hz).
+"How it works"). :class:`LiveSource` reads the live devices, :class:`ReplaySource` a
+session directory; :class:`SceneTruth` gives an ``arvaemu://`` source's true poses.
 """
 
 from __future__ import annotations
@@ -97,7 +90,10 @@ class SceneTruth:
 
 class DeviceFeed(Listener):
     """Messages and link counters of one device: a listener of the notifier (or replay
-    pacer) that reads and decodes it. Calls come from that one thread."""
+    pacer) that reads and decodes it. Calls come from that one thread, which posts
+    :mod:`bench.dash.messages` with ``post`` (the app's thread-safe ``post_message``) and
+    touches nothing else of the UI; reads and link events also go to the app's recorder
+    (:class:`bench.dash.recorder.SessionRecorder`) while one is set."""
 
     def __init__(self, spec: DeviceSpec, post: Post, truth: SceneTruth | None = None) -> None:
         self.spec = spec
