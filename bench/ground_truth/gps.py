@@ -117,13 +117,12 @@ class GpsReader(SentenceReader):
         if kind == b"ZDA":
             self._zda(msg)
             return None
-        return self._gga(msg, line) if kind == b"GGA" else self._rmc(msg, line) if kind == b"RMC" else self._gll(msg, line)
-
-    def count(self, fix: GpsFix) -> None:
+        fix = (self._gga if kind == b"GGA" else self._rmc if kind == b"RMC" else self._gll)(msg, line)
         self.stats[fix.sentence.lower()] += 1
         self.stats["fixes"] += 1
         if fix.lat is None:
             self.stats["no_position"] += 1
+        return fix
 
     def _gga(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0 time, 1-4 lat N lon E, 5 quality, 6 sats, 7 hdop, 8 alt, 9 M, 10 sep, 11 M
