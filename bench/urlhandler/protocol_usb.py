@@ -307,12 +307,11 @@ class Serial(VirtualLine, SerialBase):
     def _transfer(self, timeout_ms: int) -> int:
         """One IN transfer of one packet, waiting at most TIMEOUT_MS (>= 1) milliseconds;
         appends to the buffer and returns the number of bytes received (0 on timeout)."""
-        usb = self._usb
         try:
             data = self._device.read(self._in_ep.bEndpointAddress, _packet_size(self._in_ep), timeout=timeout_ms)
-        except usb.core.USBTimeoutError:
+        except self._usb.core.USBTimeoutError:
             return 0
-        except usb.core.USBError as exc:
+        except self._usb.core.USBError as exc:
             raise self._fail(f"read failed: {usb_reason(exc)}") from None
         self._buffer += data
         return len(data)
@@ -374,12 +373,11 @@ class Serial(VirtualLine, SerialBase):
             return 0
         timeout_s = self._write_timeout
         limit_ms = self._url.timeout_ms if timeout_s is None else max(1, math.ceil(timeout_s * 1000))
-        usb = self._usb
         try:
             return int(self._device.write(self._out_ep.bEndpointAddress, data, timeout=limit_ms))
-        except usb.core.USBTimeoutError:
+        except self._usb.core.USBTimeoutError:
             raise SerialTimeoutException(f"{self._port}: write timed out after {limit_ms} ms") from None
-        except usb.core.USBError as exc:
+        except self._usb.core.USBError as exc:
             raise self._fail(f"write failed: {usb_reason(exc)}") from None
 
     # -- closing and the rest ----------------------------------------------------
