@@ -212,7 +212,6 @@ class Notifier:
         self._io = threading.Thread(target=self._io_loop, name=f"{name}-io", daemon=True)
         self._opener = threading.Thread(target=self._open_loop, name=f"{name}-open", daemon=True)
         self._ports: dict[Device, _Port] = {}  # the work thread's view: open ports
-        self._ever_open: set[Device] = set()
         self._unavailable: dict[Device, str] = {}
 
     # -- lifetime --------------------------------------------------------------------------
@@ -378,7 +377,7 @@ class Notifier:
                         self._up(p)
                     case ("lost", p, reason):
                         self._lost(p, reason)
-                    case ("unavailable", dev, reason) if dev not in self._ever_open:  # after a gap, the gap says so
+                    case ("unavailable", dev, reason) if not dev.opens:  # after a gap, the gap says so
                         self._link(dev, "unavailable", reason)
                     case ("end",):
                         break
@@ -402,12 +401,8 @@ class Notifier:
         dev.opens += 1
         dev.stats.connected = True
         p.quiet_since = time.monotonic()
-        if dev in self._ever_open:
-            dev.reconnects += 1
-            self._link(dev, "reconnect")
-        else:
-            self._ever_open.add(dev)
-            self._link(dev, "up")
+        dev.reconnects = dev.opens - 1  # every open after the first
+        self._link(dev, "reconnect" if dev.reconnects else "up")
 
     def _lost(self, p: _Port, reason: str) -> None:
         dev = p.device
