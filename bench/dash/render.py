@@ -2,13 +2,8 @@
 
 Everything the widgets show is built by these functions, so the tests can check exact
 strings and the snapshots stay deterministic: no clock, no terminal size beyond the
-``width`` argument.
-
-* :func:`channel_rows`: the channel table (id, d, δ, zone, true distance, error of d, and a
-  d-versus-time sparkline per channel).
-* :func:`dial`: δ drawn on a half dial relative to the receiver's x axis (up). The body
-  frame is x forward, y left (BRIEF 2) and δ = atan(h_y / h_x), so **δ > 0 points left**.
-* :func:`sparkline`: one character per epoch, newest on the right.
+``width`` argument. :func:`dial` draws δ relative to the receiver's x axis (up): the body
+frame is x forward, y left (BRIEF 2) and δ = atan(h_y / h_x), so **δ > 0 points left**.
 """
 
 from __future__ import annotations

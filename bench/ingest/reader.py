@@ -5,8 +5,8 @@ Modelled on python-can's ``Notifier``/``Listener``: a :class:`Notifier` reads a 
 session writer of ``arva-bench log``, the dashboard's feeds). The **I/O thread** reads
 every device with a descriptor in one selector and a port without one gets a small
 thread, as docs/bench.md ("How devices are read") describes; the I/O thread does nothing
-but read and stamp, so no device's decoding or disk writing delays another's stamp (with
-``switch_interval`` the GIL comes back to it within that time). Besides:
+but read and stamp, so no device's decoding or disk writing delays another's stamp
+(see ``switch_interval``). Besides:
 
 * the **work thread** decodes each read (:mod:`bench.ingest.stamp`) and notifies the
   listeners, each device's reads in order; every :data:`TICK` it releases a quiet link's
@@ -15,9 +15,7 @@ but read and stamp, so no device's decoding or disk writing delays another's sta
   :data:`RETRY_INTERVAL` s, a vanished one at once, keeping what the OS buffered meanwhile
   (``open_device(keep_input=True)``).
 
-A listener raising :class:`~firmware_proto.errors.LinkError` (a full disk) is reported
-through ``on_error`` and removed; the others keep receiving. Times: ``mono`` is this
-process's ``time.monotonic()`` (s), ``utc`` POSIX seconds.
+Times: ``mono`` is this process's ``time.monotonic()`` (s), ``utc`` POSIX seconds.
 """
 
 from __future__ import annotations
@@ -187,10 +185,11 @@ class Notifier:
 
     ``stale_after`` (s, None: never): a device open but silent that long is closed and
     reopened (a ``gap`` with that reason, then ``reconnect``). ``on_error(exc)``: a
-    listener raised :class:`LinkError` (it is then removed). ``switch_interval`` (s, None:
-    leave it): the interpreter's thread switch interval is lowered to it at :meth:`start`
-    (a process-wide setting, for a command whose process only logs), so that the I/O
-    thread, woken by data, gets the GIL from the decoding thread within that time.
+    listener raised :class:`LinkError`, a full disk (it is then removed; the others keep
+    receiving). ``switch_interval`` (s, None: leave it): the interpreter's thread switch
+    interval is lowered to it at :meth:`start` (a process-wide setting, for a command
+    whose process only logs), so that the I/O thread, woken by data, gets the GIL from
+    the decoding thread within that time.
     """
 
     def __init__(self, devices: Iterable[Device], listeners: Iterable[Listener] = (),
