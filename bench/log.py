@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         # into the manifest as soon as it arrives (export would pick the same fix; storing
         # it makes the session say where its ENU frame is).
         try:
-            writer.update_manifest(origin={"lat": lat, "lon": lon, "alt": alt, "source": "first receiver fix"})
+            writer.update_manifest(origin=dict(lat=lat, lon=lon, alt=alt, source="first receiver fix"))
         except LinkError as exc:
             on_fatal(exc)
 

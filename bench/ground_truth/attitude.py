@@ -91,8 +91,8 @@ class AttitudeReader(SentenceReader):
         q = tuple(float(c) for c in hpr_to_quaternion(heading, roll, pitch))
         utc = self.tracker.resolve(tod)
         heave, roll_accuracy, pitch_accuracy, heading_accuracy = (_number(f, required=False) for f in p[5:9])
-        att = Attitude(tod, utc, heading, roll, pitch, q, heave, roll_accuracy, pitch_accuracy, heading_accuracy,
-                       gps_quality=_flag(p[9]), ins_status=_flag(p[10]))
+        att = Attitude(tod, utc, heading, roll, pitch, q, heave, roll_accuracy, pitch_accuracy,
+                       heading_accuracy, gps_quality=_flag(p[9]), ins_status=_flag(p[10]))
         self.stats["pashr"] += 1
         self.stats["attitudes"] += 1
         return att
