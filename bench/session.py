@@ -63,7 +63,6 @@ class _AppendFile:
     """One append-only file: whole lines, flushed per line, fsynced by the writer."""
 
     def __init__(self, path: Path) -> None:
-        self.path = path
         self._f = open(path, "ab", buffering=0)  # unbuffered: one write() per line
         self.lock = threading.Lock()
         self.dirty = False
