@@ -21,7 +21,6 @@ import signal
 import stat
 import sys
 import time
-from typing import Protocol
 
 from emulator.cli_types import baud_rate, positive_int, positive_seconds
 from firmware_proto.decoder import Decoder
@@ -31,13 +30,6 @@ from firmware_proto.events import Epoch
 #: Silence after which an epoch held for its last ``$PARVH`` is released (seconds).
 IDLE_SECONDS = 0.1
 CHUNK = 65536
-
-
-class Source(Protocol):
-    def read(self) -> bytes | None:
-        """Next bytes; ``b""`` at end of input; ``None`` when nothing came for IDLE_SECONDS."""
-
-    def close(self) -> None: ...
 
 
 class FileSource:
@@ -83,8 +75,10 @@ def _serial_for_url(url: str, baud: int):  # type: ignore[no-untyped-def]
     return open_device(url, baudrate=baud, timeout=IDLE_SECONDS)
 
 
-def open_source(spec: str, baud: int = 115200) -> Source:
-    """Open SOURCE; raise :class:`LinkError` (``cat: SOURCE: reason``) when it cannot be."""
+def open_source(spec: str, baud: int = 115200) -> FileSource | SerialSource:
+    """Open SOURCE, whose ``read()`` gives the next bytes, ``b""`` at end of input, None when
+    nothing came for IDLE_SECONDS; raise :class:`LinkError` (``cat: SOURCE: reason``) when
+    it cannot be."""
     if spec == "-":
         return StreamSource(sys.stdin.buffer.fileno(), owned=False)
     try:
@@ -123,7 +117,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="stop when no byte arrives for SECONDS")
     p.add_argument("--expect-fields", action="store_true",
                    help="hold every epoch for the $PARVH of its last slot from the start (default: once one is seen)")
-    p.set_defaults(func=run)
 
     def one_line_error(message: str) -> None:  # argparse's default prints the usage too
         p.exit(2, f"arva-bench: cat: {message} (see arva-bench cat --help)\n")

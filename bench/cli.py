@@ -1,7 +1,7 @@
 """``arva-bench``: the bench's command line.
 
 Each sub-command lives in its own module exposing ``register(subparsers)`` (adds its
-parser and sets ``func``) and a ``run(args) -> int``. ``parse_args`` is separate from
+parser) and a ``run(args) -> int`` (the parser's ``func``). ``parse_args`` is separate from
 ``main`` so tests can check argument handling without running anything.
 """
 
@@ -27,7 +27,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output on stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMANDS:
-        importlib.import_module(f"bench.{name}").register(sub)
+        command = importlib.import_module(f"bench.{name}")
+        command.register(sub)
+        sub.choices[name].set_defaults(func=command.run)
     return parser
 
 

@@ -49,9 +49,7 @@ class Found:
     @property
     def ids(self) -> str | None:
         """``vvvv:pppp`` in lowercase hex, or None."""
-        if self.vid is None or self.pid is None:
-            return None
-        return f"{self.vid:04x}:{self.pid:04x}"
+        return None if self.vid is None or self.pid is None else f"{self.vid:04x}:{self.pid:04x}"
 
     def to_json(self) -> dict:
         out = asdict(self)
@@ -221,4 +219,3 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("--json", action="store_true", help="print one JSON array instead of the table")
-    p.set_defaults(func=run)

@@ -316,7 +316,6 @@ def register(sub) -> None:
                    help="interpolate poses only between fixes at most S seconds apart (default 2)")
     p.add_argument("--receiver", metavar="NAME",
                    help="only this receiver's rows (its device name in the session; default: every receiver's, one after the other)")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

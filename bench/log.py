@@ -62,7 +62,6 @@ def register(sub) -> None:
     p.add_argument("--baud", type=baud_rate, default=115200, help="baud rate for serial devices (default 115200)")
     p.add_argument("--duration", type=positive_seconds, metavar="S", help="stop after S seconds")
     p.add_argument("--note", type=utf8_text, default="", help="free text stored in the manifest (UTF-8)")
-    p.set_defaults(func=run)
 
 
 def device_specs(args: argparse.Namespace, command: str = "log") -> list[DeviceSpec]:
@@ -105,27 +104,6 @@ def manifest(args: argparse.Namespace, specs: list[DeviceSpec], argv: list[str])
     return out
 
 
-class _FirstFixOrigin:
-    """Without ``--origin``, the first receiver GGA fix becomes the session's origin, written
-    into the manifest as soon as it arrives (export would pick the same fix; storing it
-    makes the session say where its ENU frame is). Called by the session's listener, in
-    the notifier's one work thread."""
-
-    def __init__(self, writer: SessionWriter, on_fatal) -> None:
-        self.writer = writer
-        self.on_fatal = on_fatal
-        self.done = False
-
-    def __call__(self, lat: float, lon: float, alt: float) -> None:
-        if self.done:
-            return
-        self.done = True
-        try:
-            self.writer.update_manifest(origin={"lat": lat, "lon": lon, "alt": alt, "source": "first receiver fix"})
-        except LinkError as exc:
-            self.on_fatal(exc)
-
-
 #: Seconds a stop waits for the reads already taken to be written (a loaded machine can
 #: leave seconds of backlog; losing them would be losing data).
 STOP_TIMEOUT = 120.0
@@ -143,11 +121,19 @@ def run(args: argparse.Namespace) -> int:
         fatal.append(exc)
         stop.set()
 
+    def first_fix_origin(lat: float, lon: float, alt: float) -> None:
+        # Without --origin, the first receiver GGA fix becomes the session's origin, written
+        # into the manifest as soon as it arrives (export would pick the same fix; storing
+        # it makes the session say where its ENU frame is).
+        try:
+            writer.update_manifest(origin=dict(lat=lat, lon=lon, alt=alt, source="first receiver fix"))
+        except LinkError as exc:
+            on_fatal(exc)
+
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    origin = None if args.origin else _FirstFixOrigin(writer, on_fatal)  # one for all receivers
     devices = [Device(spec) for spec in specs]
-    session = SessionListener(writer, on_fix=origin)
+    session = SessionListener(writer, on_fix=None if args.origin else first_fix_origin)
     notifier = Notifier(devices, [session], on_error=on_fatal, name="log", switch_interval=SWITCH_INTERVAL)
     notifier.start()
     t0 = time.monotonic()

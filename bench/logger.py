@@ -34,7 +34,7 @@ def is_origin_fix(device: Device, record: dict) -> bool:
 class SessionListener(Listener):
     """Writes reads, records and link events into ``writer``; counts what it wrote.
 
-    ``on_fix(lat, lon, alt_hae)``: called with each receiver GPS fix (see
+    ``on_fix(lat, lon, alt_hae)``: called once, with the first receiver GPS fix (see
     :func:`is_origin_fix`), for a session without ``--origin``.
     """
 
@@ -60,8 +60,8 @@ class SessionListener(Listener):
             for s in read.records:
                 self.writer.record(name, s.as_json())
                 if self.on_fix is not None and is_origin_fix(device, s.record):
-                    r = s.record
-                    self.on_fix(r["lat"], r["lon"], r["alt_hae"])
+                    on_fix, self.on_fix, r = self.on_fix, None, s.record
+                    on_fix(r["lat"], r["lon"], r["alt_hae"])
             c["records"] += len(read.records)
         except LinkError as exc:
             self.error = exc

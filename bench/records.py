@@ -1,7 +1,9 @@
 """Decoded records of each device kind, as JSON-ready dicts, from raw bytes.
 
-One :class:`RecordDecoder` per device: ``feed(bytes)`` returns the records those bytes
-completed, ``flush()`` the rest at end of input. The logger writes them to
+One decoder per device (:data:`RecordDecoder`): ``feed(bytes)`` returns the records those
+bytes completed, ``flush()`` the rest at end of input, ``stop()`` the records still pending
+when the reading stopped (not because the stream broke) and the length of an unterminated
+sentence at the end, dropped without an error (its bytes are in the raw log). The logger writes them to
 ``<device>.jsonl``; export and replay re-derive them from the raw bytes with the same
 decoders, so the raw log stays the single source of truth. Corrupt input is never
 dropped silently: it becomes a record with an ``"error"`` key.
@@ -28,28 +30,11 @@ KINDS = ("arva", "gps", "attitude")
 FORMATS = {"gps": ("nmea",), "attitude": ("nmea", "mavlink")}
 
 
-class RecordDecoder:
-    def feed(self, data: bytes) -> list[dict]:
-        raise NotImplementedError
-
-    def flush(self) -> list[dict]:
-        return []
-
-    def stop(self) -> tuple[list[dict], int]:
-        """End of input because the reading stopped (not because the stream broke): the
-        records still pending, and the length of an unterminated sentence at the end,
-        dropped without an error (its bytes are in the raw log)."""
-        return self.flush(), 0
-
-    def stats(self) -> dict[str, int]:
-        return {}
-
-
 #: ErrorKind -> its name (a dict lookup: line noise makes one error record per byte).
 _KIND_NAMES = {kind: kind.name for kind in ErrorKind}
 
 
-class ArvaRecords(RecordDecoder):
+class ArvaRecords:
     def __init__(self) -> None:
         self.decoder = Decoder()
 
@@ -101,7 +86,7 @@ def is_positioned_fix(record: dict) -> bool:
     return record.get("sentence") == "GGA" and bool(record.get("valid")) and record.get("alt_hae") is not None
 
 
-class GroundTruthRecords(RecordDecoder):
+class GroundTruthRecords:
     """GPS fixes and/or $PASHR attitudes: one reader handles both on one stream.
 
     Input the reader rejects is flagged with an ``{"error": {counter: increment}}``
@@ -157,6 +142,9 @@ class GroundTruthRecords(RecordDecoder):
 
     def stats(self) -> dict[str, int]:
         return {"records": self.records, "errors": self.errors, "ignored": self.reader.stats["ignored"]}
+
+
+RecordDecoder = ArvaRecords | GroundTruthRecords
 
 
 def decoder_for(kind: str, fmt: str | None = None) -> RecordDecoder:

@@ -27,7 +27,7 @@ from emulator.output.ports import Port, PtyPort
 from emulator.progress import progress
 from firmware_proto.errors import InputError
 
-from .ingest.pacer import ReplayPacer, load_reads
+from .ingest.pacer import load_reads, pace
 from .session import load_manifest
 
 
@@ -42,7 +42,6 @@ def register(sub) -> None:
     p.add_argument("--delay", type=seconds, default=0.0, metavar="S", help="wait S seconds after announcing the ptys")
     p.add_argument("--serve-any-host", action="store_true",
                    help="let rfc2217-server/tcp-server ports listen on non-loopback addresses")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,9 +87,7 @@ def run(args: argparse.Namespace) -> int:
             ports[name].write(read.data)
             bar.update(completed=read.mono - t0)
 
-        pacer = ReplayPacer(reads, args.speed, stop)
-        pacer.run(deliver)
-        sent = pacer.sent
+        sent = pace(reads, deliver, args.speed, stop)
     dropped = sum(p.bytes_dropped for p in ports.values())
     written = sum(p.bytes_written for p in ports.values())
     print(f"arva-bench: replay: {sent} reads, {written} bytes written, {dropped} bytes dropped", file=sys.stderr)

@@ -63,7 +63,6 @@ class _AppendFile:
     """One append-only file: whole lines, flushed per line, fsynced by the writer."""
 
     def __init__(self, path: Path) -> None:
-        self.path = path
         self._f = open(path, "ab", buffering=0)  # unbuffered: one write() per line
         self.lock = threading.Lock()
         self.dirty = False
@@ -219,10 +218,7 @@ class SessionWriter(contextlib.AbstractContextManager):
     # -- lifetime ----------------------------------------------------------------
     def _sync_loop(self) -> None:
         while not self._stop.wait(self._fsync_interval / 2):
-            self.sync()
-
-    def sync(self) -> None:
-        self._each_file(_AppendFile.sync)  # an error is reported by the next write to that file
+            self._each_file(_AppendFile.sync)  # an error is reported by the next write to that file
 
     def _each_file(self, action) -> None:
         """``action(file)`` on every open file; an OSError leaves the others to do."""

@@ -190,9 +190,7 @@ class DashApp(App):
         self._refresh_links()
 
     def _link(self, device: str, kind: str, role: str) -> LinkView:
-        if device not in self.links:
-            self.links[device] = LinkView(device, kind, role)
-        return self.links[device]
+        return self.links.setdefault(device, LinkView(device, kind, role))
 
     # -- drawing -------------------------------------------------------------------------------
     def _refresh_receiver(self, rs: ReceiverState, gap: int = 0) -> None:
@@ -233,10 +231,7 @@ class DashApp(App):
             right = f"● REC {self.recorder.directory}  {kb:.1f} kB"
         else:
             right = "○ not recording (r)"
-        text = f"{left} │ {right}"
-        if self.message:
-            text += f" │ {self.message}"
-        return text
+        return " │ ".join(filter(None, [left, right, self.message]))
 
     def _refresh_status(self) -> None:
         bar = self.query_one(StatusBar)

@@ -51,7 +51,6 @@ def register(sub) -> None:
                    help="where r records sessions: DIR/<UTC start> (default ./sessions)")
     p.add_argument("--no-scene-truth", action="store_true",
                    help="do not take ground truth from an arvaemu:// source's scene")
-    p.set_defaults(func=run)
 
 
 #: Where a device that is not there yet may appear (plugged in later): the dashboard waits

@@ -2,13 +2,8 @@
 
 Everything the widgets show is built by these functions, so the tests can check exact
 strings and the snapshots stay deterministic: no clock, no terminal size beyond the
-``width`` argument.
-
-* :func:`channel_rows`: the channel table (id, d, δ, zone, true distance, error of d, and a
-  d-versus-time sparkline per channel).
-* :func:`dial`: δ drawn on a half dial relative to the receiver's x axis (up). The body
-  frame is x forward, y left (BRIEF 2) and δ = atan(h_y / h_x), so **δ > 0 points left**.
-* :func:`sparkline`: one character per epoch, newest on the right.
+``width`` argument. :func:`dial` draws δ relative to the receiver's x axis (up): the body
+frame is x forward, y left (BRIEF 2) and δ = atan(h_y / h_x), so **δ > 0 points left**.
 """
 
 from __future__ import annotations
@@ -61,29 +56,23 @@ def table_header(width: int) -> str:
     return (head + "d(t)")[:width].ljust(width) if width > len(head) else head[:width]
 
 
-def channel_row(slot: tuple[int, int, int] | None, true_m: float | None, history: Sequence[int | None],
-                width: int) -> str:
-    """One slot of the latest epoch. ``slot`` None: the slot never arrived intact."""
-    spark = sparkline(history, max(0, width - TABLE_FIXED))
-    if slot is None:
-        return f"{'?':>3} {'lost':>7} {DASH:>4} {DASH:<5} {DASH:>7} {DASH:>6}  {spark}"[:width]
-    tx, d, delta = slot
-    if tx < 0 or d < 0:
-        ident, d_text, dl, zn = "-", DASH, DASH, DASH
-    else:
-        ident, d_text, dl, zn = str(tx), metres(d), str(delta), zone(d, delta)
-    known = true_m is not None and d >= 0
-    true_text, err_text = (f"{true_m:.2f}", f"{d / 100 - true_m:+.2f}") if known else (DASH, DASH)
-    return f"{ident:>3} {d_text:>7} {dl:>4} {zn:<5} {true_text:>7} {err_text:>6}  {spark}"[:width]
-
-
 def channel_rows(slots: Sequence[tuple[int, int, int] | None], true_m: dict[int, float],
                  history: dict[int, Sequence[int | None]], width: int) -> list[str]:
-    """Header plus one row per slot (``history`` and ``true_m`` keyed by transmitter id)."""
+    """Header plus one row per slot of the latest epoch (``history`` and ``true_m`` keyed by
+    transmitter id); a slot None never arrived intact."""
     rows = [table_header(width)]
     for slot in slots:
-        tx = -1 if slot is None else slot[0]
-        rows.append(channel_row(slot, true_m.get(tx), history.get(tx, ()) if tx >= 0 else (), width))
+        tx, d, delta = (-1, -1, -1) if slot is None else slot
+        spark = sparkline(history.get(tx, ()) if tx >= 0 else (), max(0, width - TABLE_FIXED))
+        if slot is None:
+            ident, d_text, dl, zn = "?", "lost", DASH, DASH
+        elif tx < 0 or d < 0:
+            ident, d_text, dl, zn = "-", DASH, DASH, DASH
+        else:
+            ident, d_text, dl, zn = str(tx), metres(d), str(delta), zone(d, delta)
+        true = true_m.get(tx) if d >= 0 else None
+        true_text, err_text = (DASH, DASH) if true is None else (f"{true:.2f}", f"{d / 100 - true:+.2f}")
+        rows.append(f"{ident:>3} {d_text:>7} {dl:>4} {zn:<5} {true_text:>7} {err_text:>6}  {spark}"[:width])
     return rows
 
 
@@ -199,13 +188,12 @@ def truth_lines(poses: dict, roles: Sequence[str], width: int) -> list[str]:
         pose = poses[role]
         head = f"{role:<4} {pose.via or '—':<8}"
         if pose.position is not None:
-            e, n, u = pose.position
-            out.append(f"{head:<{TRUTH_HEAD}} {num(e, 7, 2)} {num(n, 7, 2)} {num(u, 6, 2)}"[:width])
+            where = " ".join(num(v, w, 2) for v, w in zip(pose.position, (7, 7, 6)))
         elif pose.geodetic is not None:
-            lat, lon, alt = pose.geodetic
-            out.append(f"{head:<{TRUTH_HEAD}} {lat:.6f} {lon:.6f} {alt:.1f}"[:width])
+            where = "{:.6f} {:.6f} {:.1f}".format(*pose.geodetic)
         else:
-            out.append(f"{head:<{TRUTH_HEAD}} {DASH}"[:width])
+            where = DASH
+        out.append(f"{head:<{TRUTH_HEAD}} {where}"[:width])
         if pose.via == "gps":
             out.append(f"     {_fix_summary(pose.fix)}"[:width])
         if pose.hpr is not None and not (pose.via in ("scene", "surveyed") and role.startswith("tx")):

@@ -1,14 +1,7 @@
 """Readers for the dashboard: the bench's one ingest (:mod:`bench.ingest`), with a
 :class:`DeviceFeed` listener per device that turns reads into messages (docs/dashboard.md,
-"How it works").
-
-A :class:`DeviceFeed` gets each device's reads already stamped and decoded, keeps link
-counters, and posts :mod:`bench.dash.messages` with ``post`` (the app's thread-safe
-``post_message``; the reader thread touches nothing else of the UI). It also hands every
-read and link event to the app's recorder (:class:`bench.dash.recorder.SessionRecorder`)
-while one is set. :class:`LiveSource` reads every live device with one notifier,
-:class:`ReplaySource` replays a session directory with the shared replay pacer, and
-:class:`SceneTruth` gives an ``arvaemu://`` source's true poses (epoch k at t = k / rate_hz).
+"How it works"). :class:`LiveSource` reads the live devices, :class:`ReplaySource` a
+session directory; :class:`SceneTruth` gives an ``arvaemu://`` source's true poses.
 """
 
 from __future__ import annotations
@@ -26,7 +19,7 @@ from firmware_proto.errors import InputError
 
 from emulator.urlhandler.protocol_arvaemu import parse_url
 
-from ..ingest.pacer import ReplayPacer
+from ..ingest.pacer import pace
 from ..ingest.reader import Device, DeviceSpec, LinkEvent, Listener, Notifier, Read
 from ..ingest.stamp import Stamped
 from ..records import ArvaRecords, GroundTruthRecords
@@ -97,14 +90,17 @@ class SceneTruth:
 
 class DeviceFeed(Listener):
     """Messages and link counters of one device: a listener of the notifier (or replay
-    pacer) that reads and decodes it. Calls come from that one thread."""
+    pacer) that reads and decodes it. Calls come from that one thread, which posts
+    :mod:`bench.dash.messages` with ``post`` (the app's thread-safe ``post_message``) and
+    touches nothing else of the UI; reads and link events also go to the app's recorder
+    (:class:`bench.dash.recorder.SessionRecorder`) while one is set."""
 
-    def __init__(self, device: Device | DeviceSpec, post: Post, truth: SceneTruth | None = None) -> None:
-        self.device = device if isinstance(device, Device) else Device(device)
-        self.spec = self.device.spec
+    def __init__(self, spec: DeviceSpec, post: Post, truth: SceneTruth | None = None) -> None:
+        self.spec = spec
+        self.device = Device(spec)
         self.post = post
         self.truth = truth
-        self.recorder = None  # set and cleared by the app (an attribute write is atomic)
+        self.recorder = None  # set and cleared by the app (an attribute write is atomic: read it once)
         self.checksum_errors = 0
         self.errors = 0
         self.rejected_bytes = 0
@@ -119,8 +115,7 @@ class DeviceFeed(Listener):
 
     # -- from the reader -------------------------------------------------------------------
     def on_read(self, device: Device, read: Read) -> None:
-        recorder = self.recorder
-        if recorder is not None:
+        if (recorder := self.recorder) is not None:
             recorder.on_read(device, read)
         self._handle(read.records)
         if read.data:  # reads, bytes and the last data's time are the device's stats
@@ -128,8 +123,7 @@ class DeviceFeed(Listener):
             self.status(read.mono)
 
     def on_link(self, device: Device, event: LinkEvent) -> None:
-        recorder = self.recorder
-        if recorder is not None:
+        if (recorder := self.recorder) is not None:
             recorder.on_link(device, event)
         if event.kind in ("up", "reconnect"):
             if self.truth is not None:
@@ -249,7 +243,7 @@ class LiveSource(Notifier):
 
 class ReplaySource(threading.Thread):
     """A thread replaying a session directory's devices with their recorded timing (the
-    shared :class:`~bench.ingest.pacer.ReplayPacer`); reads are stamped when delivered."""
+    shared :func:`~bench.ingest.pacer.pace`); reads are stamped when delivered."""
 
     def __init__(self, directory: str | Path, feeds: list[DeviceFeed], speed: float = 1.0) -> None:
         super().__init__(name="dash-replay", daemon=True)
@@ -290,7 +284,7 @@ class ReplaySource(threading.Thread):
                 feed.set_state("down", str(exc))
             else:
                 feed.set_state("up")
-        ReplayPacer(reads, self.speed, self.stopping, tick=self._tick, tick_interval=READ_TIMEOUT).run(self._deliver)
+        pace(reads, self._deliver, self.speed, self.stopping, tick=self._tick, tick_interval=READ_TIMEOUT)
         mono, utc = time.monotonic(), time.time()
         for feed in self.feeds:
             feed.on_read(feed.device, feed.device.stop(mono, utc))

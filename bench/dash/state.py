@@ -130,12 +130,11 @@ class TruthState:
             pose.hpr = (float(h), float(r), float(p))
 
     # -- outputs ---------------------------------------------------------------------
-    def distance(self, rx_role: str, tx: int) -> float | None:
-        rx, txp = self.poses.get(rx_role, Pose()), self.poses.get(f"tx{tx}", Pose())
-        return None if rx.position is None or txp.position is None else math.dist(rx.position, txp.position)
-
     def distances(self, rx_role: str, ids) -> dict[int, float]:
-        return {tx: d for tx in ids if (d := self.distance(rx_role, tx)) is not None}
+        """True distances (m) from ``rx_role`` to the transmitters ``ids`` where both are placed."""
+        rx = self.poses.get(rx_role, Pose()).position
+        placed = {tx: p for tx in ids if (p := self.poses.get(f"tx{tx}", Pose()).position) is not None}
+        return {} if rx is None else {tx: math.dist(rx, p) for tx, p in placed.items()}
 
     def roles(self) -> list[str]:
         return sorted(self.poses, key=role_key)
@@ -160,14 +159,11 @@ class LinkView:
             count = self.arrivals[-1][1] + 1 if self.arrivals else 1
         self.arrivals.append((mono, count))
 
-    def last_data(self) -> float | None:
+    def age(self, now: float) -> float | None:
+        """Seconds since the last data (a record, or bytes the counters saw), or None."""
         last = self.counters.last_data_mono
         if self.arrivals and (last is None or self.arrivals[-1][0] > last):
-            return self.arrivals[-1][0]
-        return last
-
-    def age(self, now: float) -> float | None:
-        last = self.last_data()
+            last = self.arrivals[-1][0]
         return None if last is None else max(0.0, now - last)
 
     def stale(self, now: float, after: float) -> bool:

@@ -98,9 +98,8 @@ class DirectionIndicator(_TextWidget):
         first = self.slots[0] if self.slots else None
         delta = first[2] if directed(first) else None
         marks = [(s[0], s[2]) for s in self.slots[1:] if directed(s)]
-        out = render.dial(delta, marks, width=width)
-        caption = render.dial_caption(first) if self.slots else "no epoch yet"
-        return out + [caption.center(width).rstrip()[:width]]
+        caption = render.dial_caption(first)  # "no epoch yet" without one
+        return render.dial(delta, marks, width=width) + [caption.center(width).rstrip()[:width]]
 
 
 class ReceiverPanel(Horizontal):

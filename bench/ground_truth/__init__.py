@@ -2,16 +2,10 @@
 
 Streaming and tolerant: ``feed(bytes)`` in any chunking returns frozen records; unknown
 sentences, binary data, bad checksums and garbage are skipped and counted in ``stats``,
-never raised, and memory stays bounded. Modules:
-
-* :mod:`.lines` -- bytes to ``$...`` lines (bounded, resynchronising);
-* :mod:`.nmea` -- a line to a checksum-verified pynmeagps message;
-* :mod:`.utc` -- dating times of day across midnight;
-* :mod:`.gps` -- :class:`GpsReader` -> :class:`GpsFix`;
-* :mod:`.attitude` -- :class:`AttitudeReader` -> :class:`Attitude`;
-* :mod:`.mavlink` -- :class:`MavlinkAttitudeReader`, MAVLink attitude -> :class:`Attitude`
-  (the ``mavlink`` extra; imported on use, not here);
-* :class:`GroundTruthReader` (here) -- both on one stream.
+never raised, and memory stays bounded. Modules: ``lines`` (bytes to ``$...`` lines),
+``nmea`` (a line to a checked message), ``utc`` (dating across midnight), ``gps``,
+``attitude``, ``mavlink`` (the ``mavlink`` extra, imported on use, not here); and here
+:class:`GroundTruthReader`, GPS and attitude on one stream.
 """
 
 from __future__ import annotations

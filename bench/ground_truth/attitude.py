@@ -29,6 +29,7 @@ from emulator.frames.attitude import hpr_to_quaternion
 from .lines import SentenceReader
 from .nmea import PLAIN_NUMBER, FieldError, sentence_type, time_of_day
 
+
 @dataclass(frozen=True, slots=True)
 class Attitude:
     """One attitude (``$PASHR``, or MAVLink via :mod:`.mavlink`). Degrees and metres; None
@@ -77,10 +78,6 @@ class AttitudeReader(SentenceReader):
         fields = line.split(b",", 4)
         return sentence_type(line) == b"PASHR" and len(fields) >= 4 and fields[3] == b"T"
 
-    def count(self, att: Attitude) -> None:
-        self.stats["pashr"] += 1
-        self.stats["attitudes"] += 1
-
     def decode(self, msg: NMEAMessage, line: bytes) -> Attitude:
         # We read the raw fields: pynmeagps types them (DE/IN) but we want a strict
         # number syntax and None for empty fields. Its parse verified the checksum.
@@ -94,5 +91,8 @@ class AttitudeReader(SentenceReader):
         q = tuple(float(c) for c in hpr_to_quaternion(heading, roll, pitch))
         utc = self.tracker.resolve(tod)
         heave, roll_accuracy, pitch_accuracy, heading_accuracy = (_number(f, required=False) for f in p[5:9])
-        return Attitude(tod, utc, heading, roll, pitch, q, heave, roll_accuracy, pitch_accuracy, heading_accuracy,
-                        gps_quality=_flag(p[9]), ins_status=_flag(p[10]))
+        att = Attitude(tod, utc, heading, roll, pitch, q, heave, roll_accuracy, pitch_accuracy,
+                       heading_accuracy, gps_quality=_flag(p[9]), ins_status=_flag(p[10]))
+        self.stats["pashr"] += 1
+        self.stats["attitudes"] += 1
+        return att

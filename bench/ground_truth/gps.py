@@ -85,8 +85,6 @@ def _lat_lon(msg: NMEAMessage, i: int) -> tuple[float | None, float | None]:
     lat_s, ns, lon_s, ew = (_raw(msg, k) for k in range(i, i + 4))
     if lat_s == "" and lon_s == "":
         return None, None
-    if lat_s == "" or lon_s == "":
-        raise FieldError("lat/lon")
     if not (_LAT.match(lat_s) and _LON.match(lon_s)) or ns not in ("N", "S") or ew not in ("E", "W"):
         raise FieldError("lat/lon")
     if float(lat_s[2:]) >= 60.0 or float(lon_s[3:]) >= 60.0:
@@ -108,11 +106,8 @@ def _number(msg: NMEAMessage, name: str, index: int, kind: type = float) -> floa
 
 
 class GpsReader(SentenceReader):
-    """``feed(bytes) -> list[GpsFix]``; never raises on data, memory bounded.
-
-    ``tracker`` may be shared with an attitude reader on the same stream, so $PASHR times
-    get the RMC date; ``stats`` may be shared too.
-    """
+    """``feed(bytes) -> list[GpsFix]``; never raises on data, memory bounded. A shared
+    ``tracker`` gives an attitude reader on the same stream the RMC date."""
 
     def accepts(self, line: bytes) -> bool:
         return sentence_type(line) in (b"GGA", b"RMC", b"GLL", b"ZDA") and line[1:3].isalpha()
@@ -122,13 +117,12 @@ class GpsReader(SentenceReader):
         if kind == b"ZDA":
             self._zda(msg)
             return None
-        return self._gga(msg, line) if kind == b"GGA" else self._rmc(msg, line) if kind == b"RMC" else self._gll(msg, line)
-
-    def count(self, fix: GpsFix) -> None:
+        fix = (self._gga if kind == b"GGA" else self._rmc if kind == b"RMC" else self._gll)(msg, line)
         self.stats[fix.sentence.lower()] += 1
         self.stats["fixes"] += 1
         if fix.lat is None:
             self.stats["no_position"] += 1
+        return fix
 
     def _gga(self, msg: NMEAMessage, line: bytes) -> GpsFix:
         # payload: 0 time, 1-4 lat N lon E, 5 quality, 6 sats, 7 hdop, 8 alt, 9 M, 10 sep, 11 M
@@ -171,9 +165,8 @@ class GpsReader(SentenceReader):
         return GpsFix("GLL", talker_of(line), tod, utc, lat, lon, status=status, mode=mode)
 
     def _position(self, msg: NMEAMessage, index: int, fix_claimed: bool) -> tuple[float | None, float | None]:
-        """Validated position; an invalid one is dropped (not the sentence) when the
-        sentence itself says there is no fix: receivers fill those fields with
-        placeholders such as 8960.000000,N (89 deg 60 min) or 36000.0000,N."""
+        """Validated position, or a placeholder dropped when the sentence says there is no
+        fix (see the module docstring; also 36000.0000,N)."""
         try:
             return _lat_lon(msg, index)
         except FieldError:

@@ -141,7 +141,7 @@ class SentenceReader:
     def handle_line(self, line: bytes):
         """One complete line (``$`` ... ``*hh``, no CR LF) -> a record, or None (counted):
         ``ignored`` if :meth:`accepts` refuses it, the reason of :func:`.nmea.parse_checked`,
-        ``malformed`` if :meth:`decode` refuses a field; a record is counted by :meth:`count`."""
+        ``malformed`` if :meth:`decode` refuses a field (a record it counts itself)."""
         if not self.accepts(line):
             self.stats["ignored"] += 1
             return None
@@ -149,22 +149,17 @@ class SentenceReader:
         if msg is None:
             return None
         try:
-            rec = self.decode(msg, line)
+            return self.decode(msg, line)
         except (FieldError, ValueError, TypeError):
             self.stats["malformed"] += 1
             return None
-        if rec is not None:
-            self.count(rec)
-        return rec
 
     def accepts(self, line: bytes) -> bool:
         """Whether this reader reads ``line`` (a sentence it knows)."""
         raise NotImplementedError
 
     def decode(self, msg: NMEAMessage, line: bytes):
-        """The record of a checked sentence, or None (a sentence that only updates state);
-        :class:`.nmea.FieldError` (or ValueError, TypeError) for a field it refuses."""
+        """The record of a checked sentence, counted in ``stats``, or None (a sentence that
+        only updates state); :class:`.nmea.FieldError` (or ValueError, TypeError) for a
+        field it refuses, before anything is counted."""
         raise NotImplementedError
-
-    def count(self, rec) -> None:
-        """Count a record read (``stats``)."""

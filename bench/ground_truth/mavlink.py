@@ -34,19 +34,15 @@ from firmware_proto.errors import MissingExtra
 
 from .attitude import Attitude
 
-def _dialect():
-    try:
-        from pymavlink.dialects.v20 import ardupilotmega
-    except ImportError:
-        raise MissingExtra("MAVLink attitude", "pymavlink", "mavlink") from None
-    return ardupilotmega
-
 
 class MavlinkAttitudeReader:
     """``feed(bytes) -> list[Attitude]`` from a MAVLink byte stream; never raises on data."""
 
     def __init__(self, stats: Counter[str] | None = None) -> None:
-        dialect = _dialect()
+        try:  # the mavlink extra
+            from pymavlink.dialects.v20 import ardupilotmega as dialect
+        except ImportError:
+            raise MissingExtra("MAVLink attitude", "pymavlink", "mavlink") from None
         self._bad_data = dialect.MAVLink_bad_data
         self._parser = dialect.MAVLink(None)
         self._parser.robust_parsing = True  # bad bytes come back as MAVLink_bad_data, not raised

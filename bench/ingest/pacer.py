@@ -28,41 +28,32 @@ def load_reads(directory: str | Path, names: Iterable[str]) -> dict[str, RawLog]
     return {name: log.scan() for name, log in session_logs(directory, names).items()}
 
 
-class ReplayPacer:
-    """Delivers reads in the logger's order at their recorded pace.
-
-    ``tick`` (optional) is called at least every ``tick_interval`` seconds while waiting
-    for the next read (the dashboard uses it to release epochs of a quiet link).
-    """
-
-    def __init__(self, reads: dict[str, Iterable[RawRead]], speed: float = 1.0, stop: threading.Event | None = None,
-                 tick: Callable[[], None] | None = None, tick_interval: float = 0.1) -> None:  # fmt: skip
-        self.reads = reads
-        self.speed = speed_value(speed)  # InputError: the one speed rule (emulator.cli_types)
-        self.stop = stop if stop is not None else threading.Event()
-        self.tick = tick
-        self.tick_interval = tick_interval
-        self.sent = 0
-
-    def run(self, deliver: Callable[[str, RawRead], None]) -> bool:
-        """Deliver every read (``deliver(name, read)``); False if stopped before the end.
-        Each device's reads are taken one at a time from its iterable."""
-        stop, start, t0 = self.stop, time.monotonic(), None
-        streams = (zip(itertools.repeat(name), reads) for name, reads in self.reads.items())
-        # One pending read per device in a heap; of equal stamps, the device listed first goes first.
-        for name, read in heapq.merge(*streams, key=lambda item: item[1].mono):
-            if stop.is_set():
-                return False
-            t0 = read.mono if t0 is None else t0
-            if self.speed > 0:
-                due = start + (read.mono - t0) / self.speed
+def pace(reads: dict[str, Iterable[RawRead]], deliver: Callable[[str, RawRead], None], speed: float = 1.0,
+         stop: threading.Event | None = None, tick: Callable[[], None] | None = None,
+         tick_interval: float = 0.1) -> int:  # fmt: skip
+    """Deliver every read (``deliver(name, read)``) in the logger's order at its recorded
+    pace, each device's reads taken one at a time from its iterable, until the end or
+    ``stop``; returns how many were delivered. ``tick`` (optional) is called at least every
+    ``tick_interval`` seconds while waiting for the next read (the dashboard uses it to
+    release epochs of a quiet link). InputError for a bad ``speed``."""
+    speed = speed_value(speed)  # the one speed rule (emulator.cli_types)
+    stop = stop if stop is not None else threading.Event()
+    start, t0, sent = time.monotonic(), None, 0
+    streams = (zip(itertools.repeat(name), logged) for name, logged in reads.items())
+    # One pending read per device in a heap; of equal stamps, the device listed first goes first.
+    for name, read in heapq.merge(*streams, key=lambda item: item[1].mono):
+        if stop.is_set():
+            break
+        t0 = read.mono if t0 is None else t0
+        if speed > 0:
+            due = start + (read.mono - t0) / speed
+            delay = due - time.monotonic()
+            while delay > 0:
+                if stop.wait(delay if tick is None else min(delay, tick_interval)):
+                    return sent
+                if tick is not None:
+                    tick()
                 delay = due - time.monotonic()
-                while delay > 0:
-                    if stop.wait(delay if self.tick is None else min(delay, self.tick_interval)):
-                        return False
-                    if self.tick is not None:
-                        self.tick()
-                    delay = due - time.monotonic()
-            deliver(name, read)
-            self.sent += 1
-        return not stop.is_set()
+        deliver(name, read)
+        sent += 1
+    return sent

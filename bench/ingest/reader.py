@@ -5,8 +5,8 @@ Modelled on python-can's ``Notifier``/``Listener``: a :class:`Notifier` reads a 
 session writer of ``arva-bench log``, the dashboard's feeds). The **I/O thread** reads
 every device with a descriptor in one selector and a port without one gets a small
 thread, as docs/bench.md ("How devices are read") describes; the I/O thread does nothing
-but read and stamp, so no device's decoding or disk writing delays another's stamp (with
-``switch_interval`` the GIL comes back to it within that time). Besides:
+but read and stamp, so no device's decoding or disk writing delays another's stamp
+(see ``switch_interval``). Besides:
 
 * the **work thread** decodes each read (:mod:`bench.ingest.stamp`) and notifies the
   listeners, each device's reads in order; every :data:`TICK` it releases a quiet link's
@@ -15,9 +15,7 @@ but read and stamp, so no device's decoding or disk writing delays another's sta
   :data:`RETRY_INTERVAL` s, a vanished one at once, keeping what the OS buffered meanwhile
   (``open_device(keep_input=True)``).
 
-A listener raising :class:`~firmware_proto.errors.LinkError` (a full disk) is reported
-through ``on_error`` and removed; the others keep receiving. Times: ``mono`` is this
-process's ``time.monotonic()`` (s), ``utc`` POSIX seconds.
+Times: ``mono`` is this process's ``time.monotonic()`` (s), ``utc`` POSIX seconds.
 """
 
 from __future__ import annotations
@@ -32,7 +30,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass
 
 import serial
 
@@ -71,10 +69,8 @@ class DeviceSpec:
     format: str | None = None
 
     def manifest(self) -> dict:
-        out = {"kind": self.kind, "url": self.url, "role": self.role, "baudrate": self.baudrate}
-        if self.format is not None:
-            out["format"] = self.format
-        return out
+        """The device's entry in the manifest (under its name; ``format`` only when given)."""
+        return {k: v for k, v in asdict(self).items() if k != "name" and v is not None}
 
 
 @dataclass
@@ -87,7 +83,6 @@ class DeviceStats:
     gaps: int = 0
     connected: bool = False
     last_data_mono: float | None = None
-    decoder: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,10 +185,11 @@ class Notifier:
 
     ``stale_after`` (s, None: never): a device open but silent that long is closed and
     reopened (a ``gap`` with that reason, then ``reconnect``). ``on_error(exc)``: a
-    listener raised :class:`LinkError` (it is then removed). ``switch_interval`` (s, None:
-    leave it): the interpreter's thread switch interval is lowered to it at :meth:`start`
-    (a process-wide setting, for a command whose process only logs), so that the I/O
-    thread, woken by data, gets the GIL from the decoding thread within that time.
+    listener raised :class:`LinkError`, a full disk (it is then removed; the others keep
+    receiving). ``switch_interval`` (s, None: leave it): the interpreter's thread switch
+    interval is lowered to it at :meth:`start` (a process-wide setting, for a command
+    whose process only logs), so that the I/O thread, woken by data, gets the GIL from
+    the decoding thread within that time.
     """
 
     def __init__(self, devices: Iterable[Device], listeners: Iterable[Listener] = (),
@@ -215,7 +211,6 @@ class Notifier:
         self._io = threading.Thread(target=self._io_loop, name=f"{name}-io", daemon=True)
         self._opener = threading.Thread(target=self._open_loop, name=f"{name}-open", daemon=True)
         self._ports: dict[Device, _Port] = {}  # the work thread's view: open ports
-        self._ever_open: set[Device] = set()
         self._unavailable: dict[Device, str] = {}
 
     # -- lifetime --------------------------------------------------------------------------
@@ -381,7 +376,7 @@ class Notifier:
                         self._up(p)
                     case ("lost", p, reason):
                         self._lost(p, reason)
-                    case ("unavailable", dev, reason) if dev not in self._ever_open:  # after a gap, the gap says so
+                    case ("unavailable", dev, reason) if not dev.opens:  # after a gap, the gap says so
                         self._link(dev, "unavailable", reason)
                     case ("end",):
                         break
@@ -405,12 +400,8 @@ class Notifier:
         dev.opens += 1
         dev.stats.connected = True
         p.quiet_since = time.monotonic()
-        if dev in self._ever_open:
-            dev.reconnects += 1
-            self._link(dev, "reconnect")
-        else:
-            self._ever_open.add(dev)
-            self._link(dev, "up")
+        dev.reconnects = dev.opens - 1  # every open after the first
+        self._link(dev, "reconnect" if dev.reconnects else "up")
 
     def _lost(self, p: _Port, reason: str) -> None:
         dev = p.device

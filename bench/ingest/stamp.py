@@ -105,8 +105,8 @@ class ErrorSampler:
 
 
 class StampedDecoder:
-    """A device's :class:`~bench.records.RecordDecoder` with the stamp rule applied, fed
-    in bounded slices, its error records sampled (:class:`ErrorSampler`)."""
+    """A device's :data:`~bench.records.RecordDecoder` with the stamp rule applied, fed in
+    bounded slices, its error records sampled (:class:`ErrorSampler`)."""
 
     def __init__(self, decoder: RecordDecoder, baudrate: int, errors_per_second: int = ERROR_RECORDS_PER_SECOND) -> None:
         self.decoder = decoder
@@ -175,7 +175,7 @@ class StampedDecoder:
 
     def stop(self, mono: float, utc: float) -> tuple[list[Stamped], int]:
         """The records pending when the reading stops, and the length of a sentence the
-        stop cut (not an error: see :meth:`bench.records.RecordDecoder.stop`)."""
+        stop cut (not an error: see :mod:`bench.records`)."""
         records, cut = self.decoder.stop()
         return self._released(records, mono, utc, force=True), cut
 

@@ -49,6 +49,8 @@ INSTALL_PYUSB = "pyusb is not installed (install the extra: pip install 'arva-be
 NO_BACKEND = "no libusb backend available: install libusb 1.0, e.g. apt install libusb-1.0-0 or brew install libusb"
 UDEV_HINT = "on Linux, a udev rule grants access: see docs/transports.md"
 
+#: Endpoint types that stream bytes: bulk and interrupt (usb.util.ENDPOINT_TYPE_BULK, _INTR).
+_STREAMING = (2, 3)
 _VID_PID = re.compile(r"([0-9A-Fa-f]{1,4}):([0-9A-Fa-f]{1,4})")
 
 
@@ -149,16 +151,11 @@ def _packet_size(endpoint) -> int:  # type: ignore[no-untyped-def]
 class Serial(VirtualLine, SerialBase):
     """pyserial ``Serial`` for ``usb://`` URLs (see the module docstring)."""
 
-    def __init__(self, *args, **kwargs) -> None:
-        self._device = None
-        self._interface: int | None = None
-        self._in_ep = None
-        self._out_ep = None
-        self._reattach = False
-        self._buffer = bytearray()
-        self._url: UsbUrl | None = None
-        self._usb = None  # the pyusb package, once open
-        super().__init__(*args, **kwargs)
+    # What open() sets, as class defaults: close() works on a port that never opened.
+    _device = _in_ep = _out_ep = _usb = None  # _usb: the pyusb package
+    _interface: int | None = None
+    _url: UsbUrl | None = None
+    _reattach = False
 
     # -- opening ----------------------------------------------------------------
     def open(self) -> None:
@@ -177,7 +174,7 @@ class Serial(VirtualLine, SerialBase):
         except BaseException:
             self._release()
             raise
-        self._buffer.clear()
+        self._buffer = bytearray()
         self.is_open = True
 
     def _fail(self, reason: str) -> SerialException:
@@ -286,7 +283,7 @@ class Serial(VirtualLine, SerialBase):
         endpoint = usb.util.find_descriptor(intf, bEndpointAddress=address)
         if endpoint is None:
             raise self._fail(f"interface {intf.bInterfaceNumber} has no endpoint 0x{address:02x}")
-        if usb.util.endpoint_type(endpoint.bmAttributes) not in _streaming(usb):
+        if usb.util.endpoint_type(endpoint.bmAttributes) not in _STREAMING:
             raise self._fail(f"endpoint 0x{address:02x} is neither bulk nor interrupt")
         return endpoint
 
@@ -310,12 +307,11 @@ class Serial(VirtualLine, SerialBase):
     def _transfer(self, timeout_ms: int) -> int:
         """One IN transfer of one packet, waiting at most TIMEOUT_MS (>= 1) milliseconds;
         appends to the buffer and returns the number of bytes received (0 on timeout)."""
-        usb = self._usb
         try:
             data = self._device.read(self._in_ep.bEndpointAddress, _packet_size(self._in_ep), timeout=timeout_ms)
-        except usb.core.USBTimeoutError:
+        except self._usb.core.USBTimeoutError:
             return 0
-        except usb.core.USBError as exc:
+        except self._usb.core.USBError as exc:
             raise self._fail(f"read failed: {usb_reason(exc)}") from None
         self._buffer += data
         return len(data)
@@ -377,30 +373,22 @@ class Serial(VirtualLine, SerialBase):
             return 0
         timeout_s = self._write_timeout
         limit_ms = self._url.timeout_ms if timeout_s is None else max(1, math.ceil(timeout_s * 1000))
-        usb = self._usb
         try:
             return int(self._device.write(self._out_ep.bEndpointAddress, data, timeout=limit_ms))
-        except usb.core.USBTimeoutError:
+        except self._usb.core.USBTimeoutError:
             raise SerialTimeoutException(f"{self._port}: write timed out after {limit_ms} ms") from None
-        except usb.core.USBError as exc:
+        except self._usb.core.USBError as exc:
             raise self._fail(f"write failed: {usb_reason(exc)}") from None
 
     # -- closing and the rest ----------------------------------------------------
     def close(self) -> None:
         self.is_open = False
         self._release()
-        self._buffer.clear()
-
-
-def _streaming(usb) -> tuple[int, int]:  # type: ignore[no-untyped-def]
-    return usb.util.ENDPOINT_TYPE_BULK, usb.util.ENDPOINT_TYPE_INTR
+        self._buffer = bytearray()
 
 
 def _first_ep(usb, interface, direction: int):  # type: ignore[no-untyped-def]
     """The first bulk or interrupt endpoint of ``interface`` in ``direction``, or None."""
-
-    def streams(e) -> bool:  # type: ignore[no-untyped-def]
-        return (usb.util.endpoint_direction(e.bEndpointAddress) == direction
-                and usb.util.endpoint_type(e.bmAttributes) in _streaming(usb))  # fmt: skip
-
-    return usb.util.find_descriptor(interface, custom_match=streams)
+    return usb.util.find_descriptor(interface, custom_match=lambda e: (
+        usb.util.endpoint_direction(e.bEndpointAddress) == direction
+        and usb.util.endpoint_type(e.bmAttributes) in _STREAMING))  # fmt: skip
