@@ -8,6 +8,7 @@ imports numpy; pyserial is imported when a port is opened.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import shutil
@@ -247,6 +248,7 @@ class EmulatorProcess(contextlib.AbstractContextManager):
             t.join(timeout=2)
 
 
+@dataclasses.dataclass(eq=False)
 class Emulator(contextlib.AbstractContextManager):
     """The handle of an emulator with a control channel (what ``arva_emulator`` returns).
 
@@ -256,25 +258,15 @@ class Emulator(contextlib.AbstractContextManager):
     (docs/hil_testing.md) and raises :class:`ControlReplyError` on an error reply.
     """
 
-    def __init__(
-        self,
-        process: EmulatorProcess,
-        client: ControlClient,
-        ports: dict[str, str],
-        scene_path: str | None,
-        seed: int | None,
-        artefacts: Path | None = None,
-        cleanup: Sequence[str | Path] = (),
-    ) -> None:
-        self.process = process
-        self.client = client
-        self.ports = ports
-        self.scene_path = scene_path
-        self.seed = seed
-        #: The folder with stream captures, transcript, symlinks while running (see :meth:`start`).
-        self.artefacts = artefacts
-        self._cleanup = list(cleanup)  # folders removed at stop
-        self._stopped = False
+    process: EmulatorProcess
+    client: ControlClient
+    ports: dict[str, str]
+    scene_path: str | None
+    seed: int | None
+    #: The folder with stream captures, transcript, symlinks while running (see :meth:`start`).
+    artefacts: Path | None = None
+    _cleanup: list = dataclasses.field(default_factory=list)  # folders removed at stop
+    _stopped: bool = False
 
     @classmethod
     def start(
@@ -298,7 +290,7 @@ class Emulator(contextlib.AbstractContextManager):
         """
         import tempfile
 
-        from emulator.testing.scenes import first_receiver_label, scene_file
+        from emulator.testing.scene_toml import first_receiver_label, scene_file
 
         work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="arva-emu-"))
         work.mkdir(parents=True, exist_ok=True)

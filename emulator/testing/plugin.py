@@ -68,7 +68,7 @@ def _stop_all(request: pytest.FixtureRequest, started: list, folders: list) -> N
 
 def recorded_scene_text(path: str | None) -> str:
     """The scene's text for the JUnit report (at most :data:`MAX_RECORDED_SCENE` bytes)."""
-    from emulator.testing.scenes import scene_text
+    from emulator.testing.scene_toml import scene_text
 
     try:
         text = scene_text(path)
