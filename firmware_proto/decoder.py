@@ -90,32 +90,27 @@ def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva 
         return ErrorKind.BAD_CHECKSUM
     parts = body.split(b",")
     addr = parts[0]
+    if addr not in (b"PARVA", b"PARVH"):
+        return ErrorKind.UNKNOWN_SENTENCE
+    if len(parts) != 7:
+        return ErrorKind.MALFORMED
     if addr == b"PARVA":
-        if len(parts) != 7:
+        if not all(_INT.fullmatch(p) for p in parts[1:]):
             return ErrorKind.MALFORMED
-        for p in parts[1:]:
-            if _INT.fullmatch(p) is None:
-                return ErrorKind.MALFORMED
         seq, n, k, tx_id, d, delta = map(int, parts[1:])
         if not (0 <= seq < SEQ_MODULO and 1 <= n <= MAX_CHANNELS and 1 <= k <= n and _slot_ok(tx_id, d, delta, max_d_cm)):
             return ErrorKind.OUT_OF_RANGE
         return Parva(offset, seq, n, k, tx_id, d, delta)
-    if addr == b"PARVH":
-        if len(parts) != 7:
-            return ErrorKind.MALFORMED
-        for p in parts[1:4]:
-            if _INT.fullmatch(p) is None:
-                return ErrorKind.MALFORMED
-        for p in parts[4:]:
-            if len(p) > MAX_FIELD_TEXT or _FLOAT.fullmatch(p) is None:
-                return ErrorKind.MALFORMED
-        seq, k, tx_id = map(int, parts[1:4])
-        h = (float(parts[4]), float(parts[5]), float(parts[6]))
-        in_range = 0 <= seq < SEQ_MODULO and 1 <= k <= MAX_CHANNELS and (tx_id == -1 or 0 <= tx_id <= MAX_ID)
-        if not (in_range and all(map(isfinite, h))):
-            return ErrorKind.OUT_OF_RANGE
-        return Parvh(offset, seq, k, tx_id, h)
-    return ErrorKind.UNKNOWN_SENTENCE
+    if not all(_INT.fullmatch(p) for p in parts[1:4]):
+        return ErrorKind.MALFORMED
+    if not all(len(p) <= MAX_FIELD_TEXT and _FLOAT.fullmatch(p) for p in parts[4:]):
+        return ErrorKind.MALFORMED
+    seq, k, tx_id = map(int, parts[1:4])
+    h = (float(parts[4]), float(parts[5]), float(parts[6]))
+    in_range = 0 <= seq < SEQ_MODULO and 1 <= k <= MAX_CHANNELS and (tx_id == -1 or 0 <= tx_id <= MAX_ID)
+    if not (in_range and all(map(isfinite, h))):
+        return ErrorKind.OUT_OF_RANGE
+    return Parvh(offset, seq, k, tx_id, h)
 
 
 class Decoder:
