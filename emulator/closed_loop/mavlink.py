@@ -36,8 +36,6 @@ HEARTBEAT_PERIOD_S = 1.0
 #: Positions without attitude (or the reverse) this long earn one warning.
 WARN_AFTER_S = 2.0
 
-__all__ = ["MavlinkPoseSource", "Pose", "attitude_euler_to_flu_enu", "frd_ned_to_flu_enu", "ned_to_enu"]
-
 
 @dataclass(frozen=True)
 class Pose:

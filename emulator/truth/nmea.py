@@ -13,7 +13,6 @@
   (0 no position, 1 non-RTK fix, 2 RTK) and INS status flag (0 not aligned, 1 aligned).
   Angles follow :mod:`emulator.frames.attitude` (heading clockwise from true north,
   pitch positive nose up, roll positive right side down; intrinsic Z-Y-X on NED/FRD).
-  Its conversions are re-exported here.
 
 Every sentence is assembled by ``pynmeagps.NMEAMessage(talker, msgID, GET, payload=...)``
 (a self-check of each field, and the checksum) from field strings formatted here;
@@ -39,12 +38,7 @@ from pynmeagps.nmeatypes_core import GET
 
 from firmware_proto.errors import InputError, PoseError
 
-from emulator.frames.attitude import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
-
-__all__ = [
-    "KNOTS_PER_MPS", "gga_sentence", "gps_sentences", "hpr_to_quaternion", "pashr_from_quaternion",
-    "pashr_from_quaternions", "pashr_sentence", "quaternion_to_hpr", "rmc_sentence", "speed_course_from_enu"
-]
+from emulator.frames.attitude import quaternion_to_hpr, wrap_heading
 
 #: 1 knot = 1852 m / 3600 s exactly.
 KNOTS_PER_MPS = 3600.0 / 1852.0
@@ -220,7 +214,7 @@ def rmc_sentence(
         status,
         *_position(lat, lon, lat_lon_decimals),
         "" if speed is None else f"{speed:.3f}",
-        "" if cog is None else _course_text(cog),
+        "" if cog is None else _degrees_true(cog, 1),
         f"{t.day:02d}{t.month:02d}{t.year % 100:02d}",
         "",  # magnetic variation: ground truth is true north only
         "",
@@ -229,9 +223,10 @@ def rmc_sentence(
     return _serialize(_talker(talker), "RMC", fields)
 
 
-def _course_text(cog: float) -> str:
-    hundredths = math.floor(cog * 100.0 + 0.5) % 36000  # 359.996 prints as 0.00, not 360.00
-    return f"{hundredths // 100}.{hundredths % 100:02d}"
+def _degrees_true(angle: float, digits: int) -> str:
+    """``angle`` to 0.01 deg in [0, 360), at least ``digits`` before the point."""
+    hundredths = math.floor(angle * 100.0 + 0.5) % 36000  # 359.996 prints as 0.00, not 360.00
+    return f"{hundredths // 100:0{digits}d}.{hundredths % 100:02d}"
 
 
 def gps_sentences(
@@ -280,10 +275,9 @@ def pashr_sentence(
     are 1-sigma degrees, None for an empty field.
     """
     t = _utc(utc, 1_000)
-    hundredths = math.floor(_number(heading, "heading") * 100.0 + 0.5) % 36000
     fields = [
         _hhmmss(t, 3),
-        f"{hundredths // 100:03d}.{hundredths % 100:02d}",
+        _degrees_true(_number(heading, "heading"), 3),
         "T",
         _signed(roll, "roll"),
         _signed(pitch, "pitch"),
