@@ -269,16 +269,9 @@ class Emulator(contextlib.AbstractContextManager):
     _stopped: bool = False
 
     @classmethod
-    def start(
-        cls,
-        scene: str | Path | dict | None = None,
-        clock: str = "step",
-        speed: float = 1.0,
-        workdir: str | Path | None = None,
-        arva_port: str | None = None,
-        extra_args: Sequence[str] = (),
-        timeout: float = 10.0,
-    ) -> "Emulator":
+    def start(cls, scene: str | Path | dict | None = None, clock: str = "step", speed: float = 1.0,
+              workdir: str | Path | None = None, arva_port: str | None = None, extra_args: Sequence[str] = (),
+              timeout: float = 10.0) -> "Emulator":
         """Start ``arva-emulate --port pty --control unix:... --clock CLOCK``.
 
         ``scene``: a scene file, a dict with the TOML structure (written to ``workdir``)

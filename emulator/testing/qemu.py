@@ -75,14 +75,8 @@ def build_firmware(source_dir: str | Path, out_dir: str | Path, target: str = "s
 class Board(AbstractContextManager):
     """``qemu-system-arm`` running one firmware; see the module docstring."""
 
-    def __init__(
-        self,
-        firmware: str | Path,
-        workdir: str | Path,
-        machine: str = "mps2-an385",
-        icount: int | None = None,
-        timeout: float = 10.0,
-    ) -> None:
+    def __init__(self, firmware: str | Path, workdir: str | Path, machine: str = "mps2-an385",
+                 icount: int | None = None, timeout: float = 10.0) -> None:
         if shutil.which(QEMU) is None:
             raise ToolMissing(QEMU)
         firmware = Path(firmware)

@@ -153,11 +153,7 @@ def measure_one(
 
     A thin wrapper over :func:`measure`, so both share one implementation.
     """
-    meas = measure(
-        np.asarray(rx_position, dtype=np.float64)[None],
-        np.asarray(rx_orientation, dtype=np.float64)[None],
-        np.asarray(tx_position, dtype=np.float64)[None],
-        np.asarray(tx_orientation, dtype=np.float64)[None],
-        params,
-    )
+    rx_p, rx_q, tx_p, tx_q = (np.asarray(a, dtype=np.float64)[None]
+                              for a in (rx_position, rx_orientation, tx_position, tx_orientation))
+    meas = measure(rx_p, rx_q, tx_p, tx_q, params)
     return int(meas.d[0, 0]), int(meas.delta[0, 0])
