@@ -134,12 +134,7 @@ class Decoder:
         self.assembler = EpochAssembler(self.stats, expect_fields=expect_fields)
         self._partial = b""  # open sentence (starts with '$', at most 81 bytes)
         self._partial_offset = 0
-        self._offset = 0  # stream offset of the next byte fed
-
-    @property
-    def offset(self) -> int:
-        """Number of bytes fed so far."""
-        return self._offset
+        self.offset = 0  #: number of bytes fed so far (the stream offset of the next one)
 
     def feed(self, data: bytes) -> list[Event]:
         """Decode the next chunk of the stream; return the events it completes, in order."""
@@ -154,8 +149,8 @@ class Decoder:
             self._partial = b""
         else:
             buf = data
-            base = self._offset
-        self._offset += len(data)
+            base = self.offset
+        self.offset += len(data)
 
         pieces = buf.split(b"\n")
         tail = pieces.pop()
