@@ -27,8 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from emulator.cli_types import BAUD_LIMITS
-from emulator.scene.limits import MAX_VEHICLE_COORD_M, VEHICLE_LIMITS
-from emulator.scene.tables import TableReader
+from emulator.scene.tables import MAX_VEHICLE_COORD_M, VEHICLE_LIMITS, TableReader
 from emulator.schema import Int, Number, Strict, Text, Vector2, Vector3
 
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")

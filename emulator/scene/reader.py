@@ -30,8 +30,10 @@ from emulator.receiver.model import ModelParams
 from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
-from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S
-from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint, toml_document, toml_file
+from emulator.scene.tables import (
+    MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S, Posed, ReceiverTable, SceneTable, TableReader, Waypoint,
+    toml_document, toml_file,
+)
 from emulator.scene.types import (
     SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter, arva_labels, truth_streams,
 )

@@ -147,14 +147,9 @@ class EmulatorProcess(contextlib.AbstractContextManager):
 
     def __init__(self, *args: str, streams: int = 1, timeout: float = 10.0, env: dict | None = None) -> None:
         self.args = list(args)
-        self.proc = subprocess.Popen(
-            module_command("emulator.cli", *args),
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            bufsize=0,
-            env=module_env(env),
-            preexec_fn=end_with_parent,  # no orphan holding ptys after a killed test run
+        self.proc = subprocess.Popen(  # end_with_parent: no orphan holding ptys after a killed test run
+            module_command("emulator.cli", *args), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE, bufsize=0, env=module_env(env), preexec_fn=end_with_parent,
         )
         self.ports: dict[str, str] = {}
         self.control: str | None = None
@@ -169,9 +164,10 @@ class EmulatorProcess(contextlib.AbstractContextManager):
         for t in self._readers:
             t.start()
         want_control = "--control" in args
+        missing = lambda: len(self.ports) < streams or (want_control and self.control is None)  # noqa: E731
         deadline = time.monotonic() + timeout
         with self._announced:
-            while len(self.ports) < streams or (want_control and self.control is None):
+            while missing():
                 left = deadline - time.monotonic()
                 if self.proc.poll() is not None:
                     break
@@ -179,7 +175,7 @@ class EmulatorProcess(contextlib.AbstractContextManager):
                     self.kill()
                     raise EmulatorError(f"arva-emulate announced nothing within {timeout} s: {self.stderr()!r}")
                 self._announced.wait(min(left, 0.1))
-        if self.proc.poll() is not None and (len(self.ports) < streams or (want_control and self.control is None)):
+        if self.proc.poll() is not None and missing():
             rc = self.proc.wait()
             time.sleep(0.05)  # let the stderr reader take the last line
             raise EmulatorError(f"arva-emulate exited with status {rc}: {self.stderr().strip()}")

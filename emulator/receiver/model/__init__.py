@@ -1,9 +1,7 @@
 """The receiver model of BRIEF section 3: (d, delta) and zones for N poses x M transmitters.
 
-Units: positions in metres, ``d`` in centimetres, ``delta`` in degrees, the field in
-scene units. Frames (BRIEF 2): world = local ENU in metres; body x forward, y left, z up;
-the transmitter dipole points along its +x; quaternions ``[w, x, y, z]`` rotate body into
-world.
+Units and frames as in :mod:`.types` (metres in the world ENU frame, ``d`` in centimetres,
+``delta`` in degrees, the field in scene units); the transmitter dipole points along its +x.
 
 Here: :func:`measure` (input checks, blocks, threads, which path) and :func:`measure_one`.
 :mod:`.reference` is the formula of BRIEF 3 (the general path); :mod:`.fast` gives the

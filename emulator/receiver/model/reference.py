@@ -1,9 +1,7 @@
 """The reference formula of BRIEF section 3: field, zones and (d, delta) for blocks of pairs.
 
-Units: positions in metres (world frame), ``d`` in centimetres, ``delta`` in degrees, the
-field in scene units. Frames (BRIEF 2): world = local ENU in metres; body x forward, y
-left, z up; the transmitter dipole points along its +x; quaternions ``[w, x, y, z]``
-rotate body into world.
+Units and frames as in :mod:`.types` (metres in the world ENU frame, ``d`` in centimetres,
+``delta`` in degrees, the field in scene units); the transmitter dipole points along its +x.
 
 Written in the scale-free form of docs/model.md section 2 (h = s / (4 pi r^3) u with
 1 <= |u| <= 2, d3 = r cbrt(kappa_eq / s) / cbrt(|u|)), so no intermediate over- or
