@@ -271,10 +271,8 @@ class Emulator(contextlib.AbstractContextManager):
         """Start ``arva-emulate --port pty --control unix:... --clock CLOCK``.
 
         ``scene``: a scene file, a dict with the TOML structure (written to ``workdir``)
-        or None for the embedded default. ``workdir`` (default: a temporary folder,
-        removed by :meth:`stop`) receives the stream captures (``streams/<stream>.bytes``), the control
-        transcript (``control-transcript.txt``) and, while the emulator runs, stable pty symlinks
-        (``pty/<stream>``, removed with the ptys at :meth:`stop`). ``arva_port``
+        or None for the embedded default. ``workdir`` (default: a temporary folder, removed
+        by :meth:`stop`) receives the artefacts docs/hil_testing.md lists. ``arva_port``
         sends the first receiver's stream to that device instead of a pty.
         """
         import tempfile
