@@ -43,10 +43,6 @@ class Parva:
     d: int
     delta: int
 
-    @property
-    def slot(self) -> Slot:
-        return (self.id, self.d, self.delta)
-
 
 @dataclass(frozen=True, slots=True)
 class Parvh:
