@@ -64,14 +64,9 @@ def event_from_json(d: dict[str, Any]) -> Event:
         return DecodeError(ErrorKind[d["kind"]], d["offset"], d["length"])
     if t == "epoch":
         field = d.get("field")
-        return Epoch(
-            d["seq"],
-            d["n"],
-            d["complete"],
-            tuple(None if s is None else tuple(s) for s in d["slots"]),
-            None if field is None else tuple(None if f is None else tuple(float(x) for x in f) for f in field),
-            d["gap"],
-        )
+        slots = tuple(None if s is None else tuple(s) for s in d["slots"])
+        fields = None if field is None else tuple(None if f is None else tuple(float(x) for x in f) for f in field)
+        return Epoch(d["seq"], d["n"], d["complete"], slots, fields, d["gap"])
     raise ValueError(f"unknown event type {t!r}")
 
 
