@@ -217,7 +217,6 @@ class Decoder:
         return out
 
     # -- slow path: exact per-byte semantics, using find/regex search -------------------
-
     def _error(self, kind: ErrorKind, offset: int, length: int, out: list[Event]) -> None:
         self.stats.errors[kind] += 1
         self.assembler.on_error(DecodeError(kind, offset, length), out)

@@ -41,7 +41,6 @@ class EpochAssembler:
         self._last_seq: int | None = None
 
     # -- events ------------------------------------------------------------------------
-
     def on_parva(self, p: Parva, out: list[Event]) -> None:
         cur = self._cur
         if cur is not None:
@@ -89,7 +88,6 @@ class EpochAssembler:
             self._emit(out)
 
     # -- internals -----------------------------------------------------------------------
-
     def _start(self, p: Parva, out: list[Event]) -> None:
         """A new epoch, begun by ``p`` (its slot added by the caller)."""
         last = self._last_seq

@@ -41,8 +41,6 @@ def from_bytes(data: bytes) -> str:
 
 
 # -- events <-> JSON ----------------------------------------------------------------------
-
-
 def event_to_json(ev: Event) -> dict[str, Any]:
     if isinstance(ev, Parva):
         return {"type": "parva", "offset": ev.offset, "seq": ev.seq, "n": ev.n, "k": ev.k,
@@ -71,8 +69,6 @@ def event_from_json(d: dict[str, Any]) -> Event:
 
 
 # -- canonical text (identical to firmware_proto/c/test_support.c) ------------------------
-
-
 def _g(x: float) -> str:
     return "%.17g" % x
 
@@ -99,8 +95,6 @@ def stats_text(stats: DecoderStats | dict[str, int]) -> str:
 
 
 # -- the C table ----------------------------------------------------------------------------
-
-
 def _c_bytes(data: bytes) -> str:
     """A C string literal holding exactly ``data``: printable ASCII as is, everything else
     as a three-digit octal escape (which can never swallow a following digit); split

@@ -256,18 +256,13 @@ def _vehicle(rd: TableReader, r: ReceiverTable, path: str, rate_hz: float) -> Ve
             raise rd.fail(f"{path}.{key}", f"not allowed with {path}.vehicle: {why}")
     source = Path(rd.source)
     vehicle = parse_vehicle(rd, r.vehicle, f"{path}.vehicle", source.parent if source.is_file() else None)
-    ratio = vehicle.control_rate_hz / rate_hz
+    key, got = f"{path}.vehicle.control_rate_hz", vehicle.control_rate_hz
+    ratio = got / rate_hz
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        raise rd.fail(
-            f"{path}.vehicle.control_rate_hz",
-            f"must be a whole multiple of rate_hz = {rate_hz:g}, got {vehicle.control_rate_hz:g}",
-        )
+        raise rd.fail(key, f"must be a whole multiple of rate_hz = {rate_hz:g}, got {got:g}")
     if round(ratio) > MAX_CONTROL_STEPS_PER_EPOCH:
-        raise rd.fail(
-            f"{path}.vehicle.control_rate_hz",
-            f"at most {MAX_CONTROL_STEPS_PER_EPOCH} control steps per epoch (rate_hz = {rate_hz:g}), "
-            f"got {vehicle.control_rate_hz:g} Hz",
-        )
+        raise rd.fail(key, f"at most {MAX_CONTROL_STEPS_PER_EPOCH} control steps per epoch (rate_hz = {rate_hz:g}), "
+                           f"got {got:g} Hz")
     return vehicle
 
 

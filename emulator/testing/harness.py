@@ -318,7 +318,6 @@ class Emulator(contextlib.AbstractContextManager):
         return cls(proc, client, ports, scene_path, seed, work, cleanup)
 
     # --- the control requests -----------------------------------------------------------
-
     @property
     def port(self) -> str:
         """The first receiver's port."""
@@ -373,7 +372,6 @@ class Emulator(contextlib.AbstractContextManager):
         return serial.Serial(self.ports[label] if label else self.port, timeout=timeout)
 
     # --- stopping -----------------------------------------------------------------------
-
     def stop(self, timeout: float = 10.0) -> int:
         """``quit``, wait for the exit (SIGTERM, then SIGKILL if it hangs); exit status."""
         if self._stopped:

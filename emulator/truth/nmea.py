@@ -47,8 +47,6 @@ _FAA_MODES = frozenset("ADEFMNPRS")
 
 
 # ---------------------------------------------------------------------------- field checks
-
-
 def _number(value: object, field: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise InputError(f"{field}: must be a number, got {value!r}")
@@ -136,8 +134,6 @@ def _serialize(talker: str, msg_id: str, fields: list[str]) -> bytes:
 
 
 # ---------------------------------------------------------------------------- GPS
-
-
 def speed_course_from_enu(v_east: float, v_north: float) -> tuple[float, float | None]:
     """(speed over ground in knots, course over ground in degrees true [0, 360) or None).
 
@@ -248,8 +244,6 @@ def gps_sentences(
 
 
 # ---------------------------------------------------------------------------- attitude
-
-
 def _signed(value: float, field: str) -> str:
     return f"{_number(value, field):+06.2f}"
 

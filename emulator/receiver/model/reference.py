@@ -56,8 +56,6 @@ def norm3(x, y, z):
 
 
 # -- Driving blocks: poses of a call, or pairs a fast path left undecided ---------------
-
-
 def measure_poses(batch: Batch, first: int, last: int) -> None:
     """Poses first..last-1 of ``batch`` on the general path, block by block, with buffers
     of their own (so threads may run disjoint ranges).
@@ -162,8 +160,6 @@ class Scratch:
 
 
 # -- One block of pairs ----------------------------------------------------------------
-
-
 def measure_block(rx, rr, tx, tm, f, params, noise, d_out, delta_out, zone_out, field_out, scratch):
     """One block of pairs. Every array argument broadcasts to the block's 2-D shape.
 
