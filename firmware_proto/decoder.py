@@ -167,21 +167,11 @@ class Decoder:
             if m is not None:
                 seq, nn, k, tx_id, d, delta, hh = m.groups()
                 cs = px[pos + n - 5] ^ px[pos] if px is not None else reduce(xor, piece[1:-4], 0)
-                seq = int(seq)
-                nn = _SMALL[nn]
-                k = _SMALL[k]
-                tx_id = int(tx_id)
-                d = int(d)
-                delta = _SMALL[delta]
-                if (
-                    cs == _HEX[hh]
-                    and seq < SEQ_MODULO
-                    and nn <= MAX_CHANNELS
-                    and k <= nn
-                    and (
-                        (0 <= tx_id <= MAX_ID and 0 <= d <= max_d and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA)
-                        or (tx_id == -1 and d == -1 and delta == -1)
-                    )
+                seq, tx_id, d = int(seq), int(tx_id), int(d)
+                nn, k, delta = _SMALL[nn], _SMALL[k], _SMALL[delta]
+                if cs == _HEX[hh] and seq < SEQ_MODULO and nn <= MAX_CHANNELS and k <= nn and (
+                    (0 <= tx_id <= MAX_ID and 0 <= d <= max_d and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA)
+                    or (tx_id == -1 and d == -1 and delta == -1)
                 ):
                     stats.sentences_ok += 1
                     on_parva(_new_parva(base + pos, seq, nn, k, tx_id, d, delta), out)
