@@ -99,18 +99,11 @@ def summarize(case: int, result: RunResult) -> dict:
     found = result.found()[0]
     i_max = int(np.argmax(dist))
     return {
-        "case": case,
-        "start_m": float(dist[0]),
-        "max_m": float(dist[i_max]),
-        "t_max_s": float(result.t[i_max]),
-        "growth": float(dist[i_max] / dist[0]),
-        "final_m": float(dist[-1]),
-        "final_horizontal_m": float(horiz[-1]),
-        "located": found["found"],
-        "t_located_s": found["t"],
-        "error_m": found["error_m"],
-        "path_m": result.path_length,
-        "wall_s": result.wall_s,
+        "case": case, "start_m": float(dist[0]), "max_m": float(dist[i_max]),
+        "t_max_s": float(result.t[i_max]), "growth": float(dist[i_max] / dist[0]),
+        "final_m": float(dist[-1]), "final_horizontal_m": float(horiz[-1]),
+        "located": found["found"], "t_located_s": found["t"], "error_m": found["error_m"],
+        "path_m": result.path_length, "wall_s": result.wall_s,
     }
 
 
