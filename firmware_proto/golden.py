@@ -137,12 +137,8 @@ def c_table() -> str:
     slot_arrays = []
     enc = []
     for i, case in enumerate(load("encode")):
-        kind = case["sentence"]
-        args = case["args"]
-        expect = case["bytes"]
-        doubles = ["0.0"] * 3
-        slots = "0"
-        nslots = 0
+        kind, args, expect = case["sentence"], case["args"], case["bytes"]
+        doubles, slots, nslots = ["0.0"] * 3, "0", 0
         if kind == "parva":
             ints = [str(int(a)) for a in args]
         elif kind == "parvh":

@@ -205,17 +205,10 @@ def rmc_sentence(
     if not (isinstance(mode, str) and len(mode) == 1 and mode in _FAA_MODES):
         raise InputError(f"mode: must be one FAA mode letter of {''.join(sorted(_FAA_MODES))}, got {mode!r}")
     status, faa = ("A", mode) if valid else ("V", "N")
-    fields = [
-        _hhmmss(t, 2),
-        status,
-        *_position(lat, lon, lat_lon_decimals),
-        "" if speed is None else f"{speed:.3f}",
-        "" if cog is None else _degrees_true(cog, 1),
-        f"{t.day:02d}{t.month:02d}{t.year % 100:02d}",
-        "",  # magnetic variation: ground truth is true north only
-        "",
-        faa,
-    ]
+    fields = [_hhmmss(t, 2), status, *_position(lat, lon, lat_lon_decimals),
+              "" if speed is None else f"{speed:.3f}", "" if cog is None else _degrees_true(cog, 1),
+              f"{t.day:02d}{t.month:02d}{t.year % 100:02d}",
+              "", "", faa]  # no magnetic variation: ground truth is true north only
     return _serialize(_talker(talker), "RMC", fields)
 
 
@@ -270,17 +263,11 @@ def pashr_sentence(
     """
     t = _utc(utc, 1_000)
     fields = [
-        _hhmmss(t, 3),
-        _degrees_true(_number(heading, "heading"), 3),
-        "T",
-        _signed(roll, "roll"),
-        _signed(pitch, "pitch"),
-        _signed(heave, "heave"),
-        _accuracy(roll_accuracy, "roll_accuracy"),
-        _accuracy(pitch_accuracy, "pitch_accuracy"),
+        _hhmmss(t, 3), _degrees_true(_number(heading, "heading"), 3), "T",
+        _signed(roll, "roll"), _signed(pitch, "pitch"), _signed(heave, "heave"),
+        _accuracy(roll_accuracy, "roll_accuracy"), _accuracy(pitch_accuracy, "pitch_accuracy"),
         _accuracy(heading_accuracy, "heading_accuracy"),
-        str(_integer(gps_quality, "gps_quality", 0, 9)),
-        str(_integer(ins_status, "ins_status", 0, 9)),
+        str(_integer(gps_quality, "gps_quality", 0, 9)), str(_integer(ins_status, "ins_status", 0, 9)),
     ]
     return _serialize("P", "ASHR", fields)
 
