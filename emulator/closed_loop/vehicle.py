@@ -79,12 +79,9 @@ class GridTerrain:
         if path.suffix.lower() == ".npy":
             z = np.load(path, allow_pickle=False)
         else:
-            rows = []
             with path.open(newline="") as f:
-                for line in csv.reader(f):
-                    if not line or line[0].lstrip().startswith("#"):
-                        continue
-                    rows.append([float(v) for v in line])
+                lines = [line for line in csv.reader(f) if line and not line[0].lstrip().startswith("#")]
+            rows = [[float(v) for v in line] for line in lines]
             if len({len(r) for r in rows}) > 1:
                 raise ValueError("rows of the terrain CSV have different lengths")
             z = np.array(rows, dtype=np.float64)

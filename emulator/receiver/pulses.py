@@ -141,21 +141,17 @@ class PulseEffect:
             seed = np.random.SeedSequence().entropy
         self.seed = seed
         lo, hi = config.period_ms
-        periods = np.empty(ids.size)
-        phases = np.empty(ids.size)
+        self.periods_s, self.phases_s = np.empty((2, ids.size))
         for j, tx_id in enumerate(ids.tolist()):
             # Three draws for every transmitter, used or not, so an override of one
             # setting never shifts the others.
             u_period, u_drift, u_phase = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_TAG, tx_id))).random(3)
             nominal = config.periods_ms.get(tx_id, lo + (hi - lo) * u_period)
             period = nominal * (1.0 + config.drift_ppm * 1e-6 * (2.0 * u_drift - 1.0))
-            periods[j] = period / 1000.0
+            self.periods_s[j] = period / 1000.0
             phase_ms = config.phases_ms.get(tx_id)
-            phases[j] = (u_phase * period if phase_ms is None else phase_ms) / 1000.0
-        self.periods_s = periods
-        self.phases_s = phases
-        self.pulses_ended = 0
-        self.pulses_hidden = 0
+            self.phases_s[j] = (u_phase * period if phase_ms is None else phase_ms) / 1000.0
+        self.pulses_ended = self.pulses_hidden = 0
 
     def stats(self) -> dict[str, int]:
         return {"pulses_ended": self.pulses_ended, "pulses_hidden": self.pulses_hidden}
