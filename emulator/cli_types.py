@@ -352,9 +352,8 @@ def output_dir(text: str) -> Path:
     return path
 
 
-def scene_file(text: str) -> Path:
-    """``--scene``: an existing, readable scene file (``''`` is an error, not the default)."""
-    return input_file(text)
+#: ``--scene``: an existing, readable scene file (``''`` is an error, not the default).
+scene_file = input_file
 
 
 # --------------------------------------------------------------------------- devices

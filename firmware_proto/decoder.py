@@ -66,12 +66,6 @@ def _fast_constructor(cls: type, names: tuple[str, ...]):  # type: ignore[no-unt
 _new_parva = _fast_constructor(Parva, ("offset", "seq", "n", "k", "id", "d", "delta"))
 
 
-def _slot_ok(tx_id: int, d: int, delta: int, max_d_cm: int = MAX_D_CM) -> bool:
-    if tx_id == -1 and d == -1 and delta == -1:
-        return True
-    return 0 <= tx_id <= MAX_ID and 0 <= d <= max_d_cm and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA
-
-
 def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva | Parvh | ErrorKind:
     """Parse one complete line ``$...\\r\\n`` as delimited by the framing machine.
 
@@ -98,7 +92,9 @@ def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva 
         if not all(_INT.fullmatch(p) for p in parts[1:]):
             return ErrorKind.MALFORMED
         seq, n, k, tx_id, d, delta = map(int, parts[1:])
-        if not (0 <= seq < SEQ_MODULO and 1 <= n <= MAX_CHANNELS and 1 <= k <= n and _slot_ok(tx_id, d, delta, max_d_cm)):
+        slot_ok = (tx_id == -1 and d == -1 and delta == -1) or (
+            0 <= tx_id <= MAX_ID and 0 <= d <= max_d_cm and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA)
+        if not (0 <= seq < SEQ_MODULO and 1 <= n <= MAX_CHANNELS and 1 <= k <= n and slot_ok):
             return ErrorKind.OUT_OF_RANGE
         return Parva(offset, seq, n, k, tx_id, d, delta)
     if not all(_INT.fullmatch(p) for p in parts[1:4]):

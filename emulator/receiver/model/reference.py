@@ -326,7 +326,9 @@ def _zones(dxy, params, inner_all, zone_out, k_mid, o_out, m2):
 def _write_distance(dist, params, k_mid, o_out, v, d_out):
     """d = round(100 dist) in cm (halves away from zero), -1 for outer pairs."""
     dist *= 100.0
-    if _round_half_up_exact(dist, params):
+    # floor(x + 0.5) rounds every inner/mid value (cm, >= 0, at most 100 max(r_inner,
+    # r_outer)) exactly below 2^52 except x = 0.49999999999999994; outer values become -1.
+    if 100.0 * max(params.r_inner, params.r_outer) < 2.0**52 and not np.equal(dist, _BELOW_HALF).any():
         np.add(dist, 0.5, out=v)
         np.floor(v, out=v)
     else:
@@ -373,17 +375,6 @@ def _write_field(g, field_scale, at_tx, shape, params, field_out):
         np.clip(h, -FIELD_SATURATION, FIELD_SATURATION, out=field_out[i])
     if params.antennas == 2:
         field_out[2][...] = 0.0  # no z antenna: a 2-antenna unit cannot report h_z
-
-
-def _round_half_up_exact(x, params) -> bool:
-    """True when floor(x + 0.5) rounds every inner/mid value of ``x`` (cm, >= 0) exactly.
-
-    Such values are <= 100 max(r_inner, r_outer); floor(x + 0.5) is exact below 2^52
-    except at x = 0.49999999999999994. Outer values (any) are replaced by -1 later.
-    """
-    if 100.0 * max(params.r_inner, params.r_outer) >= 2.0**52:
-        return False
-    return not np.equal(x, _BELOW_HALF).any()
 
 
 def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
