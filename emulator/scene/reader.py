@@ -151,9 +151,7 @@ def _check_quantized_range(rd: TableReader, model: ModelParams, cfg: QuantizeCon
 
 def _ground_truth(rd: TableReader, doc: SceneTable, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
     """``[origin]`` (geodetic, for GPS) and ``[ground_truth]`` (stream settings)."""
-    origin = None
-    if doc.origin is not None:
-        origin = rd.build("", Origin, **given(doc.origin))
+    origin = None if doc.origin is None else rd.build("", Origin, **given(doc.origin))
     g = doc.ground_truth
     start = GroundTruthSpec().start_utc if g.start_utc is None else g.start_utc
     if isinstance(start, str):
