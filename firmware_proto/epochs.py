@@ -50,7 +50,7 @@ class EpochAssembler:
                 return
             self._emit(out)
         out.append(p)
-        self._start(p, out)
+        self._start(p)
         self._add(p, out)
 
     def on_parvh(self, h: Parvh, out: list[Event]) -> None:
@@ -88,7 +88,7 @@ class EpochAssembler:
             self._emit(out)
 
     # -- internals -----------------------------------------------------------------------
-    def _start(self, p: Parva, out: list[Event]) -> None:
+    def _start(self, p: Parva) -> None:
         """A new epoch, begun by ``p`` (its slot added by the caller)."""
         last = self._last_seq
         gap = 0
