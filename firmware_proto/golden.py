@@ -63,7 +63,7 @@ def event_from_json(d: dict[str, Any]) -> Event:
     if t == "epoch":
         field = d.get("field")
         slots = tuple(None if s is None else tuple(s) for s in d["slots"])
-        fields = None if field is None else tuple(None if f is None else tuple(float(x) for x in f) for f in field)
+        fields = None if field is None else tuple(None if f is None else tuple(map(float, f)) for f in field)
         return Epoch(d["seq"], d["n"], d["complete"], slots, fields, d["gap"])
     raise ValueError(f"unknown event type {t!r}")
 

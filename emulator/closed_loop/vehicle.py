@@ -151,8 +151,8 @@ class UAV:
     ``ground_contacts``). State is plain floats: one step costs about a microsecond.
     """
 
-    def __init__(self, terrain: Terrain, start: tuple[float, float], start_height: float, yaw_deg: float = 0.0,
-                 v_max: float = 1.0, v_z_max: float = 2.0, range_sigma_m: float = 0.0,
+    def __init__(self, terrain: Terrain, start: tuple[float, float], start_height: float,
+                 yaw_deg: float = 0.0, v_max: float = 1.0, v_z_max: float = 2.0, range_sigma_m: float = 0.0,
                  rng: np.random.Generator | None = None) -> None:
         self.terrain = terrain
         self.x, self.y = float(start[0]), float(start[1])

@@ -259,8 +259,8 @@ def _vehicle(rd: TableReader, r: ReceiverTable, path: str, rate_hz: float) -> Ve
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
         raise rd.fail(key, f"must be a whole multiple of rate_hz = {rate_hz:g}, got {got:g}")
     if round(ratio) > MAX_CONTROL_STEPS_PER_EPOCH:
-        raise rd.fail(key, f"at most {MAX_CONTROL_STEPS_PER_EPOCH} control steps per epoch (rate_hz = {rate_hz:g}), "
-                           f"got {got:g} Hz")
+        raise rd.fail(key, f"at most {MAX_CONTROL_STEPS_PER_EPOCH} control steps per epoch "
+                           f"(rate_hz = {rate_hz:g}), got {got:g} Hz")
     return vehicle
 
 

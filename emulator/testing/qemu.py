@@ -25,6 +25,7 @@ from pathlib import Path
 import firmware_proto
 
 from emulator.child_process import end_with_parent
+from emulator.output.ports import file_name
 
 from .harness import Emulator, EmulatorError
 
@@ -234,7 +235,7 @@ class FirmwareLoop(AbstractContextManager):
 
     def captured(self, stream: str = "arva") -> bytes:
         """Every byte the emulator offered the firmware's UART0 so far (after faults)."""
-        path = self.emu.artefacts / "streams" / f"{stream.replace(':', '-')}.bytes"
+        path = self.emu.artefacts / "streams" / f"{file_name(stream)}.bytes"
         return path.read_bytes() if path.exists() else b""
 
     def stop(self) -> None:
