@@ -78,9 +78,7 @@ class QuantizeConfig:
                     f"({self.d_step_far_cm}) so displayed distances stay monotone, got {self.d_far_cm}"
                 )
         if self.delta_step_deg is None and self.d_step_cm is None and self.d_far_cm is None:
-            raise InputError(
-                f"quantize.profile: give a profile ({', '.join(PROFILES)}) or at least one step"
-            )
+            raise InputError(f"quantize.profile: give a profile ({', '.join(PROFILES)}) or at least one step")
 
 
 class QuantizeEffect:
