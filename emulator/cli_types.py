@@ -189,17 +189,15 @@ def utf8_text(text: str) -> str:
 ALT_LIMITS = (-12_000.0, 100_000.0)
 
 
+#: (name, lo, hi, unit) of each value of a pose: latitude, longitude, altitude, then angles.
+_POSE_RANGES = (("latitude", -90.0, 90.0, "degrees"), ("longitude", -180.0, 360.0, "degrees"),
+                ("altitude", *ALT_LIMITS, "m")) + (("angles", -360.0, 360.0, "degrees"),) * 3
+
+
 def _geodetic(values: tuple[float, ...], text: str, what: str) -> tuple[float, ...]:
-    lat, lon = values[0], values[1]
-    if not -90.0 <= lat <= 90.0:
-        _fail(f"{what}: latitude must be within -90..90 degrees, got {lat:g}")
-    if not -180.0 <= lon <= 360.0:
-        _fail(f"{what}: longitude must be within -180..360 degrees, got {lon:g}")
-    if len(values) > 2 and not ALT_LIMITS[0] <= values[2] <= ALT_LIMITS[1]:
-        _fail(f"{what}: altitude must be within {ALT_LIMITS[0]:g}..{ALT_LIMITS[1]:g} m, got {values[2]:g}")
-    for angle in values[3:]:
-        if not -360.0 <= angle <= 360.0:
-            _fail(f"{what}: angles must be within -360..360 degrees, got {angle:g}")
+    for (name, lo, hi, unit), value in zip(_POSE_RANGES, values):
+        if not lo <= value <= hi:
+            _fail(f"{what}: {name} must be within {lo:g}..{hi:g} {unit}, got {value:g}")
     return values
 
 
@@ -354,9 +352,8 @@ def output_dir(text: str) -> Path:
     return path
 
 
-def scene_file(text: str) -> Path:
-    """``--scene``: an existing, readable scene file (``''`` is an error, not the default)."""
-    return input_file(text)
+#: ``--scene``: an existing, readable scene file (``''`` is an error, not the default).
+scene_file = input_file
 
 
 # --------------------------------------------------------------------------- devices

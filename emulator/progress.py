@@ -16,8 +16,6 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["Tracker", "progress", "stderr_is_terminal"]
-
 
 def stderr_is_terminal(stream=None) -> bool:
     stream = sys.stderr if stream is None else stream

@@ -66,12 +66,6 @@ def _fast_constructor(cls: type, names: tuple[str, ...]):  # type: ignore[no-unt
 _new_parva = _fast_constructor(Parva, ("offset", "seq", "n", "k", "id", "d", "delta"))
 
 
-def _slot_ok(tx_id: int, d: int, delta: int, max_d_cm: int = MAX_D_CM) -> bool:
-    if tx_id == -1 and d == -1 and delta == -1:
-        return True
-    return 0 <= tx_id <= MAX_ID and 0 <= d <= max_d_cm and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA
-
-
 def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva | Parvh | ErrorKind:
     """Parse one complete line ``$...\\r\\n`` as delimited by the framing machine.
 
@@ -90,32 +84,29 @@ def parse_line(line: bytes, offset: int = 0, max_d_cm: int = MAX_D_CM) -> Parva 
         return ErrorKind.BAD_CHECKSUM
     parts = body.split(b",")
     addr = parts[0]
+    if addr not in (b"PARVA", b"PARVH"):
+        return ErrorKind.UNKNOWN_SENTENCE
+    if len(parts) != 7:
+        return ErrorKind.MALFORMED
     if addr == b"PARVA":
-        if len(parts) != 7:
+        if not all(_INT.fullmatch(p) for p in parts[1:]):
             return ErrorKind.MALFORMED
-        for p in parts[1:]:
-            if _INT.fullmatch(p) is None:
-                return ErrorKind.MALFORMED
         seq, n, k, tx_id, d, delta = map(int, parts[1:])
-        if not (0 <= seq < SEQ_MODULO and 1 <= n <= MAX_CHANNELS and 1 <= k <= n and _slot_ok(tx_id, d, delta, max_d_cm)):
+        slot_ok = (tx_id == -1 and d == -1 and delta == -1) or (
+            0 <= tx_id <= MAX_ID and 0 <= d <= max_d_cm and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA)
+        if not (0 <= seq < SEQ_MODULO and 1 <= n <= MAX_CHANNELS and 1 <= k <= n and slot_ok):
             return ErrorKind.OUT_OF_RANGE
         return Parva(offset, seq, n, k, tx_id, d, delta)
-    if addr == b"PARVH":
-        if len(parts) != 7:
-            return ErrorKind.MALFORMED
-        for p in parts[1:4]:
-            if _INT.fullmatch(p) is None:
-                return ErrorKind.MALFORMED
-        for p in parts[4:]:
-            if len(p) > MAX_FIELD_TEXT or _FLOAT.fullmatch(p) is None:
-                return ErrorKind.MALFORMED
-        seq, k, tx_id = map(int, parts[1:4])
-        h = (float(parts[4]), float(parts[5]), float(parts[6]))
-        in_range = 0 <= seq < SEQ_MODULO and 1 <= k <= MAX_CHANNELS and (tx_id == -1 or 0 <= tx_id <= MAX_ID)
-        if not (in_range and all(map(isfinite, h))):
-            return ErrorKind.OUT_OF_RANGE
-        return Parvh(offset, seq, k, tx_id, h)
-    return ErrorKind.UNKNOWN_SENTENCE
+    if not all(_INT.fullmatch(p) for p in parts[1:4]):
+        return ErrorKind.MALFORMED
+    if not all(len(p) <= MAX_FIELD_TEXT and _FLOAT.fullmatch(p) for p in parts[4:]):
+        return ErrorKind.MALFORMED
+    seq, k, tx_id = map(int, parts[1:4])
+    h = (float(parts[4]), float(parts[5]), float(parts[6]))
+    in_range = 0 <= seq < SEQ_MODULO and 1 <= k <= MAX_CHANNELS and (tx_id == -1 or 0 <= tx_id <= MAX_ID)
+    if not (in_range and all(map(isfinite, h))):
+        return ErrorKind.OUT_OF_RANGE
+    return Parvh(offset, seq, k, tx_id, h)
 
 
 class Decoder:
@@ -139,12 +130,7 @@ class Decoder:
         self.assembler = EpochAssembler(self.stats, expect_fields=expect_fields)
         self._partial = b""  # open sentence (starts with '$', at most 81 bytes)
         self._partial_offset = 0
-        self._offset = 0  # stream offset of the next byte fed
-
-    @property
-    def offset(self) -> int:
-        """Number of bytes fed so far."""
-        return self._offset
+        self.offset = 0  #: number of bytes fed so far (the stream offset of the next one)
 
     def feed(self, data: bytes) -> list[Event]:
         """Decode the next chunk of the stream; return the events it completes, in order."""
@@ -159,8 +145,8 @@ class Decoder:
             self._partial = b""
         else:
             buf = data
-            base = self._offset
-        self._offset += len(data)
+            base = self.offset
+        self.offset += len(data)
 
         pieces = buf.split(b"\n")
         tail = pieces.pop()
@@ -177,21 +163,11 @@ class Decoder:
             if m is not None:
                 seq, nn, k, tx_id, d, delta, hh = m.groups()
                 cs = px[pos + n - 5] ^ px[pos] if px is not None else reduce(xor, piece[1:-4], 0)
-                seq = int(seq)
-                nn = _SMALL[nn]
-                k = _SMALL[k]
-                tx_id = int(tx_id)
-                d = int(d)
-                delta = _SMALL[delta]
-                if (
-                    cs == _HEX[hh]
-                    and seq < SEQ_MODULO
-                    and nn <= MAX_CHANNELS
-                    and k <= nn
-                    and (
-                        (0 <= tx_id <= MAX_ID and 0 <= d <= max_d and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA)
-                        or (tx_id == -1 and d == -1 and delta == -1)
-                    )
+                seq, tx_id, d = int(seq), int(tx_id), int(d)
+                nn, k, delta = _SMALL[nn], _SMALL[k], _SMALL[delta]
+                if cs == _HEX[hh] and seq < SEQ_MODULO and nn <= MAX_CHANNELS and k <= nn and (
+                    (0 <= tx_id <= MAX_ID and 0 <= d <= max_d and -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA)
+                    or (tx_id == -1 and d == -1 and delta == -1)
                 ):
                     stats.sentences_ok += 1
                     on_parva(_new_parva(base + pos, seq, nn, k, tx_id, d, delta), out)
@@ -227,7 +203,6 @@ class Decoder:
         return out
 
     # -- slow path: exact per-byte semantics, using find/regex search -------------------
-
     def _error(self, kind: ErrorKind, offset: int, length: int, out: list[Event]) -> None:
         self.stats.errors[kind] += 1
         self.assembler.on_error(DecodeError(kind, offset, length), out)

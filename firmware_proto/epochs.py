@@ -41,38 +41,26 @@ class EpochAssembler:
         self._last_seq: int | None = None
 
     # -- events ------------------------------------------------------------------------
-
     def on_parva(self, p: Parva, out: list[Event]) -> None:
         cur = self._cur
         if cur is not None:
             if not self._holding and p.seq == cur.seq and p.n == cur.n and p.k > cur.last_k:
-                cur.slots[p.k - 1] = (p.id, p.d, p.delta)
-                cur.last_k = p.k
                 out.append(p)
-                if p.k == cur.n:
-                    if self.expect_fields:
-                        self._holding = True
-                    else:
-                        self._emit(out)
+                self._add(p, out)
                 return
             self._emit(out)
         out.append(p)
-        self._start(p, out)
+        self._start(p)
+        self._add(p, out)
 
     def on_parvh(self, h: Parvh, out: list[Event]) -> None:
         self.expect_fields = True
         cur = self._cur
-        attach = False
-        if cur is not None and h.seq == cur.seq and h.k <= cur.n:
-            slot = cur.slots[h.k - 1]
-            if slot is not None and slot[0] == h.id:
-                if cur.fields is None:
-                    cur.fields = [None] * cur.n
-                    attach = True
-                elif cur.fields[h.k - 1] is None:
-                    attach = True
-        if attach:
-            cur.fields[h.k - 1] = h.h  # type: ignore[union-attr, index]
+        slot = cur.slots[h.k - 1] if cur is not None and h.seq == cur.seq and h.k <= cur.n else None
+        if slot is not None and slot[0] == h.id and (cur.fields is None or cur.fields[h.k - 1] is None):
+            if cur.fields is None:
+                cur.fields = [None] * cur.n
+            cur.fields[h.k - 1] = h.h
             out.append(h)
             if self._holding:
                 self._emit(out)
@@ -100,8 +88,8 @@ class EpochAssembler:
             self._emit(out)
 
     # -- internals -----------------------------------------------------------------------
-
-    def _start(self, p: Parva, out: list[Event]) -> None:
+    def _start(self, p: Parva) -> None:
+        """A new epoch, begun by ``p`` (its slot added by the caller)."""
         last = self._last_seq
         gap = 0
         if last is not None and p.seq != last:
@@ -112,10 +100,14 @@ class EpochAssembler:
             if p.seq < last:
                 self.stats.seq_wraps += 1
         self._last_seq = p.seq
-        cur = self._cur = _Pending(p.seq, p.n, gap)
+        self._cur = _Pending(p.seq, p.n, gap)
+
+    def _add(self, p: Parva, out: list[Event]) -> None:
+        """``p``'s slot joins the current epoch; the last slot emits it or holds it."""
+        cur = self._cur
         cur.slots[p.k - 1] = (p.id, p.d, p.delta)
         cur.last_k = p.k
-        if p.k == p.n:
+        if p.k == cur.n:
             if self.expect_fields:
                 self._holding = True
             else:

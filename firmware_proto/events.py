@@ -43,10 +43,6 @@ class Parva:
     d: int
     delta: int
 
-    @property
-    def slot(self) -> Slot:
-        return (self.id, self.d, self.delta)
-
 
 @dataclass(frozen=True, slots=True)
 class Parvh:
@@ -88,11 +84,8 @@ class Epoch:
 
     def to_json(self) -> dict:
         """The ``arva-bench cat`` object: ``{"seq", "complete", "slots"[, "field"]}``."""
-        out: dict = {
-            "seq": self.seq,
-            "complete": self.complete,
-            "slots": [None if s is None else list(s) for s in self.slots],
-        }
+        out: dict = {"seq": self.seq, "complete": self.complete,
+                     "slots": [None if s is None else list(s) for s in self.slots]}
         if self.fields is not None:
             out["field"] = [None if f is None else list(f) for f in self.fields]
         return out

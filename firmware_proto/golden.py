@@ -41,8 +41,6 @@ def from_bytes(data: bytes) -> str:
 
 
 # -- events <-> JSON ----------------------------------------------------------------------
-
-
 def event_to_json(ev: Event) -> dict[str, Any]:
     if isinstance(ev, Parva):
         return {"type": "parva", "offset": ev.offset, "seq": ev.seq, "n": ev.n, "k": ev.k,
@@ -64,20 +62,13 @@ def event_from_json(d: dict[str, Any]) -> Event:
         return DecodeError(ErrorKind[d["kind"]], d["offset"], d["length"])
     if t == "epoch":
         field = d.get("field")
-        return Epoch(
-            d["seq"],
-            d["n"],
-            d["complete"],
-            tuple(None if s is None else tuple(s) for s in d["slots"]),
-            None if field is None else tuple(None if f is None else tuple(float(x) for x in f) for f in field),
-            d["gap"],
-        )
+        slots = tuple(None if s is None else tuple(s) for s in d["slots"])
+        fields = None if field is None else tuple(None if f is None else tuple(map(float, f)) for f in field)
+        return Epoch(d["seq"], d["n"], d["complete"], slots, fields, d["gap"])
     raise ValueError(f"unknown event type {t!r}")
 
 
 # -- canonical text (identical to firmware_proto/c/test_support.c) ------------------------
-
-
 def _g(x: float) -> str:
     return "%.17g" % x
 
@@ -104,8 +95,6 @@ def stats_text(stats: DecoderStats | dict[str, int]) -> str:
 
 
 # -- the C table ----------------------------------------------------------------------------
-
-
 def _c_bytes(data: bytes) -> str:
     """A C string literal holding exactly ``data``: printable ASCII as is, everything else
     as a three-digit octal escape (which can never swallow a following digit); split
@@ -148,12 +137,8 @@ def c_table() -> str:
     slot_arrays = []
     enc = []
     for i, case in enumerate(load("encode")):
-        kind = case["sentence"]
-        args = case["args"]
-        expect = case["bytes"]
-        doubles = ["0.0"] * 3
-        slots = "0"
-        nslots = 0
+        kind, args, expect = case["sentence"], case["args"], case["bytes"]
+        doubles, slots, nslots = ["0.0"] * 3, "0", 0
         if kind == "parva":
             ints = [str(int(a)) for a in args]
         elif kind == "parvh":

@@ -43,26 +43,25 @@ def frame(body: str) -> bytes:
     return out
 
 
+def _within(name: str, value: int, lo: int, hi: int, unit: str = "") -> None:
+    """:class:`ProtocolError` ``NAME VALUE outside LO..HI[ UNIT]`` unless lo <= value <= hi."""
+    if not lo <= value <= hi:
+        raise ProtocolError(f"{name} {value} outside {lo}..{hi}{unit}")
+
+
 def check_slot(tx_id: int, d: int, delta: int) -> None:
     """Raise :class:`ProtocolError` unless (id, d, delta) is a slot the protocol can carry."""
-    if (tx_id, d, delta) == EMPTY_SLOT:
-        return
-    if not 0 <= tx_id <= MAX_ID:
-        raise ProtocolError(f"id {tx_id} outside 0..{MAX_ID}")
-    if not 0 <= d <= MAX_D_CM:
-        raise ProtocolError(f"d {d} outside 0..{MAX_D_CM} cm")
-    if not -MAX_ABS_DELTA <= delta <= MAX_ABS_DELTA:
-        raise ProtocolError(f"delta {delta} outside -{MAX_ABS_DELTA}..{MAX_ABS_DELTA} deg")
+    if (tx_id, d, delta) != EMPTY_SLOT:
+        _within("id", tx_id, 0, MAX_ID)
+        _within("d", d, 0, MAX_D_CM, " cm")
+        _within("delta", delta, -MAX_ABS_DELTA, MAX_ABS_DELTA, " deg")
 
 
 def encode_parva(seq: int, n: int, k: int, tx_id: int, d: int, delta: int) -> bytes:
     """One ``$PARVA`` sentence: slot ``k`` (1-based) of ``n`` in epoch ``seq``."""
-    if not 0 <= seq < SEQ_MODULO:
-        raise ProtocolError(f"seq {seq} outside 0..{SEQ_MODULO - 1}")
-    if not 1 <= n <= MAX_CHANNELS:
-        raise ProtocolError(f"n {n} outside 1..{MAX_CHANNELS}")
-    if not 1 <= k <= n:
-        raise ProtocolError(f"k {k} outside 1..{n}")
+    _within("seq", seq, 0, SEQ_MODULO - 1)
+    _within("n", n, 1, MAX_CHANNELS)
+    _within("k", k, 1, n)
     check_slot(tx_id, d, delta)
     return frame(f"PARVA,{seq},{n},{k},{tx_id},{d},{delta}")
 
@@ -76,12 +75,10 @@ def format_field(value: float) -> str:
 
 def encode_parvh(seq: int, k: int, tx_id: int, h: Sequence[float]) -> bytes:
     """One ``$PARVH`` research sentence: receiver-frame field of slot ``k``, scene units."""
-    if not 0 <= seq < SEQ_MODULO:
-        raise ProtocolError(f"seq {seq} outside 0..{SEQ_MODULO - 1}")
-    if not 1 <= k <= MAX_CHANNELS:
-        raise ProtocolError(f"k {k} outside 1..{MAX_CHANNELS}")
-    if not (tx_id == -1 or 0 <= tx_id <= MAX_ID):
-        raise ProtocolError(f"id {tx_id} outside 0..{MAX_ID}")
+    _within("seq", seq, 0, SEQ_MODULO - 1)
+    _within("k", k, 1, MAX_CHANNELS)
+    if tx_id != -1:
+        _within("id", tx_id, 0, MAX_ID)
     hx, hy, hz = (format_field(float(v)) for v in h)
     return frame(f"PARVH,{seq},{k},{tx_id},{hx},{hy},{hz}")
 
@@ -124,8 +121,7 @@ def encode_epochs(
     if n_epochs == 0:
         return b""
     n = len(ids_l[0])
-    if not 1 <= n <= MAX_CHANNELS:
-        raise ProtocolError(f"n {n} outside 1..{MAX_CHANNELS}")
+    _within("n", n, 1, MAX_CHANNELS)
     for row_ids, row_d, row_delta in zip(ids_l, d_l, delta_l):
         for slot in zip(row_ids, row_d, row_delta):
             check_slot(*slot)

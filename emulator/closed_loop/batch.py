@@ -90,9 +90,7 @@ class BatchLoop:
         uavs = [u for u, _ in pairs]
         self.ctrl = [c for _, c in pairs]
         self.sensors = [u.range for u in uavs]
-        self.x = np.array([u.x for u in uavs])
-        self.y = np.array([u.y for u in uavs])
-        self.z = np.array([u.z for u in uavs])
+        self.x, self.y, self.z = np.array([u.position for u in uavs]).T.copy()
         self.yaws = np.array([u.yaw for u in uavs], dtype=np.float64)
         self.quat = np.array([u.orientation for u in uavs])
         self.v_max = np.array([u.v_max for u in uavs])
@@ -141,12 +139,7 @@ class BatchLoop:
         self.n_marked = np.zeros(n, dtype=np.int64)
         # Tick plans (filled at each epoch, and when a fine-search line ends).
         self.mode = np.full(n, PLAN_CONST, dtype=np.int8)
-        self.pvx = np.zeros(n)
-        self.pvy = np.zeros(n)
-        self.bx = np.zeros(n)
-        self.by = np.zeros(n)
-        self.bspeed = np.zeros(n)
-        self.path = np.zeros(n)
+        self.pvx, self.pvy, self.bx, self.by, self.bspeed, self.path = np.zeros((6, n))
         self.next_k = 0
 
     def _check(self, s: Scene, index: int) -> None:

@@ -99,18 +99,11 @@ def summarize(case: int, result: RunResult) -> dict:
     found = result.found()[0]
     i_max = int(np.argmax(dist))
     return {
-        "case": case,
-        "start_m": float(dist[0]),
-        "max_m": float(dist[i_max]),
-        "t_max_s": float(result.t[i_max]),
-        "growth": float(dist[i_max] / dist[0]),
-        "final_m": float(dist[-1]),
-        "final_horizontal_m": float(horiz[-1]),
-        "located": found["found"],
-        "t_located_s": found["t"],
-        "error_m": found["error_m"],
-        "path_m": result.path_length,
-        "wall_s": result.wall_s,
+        "case": case, "start_m": float(dist[0]), "max_m": float(dist[i_max]),
+        "t_max_s": float(result.t[i_max]), "growth": float(dist[i_max] / dist[0]),
+        "final_m": float(dist[-1]), "final_horizontal_m": float(horiz[-1]),
+        "located": found["found"], "t_located_s": found["t"], "error_m": found["error_m"],
+        "path_m": result.path_length, "wall_s": result.wall_s,
     }
 
 
@@ -162,16 +155,14 @@ def plot_case(case: int, results: dict[str, RunResult], path: Path) -> None:
     ax.plot(px, py, "r*", ms=14, label="transmitter")
     ax.annotate("", xy=(px + 3 * math.cos(math.radians(yaw)), py + 3 * math.sin(math.radians(yaw))),
                 xytext=(px, py), arrowprops={"arrowstyle": "->", "color": "r", "lw": 1.5})
-    ax.set_xlabel("x east [m]")
-    ax.set_ylabel("y north [m]")
+    ax.set(xlabel="x east [m]", ylabel="y north [m]",
+           title=f"Test case {case}: ARVA at ({px:g}, {py:g}, {pz:g}), yaw {yaw:g} deg")
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(fontsize=8, loc="best")
-    ax.set_title(f"Test case {case}: ARVA at ({px:g}, {py:g}, {pz:g}), yaw {yaw:g} deg")
-    bx.set_xlabel("time [s]")
-    bx.set_ylabel("distance UAV - transmitter [m]")
+    bx.set(xlabel="time [s]", ylabel="distance UAV - transmitter [m]",
+           title="distance versus time (dotted: located)")
     bx.grid(alpha=0.3)
     bx.legend(fontsize=8)
-    bx.set_title("distance versus time (dotted: located)")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

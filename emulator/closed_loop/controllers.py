@@ -1,25 +1,17 @@
 """Search strategies flown in closed loop: velocity commands from receiver output
-(docs/closed_loop.md, "Strategies", is the full description).
+(docs/closed_loop.md, "Strategies", is the full description). Both hold the height, fly a
+lawnmower over ``search_area`` until a signal and *mark* a located transmitter:
+:class:`FluxFollower`, the paper's eq. 10 on the receiver-frame field ^r h (``$PARVH``),
+V_xy = L_xy v_max g / sqrt(1 + g^2) R_r h / |h| with g = k_c |h|^(-1/3), and
+:class:`ReceiverOnlySearch`, on (id, d, delta) only, as a rescuer uses a receiver.
 
-Both hold the height with the paper's V_z = k_z (r_s - y_s) (section IV), fly a
-lawnmower over ``search_area`` until a signal (without one, they wait for a signal), and
-*mark* a located transmitter (its id ignored from then on):
-
-* :class:`FluxFollower` — the paper's flux-line follower, eq. 10, on the receiver-frame
-  field vector ^r h (``$PARVH``)::
-
-      V_xy = L_xy v_max g / sqrt(1 + g^2) R_r h / |h|,    g = k_c |h|^(-1/3)
-
-* :class:`ReceiverOnlySearch` — only (id, d, delta), as a rescuer uses a commercial
-  receiver: coarse search along the flux line by delta, fine search by bracketing.
-
-A controller sees an :class:`Observation` per control tick (the vehicle's own position
-and yaw, the range reading, the latest receiver epoch, held between epochs). The
-decisions are written once, over arrays of B runs (:class:`FluxState`, :class:`RxState`,
-:class:`EpochArrays`): a controller object runs them with B = 1,
-:class:`~emulator.closed_loop.batch.BatchLoop` with all runs of a strategy; the ``math``
-functions numpy does not reproduce bit for bit are applied element by element with
-CPython's own, so a run's decisions do not depend on the batch it is in.
+A controller sees an :class:`Observation` per control tick (its own position and yaw, the
+range reading, the latest epoch, held between epochs). The decisions are written once,
+over arrays of B runs (:class:`FluxState`, :class:`RxState`, :class:`EpochArrays`): a
+controller object runs them with B = 1, :class:`~emulator.closed_loop.batch.BatchLoop`
+with all runs of a strategy; the ``math`` functions numpy does not reproduce bit for bit
+are applied element by element with CPython's own, so a run's decisions do not depend on
+the batch it is in.
 """
 
 from __future__ import annotations
@@ -34,13 +26,6 @@ from emulator.closed_loop.strategy import (
 )
 from emulator.closed_loop.vehicle import VehicleSpec
 from emulator.receiver.model import ModelParams
-
-__all__ = [
-    "APPROACH", "FINE", "FOLLOW", "INNER_CM", "PLAN_BACK", "PLAN_CONST", "PLAN_SEARCH", "SEARCH",
-    "Controller", "EpochArrays", "FluxFollower", "FluxParams", "FluxState", "Located", "Observation",
-    "ReceiverOnlySearch", "RxParams", "RxState", "StripSearch", "TickPlan", "fly_back", "flux_epoch",
-    "make_controller", "rx_arrive", "rx_epoch", "rx_plan", "speed_law", "strip_velocity",
-]
 
 
 def make_controller(spec: VehicleSpec, model: ModelParams = ModelParams()) -> Controller:

@@ -236,13 +236,11 @@ class ClosedLoop:
                 break
             if self.controller.exhausted:
                 break
-        return self.result(time.perf_counter() - wall, path)
-
-    def result(self, wall_s: float = 0.0, path_length: float = 0.0) -> RunResult:
         return run_result(
-            self.scene, self.channels, (self._ticks_t, self._ticks_p), self._epochs, located=list(self.controller.located),
-            t_end=self.next_k / self.rate_hz, exhausted=self.controller.exhausted, wall_s=wall_s,
-            ground_contacts=self.uav.ground_contacts, path_length=path_length,
+            self.scene, self.channels, (self._ticks_t, self._ticks_p), self._epochs,
+            located=list(self.controller.located), t_end=self.next_k / self.rate_hz,
+            exhausted=self.controller.exhausted, wall_s=time.perf_counter() - wall,
+            ground_contacts=self.uav.ground_contacts, path_length=path,
         )
 
     def close(self) -> None:

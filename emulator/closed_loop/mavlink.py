@@ -33,10 +33,14 @@ MAV_TYPE_GCS = 6
 MAV_AUTOPILOT_INVALID = 8
 #: Seconds between our heartbeats.
 HEARTBEAT_PERIOD_S = 1.0
-#: Positions without attitude (or the reverse) this long earn one warning.
+#: Positions without attitude (or the reverse) this long earn one warning, by what came.
 WARN_AFTER_S = 2.0
-
-__all__ = ["MavlinkPoseSource", "Pose", "attitude_euler_to_flu_enu", "frd_ned_to_flu_enu", "ned_to_enu"]
+_HALF_POSE = {
+    "position": "LOCAL_POSITION_NED arrives but no ATTITUDE_QUATERNION or ATTITUDE: epochs stay at the "
+                "start pose (enable an attitude stream on the autopilot)",
+    "attitude": "attitude arrives but no LOCAL_POSITION_NED: epochs stay at the start pose "
+                "(does the autopilot have a position estimate?)",
+}
 
 
 @dataclass(frozen=True)
@@ -210,16 +214,7 @@ class MavlinkPoseSource:
         (have, since), = self._first.items()
         if now - since < WARN_AFTER_S:
             return
-        if have == "position":
-            self.warned = (
-                f"{self.url}: LOCAL_POSITION_NED arrives but no ATTITUDE_QUATERNION or ATTITUDE: "
-                "epochs stay at the start pose (enable an attitude stream on the autopilot)"
-            )
-        else:
-            self.warned = (
-                f"{self.url}: attitude arrives but no LOCAL_POSITION_NED: epochs stay at the start pose "
-                "(does the autopilot have a position estimate?)"
-            )
+        self.warned = f"{self.url}: {_HALF_POSE[have]}"
         log.warning("%s", self.warned)
 
     def latest(self) -> Pose | None:

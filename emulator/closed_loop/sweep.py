@@ -119,24 +119,14 @@ def burial_scene(config: SweepConfig, i: int, strategy: str, v_max: float, k_c: 
     seed = int(np.random.SeedSequence(config.seed, spawn_key=(i, 1)).generate_state(1)[0])
     xmin, ymin = config.area[:2]
     data = {
-        "spec": 1,
-        "seed": seed,
-        "rate_hz": config.rate_hz,
-        "effects": {"noise": config.noise},
+        "spec": 1, "seed": seed, "rate_hz": config.rate_hz, "effects": {"noise": config.noise},
         "transmitters": [{k: tx[k] for k in ("id", "position", "orientation")} for tx in txs],
         "receiver": {
-            "channels": config.max_transmitters,
-            "antennas": config.antennas,
+            "channels": config.max_transmitters, "antennas": config.antennas,
             "vehicle": {
-                "controller": STRATEGIES[strategy],
-                "start": [xmin, ymin],
-                "r_s": config.r_s,
-                "v_max": v_max,
-                "k_c": k_c,
-                "k_z": config.k_z,
-                "control_rate_hz": config.control_rate_hz,
-                "search_area": list(config.area),
-                "strip_width": config.strip_width,
+                "controller": STRATEGIES[strategy], "start": [xmin, ymin], "r_s": config.r_s, "v_max": v_max,
+                "k_c": k_c, "k_z": config.k_z, "control_rate_hz": config.control_rate_hz,
+                "search_area": list(config.area), "strip_width": config.strip_width,
                 **({"flux_reverse": True} if strategy == "flux_reverse" else {}),
             },
         },
@@ -320,28 +310,17 @@ def summarize(rows: list[dict], bootstrap: int = 1000, seed: int = 0) -> list[di
         which = np.array([index[r["burial"]] for r in found], dtype=np.int64)
         ci_t = bootstrap_tail(which, np.array(t_found, dtype=np.float64), len(runs), bootstrap, seed)
         ci_e = bootstrap_tail(which, np.array(errors, dtype=np.float64), len(runs), bootstrap, seed + 1)
+        all_located = sum(r["all_found"] for r in runs.values()) / len(runs)
         out.append({
-            "strategy": strategy,
-            "v_max": v_max,
-            "k_c": k_c,
-            "runs": len(runs),
-            "transmitters": len(rs),
-            "located": len(found) / len(rs),
-            "all_located": sum(r["all_found"] for r in runs.values()) / len(runs),
-            "t_locate_median_s": _q(t_found, 0.5),
-            "t_locate_p90_s": _q(t_found, 0.9),
-            "t_locate_p99_s": _q(t_found, 0.99),
-            "t_locate_p99_ci_s": ci_t["p99"],
-            "t_locate_max_s": max(t_found) if t_found else math.nan,
-            "t_locate_max_ci_s": ci_t["max"],
-            "t_all_median_s": _q(t_all, 0.5),
-            "t_all_p90_s": _q(t_all, 0.9),
-            "error_median_m": _q(errors, 0.5),
-            "error_p90_m": _q(errors, 0.9),
-            "error_p99_m": _q(errors, 0.99),
-            "error_p99_ci_m": ci_e["p99"],
-            "error_max_m": max(errors) if errors else math.nan,
-            "error_max_ci_m": ci_e["max"],
+            "strategy": strategy, "v_max": v_max, "k_c": k_c, "runs": len(runs), "transmitters": len(rs),
+            "located": len(found) / len(rs), "all_located": all_located,
+            "t_locate_median_s": _q(t_found, 0.5), "t_locate_p90_s": _q(t_found, 0.9),
+            "t_locate_p99_s": _q(t_found, 0.99), "t_locate_p99_ci_s": ci_t["p99"],
+            "t_locate_max_s": max(t_found) if t_found else math.nan, "t_locate_max_ci_s": ci_t["max"],
+            "t_all_median_s": _q(t_all, 0.5), "t_all_p90_s": _q(t_all, 0.9),
+            "error_median_m": _q(errors, 0.5), "error_p90_m": _q(errors, 0.9),
+            "error_p99_m": _q(errors, 0.99), "error_p99_ci_m": ci_e["p99"],
+            "error_max_m": max(errors) if errors else math.nan, "error_max_ci_m": ci_e["max"],
             "within_1m": sum(e <= 1.0 for e in errors) / len(rs),
         })
     return out

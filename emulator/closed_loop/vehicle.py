@@ -27,8 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from emulator.cli_types import BAUD_LIMITS
-from emulator.scene.limits import MAX_VEHICLE_COORD_M, VEHICLE_LIMITS
-from emulator.scene.tables import TableReader
+from emulator.scene.tables import MAX_VEHICLE_COORD_M, VEHICLE_LIMITS, TableReader
 from emulator.schema import Int, Number, Strict, Text, Vector2, Vector3
 
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")
@@ -80,12 +79,9 @@ class GridTerrain:
         if path.suffix.lower() == ".npy":
             z = np.load(path, allow_pickle=False)
         else:
-            rows = []
             with path.open(newline="") as f:
-                for line in csv.reader(f):
-                    if not line or line[0].lstrip().startswith("#"):
-                        continue
-                    rows.append([float(v) for v in line])
+                lines = [line for line in csv.reader(f) if line and not line[0].lstrip().startswith("#")]
+            rows = [[float(v) for v in line] for line in lines]
             if len({len(r) for r in rows}) > 1:
                 raise ValueError("rows of the terrain CSV have different lengths")
             z = np.array(rows, dtype=np.float64)
@@ -155,17 +151,9 @@ class UAV:
     ``ground_contacts``). State is plain floats: one step costs about a microsecond.
     """
 
-    def __init__(
-        self,
-        terrain: Terrain,
-        start: tuple[float, float],
-        start_height: float,
-        yaw_deg: float = 0.0,
-        v_max: float = 1.0,
-        v_z_max: float = 2.0,
-        range_sigma_m: float = 0.0,
-        rng: np.random.Generator | None = None,
-    ) -> None:
+    def __init__(self, terrain: Terrain, start: tuple[float, float], start_height: float,
+                 yaw_deg: float = 0.0, v_max: float = 1.0, v_z_max: float = 2.0, range_sigma_m: float = 0.0,
+                 rng: np.random.Generator | None = None) -> None:
         self.terrain = terrain
         self.x, self.y = float(start[0]), float(start[1])
         self.z = terrain.height(self.x, self.y) + float(start_height)

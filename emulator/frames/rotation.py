@@ -182,15 +182,12 @@ def quaternion_products(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     q followed by p (for body-side composition, R_p R_q)."""
     pw, px, py, pz = np.moveaxis(np.asarray(p, dtype=np.float64), -1, 0)
     qw, qx, qy, qz = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
+    return np.stack([
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    ], axis=-1)
 
 
 def rotvec_quaternions(v: ArrayLike) -> NDArray[np.float64]:

@@ -4,6 +4,7 @@ slerp in orientation, held before the first and after the last waypoint (BRIEF 5
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -64,14 +65,10 @@ class Trajectory:
         out[moving] = (self.positions[j + 1] - self.positions[j]) / dt[:, None]
         return out
 
-    @property
+    @cached_property
     def _segments(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(unit waypoint quaternions (K, 4), each segment's rotation vector (K-1, 3) in its
-        start's body frame), built once and cached."""
-        cached = self.__dict__.get("_segments_cache")
-        if cached is None:
-            unit = normalize_quaternions(self.orientations, "trajectory.orientation")
-            rel = quaternion_products(quaternion_conjugates(unit[:-1]), unit[1:])
-            cached = (unit, quaternion_rotvecs(rel))
-            object.__setattr__(self, "_segments_cache", cached)
-        return cached
+        start's body frame), built once."""
+        unit = normalize_quaternions(self.orientations, "trajectory.orientation")
+        rel = quaternion_products(quaternion_conjugates(unit[:-1]), unit[1:])
+        return unit, quaternion_rotvecs(rel)

@@ -1,24 +1,11 @@
 """Named receiver profiles: declarative TOML files describing a class of receiver.
 
-A profile (``emulator/receiver/profiles/NAME.toml``) fixes what a scene would otherwise
-spell out for a receiver; a scene selects one with ``[receiver] profile = "NAME"`` and
-every key it gives itself wins (docs/model.md section 9). Units: rate in Hz, radii and
-r_en in metres.
-
-File format (``format = 1``)::
-
-    format = 1              # profile file format; newer than this program reads: error
-    name = "NAME"           # must equal the file name without .toml
-    version = 1             # the profile's own revision (integer >= 1)
-    description = "one line"
-    antennas = 3
-    channels = 1
-    rate_hz = 1.0
-    [model]                 # optional keys: kappa_eq, r_inner, r_outer, r_en, q
-    [display]               # optional: profile, delta_step_deg, d_step_cm, d_far_cm, d_step_far_cm
-
-Validation is strict (:class:`~firmware_proto.errors.SceneError`, ``FILE: key.path:
-reason``); the transmitter's ``moment`` is not a receiver property and is refused.
+A profile (``emulator/receiver/profiles/NAME.toml``, its keys :class:`ProfileTable`) fixes
+what a scene would otherwise spell out for a receiver; a scene selects one with
+``[receiver] profile = "NAME"`` and every key it gives itself wins (docs/model.md
+section 9). Units: rate in Hz, radii and r_en in metres. Validation is strict
+(:class:`~firmware_proto.errors.SceneError`, ``FILE: key.path: reason``); the
+transmitter's ``moment`` is not a receiver property and is refused.
 """
 
 from __future__ import annotations
@@ -40,6 +27,8 @@ PROFILE_FORMAT = 1
 
 
 class ProfileTable(Strict):
+    """A profile file: ``format`` at most :data:`PROFILE_FORMAT`, ``name`` the file's stem."""
+
     format: int
     name: str
     version: Int(1, 2**31)  # the profile's own revision
@@ -105,13 +94,9 @@ def load_profile(name: str) -> ReceiverProfile:
     return parse_profile(toml_document(ref.read_bytes(), f"<profile {name}.toml>"), f"<profile {name}.toml>", name)
 
 
-def list_profiles() -> list[ReceiverProfile]:
-    return [load_profile(n) for n in profile_names()]
-
-
 def profile_table() -> str:
     """One line per shipped profile: name, version, antennas, description (for --list-profiles)."""
-    profiles = list_profiles()
+    profiles = [load_profile(n) for n in profile_names()]
     width = max((len(p.name) for p in profiles), default=4)
     lines = [f"{'NAME':<{width}}  VERSION  ANTENNAS  DESCRIPTION"]
     for p in profiles:

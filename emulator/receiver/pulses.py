@@ -67,10 +67,8 @@ class PulseConfig:
         lo_ok, hi_ok = PERIOD_RANGE_MS
         rng = tuple(self.period_ms) if isinstance(self.period_ms, (tuple, list)) else None
         if rng is None or len(rng) != 2 or not all(map(is_number, rng)) or not lo_ok <= rng[0] <= rng[1] <= hi_ok:
-            raise InputError(
-                f"pulses.period_ms: must be [lo, hi] with {lo_ok:g} <= lo <= hi <= {hi_ok:g}, "
-                f"got {self.period_ms!r}"
-            )
+            raise InputError(f"pulses.period_ms: must be [lo, hi] with {lo_ok:g} <= lo <= hi <= {hi_ok:g}, "
+                             f"got {self.period_ms!r}")
         object.__setattr__(self, "period_ms", (float(rng[0]), float(rng[1])))
         periods = self._id_map("periods_ms", self.periods_ms)
         for tx_id, p in periods.items():
@@ -86,10 +84,8 @@ class PulseConfig:
             raise InputError(f"pulses.pulse_ms: must be >= {MIN_PULSE_MS:g}, got {_fmt(self.pulse_ms)}")
         shortest = min([rng[0], *periods.values()])
         if shortest - self.pulse_ms < MIN_OFF_MS:
-            raise InputError(
-                f"pulses.pulse_ms: must leave >= {MIN_OFF_MS:g} ms off in the shortest period "
-                f"({shortest:g} ms), got {self.pulse_ms:g}"
-            )
+            raise InputError(f"pulses.pulse_ms: must leave >= {MIN_OFF_MS:g} ms off in the shortest period "
+                             f"({shortest:g} ms), got {self.pulse_ms:g}")
         if not is_number(self.drift_ppm) or not 0 <= self.drift_ppm <= MAX_DRIFT_PPM:
             raise InputError(f"pulses.drift_ppm: must be in [0, {MAX_DRIFT_PPM:g}], got {_fmt(self.drift_ppm)}")
         if self.overlap not in OVERLAP_MODES:
@@ -141,21 +137,17 @@ class PulseEffect:
             seed = np.random.SeedSequence().entropy
         self.seed = seed
         lo, hi = config.period_ms
-        periods = np.empty(ids.size)
-        phases = np.empty(ids.size)
+        self.periods_s, self.phases_s = np.empty((2, ids.size))
         for j, tx_id in enumerate(ids.tolist()):
             # Three draws for every transmitter, used or not, so an override of one
             # setting never shifts the others.
             u_period, u_drift, u_phase = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_TAG, tx_id))).random(3)
             nominal = config.periods_ms.get(tx_id, lo + (hi - lo) * u_period)
             period = nominal * (1.0 + config.drift_ppm * 1e-6 * (2.0 * u_drift - 1.0))
-            periods[j] = period / 1000.0
+            self.periods_s[j] = period / 1000.0
             phase_ms = config.phases_ms.get(tx_id)
-            phases[j] = (u_phase * period if phase_ms is None else phase_ms) / 1000.0
-        self.periods_s = periods
-        self.phases_s = phases
-        self.pulses_ended = 0
-        self.pulses_hidden = 0
+            self.phases_s[j] = (u_phase * period if phase_ms is None else phase_ms) / 1000.0
+        self.pulses_ended = self.pulses_hidden = 0
 
     def stats(self) -> dict[str, int]:
         return {"pulses_ended": self.pulses_ended, "pulses_hidden": self.pulses_hidden}

@@ -78,9 +78,7 @@ class QuantizeConfig:
                     f"({self.d_step_far_cm}) so displayed distances stay monotone, got {self.d_far_cm}"
                 )
         if self.delta_step_deg is None and self.d_step_cm is None and self.d_far_cm is None:
-            raise InputError(
-                f"quantize.profile: give a profile ({', '.join(PROFILES)}) or at least one step"
-            )
+            raise InputError(f"quantize.profile: give a profile ({', '.join(PROFILES)}) or at least one step")
 
 
 class QuantizeEffect:
@@ -107,12 +105,9 @@ class QuantizeEffect:
         if d.shape != delta.shape or d.shape != outer.shape:
             raise InputError(f"quantize: d, delta and outer must have one shape, got {d.shape}, {delta.shape}, {outer.shape}")
         cfg = self.config
-        d_out = d.copy()
-        if cfg.d_step_cm is not None:
-            d_out = _round_to(d, cfg.d_step_cm)
+        d_out = d.copy() if cfg.d_step_cm is None else _round_to(d, cfg.d_step_cm)
         if cfg.d_far_cm is not None:
-            far = d >= cfg.d_far_cm
-            d_out = np.where(far, _round_to(d, cfg.d_step_far_cm), d_out)
+            d_out = np.where(d >= cfg.d_far_cm, _round_to(d, cfg.d_step_far_cm), d_out)
         delta_out = delta.copy()
         if cfg.delta_step_deg is not None:
             delta_out = np.clip(_round_to(delta, cfg.delta_step_deg), -MAX_DELTA_DEG, MAX_DELTA_DEG)

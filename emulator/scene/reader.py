@@ -30,8 +30,10 @@ from emulator.receiver.model import ModelParams
 from emulator.receiver.profile import ReceiverProfile, load_profile
 from emulator.receiver.pulses import PulseConfig
 from emulator.receiver.quantize import QuantizeConfig, QuantizeEffect
-from emulator.scene.limits import MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S
-from emulator.scene.tables import Posed, ReceiverTable, SceneTable, TableReader, Waypoint, toml_document, toml_file
+from emulator.scene.tables import (
+    MAX_CONTROL_STEPS_PER_EPOCH, MIN_WAYPOINT_DT_S, Posed, ReceiverTable, SceneTable, TableReader, Waypoint,
+    toml_document, toml_file,
+)
 from emulator.scene.types import (
     SPEC_VERSION, Effects, GroundTruthSpec, ReceiverSpec, Scene, Transmitter, arva_labels, truth_streams,
 )
@@ -149,9 +151,7 @@ def _check_quantized_range(rd: TableReader, model: ModelParams, cfg: QuantizeCon
 
 def _ground_truth(rd: TableReader, doc: SceneTable, transmitters, receivers) -> tuple[Origin | None, GroundTruthSpec]:
     """``[origin]`` (geodetic, for GPS) and ``[ground_truth]`` (stream settings)."""
-    origin = None
-    if doc.origin is not None:
-        origin = rd.build("", Origin, **given(doc.origin))
+    origin = None if doc.origin is None else rd.build("", Origin, **given(doc.origin))
     g = doc.ground_truth
     start = GroundTruthSpec().start_utc if g.start_utc is None else g.start_utc
     if isinstance(start, str):
@@ -254,18 +254,13 @@ def _vehicle(rd: TableReader, r: ReceiverTable, path: str, rate_hz: float) -> Ve
             raise rd.fail(f"{path}.{key}", f"not allowed with {path}.vehicle: {why}")
     source = Path(rd.source)
     vehicle = parse_vehicle(rd, r.vehicle, f"{path}.vehicle", source.parent if source.is_file() else None)
-    ratio = vehicle.control_rate_hz / rate_hz
+    key, got = f"{path}.vehicle.control_rate_hz", vehicle.control_rate_hz
+    ratio = got / rate_hz
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        raise rd.fail(
-            f"{path}.vehicle.control_rate_hz",
-            f"must be a whole multiple of rate_hz = {rate_hz:g}, got {vehicle.control_rate_hz:g}",
-        )
+        raise rd.fail(key, f"must be a whole multiple of rate_hz = {rate_hz:g}, got {got:g}")
     if round(ratio) > MAX_CONTROL_STEPS_PER_EPOCH:
-        raise rd.fail(
-            f"{path}.vehicle.control_rate_hz",
-            f"at most {MAX_CONTROL_STEPS_PER_EPOCH} control steps per epoch (rate_hz = {rate_hz:g}), "
-            f"got {vehicle.control_rate_hz:g} Hz",
-        )
+        raise rd.fail(key, f"at most {MAX_CONTROL_STEPS_PER_EPOCH} control steps per epoch "
+                           f"(rate_hz = {rate_hz:g}), got {got:g} Hz")
     return vehicle
 
 

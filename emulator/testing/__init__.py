@@ -8,8 +8,3 @@ loads the plugin in every run.
 from emulator.testing.harness import (
     ControlClient, ControlReplyError, Emulator, EmulatorError, EmulatorProcess, process_rss_kb, read_lines,
 )
-
-__all__ = [
-    "ControlClient", "ControlReplyError", "Emulator", "EmulatorError", "EmulatorProcess", "process_rss_kb",
-    "read_lines",
-]

@@ -8,6 +8,7 @@ imports numpy; pyserial is imported when a port is opened.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import shutil
@@ -146,14 +147,9 @@ class EmulatorProcess(contextlib.AbstractContextManager):
 
     def __init__(self, *args: str, streams: int = 1, timeout: float = 10.0, env: dict | None = None) -> None:
         self.args = list(args)
-        self.proc = subprocess.Popen(
-            module_command("emulator.cli", *args),
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            bufsize=0,
-            env=module_env(env),
-            preexec_fn=end_with_parent,  # no orphan holding ptys after a killed test run
+        self.proc = subprocess.Popen(  # end_with_parent: no orphan holding ptys after a killed test run
+            module_command("emulator.cli", *args), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE, bufsize=0, env=module_env(env), preexec_fn=end_with_parent,
         )
         self.ports: dict[str, str] = {}
         self.control: str | None = None
@@ -168,9 +164,10 @@ class EmulatorProcess(contextlib.AbstractContextManager):
         for t in self._readers:
             t.start()
         want_control = "--control" in args
+        missing = lambda: len(self.ports) < streams or (want_control and self.control is None)  # noqa: E731
         deadline = time.monotonic() + timeout
         with self._announced:
-            while len(self.ports) < streams or (want_control and self.control is None):
+            while missing():
                 left = deadline - time.monotonic()
                 if self.proc.poll() is not None:
                     break
@@ -178,7 +175,7 @@ class EmulatorProcess(contextlib.AbstractContextManager):
                     self.kill()
                     raise EmulatorError(f"arva-emulate announced nothing within {timeout} s: {self.stderr()!r}")
                 self._announced.wait(min(left, 0.1))
-        if self.proc.poll() is not None and (len(self.ports) < streams or (want_control and self.control is None)):
+        if self.proc.poll() is not None and missing():
             rc = self.proc.wait()
             time.sleep(0.05)  # let the stderr reader take the last line
             raise EmulatorError(f"arva-emulate exited with status {rc}: {self.stderr().strip()}")
@@ -247,6 +244,7 @@ class EmulatorProcess(contextlib.AbstractContextManager):
             t.join(timeout=2)
 
 
+@dataclasses.dataclass(eq=False)
 class Emulator(contextlib.AbstractContextManager):
     """The handle of an emulator with a control channel (what ``arva_emulator`` returns).
 
@@ -256,49 +254,30 @@ class Emulator(contextlib.AbstractContextManager):
     (docs/hil_testing.md) and raises :class:`ControlReplyError` on an error reply.
     """
 
-    def __init__(
-        self,
-        process: EmulatorProcess,
-        client: ControlClient,
-        ports: dict[str, str],
-        scene_path: str | None,
-        seed: int | None,
-        artefacts: Path | None = None,
-        cleanup: Sequence[str | Path] = (),
-    ) -> None:
-        self.process = process
-        self.client = client
-        self.ports = ports
-        self.scene_path = scene_path
-        self.seed = seed
-        #: The folder with stream captures, transcript, symlinks while running (see :meth:`start`).
-        self.artefacts = artefacts
-        self._cleanup = list(cleanup)  # folders removed at stop
-        self._stopped = False
+    process: EmulatorProcess
+    client: ControlClient
+    ports: dict[str, str]
+    scene_path: str | None
+    seed: int | None
+    #: The folder with stream captures, transcript, symlinks while running (see :meth:`start`).
+    artefacts: Path | None = None
+    _cleanup: list = dataclasses.field(default_factory=list)  # folders removed at stop
+    _stopped: bool = False
 
     @classmethod
-    def start(
-        cls,
-        scene: str | Path | dict | None = None,
-        clock: str = "step",
-        speed: float = 1.0,
-        workdir: str | Path | None = None,
-        arva_port: str | None = None,
-        extra_args: Sequence[str] = (),
-        timeout: float = 10.0,
-    ) -> "Emulator":
+    def start(cls, scene: str | Path | dict | None = None, clock: str = "step", speed: float = 1.0,
+              workdir: str | Path | None = None, arva_port: str | None = None, extra_args: Sequence[str] = (),
+              timeout: float = 10.0) -> "Emulator":
         """Start ``arva-emulate --port pty --control unix:... --clock CLOCK``.
 
         ``scene``: a scene file, a dict with the TOML structure (written to ``workdir``)
-        or None for the embedded default. ``workdir`` (default: a temporary folder,
-        removed by :meth:`stop`) receives the stream captures (``streams/<stream>.bytes``), the control
-        transcript (``control-transcript.txt``) and, while the emulator runs, stable pty symlinks
-        (``pty/<stream>``, removed with the ptys at :meth:`stop`). ``arva_port``
+        or None for the embedded default. ``workdir`` (default: a temporary folder, removed
+        by :meth:`stop`) receives the artefacts docs/hil_testing.md lists. ``arva_port``
         sends the first receiver's stream to that device instead of a pty.
         """
         import tempfile
 
-        from emulator.testing.scenes import first_receiver_label, scene_file
+        from emulator.testing.scene_toml import first_receiver_label, scene_file
 
         work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="arva-emu-"))
         work.mkdir(parents=True, exist_ok=True)
@@ -339,7 +318,6 @@ class Emulator(contextlib.AbstractContextManager):
         return cls(proc, client, ports, scene_path, seed, work, cleanup)
 
     # --- the control requests -----------------------------------------------------------
-
     @property
     def port(self) -> str:
         """The first receiver's port."""
@@ -394,7 +372,6 @@ class Emulator(contextlib.AbstractContextManager):
         return serial.Serial(self.ports[label] if label else self.port, timeout=timeout)
 
     # --- stopping -----------------------------------------------------------------------
-
     def stop(self, timeout: float = 10.0) -> int:
         """``quit``, wait for the exit (SIGTERM, then SIGKILL if it hangs); exit status."""
         if self._stopped:

@@ -1,16 +1,9 @@
-"""The ``arva`` pytest plugin (BRIEF 9): the ``arva_emulator`` fixture and ``--arva-port``.
-
-Registered by installing the project (entry point group ``pytest11``, name ``arva``);
-docs/hil_testing.md, "The fixture", is the user's guide. ``arva_emulator(scene=None,
-clock="step", speed=1.0)`` starts ``arva-emulate --port pty --control ...`` and returns an
-:class:`~emulator.testing.harness.Emulator`; ``arva_firmware(firmware, ...)`` runs a
-firmware ELF on QEMU (:mod:`emulator.testing.qemu`) and returns a ``FirmwareLoop``. Every
-emulator a test started is stopped at teardown; its folder (``arva-emulator-N``,
-``arva-firmware-N`` under ``tmp_path``: stream captures, control transcript) is kept and
-named in the report when the test fails, else removed. The scene and its seed are
-recorded as test properties, as ``record_property`` does (``arva_scene``,
-``arva_scene_toml``: the text the emulator read, ``arva_seed``; ``_1``, ``_2`` ... for
-further emulators of the same test). Loading the plugin starts nothing.
+"""The ``arva`` pytest plugin (BRIEF 9): the ``arva_emulator`` and ``arva_firmware``
+fixtures and ``--arva-port``. Registered by installing the project (entry point group
+``pytest11``, name ``arva``); loading it starts nothing. docs/hil_testing.md, "The
+fixture", is the user's guide: the handles, teardown, the ``arva-emulator-N`` folders kept
+(and named in the report) when a test fails, the JUnit properties (``arva_scene``,
+``arva_scene_toml``, ``arva_seed``).
 """
 
 from __future__ import annotations
@@ -48,9 +41,33 @@ def pytest_runtest_makereport(item: pytest.Item, call):
         )
 
 
-def _stop_all(request: pytest.FixtureRequest, started: list, folders: list) -> None:
-    """Teardown shared by the fixtures: stop everything started, keep the artefact folders
-    only when the test failed, then raise the first error a stop raised."""
+def recorded_scene_text(path: str | None) -> str:
+    """The scene's text for the JUnit report (at most :data:`MAX_RECORDED_SCENE` bytes)."""
+    from emulator.testing.scene_toml import scene_text
+
+    try:
+        text = scene_text(path)
+    except (OSError, ValueError) as exc:
+        return f"<not readable: {exc}>"
+    size = len(text.encode("utf-8"))
+    return text if size <= MAX_RECORDED_SCENE else f"<{size} bytes: longer than {MAX_RECORDED_SCENE}, not recorded>"
+
+
+def _factory(request: pytest.FixtureRequest, tmp_path, prefix: str, launch):
+    """What both fixtures do: ``start(...)`` is ``launch(work, n, ...)`` in the next
+    ``PREFIX-n`` folder of ``tmp_path`` (n: how many it started before); at teardown stop
+    everything started, keep the folders only when the test failed, then raise the first
+    error a stop raised."""
+    started: list = []
+    folders: list = request.node.stash.setdefault(_ARTEFACTS_KEY, [])
+
+    def start(*args, **kwargs):
+        work = tmp_path / f"{prefix}-{len(started)}"
+        folders.append(work)
+        started.append(launch(work, len(started), *args, **kwargs))
+        return started[-1]
+
+    yield start
     errors = []
     for thing in started:
         try:
@@ -66,33 +83,16 @@ def _stop_all(request: pytest.FixtureRequest, started: list, folders: list) -> N
         raise errors[0]
 
 
-def recorded_scene_text(path: str | None) -> str:
-    """The scene's text for the JUnit report (at most :data:`MAX_RECORDED_SCENE` bytes)."""
-    from emulator.testing.scenes import scene_text
-
-    try:
-        text = scene_text(path)
-    except (OSError, ValueError) as exc:
-        return f"<not readable: {exc}>"
-    size = len(text.encode("utf-8"))
-    return text if size <= MAX_RECORDED_SCENE else f"<{size} bytes: longer than {MAX_RECORDED_SCENE}, not recorded>"
-
-
 @pytest.fixture
 def arva_emulator(request: pytest.FixtureRequest, tmp_path):
     """A factory: ``arva_emulator(scene=None, clock="step", speed=1.0)`` -> Emulator."""
     from emulator.testing.harness import Emulator
 
-    started: list[Emulator] = []
-    folders: list = request.node.stash.setdefault(_ARTEFACTS_KEY, [])
     device = request.config.getoption("--arva-port")
 
-    def start(scene=None, clock: str = "step", speed: float = 1.0) -> Emulator:
-        work = tmp_path / f"arva-emulator-{len(started)}"
-        folders.append(work)
+    def launch(work, n: int, scene=None, clock: str = "step", speed: float = 1.0) -> Emulator:
         emu = Emulator.start(scene, clock=clock, speed=speed, workdir=work, arva_port=device)
-        started.append(emu)
-        suffix = "" if len(started) == 1 else f"_{len(started) - 1}"
+        suffix = f"_{n}" if n else ""
         # What record_property does, without its warning under junit_family xunit2
         # (pytest's default), which writes these properties all the same.
         source = "<embedded default.toml>" if scene is None else "<dict>" if isinstance(scene, dict) else str(scene)
@@ -101,8 +101,7 @@ def arva_emulator(request: pytest.FixtureRequest, tmp_path):
         request.node.user_properties.append((f"arva_seed{suffix}", emu.seed))
         return emu
 
-    yield start
-    _stop_all(request, started, folders)
+    yield from _factory(request, tmp_path, "arva-emulator", launch)
 
 
 @pytest.fixture
@@ -112,15 +111,8 @@ def arva_firmware(request: pytest.FixtureRequest, tmp_path):
     emulator writes the first receiver's stream into its UART0 (emulator.testing.qemu)."""
     from emulator.testing.qemu import FirmwareLoop
 
-    started: list[FirmwareLoop] = []
-    folders: list = request.node.stash.setdefault(_ARTEFACTS_KEY, [])
+    def launch(work, n, firmware, scene=None, clock="step", speed=1.0, machine="mps2-an385", icount=None):
+        return FirmwareLoop.start(firmware, scene, clock=clock, speed=speed, workdir=work, machine=machine,
+                                  icount=icount)
 
-    def start(firmware, scene=None, clock: str = "step", speed: float = 1.0, machine: str = "mps2-an385", icount=None):
-        work = tmp_path / f"arva-firmware-{len(started)}"
-        folders.append(work)
-        loop = FirmwareLoop.start(firmware, scene, clock=clock, speed=speed, workdir=work, machine=machine, icount=icount)
-        started.append(loop)
-        return loop
-
-    yield start
-    _stop_all(request, started, folders)
+    yield from _factory(request, tmp_path, "arva-firmware", launch)

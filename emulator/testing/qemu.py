@@ -25,6 +25,7 @@ from pathlib import Path
 import firmware_proto
 
 from emulator.child_process import end_with_parent
+from emulator.output.ports import file_name
 
 from .harness import Emulator, EmulatorError
 
@@ -75,14 +76,8 @@ def build_firmware(source_dir: str | Path, out_dir: str | Path, target: str = "s
 class Board(AbstractContextManager):
     """``qemu-system-arm`` running one firmware; see the module docstring."""
 
-    def __init__(
-        self,
-        firmware: str | Path,
-        workdir: str | Path,
-        machine: str = "mps2-an385",
-        icount: int | None = None,
-        timeout: float = 10.0,
-    ) -> None:
+    def __init__(self, firmware: str | Path, workdir: str | Path, machine: str = "mps2-an385",
+                 icount: int | None = None, timeout: float = 10.0) -> None:
         if shutil.which(QEMU) is None:
             raise ToolMissing(QEMU)
         firmware = Path(firmware)
@@ -240,7 +235,7 @@ class FirmwareLoop(AbstractContextManager):
 
     def captured(self, stream: str = "arva") -> bytes:
         """Every byte the emulator offered the firmware's UART0 so far (after faults)."""
-        path = self.emu.artefacts / "streams" / f"{stream.replace(':', '-')}.bytes"
+        path = self.emu.artefacts / "streams" / f"{file_name(stream)}.bytes"
         return path.read_bytes() if path.exists() else b""
 
     def stop(self) -> None:

@@ -13,7 +13,6 @@
   (0 no position, 1 non-RTK fix, 2 RTK) and INS status flag (0 not aligned, 1 aligned).
   Angles follow :mod:`emulator.frames.attitude` (heading clockwise from true north,
   pitch positive nose up, roll positive right side down; intrinsic Z-Y-X on NED/FRD).
-  Its conversions are re-exported here.
 
 Every sentence is assembled by ``pynmeagps.NMEAMessage(talker, msgID, GET, payload=...)``
 (a self-check of each field, and the checksum) from field strings formatted here;
@@ -39,12 +38,7 @@ from pynmeagps.nmeatypes_core import GET
 
 from firmware_proto.errors import InputError, PoseError
 
-from emulator.frames.attitude import hpr_to_quaternion, quaternion_to_hpr, wrap_heading
-
-__all__ = [
-    "KNOTS_PER_MPS", "gga_sentence", "gps_sentences", "hpr_to_quaternion", "pashr_from_quaternion",
-    "pashr_from_quaternions", "pashr_sentence", "quaternion_to_hpr", "rmc_sentence", "speed_course_from_enu"
-]
+from emulator.frames.attitude import quaternion_to_hpr, wrap_heading
 
 #: 1 knot = 1852 m / 3600 s exactly.
 KNOTS_PER_MPS = 3600.0 / 1852.0
@@ -53,8 +47,6 @@ _FAA_MODES = frozenset("ADEFMNPRS")
 
 
 # ---------------------------------------------------------------------------- field checks
-
-
 def _number(value: object, field: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise InputError(f"{field}: must be a number, got {value!r}")
@@ -142,8 +134,6 @@ def _serialize(talker: str, msg_id: str, fields: list[str]) -> bytes:
 
 
 # ---------------------------------------------------------------------------- GPS
-
-
 def speed_course_from_enu(v_east: float, v_north: float) -> tuple[float, float | None]:
     """(speed over ground in knots, course over ground in degrees true [0, 360) or None).
 
@@ -215,23 +205,17 @@ def rmc_sentence(
     if not (isinstance(mode, str) and len(mode) == 1 and mode in _FAA_MODES):
         raise InputError(f"mode: must be one FAA mode letter of {''.join(sorted(_FAA_MODES))}, got {mode!r}")
     status, faa = ("A", mode) if valid else ("V", "N")
-    fields = [
-        _hhmmss(t, 2),
-        status,
-        *_position(lat, lon, lat_lon_decimals),
-        "" if speed is None else f"{speed:.3f}",
-        "" if cog is None else _course_text(cog),
-        f"{t.day:02d}{t.month:02d}{t.year % 100:02d}",
-        "",  # magnetic variation: ground truth is true north only
-        "",
-        faa,
-    ]
+    fields = [_hhmmss(t, 2), status, *_position(lat, lon, lat_lon_decimals),
+              "" if speed is None else f"{speed:.3f}", "" if cog is None else _degrees_true(cog, 1),
+              f"{t.day:02d}{t.month:02d}{t.year % 100:02d}",
+              "", "", faa]  # no magnetic variation: ground truth is true north only
     return _serialize(_talker(talker), "RMC", fields)
 
 
-def _course_text(cog: float) -> str:
-    hundredths = math.floor(cog * 100.0 + 0.5) % 36000  # 359.996 prints as 0.00, not 360.00
-    return f"{hundredths // 100}.{hundredths % 100:02d}"
+def _degrees_true(angle: float, digits: int) -> str:
+    """``angle`` to 0.01 deg in [0, 360), at least ``digits`` before the point."""
+    hundredths = math.floor(angle * 100.0 + 0.5) % 36000  # 359.996 prints as 0.00, not 360.00
+    return f"{hundredths // 100:0{digits}d}.{hundredths % 100:02d}"
 
 
 def gps_sentences(
@@ -253,8 +237,6 @@ def gps_sentences(
 
 
 # ---------------------------------------------------------------------------- attitude
-
-
 def _signed(value: float, field: str) -> str:
     return f"{_number(value, field):+06.2f}"
 
@@ -280,19 +262,12 @@ def pashr_sentence(
     are 1-sigma degrees, None for an empty field.
     """
     t = _utc(utc, 1_000)
-    hundredths = math.floor(_number(heading, "heading") * 100.0 + 0.5) % 36000
     fields = [
-        _hhmmss(t, 3),
-        f"{hundredths // 100:03d}.{hundredths % 100:02d}",
-        "T",
-        _signed(roll, "roll"),
-        _signed(pitch, "pitch"),
-        _signed(heave, "heave"),
-        _accuracy(roll_accuracy, "roll_accuracy"),
-        _accuracy(pitch_accuracy, "pitch_accuracy"),
+        _hhmmss(t, 3), _degrees_true(_number(heading, "heading"), 3), "T",
+        _signed(roll, "roll"), _signed(pitch, "pitch"), _signed(heave, "heave"),
+        _accuracy(roll_accuracy, "roll_accuracy"), _accuracy(pitch_accuracy, "pitch_accuracy"),
         _accuracy(heading_accuracy, "heading_accuracy"),
-        str(_integer(gps_quality, "gps_quality", 0, 9)),
-        str(_integer(ins_status, "ins_status", 0, 9)),
+        str(_integer(gps_quality, "gps_quality", 0, 9)), str(_integer(ins_status, "ins_status", 0, 9)),
     ]
     return _serialize("P", "ASHR", fields)
 

@@ -1,6 +1,6 @@
 """A corpus of malformed scenes and fit CSVs with their exact one-line errors (issue 16),
 and the property behind the scene limits: no accepted scene produces a reading the
-encoder refuses, a division by zero or an overflow (emulator/scene/limits.py).
+encoder refuses, a division by zero or an overflow (emulator/scene/tables.py).
 
 Malformed sessions are issue 12's corpus (bench ingest); not repeated here.
 """
@@ -21,7 +21,7 @@ from bench.fit.csvio import parse_csv
 from bench.fit.table import COLUMNS, FitInputError
 from emulator.pipeline import scene_streams
 from emulator.receiver.model import ModelParams, measure, select_channels
-from emulator.scene.limits import MAX_READING_M, MIN_Q, MODEL_LIMITS
+from emulator.scene.tables import MAX_READING_M, MIN_Q, MODEL_LIMITS
 from emulator.scene.reader import loads_scene
 from firmware_proto.errors import SceneError
 from firmware_proto.sentences import MAX_D_CM, encode_epochs

@@ -1,9 +1,7 @@
 """The receiver model of BRIEF section 3: (d, delta) and zones for N poses x M transmitters.
 
-Units: positions in metres, ``d`` in centimetres, ``delta`` in degrees, the field in
-scene units. Frames (BRIEF 2): world = local ENU in metres; body x forward, y left, z up;
-the transmitter dipole points along its +x; quaternions ``[w, x, y, z]`` rotate body into
-world.
+Units and frames as in :mod:`.types` (metres in the world ENU frame, ``d`` in centimetres,
+``delta`` in degrees, the field in scene units); the transmitter dipole points along its +x.
 
 Here: :func:`measure` (input checks, blocks, threads, which path) and :func:`measure_one`.
 :mod:`.reference` is the formula of BRIEF 3 (the general path); :mod:`.fast` gives the
@@ -33,12 +31,6 @@ from emulator.receiver.model.types import (
     ANTENNAS, MAX_DELTA_DEG, ZONE_INNER, ZONE_MID, ZONE_OUTER, Batch, Measurement, ModelParams,
 )
 from firmware_proto.errors import InputError, PoseError
-
-__all__ = [
-    "ANTENNAS", "CHUNK_PAIRS", "Epochs", "KERNEL", "KERNELS", "MAX_DELTA_DEG",
-    "Measurement", "ModelParams", "ZONE_INNER", "ZONE_MID", "ZONE_OUTER",
-    "measure", "measure_one", "round_half_away", "select_channels",
-]
 
 #: Pairs are evaluated in blocks of about this many, reusing 12 float scratch buffers per
 #: block (3 MB: about the L2 of the 2-core Xeon here); smaller blocks pay more per-call
@@ -159,11 +151,7 @@ def measure_one(
 
     A thin wrapper over :func:`measure`, so both share one implementation.
     """
-    meas = measure(
-        np.asarray(rx_position, dtype=np.float64)[None],
-        np.asarray(rx_orientation, dtype=np.float64)[None],
-        np.asarray(tx_position, dtype=np.float64)[None],
-        np.asarray(tx_orientation, dtype=np.float64)[None],
-        params,
-    )
+    rx_p, rx_q, tx_p, tx_q = (np.asarray(a, dtype=np.float64)[None]
+                              for a in (rx_position, rx_orientation, tx_position, tx_orientation))
+    meas = measure(rx_p, rx_q, tx_p, tx_q, params)
     return int(meas.d[0, 0]), int(meas.delta[0, 0])

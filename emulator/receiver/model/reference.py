@@ -1,21 +1,12 @@
 """The reference formula of BRIEF section 3: field, zones and (d, delta) for blocks of pairs.
 
-Units: positions in metres (world frame), ``d`` in centimetres, ``delta`` in degrees, the
-field in scene units. Frames (BRIEF 2): world = local ENU in metres; body x forward, y
-left, z up; the transmitter dipole points along its +x; quaternions ``[w, x, y, z]``
-rotate body into world.
+Units and frames as in :mod:`.types` (metres in the world ENU frame, ``d`` in centimetres,
+``delta`` in degrees, the field in scene units); the transmitter dipole points along its +x.
 
-Scale-free form (derivation in docs/model.md section 2): with r the separation, n the
-world unit vector from transmitter to receiver and m = R_t e_x the dipole axis, the
-field is h = s / (4 pi r^3) * u with u = R_r^T (3 (m.n) n - m), 1 <= |u| <= 2, so
-
-    d3  = r * cbrt(kappa_eq / s) / cbrt(|u|)
-    dxy = r * cbrt(kappa_eq / s) / cbrt(|(u_x, u_y)|)
-    delta = atan(u_y / u_x)
-
-and no intermediate over- or underflows for any finite r > 0. With noise the larger of
-the signal and noise terms is factored out, so inf * 0 never occurs (docs/model.md
-section 4); the 2-antenna class uses dxy in every zone (section 8).
+Written in the scale-free form of docs/model.md section 2 (h = s / (4 pi r^3) u with
+1 <= |u| <= 2, d3 = r cbrt(kappa_eq / s) / cbrt(|u|)), so no intermediate over- or
+underflows for any finite r > 0; with noise the larger of the signal and noise terms is
+factored out (section 4); the 2-antenna class uses dxy in every zone (section 8).
 
 This is the general path: every receiver class, noise, the field, moving transmitters.
 :mod:`emulator.receiver.model.fast` computes the common case faster and hands back every
@@ -65,23 +56,6 @@ def norm3(x, y, z):
 
 
 # -- Driving blocks: poses of a call, or pairs a fast path left undecided ---------------
-
-
-def _pose_along(a, tx_major):
-    """A per-pose row as the block's layout wants it: (1, rows) or (rows, 1)."""
-    return a[None, :] if tx_major else a[:, None]
-
-
-def _pair_along(a, tx_major):
-    """A (rows, M) slice as the block's layout wants it: (M, rows) or (rows, M)."""
-    return a.T if tx_major else a
-
-
-def _tx_along(a, tx_major):
-    """A per-transmitter row as the block's layout wants it: (M, 1) or (1, M)."""
-    return a[:, None] if tx_major else a[None, :]
-
-
 def measure_poses(batch: Batch, first: int, last: int) -> None:
     """Poses first..last-1 of ``batch`` on the general path, block by block, with buffers
     of their own (so threads may run disjoint ranges).
@@ -97,7 +71,10 @@ def measure_poses(batch: Batch, first: int, last: int) -> None:
     scratch = Scratch(size * m)
     rot = np.empty((3, 3, size))
     q_rows, q_work = np.empty((4, size)), np.empty((4, size))
-    pair = lambda a: _pair_along(a, tx_major)  # noqa: E731
+    # Per-pose rows, per-transmitter rows and (rows, M) slices as the layout wants them.
+    pose = lambda a: a[None, :] if tx_major else a[:, None]  # noqa: E731
+    txs = lambda a: a[:, None] if tx_major else a[None, :]  # noqa: E731
+    pair = lambda a: a.T if tx_major else a  # noqa: E731
     with np.errstate(all="ignore"):
         for lo in range(first, last, rows):
             hi = min(last, lo + rows)
@@ -106,8 +83,8 @@ def measure_poses(batch: Batch, first: int, last: int) -> None:
                 tx = tuple(pair(tx_p[sl, :, k]) for k in range(3))
                 tm = tuple(pair(tx_m[k, sl]) for k in range(3))
             else:
-                tx = tuple(_tx_along(tx_p[:, k], tx_major) for k in range(3))
-                tm = tuple(_tx_along(tx_m[k], tx_major) for k in range(3))
+                tx = tuple(txs(tx_p[:, k]) for k in range(3))
+                tm = tuple(txs(tx_m[k]) for k in range(3))
             f = 1.0
             if batch.any_big:  # a block holding coordinates beyond HUGE is scaled by 1/4
                 big = max(np.max(np.abs(rx_p[sl]), initial=0.0),
@@ -120,8 +97,8 @@ def measure_poses(batch: Batch, first: int, last: int) -> None:
                 unit_quaternion_components(rx_q, "receiver.orientation")
             rx_r = rotation_components(qc, out=rot[:, :, : hi - lo])
             measure_block(
-                tuple(_pose_along(rx_c, tx_major) for rx_c in np.ascontiguousarray(rx_p[sl].T)),
-                tuple(tuple(_pose_along(rx_r[i, j], tx_major) for j in range(3)) for i in range(3)),
+                tuple(pose(rx_c) for rx_c in np.ascontiguousarray(rx_p[sl].T)),
+                tuple(tuple(pose(rx_r[i, j]) for j in range(3)) for i in range(3)),
                 tx,
                 tm,
                 f,
@@ -183,8 +160,6 @@ class Scratch:
 
 
 # -- One block of pairs ----------------------------------------------------------------
-
-
 def measure_block(rx, rr, tx, tm, f, params, noise, d_out, delta_out, zone_out, field_out, scratch):
     """One block of pairs. Every array argument broadcasts to the block's 2-D shape.
 
@@ -351,7 +326,9 @@ def _zones(dxy, params, inner_all, zone_out, k_mid, o_out, m2):
 def _write_distance(dist, params, k_mid, o_out, v, d_out):
     """d = round(100 dist) in cm (halves away from zero), -1 for outer pairs."""
     dist *= 100.0
-    if _round_half_up_exact(dist, params):
+    # floor(x + 0.5) rounds every inner/mid value (cm, >= 0, at most 100 max(r_inner,
+    # r_outer)) exactly below 2^52 except x = 0.49999999999999994; outer values become -1.
+    if 100.0 * max(params.r_inner, params.r_outer) < 2.0**52 and not np.equal(dist, _BELOW_HALF).any():
         np.add(dist, 0.5, out=v)
         np.floor(v, out=v)
     else:
@@ -400,17 +377,6 @@ def _write_field(g, field_scale, at_tx, shape, params, field_out):
         field_out[2][...] = 0.0  # no z antenna: a 2-antenna unit cannot report h_z
 
 
-def _round_half_up_exact(x, params) -> bool:
-    """True when floor(x + 0.5) rounds every inner/mid value of ``x`` (cm, >= 0) exactly.
-
-    Such values are <= 100 max(r_inner, r_outer); floor(x + 0.5) is exact below 2^52
-    except at x = 0.49999999999999994. Outer values (any) are replaced by -1 later.
-    """
-    if 100.0 * max(params.r_inner, params.r_outer) >= 2.0**52:
-        return False
-    return not np.equal(x, _BELOW_HALF).any()
-
-
 def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
     """Add EMI (BRIEF 3.2): h = a u + b v (a = s / (4 pi r^3), b = w_en) with the larger
     of a and b factored out: g = u + (b/a) v at distance scale r * cbrt(kappa_eq / s) when
@@ -432,10 +398,5 @@ def _add_noise(g0, g1, g2, r, rr, noise, params, want_scale):
     if want_scale:
         signal = (params.moment / (4.0 * math.pi)) / r**3
         field_scale = np.where(noise_wins, params.w_en, signal)
-    return (
-        coef_u * g0 + coef_v * v0,
-        coef_u * g1 + coef_v * v1,
-        coef_u * g2 + coef_v * v2,
-        dist_scale,
-        field_scale,
-    )
+    g = tuple(coef_u * gi + coef_v * vi for gi, vi in ((g0, v0), (g1, v1), (g2, v2)))
+    return (*g, dist_scale, field_scale)

@@ -56,8 +56,7 @@ class ModelParams:
                 raise InputError(f"model.{name}: must be a finite number > 0, got {value!r}")
         if len(self.q) != 3 or not all(isinstance(v, (int, float)) and 0 < v <= 1 for v in self.q):
             raise InputError(f"model.q: must be 3 numbers in (0, 1], got {list(self.q)!r}")
-        scale = math.cbrt(self.kappa_eq / self.moment)
-        if not (math.isfinite(scale) and scale > 0):
+        if not (math.isfinite(self.distance_scale) and self.distance_scale > 0):
             raise InputError("model: kappa_eq / moment must be a finite positive ratio")
 
     @property
