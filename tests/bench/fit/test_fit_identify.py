@@ -6,14 +6,17 @@ import argparse
 import json
 import math
 import sys
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from bench.cli import main
 from bench.fit import cli as fit_cli
 from bench.fit.estimate import fit, fit_once
 from bench.fit.grades import GPS_GRADES, IMU_GRADES
-from bench.fit.identify import MIN_NOISE_ROWS, NoiseReach
+from bench.fit.identify import MIN_NOISE_ROWS, R_EN_TYPICAL, NoiseReach, noise_reach, noise_shows
+from bench.fit.likelihood import Params
 from bench.fit.result import EIV_FREE, FitOptions
 from emulator.receiver.model import ModelParams
 from emulator.scene.reader import load_scene
@@ -35,6 +38,31 @@ def test_noise_reach_thresholds():
     assert NoiseReach(rows=30, within=1500, **at).determined
     assert not NoiseReach(rows=30, within=1501, **at).determined
     assert not NoiseReach(rows=0, within=0, **at).determined
+
+
+def rows_at(distances):
+    """Rows whose only geometry the rule reads: the distances (m)."""
+    return SimpleNamespace(geo=SimpleNamespace(log_r=np.log(np.asarray(distances, dtype=float))))
+
+
+def test_noise_reach_takes_r_en_no_lower_than_a_typical_receivers():
+    """A fitted r_en that is low would count near rows as showing the noise: on the study's
+    near-only walk (5-15 m, 1 m GPS error) 3 of 50 report fits put r_en 45-65 % low, 6-8
+    s.e. from the truth, and at that value 530-1,114 rows counted, so r_en was reported.
+    The rule now takes r_en at least R_EN_TYPICAL (the model's default, 80 m)."""
+    assert R_EN_TYPICAL == 80.0
+    d = np.linspace(5.0, 15.0, 1000)
+    near = rows_at(d)
+    low = noise_reach(near, Params(r_en=30.0, gps_sigma=0.3))
+    assert int(np.sum(noise_shows(d, 30.0, 0.3))) == 551  # at the fitted 30 m: beyond 9.5 m
+    assert (low.rows, low.within, round(low.r_cross, 1), low.fitted, low.determined) == (0, 1000, 19.8, 30.0, False)
+    assert "at r_en 80 m (a typical receiver's: the fitted 30 m is lower, and a walk that cannot place r_en can put " \
+           "it low), would show through 0.3 m of GPS error: beyond about 20 m; the farthest row is at 15 m)" in low.note()
+    high = noise_reach(near, Params(r_en=90.0, gps_sigma=0.3))
+    assert (high.rows, high.fitted, high.determined) == (0, math.inf, False) and "at the fitted r_en," in high.note()
+    # a walk out to 50 m determines a low r_en all the same
+    far = noise_reach(rows_at(np.linspace(5.0, 50.0, 1000)), Params(r_en=40.0, gps_sigma=1.0))
+    assert (far.rows, round(far.r_cross, 1), far.determined) == (517, 26.7, True)
 
 
 @pytest.mark.slow
