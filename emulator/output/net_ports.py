@@ -420,9 +420,9 @@ class ServerPort(Port):
             except OSError:
                 return
             if self.clients >= MAX_CLIENTS:
-                _shut(sock)
-                self.clients_refused += 1  # by this thread only
+                self.clients_refused += 1  # by this thread only; before the client sees its EOF
                 n = self.clients_refused
+                _shut(sock)
                 if n <= NOTIFY_REFUSALS:
                     more = "; further refusals only counted" if n == NOTIFY_REFUSALS else ""
                     self.notify(f"{self.label}: client {_format_addr(addr)} refused: {MAX_CLIENTS} clients are "

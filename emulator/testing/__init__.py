@@ -8,3 +8,8 @@ loads the plugin in every run.
 from emulator.testing.harness import (
     ControlClient, ControlReplyError, Emulator, EmulatorError, EmulatorProcess, process_rss_kb, read_lines,
 )
+
+__all__ = [  # the harness library's public names (re-exported)
+    "ControlClient", "ControlReplyError", "Emulator", "EmulatorError", "EmulatorProcess", "process_rss_kb",
+    "read_lines",
+]

@@ -32,6 +32,12 @@ from emulator.receiver.model.types import (
 )
 from firmware_proto.errors import InputError, PoseError
 
+__all__ = [  # the model's public names, several re-exported from its modules
+    "ANTENNAS", "CHUNK_PAIRS", "Epochs", "KERNEL", "KERNELS", "MAX_DELTA_DEG",
+    "Measurement", "ModelParams", "ZONE_INNER", "ZONE_MID", "ZONE_OUTER",
+    "measure", "measure_one", "round_half_away", "select_channels",
+]
+
 #: Pairs are evaluated in blocks of about this many, reusing 12 float scratch buffers per
 #: block (3 MB: about the L2 of the 2-core Xeon here); smaller blocks pay more per-call
 #: overhead than they win in cache hits (tests/perf/bench_model.py, docs/performance.md).
