@@ -304,14 +304,10 @@ class Manifest:
     their read's time), 2 (records stamped by the stamp rule of :mod:`bench.ingest.stamp`);
     the raw reads, from which every reader re-derives the records, are the same in both."""
 
-    version: int
     devices: dict[str, DeviceEntry]
-    start_utc: str | None
-    stop_utc: str | None
     origin: GeoPose | None
     tx_poses: dict[int, GeoPose]
-    summary: dict | None
-    raw: dict  # the JSON object as read
+    raw: dict  # the JSON object as read (version, times and summary are checked, read from here)
 
     @classmethod
     def parse(cls, obj) -> Manifest:
@@ -342,7 +338,7 @@ class Manifest:
             except ValueError:
                 raise ValueError(f"{key}: expected a UTC time like 2026-01-15T10:00:00.000000Z, "
                                  f"got {json.dumps(text)}") from None
-        return cls(doc.version, devices, doc.start_utc, doc.stop_utc, doc.origin, poses, doc.summary, obj)
+        return cls(devices, doc.origin, poses, obj)
 
 
 # -- reading ------------------------------------------------------------------------

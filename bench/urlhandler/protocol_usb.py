@@ -26,7 +26,7 @@ import re
 import urllib.parse
 from dataclasses import dataclass
 
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException, SerialTimeoutException, Timeout, to_bytes
+from serial.serialutil import SerialBase, SerialException, SerialTimeoutException, Timeout, to_bytes
 
 from emulator.output.virtual_line import VirtualLine
 
@@ -159,10 +159,7 @@ class Serial(VirtualLine, SerialBase):
 
     # -- opening ----------------------------------------------------------------
     def open(self) -> None:
-        if self.is_open:
-            raise SerialException("Port is already open.")
-        if self._port is None:
-            raise SerialException("Port must be configured before it can be used.")
+        self._may_open()
         self._url = parse_url(self._port)
         try:
             self._usb = usb = import_pyusb()
@@ -324,15 +321,13 @@ class Serial(VirtualLine, SerialBase):
     @property
     def in_waiting(self) -> int:
         """Bytes buffered, after polling the endpoint for what has arrived."""
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._require_open()
         self._drain()
         return len(self._buffer)
 
     def read(self, size: int = 1) -> bytes:
         """Up to SIZE bytes, within the port's timeout (seconds; see the module docstring)."""
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._require_open()
         timeout = Timeout(self._timeout)
         while len(self._buffer) < size:
             if timeout.is_non_blocking:
@@ -352,8 +347,7 @@ class Serial(VirtualLine, SerialBase):
 
     def reset_input_buffer(self) -> None:
         """Drop buffered bytes and whatever the endpoint holds now."""
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._require_open()
         self._drain()
         self._buffer.clear()
 
@@ -364,8 +358,7 @@ class Serial(VirtualLine, SerialBase):
         Time limit: ``write_timeout`` (seconds) when set, else ``timeout_ms``; on expiry
         ``SerialTimeoutException``.
         """
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._require_open()
         data = to_bytes(data)
         if self._out_ep is None:
             raise self._fail(f"interface {self._interface} has no OUT endpoint: the device cannot be written to")

@@ -395,8 +395,6 @@ class ServerPort(Port):
         self._left_written = 0  # counts of clients that left
         self._left_dropped = 0
         self._unheard = 0
-        #: Clients disconnected for exceeding a cap (or a request pyserial cannot parse).
-        self.clients_cut = 0
         #: Connections closed at once: :data:`MAX_CLIENTS` were being served.
         self.clients_refused = 0
         self._acceptor = threading.Thread(target=self._accept_loop, name=f"{label} accept", daemon=True)
@@ -441,9 +439,7 @@ class ServerPort(Port):
             client.start()
 
     def cut(self, client: ServedClient) -> None:
-        """Count and report a client the server disconnects (``client.cut`` says why)."""
-        with self._lock:
-            self.clients_cut += 1
+        """Report a client the server disconnects (``client.cut`` says why)."""
         self.notify(f"{self.label}: client {client.name}: {client.cut}; disconnecting")
 
     def forget(self, client: ServedClient) -> None:

@@ -8,7 +8,7 @@ which configures its line and purges itself)."""
 
 from __future__ import annotations
 
-from serial.serialutil import PortNotOpenError
+from serial.serialutil import PortNotOpenError, SerialException
 
 
 class VirtualLine:
@@ -25,6 +25,16 @@ class VirtualLine:
         pass
 
     def reset_output_buffer(self) -> None:
+        self._require_open()
+
+    def _may_open(self) -> None:
+        """What pyserial checks before an ``open()``, in its words."""
+        if self.is_open:
+            raise SerialException("Port is already open.")
+        if self._port is None:
+            raise SerialException("Port must be configured before it can be used.")
+
+    def _require_open(self) -> None:
         if not self.is_open:
             raise PortNotOpenError()
 

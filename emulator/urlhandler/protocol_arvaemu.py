@@ -16,7 +16,7 @@ import time
 import urllib.parse
 from dataclasses import dataclass
 
-from serial.serialutil import PortNotOpenError, SerialBase, SerialException, Timeout
+from serial.serialutil import SerialBase, SerialException, Timeout
 
 from firmware_proto.errors import InputError
 
@@ -40,10 +40,7 @@ class Serial(VirtualLine, SerialBase):
 
     # -- opening ----------------------------------------------------------------
     def open(self) -> None:
-        if self.is_open:
-            raise SerialException("Port is already open.")
-        if self._port is None:
-            raise SerialException("Port must be configured before it can be used.")
+        self._may_open()
         u = parse_url(self._port)
         self._speed = u.speed
         label = stream_layout(u.scene)[u.index].label
@@ -83,15 +80,13 @@ class Serial(VirtualLine, SerialBase):
 
     @property
     def in_waiting(self) -> int:
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._require_open()
         if self._speed != 0:
             self._render_due(0)
         return len(self._buffer)
 
     def read(self, size: int = 1) -> bytes:
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._require_open()
         timeout = Timeout(self._timeout)
         while len(self._buffer) < size:
             self._render_due(size)
@@ -104,15 +99,13 @@ class Serial(VirtualLine, SerialBase):
         return data
 
     def reset_input_buffer(self) -> None:
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._require_open()
         self._render_due(0)  # due epochs are produced (and lost), as on a real line
         self._buffer.clear()
 
     # -- writing and the rest ----------------------------------------------------
     def write(self, data) -> int:
-        if not self.is_open:
-            raise PortNotOpenError()
+        self._require_open()
         return len(data)
 
     def close(self) -> None:
