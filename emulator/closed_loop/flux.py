@@ -122,10 +122,8 @@ class FluxFollower(Controller):
         super().__init__(spec, model, dt)
 
     # The state array's element, under the names the rest of the code reads.
-    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])],
-                     lambda self, name: self.state.phase.__setitem__(0, SEARCH if name == "search" else FOLLOW))
-    target = property(lambda self: None if self.state.target[0] < 0 else int(self.state.target[0]),
-                      lambda self, tx_id: self.state.target.__setitem__(0, -1 if tx_id is None else tx_id))
+    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])])
+    target = property(lambda self: None if self.state.target[0] < 0 else int(self.state.target[0]))
     _v = property(lambda self: (float(self.state.vx[0]), float(self.state.vy[0])))
 
     def command(self, obs: Observation) -> tuple[float, float, float]:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from emulator.closed_loop.strategy import (
-    APPROACH, FINE, INNER_CM, PHASE_NAMES, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays,
+    APPROACH, FINE, INNER_CM, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays,
     Observation, StateArrays, TickPlan, atan2, cos, exact, hypot, pick_slots, sin, speed_law,
 )
 from emulator.closed_loop.flux import FluxFollower
@@ -307,8 +307,7 @@ class ReceiverOnlySearch(Controller):
         super().__init__(spec, model, dt)
         self._plan = self.tick_plan()
 
-    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])],
-                     lambda self, name: self.state.phase.__setitem__(0, SEARCH if name == "search" else FINE))
+    phase = FluxFollower.phase
     target = FluxFollower.target
     heading = property(lambda self: float(self.state.heading[0]) if self.state.headed[0] else None)
 
