@@ -89,9 +89,7 @@ def event_text(ev: Event) -> str:
 
 def stats_text(stats: DecoderStats | dict[str, int]) -> str:
     d = stats.as_dict() if isinstance(stats, DecoderStats) else stats
-    keys = ["bytes", "garbage_bytes", "sentences_ok", "epochs_complete", "epochs_incomplete", "seq_gaps",
-            "seqs_missing", "seq_wraps", "fields_orphaned"] + [f"errors.{k.name}" for k in ErrorKind]  # fmt: skip
-    return "stats " + " ".join(f"{k}={d[k]}" for k in keys)
+    return "stats " + " ".join(f"{k}={d[k]}" for k in DecoderStats().as_dict())  # the counters' order
 
 
 # -- the C table ----------------------------------------------------------------------------

@@ -1,26 +1,14 @@
-"""Many closed-loop runs stepped together: the per-run :class:`ClosedLoop`, batched
-(docs/closed_loop.md, "Many runs at once").
+"""Many closed-loop runs stepped together: the per-run :class:`ClosedLoop`, batched, with
+the same results bit for bit. docs/closed_loop.md, "Many runs at once", describes the
+design (one receiver-model call per epoch for all runs, the controllers of a strategy
+deciding together on arrays, tick plans) and why the floats agree (CPython's own ``math``
+functions element by element, :mod:`emulator.closed_loop.strategy`; numpy's ``cbrt``,
+``arctan`` and ``einsum`` per element whatever the array, which IEEE does not promise:
+``tests/emulator/closed_loop/test_batch_loop.py`` checks it).
 
 Same frames and units as :mod:`emulator.closed_loop.loop` (world ENU metres, scene
-seconds). Each run keeps its scene seed, receiver noise stream, range-sensor stream and
-controller state; per epoch the batch makes one receiver-model call for all runs (runs
-with fewer transmitters padded with silent ones far away), lets the controllers of each
-strategy decide together (:func:`~emulator.closed_loop.controllers.flux_epoch`,
-:func:`~emulator.closed_loop.controllers.rx_epoch`) and state their tick plans, then
-steps the other ticks, the vehicles (paper eq. 9) and the range sensors in numpy.
-Finished runs (all located, search exhausted, ``t_max``) drop out.
-
-**Bit equality with ClosedLoop.** Every float operation is the per-run one on the same
-operands: numpy's element-wise +, -, *, /, sqrt, min/max and comparisons are correctly
-rounded like Python's floats, and ``math.hypot``, ``atan2``, ``cos``, ``sin`` and
-``pow`` are applied element by element with the Python function (``np.frompyfunc``).
-The one assumption IEEE does not guarantee, that numpy's vectorised ``cbrt``,
-``arctan`` and ``einsum`` give an element the same result whatever the array around it,
-is checked by ``tests/emulator/closed_loop/test_batch_loop.py``.
-
-Not batched (``ValueError``: use :class:`ClosedLoop`): what :meth:`BatchLoop._check`
-refuses (external MAVLink, moving transmitters, pulses, quantize, runs that differ in
-rate, channels, model or noise switch).
+seconds); runs with fewer transmitters are padded with silent ones far away. Not batched
+(``ValueError``: use :class:`ClosedLoop`): what :meth:`BatchLoop._check` refuses.
 """
 
 from __future__ import annotations

@@ -103,13 +103,9 @@ def flux_epoch(st: FluxState, ep: EpochArrays, par: FluxParams) -> tuple[np.ndar
 
 
 class FluxFollower(Controller):
-    """The paper's eq. 10 on the full receiver-frame field vector (see module doc).
-
-    With ``flux_reverse`` (not in the paper) it follows -h instead of +h while the
-    distance proxy |h|^(-1/3) keeps growing (10 % above its best, at most every 5
-    epochs): eq. 10 with +h only flies away from a dipole that points upwards, whose
-    field in the flight plane diverges from the point above it.
-    """
+    """The paper's eq. 10 on the full receiver-frame field vector, and ``flux_reverse``
+    (not in the paper): docs/closed_loop.md, "Strategies"; the reversal rule's numbers
+    are the constants below."""
 
     name = "flux"
     SETTLE_EPOCHS = 3
@@ -122,11 +118,8 @@ class FluxFollower(Controller):
         super().__init__(spec, model, dt)
 
     # The state array's element, under the names the rest of the code reads.
-    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])],
-                     lambda self, name: self.state.phase.__setitem__(0, SEARCH if name == "search" else FOLLOW))
-    target = property(lambda self: None if self.state.target[0] < 0 else int(self.state.target[0]),
-                      lambda self, tx_id: self.state.target.__setitem__(0, -1 if tx_id is None else tx_id))
-    _v = property(lambda self: (float(self.state.vx[0]), float(self.state.vy[0])))
+    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])])
+    target = property(lambda self: None if self.state.target[0] < 0 else int(self.state.target[0]))
 
     def command(self, obs: Observation) -> tuple[float, float, float]:
         vz = self.height_hold(obs)
@@ -137,4 +130,4 @@ class FluxFollower(Controller):
         if self.phase == "search":
             vx, vy = self.search_velocity(obs)
             return vx, vy, vz
-        return self._v[0], self._v[1], vz
+        return float(self.state.vx[0]), float(self.state.vy[0]), vz

@@ -116,8 +116,6 @@ class ClosedLoop:
         if spec is None:
             raise ValueError(f"receiver {scene.receivers[index].id} has no vehicle")
         self.scene = scene
-        self.spec = spec
-        self.index = index
         self.receiver = Receiver(scene, index, want_field=True)
         self.channels = self.receiver.channels
         self.research = scene.effects.research_sentences
@@ -128,8 +126,7 @@ class ClosedLoop:
         self._ticks_t: list[float] = []
         self._ticks_p: list[tuple[float, float, float]] = []
         self._epochs: list[tuple[float, list, list, list]] = []
-        self.external = spec.controller == "external_mavlink"
-        if self.external:
+        if spec.controller == "external_mavlink":
             from emulator.closed_loop.mavlink import MavlinkPoseSource
 
             self.uav = None

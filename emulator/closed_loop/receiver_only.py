@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from emulator.closed_loop.strategy import (
-    APPROACH, FINE, INNER_CM, PHASE_NAMES, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays,
+    APPROACH, FINE, INNER_CM, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays,
     Observation, StateArrays, TickPlan, atan2, cos, exact, hypot, pick_slots, sin, speed_law,
 )
 from emulator.closed_loop.flux import FluxFollower
@@ -273,19 +273,10 @@ def rx_arrive(st: RxState, x, y, par: RxParams) -> tuple[np.ndarray, ...]:
 
 
 class ReceiverOnlySearch(Controller):
-    """A rescuer's procedure on (id, d, delta) only (docs/closed_loop.md, "Strategies").
-
-    Coarse search: follow yaw + delta (or its opposite, whichever continues the heading),
-    turning around when d exceeds its best by ``REVERSE_FRACTION`` + ``REVERSE_CM`` (at
-    most every ``REVERSE_EVERY`` epochs); after ``MAX_REVERSALS`` reversals or
-    ``STUCK_EPOCHS`` without a new best (near a steep dipole the two-antenna d grows
-    while the distance falls) the fine search starts from the best point seen. Fine
-    search: crosses of two bracketing lines, each flown until d is ``RISE_CM`` above its
-    minimum or ``MAX_LINE_M`` each way; located after two crosses in the inner zone, or
-    after a third below ``PROBE_CM``; above that (the trap) follow delta for
-    ``COMMIT_EPOCHS`` and retry, at most ``MAX_ATTEMPTS`` times. This object runs the
-    array logic (:func:`rx_epoch` ...) on a batch of one.
-    """
+    """A rescuer's procedure on (id, d, delta) only: docs/closed_loop.md, "Strategies",
+    describes its coarse search, fine search and steep-dipole trap, whose numbers are the
+    constants below. This object runs the array logic (:func:`rx_epoch` ...) on a batch
+    of one."""
 
     name = "receiver_only"
     search_sets_heading = True
@@ -307,8 +298,7 @@ class ReceiverOnlySearch(Controller):
         super().__init__(spec, model, dt)
         self._plan = self.tick_plan()
 
-    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])],
-                     lambda self, name: self.state.phase.__setitem__(0, SEARCH if name == "search" else FINE))
+    phase = FluxFollower.phase
     target = FluxFollower.target
     heading = property(lambda self: float(self.state.heading[0]) if self.state.headed[0] else None)
 

@@ -196,7 +196,8 @@ def strip_velocity(wp, count, nxt, x, y, speed) -> tuple[np.ndarray, np.ndarray]
 
 
 class Controller:
-    """Common parts: height hold, target selection with marking, signal search."""
+    """Common parts: height hold, target selection with marking, signal search. A subclass
+    gives ``phase`` ("search", ...) and ``target`` (an id or None) from its state arrays."""
 
     name = "controller"
     #: The search phase sets ``heading`` from each non-zero strip velocity.
@@ -208,9 +209,7 @@ class Controller:
         self.dt = dt if dt is not None else 1.0 / spec.control_rate_hz
         self.located: list[Located] = []
         self.marked: set[int] = set()
-        self.target: int | None = None
         self.strips = StripSearch(spec.search_area, spec.strip_width) if spec.search_area else None
-        self.phase = "search"
 
     @property
     def exhausted(self) -> bool:

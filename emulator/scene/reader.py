@@ -10,7 +10,6 @@ a :class:`~emulator.scene.types.Scene`.
 from __future__ import annotations
 
 import datetime as _dt
-import math
 from dataclasses import replace
 from functools import partial
 from importlib import resources
@@ -21,7 +20,7 @@ import numpy as np
 from firmware_proto.errors import InputError, PoseError
 from firmware_proto.sentences import MAX_D_CM
 
-from emulator.closed_loop.vehicle import VehicleSpec, parse_vehicle
+from emulator.closed_loop.vehicle import UAV, VehicleSpec, parse_vehicle
 from emulator.frames.geodesy import Origin
 from emulator.frames.rotation import normalize_quaternions
 from emulator.frames.trajectory import IDENTITY, Trajectory
@@ -265,10 +264,8 @@ def _vehicle(rd: TableReader, r: ReceiverTable, path: str, rate_hz: float) -> Ve
 
 
 def _start_pose(vehicle: VehicleSpec) -> Trajectory:
-    x, y = vehicle.start
-    z = vehicle.terrain.height(x, y) + vehicle.height_start
-    yaw = math.radians(vehicle.yaw_deg)
-    return Trajectory.static([x, y, z], [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    uav = UAV(vehicle.terrain, vehicle.start, vehicle.height_start, vehicle.yaw_deg)
+    return Trajectory.static(uav.position, uav.orientation)
 
 
 def load_scene(path: str | Path) -> Scene:

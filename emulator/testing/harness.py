@@ -280,11 +280,9 @@ class Emulator(contextlib.AbstractContextManager):
         from emulator.testing.scene_toml import first_receiver_label, scene_file
 
         work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="arva-emu-"))
-        work.mkdir(parents=True, exist_ok=True)
-        links = work / "pty"
-        links.mkdir(exist_ok=True)
-        capture = work / "streams"
-        capture.mkdir(exist_ok=True)
+        links, capture = work / "pty", work / "streams"
+        for folder in (links, capture):
+            folder.mkdir(parents=True, exist_ok=True)
         scene_path = scene_file(scene, work)
         seed, first = first_receiver_label(scene_path)
         # A short private folder for the socket: unix socket paths are limited to 107 bytes.
@@ -297,16 +295,14 @@ class Emulator(contextlib.AbstractContextManager):
         if arva_port is not None:
             args += ["--stream", f"{first}={arva_port}"]
         args += list(extra_args)
+        proc = None
         try:
             proc = EmulatorProcess(*args, streams=0, timeout=timeout)
-        except EmulatorError:
-            shutil.rmtree(sock_dir, ignore_errors=True)
-            raise
-        try:
             client = ControlClient(proc.control, timeout=max(timeout, 30.0), transcript=work / "control-transcript.txt")
             status = client.request("status")
         except Exception:
-            proc.kill()
+            if proc is not None:
+                proc.kill()
             shutil.rmtree(sock_dir, ignore_errors=True)
             raise
         ports = {}
