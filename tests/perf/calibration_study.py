@@ -93,6 +93,7 @@ REPORT_RUNS = (
     ReportRun("calibration_study_radial_far_exact_report50_ba05bac.jsonl", "ba05bac"),
     ReportRun("calibration_study_level_exact_report50_ba05bac.jsonl", "ba05bac"),
     ReportRun("calibration_study_radial_spiral_near_report50_10b68e2.jsonl", "10b68e2"),
+    ReportRun("calibration_study_near_report50_29616eb.jsonl", "29616eb"),
 )
 OUT = ROOT / "tests/perf/out"
 DOCS = (ROOT / "docs/calibration.md", ROOT / "docs/accuracy.md")
