@@ -264,7 +264,8 @@ def docs_block(rows: dict[str, tuple[ReportRun, list[dict]]]) -> str:
     targets, every figure computed here from the records."""
     header, cells = None, []
     n_conv = n_silent = 0
-    for label, (run, recs) in rows.items():
+    order = list(sc.CONDITIONS)
+    for label, (run, recs) in sorted(rows.items(), key=lambda item: (order.index(item[0].split(" [")[0]), item[0])):
         relabelled = [{**r, "condition": label} for r in recs]
         h, (row,) = table(relabelled)
         header = ["condition", "walk, pose error, junk", "fit code", "started (UTC)", *h[1:-1]]
