@@ -144,3 +144,22 @@ def test_r_en_flat_at_its_ceiling_without_curvature_restarts_held_there():
     )
     assert res.to_json()["r_en"] is None
     assert abs(res.estimate["kappa_eq"] - camp.truth.kappa_eq) < 1.96 * res.se["kappa_eq"]
+
+
+def test_a_search_that_runs_the_attitude_error_to_its_ceiling_is_fitted_with_it_held():
+    """Level walk with GPS multipath jumps (level-heavy, tuning seed 3): the default fit's
+    search ran the attitude error to its upper bound (28.6 deg, the generator applies 2) and
+    stopped there, kappa_eq 9 s.e. low: "did not converge", exit 1. An attitude error the
+    walk cannot determine is held at the consumer IMU grade, as when a converged fit puts it
+    above 4 deg: now it converges, says so first, and kappa_eq's interval covers."""
+    camp, table = study_table("level-heavy", 3)
+    first = fit_once(table, FitOptions(free=EIV_FREE))
+    assert not first.converged and first.message == "attitude_sigma runs to its upper bound 0.5"
+    res = fit(table, FitOptions(free=EIV_FREE))
+    assert res.converged and res.params.attitude_sigma == np.radians(2.0) and "attitude_sigma" not in res.free
+    assert res.notes[0] == (
+        "attitude error not determined: the search ran it to its upper bound 28.6 deg and did not converge, which this "
+        "walk cannot tell from a weaker transmitter; held at 2 deg, a consumer IMU's grade (--imu-grade / "
+        "--attitude-sigma give another)"
+    )
+    assert abs(res.estimate["kappa_eq"] - camp.truth.kappa_eq) < 1.96 * res.se["kappa_eq"]
