@@ -93,7 +93,10 @@ REPORT_RUNS = (
     ReportRun("calibration_study_radial_far_exact_report50_ba05bac.jsonl", "ba05bac"),
     ReportRun("calibration_study_level_exact_report50_ba05bac.jsonl", "ba05bac"),
     ReportRun("calibration_study_radial_spiral_near_report50_10b68e2.jsonl", "10b68e2"),
+    ReportRun("calibration_study_junk_drone_offset_far_level_report50_10b68e2.jsonl", "10b68e2"),
+    ReportRun("calibration_study_heavy_student_mount_report50_10b68e2.jsonl", "10b68e2"),
     ReportRun("calibration_study_near_report50_29616eb.jsonl", "29616eb"),
+    ReportRun("calibration_study_junk_dropout_report50_29616eb.jsonl", "29616eb"),
 )
 OUT = ROOT / "tests/perf/out"
 DOCS = (ROOT / "docs/calibration.md", ROOT / "docs/accuracy.md")
