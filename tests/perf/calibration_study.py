@@ -97,6 +97,7 @@ REPORT_RUNS = (
     ReportRun("calibration_study_heavy_student_mount_report50_10b68e2.jsonl", "10b68e2"),
     ReportRun("calibration_study_near_report50_29616eb.jsonl", "29616eb"),
     ReportRun("calibration_study_junk_dropout_report50_29616eb.jsonl", "29616eb"),
+    ReportRun("calibration_study_heavy_junk_report50_134a440.jsonl", "134a440"),
 )
 OUT = ROOT / "tests/perf/out"
 DOCS = (ROOT / "docs/calibration.md", ROOT / "docs/accuracy.md")
