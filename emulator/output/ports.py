@@ -170,6 +170,11 @@ class BufferPort(Port):
         return self._account(len(data), len(data))
 
 
+#: Bytes a full, unread pty still takes once its writer waits: the kernel moves written bytes
+#: to the reader's side (the line discipline's 4096-byte read buffer) asynchronously.
+KERNEL_MOVES = 4096
+
+
 class _FdWriter:
     """Writes a non-blocking fd like a UART: what does not fit is dropped.
 
@@ -205,6 +210,7 @@ class _FdWriter:
         poller.register(fd, select.POLLOUT)
         patience = self.wait if self.reader_seen else min(self.wait, self.first_wait)
         deadline = time.monotonic() + patience
+        taken = 0  # bytes the full buffer took during this wait
         while done < len(data):
             left = deadline - time.monotonic()
             if left <= 0 or not poller.poll(left * 1000):
@@ -212,8 +218,12 @@ class _FdWriter:
                 self.reader_seen = self.first_wait is None
                 break
             wrote = _write_some(fd, data[done:])
-            if wrote > 0:  # the reader took bytes: it is there, give it another `wait`
-                done += wrote
+            done += wrote
+            taken += wrote
+            # the reader took bytes: it is there, give it another `wait`; before it is seen,
+            # not for what the kernel itself moves to the reader's side of an unread pty
+            # (up to KERNEL_MOVES bytes, late under load: the unread pty waited 5.3 s)
+            if wrote > 0 and (self.reader_seen or taken > KERNEL_MOVES):
                 self.reader_seen = True
                 deadline = time.monotonic() + self.wait
         return done
