@@ -222,7 +222,7 @@ class _FdWriter:
             taken += wrote
             # the reader took bytes: it is there, give it another `wait`; before it is seen,
             # not for what the kernel itself moves to the reader's side of an unread pty
-            # (up to KERNEL_MOVES bytes, late under load: the unread pty waited 5.3 s)
+            # (up to KERNEL_MOVES bytes, sometimes late: an unread pty once waited 0.3 + 5 s)
             if wrote > 0 and (self.reader_seen or taken > KERNEL_MOVES):
                 self.reader_seen = True
                 deadline = time.monotonic() + self.wait
