@@ -71,19 +71,19 @@ def noise_shows(r: NDArray[np.float64], r_en: float, gps: float) -> NDArray[np.b
     return (r / r_en) ** 3 >= gps / np.maximum(r, 1e-9)
 
 
-def noise_reach(rows: Rows, p: Params) -> NoiseReach:
+def noise_reach(rows: Rows, p: Params, floor: float = R_EN_TYPICAL) -> NoiseReach:
     """:class:`NoiseReach` of ``rows`` at ``p`` (its gps_sigma, r_outer and r_en, or
-    :data:`R_EN_TYPICAL` when that is larger)."""
+    ``floor`` when that is larger)."""
     r = np.exp(rows.geo.log_r)
     r = r[np.isfinite(r) & (r <= p.r_outer)]
     gps = p.gps_sigma
-    r_en = max(p.r_en, R_EN_TYPICAL)
+    r_en = max(p.r_en, floor)
     shows = noise_shows(r, r_en, gps)
     return NoiseReach(
         rows=int(np.sum(shows)),
         within=int(r.shape[0]),
         r_cross=float((gps * r_en**3) ** 0.25),
         r_max=float(r.max()) if r.size else 0.0,
-        fitted=p.r_en if p.r_en < R_EN_TYPICAL else math.inf,
+        fitted=p.r_en if p.r_en < floor else math.inf,
         gps=gps,
     )

@@ -21,8 +21,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import study_campaigns as sc  # noqa: E402
@@ -30,16 +28,9 @@ import study_campaigns as sc  # noqa: E402
 from bench.fit.csvio import parse_csv  # noqa: E402
 from bench.fit.eiv import usable  # noqa: E402
 from bench.fit.estimate import check_table  # noqa: E402
-from bench.fit.identify import R_EN_TYPICAL, NoiseReach, noise_reach, noise_shows  # noqa: E402
+from bench.fit.identify import R_EN_TYPICAL, noise_reach  # noqa: E402
 from bench.fit.likelihood import Params  # noqa: E402
 from bench.fit.result import EIV_FREE, FitOptions  # noqa: E402
-
-
-def without_floor(rows, p: Params) -> bool:
-    """The rule's verdict at the fitted r_en itself (as before the floor)."""
-    r = np.exp(rows.geo.log_r)
-    r = r[np.isfinite(r) & (r <= p.r_outer)]
-    return NoiseReach(int(np.sum(noise_shows(r, p.r_en, p.gps_sigma))), int(r.size), 0.0, 0.0).determined
 
 
 def main(argv=None) -> int:
@@ -56,7 +47,7 @@ def main(argv=None) -> int:
             camp = sc.campaign(sc.CONDITIONS[rec["condition"].split(" [")[0]], rec["seed"])
             rows = usable(check_table(parse_csv(camp.csv_text().encode(), path.name), FitOptions(free=EIV_FREE)))
             at = Params(r_en=fit["r_en"], gps_sigma=fit["gps_sigma"])
-            before, after = without_floor(rows, at), noise_reach(rows, at).determined
+            before, after = noise_reach(rows, at, floor=0.0).determined, noise_reach(rows, at).determined
             checked += 1
             if before != after:
                 changed.append(f"{path.name}: {rec['condition']} seed {rec['seed']}: r_en {fit['r_en']:.1f} m (truth "
