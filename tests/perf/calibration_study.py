@@ -74,7 +74,6 @@ ROUTINE = (
 )
 
 
-
 @dataclass(frozen=True)
 class ReportRun:
     """A report-seed run (a jsonl of :func:`run_one` records in tests/perf/out) whose rows
@@ -157,6 +156,13 @@ def _z(rec: dict, name: str) -> float | None:
     return (est - rec["truth"][name]) / se
 
 
+def covered(conv: list[dict], name: str) -> tuple[int, int]:
+    """Of the converged fits ``conv`` with a standard error for ``name``: how many intervals
+    (estimate +- 1.96 s.e.) contain the truth, and how many there are."""
+    zs = [z for z in (_z(r, name) for r in conv) if z is not None]
+    return sum(abs(z) <= 1.96 for z in zs), len(zs)
+
+
 def table(records: list[dict]) -> tuple[list[str], list[list[object]]]:
     header = [
         "condition", "runs", "conv %", "crash", "kappa bias %", "kappa RMS %", "kappa cover %",
@@ -173,12 +179,12 @@ def table(records: list[dict]) -> tuple[list[str], list[list[object]]]:
         silent = 0
         for pname in ("kappa_eq", "r_en"):
             errs = [(r["fit"][pname] - r["truth"][pname]) / r["truth"][pname] for r in conv if r["fit"].get(pname) is not None]
-            zs = [z for z in (_z(r, pname) for r in conv) if z is not None]
             if errs:
                 mean = 100 * sum(errs) / len(errs)
                 rms = 100 * math.sqrt(sum(e * e for e in errs) / len(errs))
-                cover = 100 * sum(abs(z) <= 1.96 for z in zs) / len(zs) if zs else float("nan")
-                cells += [f"{mean:+.2f}", f"{rms:.2f}", f"{cover:.0f} ({sum(abs(z) <= 1.96 for z in zs)}/{len(zs)})"]
+                k, n = covered(conv, pname)
+                cover = 100 * k / n if n else float("nan")
+                cells += [f"{mean:+.2f}", f"{rms:.2f}", f"{cover:.0f} ({k}/{n})"]
             else:
                 cells += ["-", "-", "-"]
         for r in conv:
@@ -269,7 +275,8 @@ def docs_block(rows: dict[str, tuple[ReportRun, list[dict]]]) -> str:
     header, cells = None, []
     n_conv = n_silent = 0
     order = list(sc.CONDITIONS)
-    for label, (run, recs) in sorted(rows.items(), key=lambda item: (order.index(item[0].split(" [")[0]), item[0])):
+    ordered = sorted(rows.items(), key=lambda item: (order.index(item[0].split(" [")[0]), item[0]))
+    for label, (run, recs) in ordered:
         relabelled = [{**r, "condition": label} for r in recs]
         h, (row,) = table(relabelled)
         header = ["condition", "walk, pose error, junk", "fit code", "started (UTC)", *h[1:-1]]
@@ -277,18 +284,19 @@ def docs_block(rows: dict[str, tuple[ReportRun, list[dict]]]) -> str:
         cells.append([label, describe(label), run.commit, started, *row[1:-1]])
         n_conv += sum(r.get("status") == "converged" for r in recs)
         n_silent += row[-2]
-    short = [c[0] for c in cells if float(c[5]) < 99]
-    cover_cols = [header.index("kappa cover %"), header.index("r_en cover %")]
-    off, unlikely = [], []
-    for c in cells:
-        for name, i in zip(("kappa_eq", "r_en"), cover_cols):
-            if c[i] == "-" or 90 <= float(c[i].split()[0]) <= 98:
+    short, off, unlikely = [], [], []
+    for label, (_run, recs) in ordered:
+        conv = [r for r in recs if r.get("status") == "converged"]
+        if len(conv) < 0.99 * len(recs):
+            short.append(label)
+        for name in ("kappa_eq", "r_en"):
+            k, n = covered(conv, name)
+            if not n or 90 <= round(100 * k / n) <= 98:
                 continue
-            off.append(f"{c[0]} ({name} {c[i].split()[0]} %)")
-            k, n = (int(v) for v in c[i].split("(")[1].rstrip(")").split("/"))
+            off.append(f"{label} ({name} {100 * k / n:.0f} %)")
             # outside the central 95 % of Binomial(n, 0.95): what exact intervals rarely give
             if not scipy.stats.binom.ppf(0.025, n, 0.95) <= k <= scipy.stats.binom.ppf(0.975, n, 0.95):
-                unlikely.append(f"{c[0]} ({name} {k}/{n})")
+                unlikely.append(f"{label} ({name} {k}/{n})")
     # P(|z| > 3) for a standard normal z, two estimates per fit
     expected = n_conv * 2 * math.erfc(3 / math.sqrt(2))
     lines = [
