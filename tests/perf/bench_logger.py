@@ -312,6 +312,7 @@ def main(argv=None) -> int:
     ap.add_argument("--skew-seconds", type=float, default=600.0, help="scene seconds of the 20x skew run")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         runs = [[ingest(tmp / f"{t}-{i}", float(t), args.seconds) for i in range(args.repeat)
@@ -319,6 +320,7 @@ def main(argv=None) -> int:
         sk = skew(tmp, args.skew_seconds)
         rc = [reconnect(tmp / f"r{i}") for i in range(3) if not (tmp / f"r{i}").mkdir()]
         disk = disk_per_hour(tmp, 120.0, 30.0)
+    load_after = os.getloadavg()[0]
     t1 = markdown_table(
         ["offered (sentences/s)", "logged sentences per run", "seconds per run",
          "logged sentences/s (3 ptys summed), each run", "zero loss (every epoch logged, in order; no decoder error)"],
@@ -344,13 +346,13 @@ def main(argv=None) -> int:
         [[k, f"{v / 1e6:.2f}"] for k, v in disk["sizes"].items()] + [["**total**", f"**{disk['per_hour'] / 1e6:.2f}**"]],
     )
     body = (
-        "Measured while other jobs shared the 2 cores (up to 8 engineers' builds and tests), so these "
-        "are lower bounds on throughput and upper bounds on skew. Every device is a pty fed by a "
+        f"Load average (1 min) {load_before:.1f} before the run, {load_after:.1f} after it (other jobs "
+        "sharing the cores lower the throughput and raise the skew). Every device is a pty fed by a "
         "pre-rendered writer process (bytes rendered before the clock starts, no emulator) and logged "
         "by a real `arva-bench log` (one selector loop, `bench.ingest`).\n\n"
         f"Ingest (target >= 150,000 sentences/s summed, zero loss): three receivers x {CHANNELS} channels, "
         f"{args.seconds:.0f} s of epochs offered at each rate in 10 ms blocks, {args.repeat} runs each (the "
-        "other jobs' load varies from run to run). The writer blocks when a pty is full, so a logger that "
+        "machine's load varies from run to run). The writer blocks when a pty is full, so a logger that "
         "cannot keep up stretches 'seconds' instead of losing data.\n\n" + t1 +
         "\n\nInter-device stamp skew at 20x real time (target p99 < 1 ms): a typical session (receiver "
         "1 Hz x 4 channels, GPS 1 Hz GGA+RMC, attitude 10 Hz); every 50 ms the writer writes one scene "
