@@ -23,7 +23,7 @@ from . import parallel
 from .covariance import expected_information, separable, standard_errors
 from .grades import IMU_GRADES
 from .identify import noise_reach
-from .diagnostics import goodness_of_fit
+from .diagnostics import ALPHA, UNEXPECTED_CENSORED, goodness_of_fit
 from .eiv import EIV_POSE_SIGMA, EIV_START, eiv_rows, rule_sigmas, usable
 from .likelihood import FREE_PARAMS, LINEAR, Params, Rows, from_params, rows_from_table, to_params
 from .offset import OFFSET_GAIN, offset_scan
@@ -107,7 +107,10 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
     steps: list[str] = []  # the first note of each step that replaced the fit
     # (the outlier fallback twice: the fit with the attitude held is a new search, which
     # stopped with the GPS outliers' share on its bound on level-student report seed 1,000,019)
-    for step in (without_outliers_if_stuck, held_attitude, without_outliers_if_stuck, floors_if_better, exact_if_invisible):
+    for step in (
+        without_outliers_if_stuck, held_attitude, without_outliers_if_stuck, floors_if_better, exact_if_invisible,
+        dropout_if_spurious,
+    ):  # fmt: skip
         new, options = step(table, options, res)
         if new is not res and new.notes[0] not in steps:
             steps.append(new.notes[0])
@@ -411,6 +414,44 @@ def without_outliers_if_stuck(table: Table, options: FitOptions, res: FitResult)
         "these are the numbers without it (no share of wider GPS errors)",
     )
     return plain, plain_options
+
+
+def dropout_if_spurious(table: Table, options: FitOptions, res: FitResult) -> tuple[FitResult, FitOptions]:
+    """``res`` and ``options``, or, when its goodness-of-fit check finds more rows saying
+    "nothing heard" (d = -1) where the model gives that less than
+    :data:`diagnostics.UNEXPECTED_CENSORED` chance than the model explains (its
+    ``p_unexpected`` below :data:`diagnostics.ALPHA`), the fit with ``dropout`` free (as
+    ``--fit dropout``), with a first note, when it converges.
+
+    Why (issue 28, item 3): spurious -1 rows (a receiver or logger that drops readings)
+    pull r_en low. On the study's junk walk (2 % of the heard rows turned into -1) the
+    check named them on 49 and 50 of 50 report fits, and those fits' r_en came out -3.5 %
+    with intervals covering 72 %; with ``--fit dropout`` +0.9 % and 89 %. On the walks
+    without junk the check fired on 0-2 of 50 fits a condition; there the refit's dropout
+    goes to its floor (docs/calibration.md, "Spurious -1 rows"). ``options.spurious_refit``
+    False turns the step off."""
+    gof = res.goodness_of_fit
+    if not (
+        options.spurious_refit and res.converged and gof is not None and gof.p_unexpected < ALPHA
+        and "dropout" not in options.free and options.base.dropout == 0.0 and options.start is None
+    ):  # fmt: skip
+        return res, options
+    junk_options = replace(options, free=options.free + ("dropout",))
+    junk = fit_restarted(table, junk_options)
+    if not junk.converged:
+        res.add_cost(junk)
+        res.notes.append(f"the fit with spurious -1 rows (--fit dropout) did not converge ({junk.message})")
+        return res, options
+    junk.add_cost(res)
+    before = f" (it was {res.estimate['r_en']:.5g})" if "r_en" in res.estimate else ""
+    junk.notes.insert(
+        0,
+        f"spurious -1 rows: {gof.unexpected_censored} rows say 'nothing heard' where the model gives that less than "
+        f"{100 * UNEXPECTED_CENSORED:g} % chance ({gof.expected_unexpected:.2g} expected), which pulls r_en low"
+        f"{before}; refitted with a dropout probability (as --fit dropout): "
+        f"{100 * junk.params.dropout:.2g} % of rows read -1 whatever the signal",
+    )
+    return junk, junk_options
 
 
 def outlier_width_held(free, held) -> np.ndarray:

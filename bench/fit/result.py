@@ -43,6 +43,9 @@ class FitOptions:
     # look for a clock offset between the receiver and the pose streams (:func:`offset_scan`)
     # and fit it when the poses fit clearly better at one; False: hold it at 0 unseen
     scan_offset: bool = True
+    #: When the goodness-of-fit check finds spurious -1 rows (``estimate.dropout_if_spurious``),
+    #: fit again with ``dropout`` free; False: keep the fit without it (the check's note stays)
+    spurious_refit: bool = True
     #: Where the search starts, skipping the pilot (a restart: :func:`estimate.fit_restarted`); None: the pilot's
     start: Params | None = None
     #: The Newton decrement (nats) at which the search on up to stages.SUBSAMPLE rows

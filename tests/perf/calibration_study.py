@@ -71,6 +71,8 @@ ROUTINE = (
     r"^no pose error is visible \(GPS and attitude error at their floors, [^)]*\): fitted as exact poses",
     # the passes' attitude fixed point left for the floors (then fitted as exact poses): how it ran
     r"^the fit kept an attitude error of [0-9.]+ deg with no GPS error visible, but searched from the floors",
+    # the default fit refitted with a dropout probability (spurious -1 rows): how it ran
+    r"^spurious -1 rows: \d+ rows say 'nothing heard' .*; refitted with a dropout probability",
 )
 
 

@@ -85,3 +85,30 @@ def test_the_command_line_fits_it(capsys, tmp_path):
     assert main(["fit", str(path), "--fit", "dropout", *exact]) == 0
     line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("dropout")]
     assert len(line) == 1 and line[0].endswith("   (rows that read -1 whatever the signal)")
+
+
+def test_the_default_fit_refits_with_dropout_when_the_check_names_spurious_rows():
+    table = emulate_campaign(60, TRUTH, seed=0)
+    spurious(table)
+    plain = fit(table, FitOptions(free=EXACT, spurious_refit=False))
+    gof = plain.goodness_of_fit
+    assert "dropout" not in plain.free and gof.p_unexpected < 0.01
+    assert any(n.startswith(f"the model does not describe this walk: {gof.unexpected_censored} rows say") for n in plain.notes)
+    res = fit(table, FitOptions(free=EXACT))
+    given = fit(table, FitOptions(free=EXACT + ("dropout",)))
+    assert res.free == given.free and res.estimate == given.estimate
+    np.testing.assert_equal(res.se, given.se)  # (pose_sigma on its bound: nan on both)
+    assert res.notes[0] == (
+        f"spurious -1 rows: {gof.unexpected_censored} rows say 'nothing heard' where the model gives that less than "
+        f"0.1 % chance ({gof.expected_unexpected:.2g} expected), which pulls r_en low (it was "
+        f"{plain.estimate['r_en']:.5g}); refitted with a dropout probability (as --fit dropout): "
+        f"{100 * given.estimate['dropout']:.2g} % of rows read -1 whatever the signal"
+    )
+    assert res.notes[1:] == given.notes
+    assert res.n_evals > given.n_evals  # (the first fit's cost is counted)
+
+
+def test_a_clean_campaign_is_not_refitted():
+    table = emulate_campaign(60, TRUTH, seed=0)
+    res = fit(table, FitOptions(free=EXACT))
+    assert res.goodness_of_fit.p_unexpected >= 0.01 and "dropout" not in res.free
