@@ -100,8 +100,9 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
     fit then scans for one (:func:`offset_scan`) and, when the poses fit better at an
     offset by more than :data:`OFFSET_GAIN` nats, fits again with ``time_offset`` free;
     either way one note says what the scan found. A step that replaces the fit by another
-    (the fit without GPS outliers, the attitude held, exact poses, the offset fitted) puts
-    its note first, and the notes of the steps before it stay, in order."""
+    (the fit without GPS outliers, the attitude held, exact poses, with a dropout
+    probability, the offset fitted) puts its note first, and the notes of the steps
+    before it stay, in order."""
     options = FitOptions() if options is None else options
     res = fit_restarted(table, options)
     steps: list[str] = []  # the first note of each step that replaced the fit

@@ -174,13 +174,18 @@ def test_exact_pose_fit_quiet_when_specified_fires_on_spurious_rows(seed):
     assert good.converged and good.goodness_of_fit.fits
     assert not any(MISFIT_WORDS in n for n in good.notes)
     table, _ = campaign_table("radial", "exact", ("spurious",), seed)
-    bad = fit(table, FitOptions())
+    bad = fit(table, FitOptions(spurious_refit=False))
     gof = bad.goodness_of_fit
     assert bad.converged and not gof.fits and gof.p_value < 1e-10
     injected = int(round(0.02 * clean.heard))  # study_campaigns: 2 % of the heard rows
     assert 0.6 * injected <= gof.unexpected_censored <= injected
     notes = [n for n in bad.notes if MISFIT_WORDS in n]
     assert len(notes) == 1 and f"{gof.unexpected_censored} rows say 'nothing heard'" in notes[0]
+    # the default then fits a dropout probability (estimate.dropout_if_spurious), and that fit's check is quiet
+    refit = fit(table, FitOptions())
+    assert refit.converged and "dropout" in refit.free and refit.goodness_of_fit.fits
+    assert refit.notes[0].startswith(f"spurious -1 rows: {gof.unexpected_censored} rows say 'nothing heard'")
+    assert not any(MISFIT_WORDS in n for n in refit.notes)
 
 
 @pytest.mark.slow
@@ -192,7 +197,7 @@ def test_pose_error_fit_quiet_when_specified_fires_on_spurious_rows(tmp_path):
     assert good.converged and good.goodness_of_fit.fits and good.goodness_of_fit.lag_seconds > 0
     assert not any(MISFIT_WORDS in n for n in good.notes)
     table, _ = campaign_table("level_rw", "gm", ("spurious",), 2)
-    bad = fit(table, FitOptions(free=EIV_FREE))
+    bad = fit(table, FitOptions(free=EIV_FREE, spurious_refit=False))
     assert bad.converged and not bad.goodness_of_fit.fits
     assert any("rows say 'nothing heard'" in n for n in bad.notes)
     out = bad.to_json()
