@@ -108,9 +108,6 @@ class Controller:
         elif isinstance(req, rq.SetTransmitter):
             pipe.set_transmitter(req.id, req.position, req.orientation, req.enabled)
         elif isinstance(req, rq.RemoveTransmitter):
-            if req.id not in pipe.transmitters:
-                known = ", ".join(map(str, sorted(pipe.transmitters))) or "none"
-                raise ControlError(f"remove_transmitter: no transmitter {req.id} (ids: {known})")
             pipe.remove_transmitter(req.id)
         elif isinstance(req, rq.SetReceiver):
             index = self._receiver_index(req.id, "set_receiver")
