@@ -85,13 +85,6 @@ def build_stream(scene: Scene, info: StreamInfo) -> Stream:
     return ArvaStream(info.label, info.rate_hz, source)
 
 
-def arva_stream(scene: Scene, index: int = 0) -> ArvaStream:
-    """Receiver ``index``'s ``$PARVA`` stream, labelled as in :func:`stream_layout`."""
-    if not 0 <= index < len(scene.receivers):
-        raise InputError(f"no receiver index {index} (the scene has {len(scene.receivers)})")
-    return build_stream(scene, stream_layout(scene)[index])
-
-
 def scene_streams(scene: Scene) -> list[Stream]:
     """Every stream of the scene, built, in :func:`stream_layout` order."""
     return [build_stream(scene, info) for info in stream_layout(scene)]
@@ -274,7 +267,8 @@ class Pipeline(AbstractContextManager):
 
     def remove_transmitter(self, tx_id: int) -> None:
         if tx_id not in self.transmitters:
-            raise InputError(f"remove_transmitter: no transmitter {tx_id}")
+            known = ", ".join(map(str, sorted(self.transmitters))) or "none"
+            raise InputError(f"remove_transmitter: no transmitter {tx_id} (ids: {known})")
         del self.transmitters[tx_id]
         self.silenced.discard(tx_id)
         self._push_transmitters()

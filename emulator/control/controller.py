@@ -81,14 +81,6 @@ class Controller:
     def _t(self) -> float:
         return self.scheduler.next_epoch / self.rate0
 
-    def _receiver_index(self, rx_id: int | None, op: str) -> int:
-        ids = [rx.id for rx in self.pipe.scene.receivers]
-        if rx_id is None:
-            return 0
-        if rx_id not in ids:
-            raise ControlError(f"{op}: no receiver {rx_id} (ids: {', '.join(map(str, ids))})")
-        return ids.index(rx_id)
-
     def _dispatch(self, req: Request) -> dict:
         sch, pipe = self.scheduler, self.pipe
         if isinstance(req, rq.Status):
@@ -108,12 +100,12 @@ class Controller:
         elif isinstance(req, rq.SetTransmitter):
             pipe.set_transmitter(req.id, req.position, req.orientation, req.enabled)
         elif isinstance(req, rq.RemoveTransmitter):
-            if req.id not in pipe.transmitters:
-                known = ", ".join(map(str, sorted(pipe.transmitters))) or "none"
-                raise ControlError(f"remove_transmitter: no transmitter {req.id} (ids: {known})")
             pipe.remove_transmitter(req.id)
         elif isinstance(req, rq.SetReceiver):
-            index = self._receiver_index(req.id, "set_receiver")
+            ids = [rx.id for rx in pipe.scene.receivers]
+            if req.id is not None and req.id not in ids:
+                raise ControlError(f"set_receiver: no receiver {req.id} (ids: {', '.join(map(str, ids))})")
+            index = 0 if req.id is None else ids.index(req.id)
             if req.path == "resume":
                 pipe.release_receiver(index)
             else:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import ipaddress
 import logging
 import os
 import queue
@@ -30,6 +29,8 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from firmware_proto.errors import InputError, LinkError
+
+from emulator.output.net_ports import format_addr, is_loopback, tcp_listener
 
 from emulator.control.requests import MAX_LINE, ControlError, Quit, Request, encode_reply, error_reply, parse_request
 
@@ -67,10 +68,7 @@ class ControlAddress:
     port: int = 0
 
     def __str__(self) -> str:
-        if self.kind == "unix":
-            return f"unix:{self.path}"
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"tcp:{host}:{self.port}"
+        return f"unix:{self.path}" if self.kind == "unix" else f"tcp:{format_addr((self.host, self.port))}"
 
 
 def control_address(text: str) -> ControlAddress:
@@ -88,17 +86,6 @@ def control_address(text: str) -> ControlAddress:
         if sep2 and host and port.isdigit() and int(port) <= 65535:
             return ControlAddress("tcp", host=host, port=int(port))
     raise InputError(f"{text!r}: expected unix:PATH or tcp:HOST:PORT (e.g. tcp:127.0.0.1:7000)")
-
-
-def is_loopback(host: str) -> bool:
-    """True if every address ``host`` resolves to is a loopback address."""
-    with contextlib.suppress(ValueError):
-        return ipaddress.ip_address(host).is_loopback
-    try:
-        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
-    except OSError:
-        return False
-    return bool(infos) and all(ipaddress.ip_address(i[4][0].split("%")[0]).is_loopback for i in infos)
 
 
 def check_host(address: ControlAddress, any_host: bool) -> None:
@@ -142,23 +129,12 @@ class ControlServer:
         a = self.address
         if a.kind == "unix":
             sock = self._bind_unix(a.path)
+            sock.listen(16)  # connections wait in the backlog until the loop runs
             bound = a
         else:
             check_host(a, self.any_host)
-            try:
-                infos = socket.getaddrinfo(a.host, a.port, type=socket.SOCK_STREAM)
-            except OSError as exc:
-                raise InputError(f"--control {a}: cannot resolve {a.host}: {exc.strerror or exc}") from None
-            family, _, _, _, sockaddr = infos[0]
-            sock = socket.socket(family, socket.SOCK_STREAM)
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            try:
-                sock.bind(sockaddr)
-            except OSError as exc:
-                sock.close()
-                raise LinkError(f"--control {a}: cannot listen: {exc.strerror or exc}") from None
+            sock = tcp_listener(a.host, a.port, f"--control {a}", backlog=16)
             bound = ControlAddress("tcp", host=a.host, port=sock.getsockname()[1])
-        sock.listen(16)  # connections wait in the backlog until the loop runs
         self._listener = sock
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._run, args=(sock,), name="arva-control", daemon=True)

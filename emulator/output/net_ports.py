@@ -214,7 +214,7 @@ class ServedClient:
     def __init__(self, port: ServerPort, sock: socket.socket, addr) -> None:
         self.port = port
         self.sock = sock
-        self.name = _format_addr(addr)
+        self.name = format_addr(addr)
         self.line = UartLine(port.settings)
         self.bytes_sent = 0
         self.bytes_dropped = 0
@@ -328,7 +328,7 @@ class ServedClient:
         except Exception as exc:  # noqa: BLE001 - a malformed request must not kill the thread silently
             self.cut = f"bad RFC 2217 request ({exc!r})"
         if self.cut is not None:
-            self.port.cut(self)
+            self.port.notify(f"{self.port.label}: client {self.name}: {self.cut}; disconnecting")
         self._vanish()
 
     def _vanish(self) -> None:
@@ -355,6 +355,36 @@ class ServedClient:
         self._reader.join(1.0)
 
 
+def is_loopback(host: str) -> bool:
+    """True if every address ``host`` resolves to is a loopback address."""
+    with contextlib.suppress(ValueError):
+        return ipaddress.ip_address(host).is_loopback
+    try:
+        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except OSError:
+        return False
+    return bool(infos) and all(ipaddress.ip_address(i[4][0].split("%")[0]).is_loopback for i in infos)
+
+
+def tcp_listener(host: str, port: int, where: str, backlog: int) -> socket.socket:
+    """A socket listening on the first address ``host``:``port`` resolves to (the stream
+    servers here, the control channel); InputError if ``host`` does not resolve, LinkError
+    if it cannot be bound, each one line starting with ``where`` (``port SPEC`` ...)."""
+    try:
+        family, _, _, _, sockaddr = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except OSError as exc:
+        raise InputError(f"{where}: cannot resolve {host!r}: {exc.strerror or exc}") from None
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(sockaddr)
+        sock.listen(backlog)
+    except OSError as exc:
+        sock.close()
+        raise LinkError(f"{where}: cannot listen: {exc.strerror or exc}") from None
+    return sock
+
+
 class ServerPort(Port):
     """A stream served to TCP clients (see the module docstring). ``path`` is the URL a
     pyserial client opens (``rfc2217://127.0.0.1:40123`` or ``socket://...``)."""
@@ -365,29 +395,17 @@ class ServerPort(Port):
         self.spec = spec
         self.settings = settings or LineSettings()
         self.notify = notify or (lambda _line: None)
-        try:
-            addresses = socket.getaddrinfo(spec.host, spec.port, type=socket.SOCK_STREAM)
-        except socket.gaierror as exc:
-            raise InputError(f"port {spec.text}: cannot resolve {spec.host!r}: {exc.strerror}") from None
-        if not serve_any_host and not all(ipaddress.ip_address(a[4][0]).is_loopback for a in addresses):
+        if not serve_any_host and not is_loopback(spec.host):
             raise InputError(f"port {spec.text}: {spec.host} is not a loopback address; "
                              "add --serve-any-host to serve other hosts")
-        family, _, _, _, sockaddr = addresses[0]
-        self._listener = socket.socket(family, socket.SOCK_STREAM)
-        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            self._listener.bind(sockaddr)
-            self._listener.listen(8)
-        except OSError as exc:
-            self._listener.close()
-            raise LinkError(f"port {spec.text}: cannot listen: {exc.strerror}") from None
+        self._listener = tcp_listener(spec.host, spec.port, f"port {spec.text}", backlog=8)
         self._listener.setblocking(False)  # the selector says when a client waits
         self._wake_r, self._wake_w = socket.socketpair()  # close() wakes the accept loop through it
         self._selector = selectors.DefaultSelector()
         self._selector.register(self._listener, selectors.EVENT_READ)
         self._selector.register(self._wake_r, selectors.EVENT_READ)
         scheme = "rfc2217" if spec.kind == "rfc2217-server" else "socket"
-        self.path = f"{scheme}://{_format_addr(self._listener.getsockname())}"
+        self.path = f"{scheme}://{format_addr(self._listener.getsockname())}"
         self.drain_wait = 0.0
         self._clients: list[ServedClient] = []
         self._lock = threading.Lock()
@@ -423,7 +441,7 @@ class ServerPort(Port):
                 _shut(sock)
                 if n <= NOTIFY_REFUSALS:
                     more = "; further refusals only counted" if n == NOTIFY_REFUSALS else ""
-                    self.notify(f"{self.label}: client {_format_addr(addr)} refused: {MAX_CLIENTS} clients are "
+                    self.notify(f"{self.label}: client {format_addr(addr)} refused: {MAX_CLIENTS} clients are "
                                 f"connected (at most {MAX_CLIENTS}){more}")
                 continue
             sock.settimeout(None)
@@ -437,10 +455,6 @@ class ServerPort(Port):
             self.notify(f"{self.label}: client {client.name} connected "
                         f"({self.spec.kind}, line {client.line.settings.describe()})")
             client.start()
-
-    def cut(self, client: ServedClient) -> None:
-        """Report a client the server disconnects (``client.cut`` says why)."""
-        self.notify(f"{self.label}: client {client.name}: {client.cut}; disconnecting")
 
     def forget(self, client: ServedClient) -> None:
         with self._lock:
@@ -509,7 +523,7 @@ def _shut(sock: socket.socket) -> None:
     sock.close()
 
 
-def _format_addr(addr) -> str:
+def format_addr(addr) -> str:
     host, port = addr[:2]
     return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 

@@ -125,7 +125,7 @@ class EpochScheduler:
         self.on_write = on_write
         # An Event rather than a flag so a signal handler installed before the scheduler
         # exists (while ports are being opened) can already request the stop.
-        self._stop_event = stop_event if stop_event is not None else threading.Event()
+        self._stop = stop_event if stop_event is not None else threading.Event()
         #: Held while rendering and writing; a control channel holds it to change the scene.
         self.lock = threading.RLock()
         self.paused = False
@@ -136,11 +136,7 @@ class EpochScheduler:
 
     def stop(self) -> None:
         """Ask the run to end after the current epoch (safe from a signal handler)."""
-        self._stop_event.set()
-
-    @property
-    def _stop(self) -> bool:
-        return self._stop_event.is_set()
+        self._stop.set()
 
     @property
     def next_epoch(self) -> int:
@@ -157,7 +153,7 @@ class EpochScheduler:
     def wait(self, seconds: float) -> None:
         """Sleep ``seconds`` before the first epoch, interruptible by :meth:`stop`."""
         end = self.clock() + seconds
-        while not self._stop and (left := end - self.clock()) > 0:
+        while not self._stop.is_set() and (left := end - self.clock()) > 0:
             self.sleep(min(left, MAX_SLEEP))
 
     def run(self) -> None:
@@ -178,9 +174,9 @@ class EpochScheduler:
         window = batch / max(r.stream.rate_hz for r in self.routes)
         t_end = 0.0
         next_status = self.clock() + 0.5
-        while not self._stop and not all(r.done for r in self.routes):
+        while not self._stop.is_set() and not all(r.done for r in self.routes):
             t_end += window
-            while self.paused and not self._stop:  # nothing is due as fast as possible: wait
+            while self.paused and not self._stop.is_set():  # nothing is due as fast as possible: wait
                 self.sleep(0.01)
             with self.lock:
                 for r in self.routes:
@@ -207,7 +203,7 @@ class EpochScheduler:
                 if not r.done:
                     heapq.heappush(heap, (due(r), i))
         next_status = start + 0.5
-        while heap and not self._stop:
+        while heap and not self._stop.is_set():
             deadline, i = heap[0]
             delay = deadline - self.clock()
             if delay > SPIN:

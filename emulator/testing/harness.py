@@ -15,14 +15,18 @@ import shutil
 import signal
 import socket
 import subprocess
+import tempfile
 import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import serial
+
 from emulator.child_process import end_with_parent, module_command, module_env
 from emulator.output.ports import file_name
+from emulator.testing.scene_toml import first_receiver_label, scene_file
 from firmware_proto.errors import ArvaError
 
 
@@ -208,8 +212,6 @@ class EmulatorProcess(contextlib.AbstractContextManager):
 
     def open(self, label: str = "arva", timeout: float = 2.0):
         """The stream's pty as a pyserial port (reads time out after ``timeout`` s)."""
-        import serial
-
         return serial.Serial(self.ports[label], timeout=timeout)
 
     def wait(self, timeout: float = 10.0) -> int:
@@ -275,10 +277,6 @@ class Emulator(contextlib.AbstractContextManager):
         by :meth:`stop`) receives the artefacts docs/hil_testing.md lists. ``arva_port``
         sends the first receiver's stream to that device instead of a pty.
         """
-        import tempfile
-
-        from emulator.testing.scene_toml import first_receiver_label, scene_file
-
         work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="arva-emu-"))
         links, capture = work / "pty", work / "streams"
         for folder in (links, capture):
@@ -363,8 +361,6 @@ class Emulator(contextlib.AbstractContextManager):
 
     def open(self, label: str | None = None, timeout: float = 2.0):
         """A stream's port opened with pyserial (default: the first receiver's)."""
-        import serial
-
         return serial.Serial(self.ports[label] if label else self.port, timeout=timeout)
 
     # --- stopping -----------------------------------------------------------------------

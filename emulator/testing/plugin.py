@@ -12,6 +12,9 @@ import shutil
 
 import pytest
 
+from emulator.testing.harness import Emulator
+from emulator.testing.scene_toml import scene_text
+
 #: Longest scene text recorded in the JUnit report (``arva_scene_toml``), bytes.
 MAX_RECORDED_SCENE = 64 * 1024
 _REPORT_KEY = pytest.StashKey[dict]()  # the test's reports by phase
@@ -43,8 +46,6 @@ def pytest_runtest_makereport(item: pytest.Item, call):
 
 def recorded_scene_text(path: str | None) -> str:
     """The scene's text for the JUnit report (at most :data:`MAX_RECORDED_SCENE` bytes)."""
-    from emulator.testing.scene_toml import scene_text
-
     try:
         text = scene_text(path)
     except (OSError, ValueError) as exc:
@@ -86,8 +87,6 @@ def _factory(request: pytest.FixtureRequest, tmp_path, prefix: str, launch):
 @pytest.fixture
 def arva_emulator(request: pytest.FixtureRequest, tmp_path):
     """A factory: ``arva_emulator(scene=None, clock="step", speed=1.0)`` -> Emulator."""
-    from emulator.testing.harness import Emulator
-
     device = request.config.getoption("--arva-port")
 
     def launch(work, n: int, scene=None, clock: str = "step", speed: float = 1.0) -> Emulator:

@@ -16,11 +16,14 @@ import json
 import re
 import shutil
 import subprocess
+import tempfile
 import threading
 import time
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 from pathlib import Path
+
+import serial
 
 import firmware_proto
 
@@ -118,9 +121,7 @@ class Board(AbstractContextManager):
             raise
         self._out.flush()
         self.uart0, self.uart1 = ptys["serial0"], ptys["serial1"]
-        import serial  # the host side of a pty must be raw: pyserial's open makes it so
-
-        self._port = serial.Serial(self.uart1, timeout=0.05)
+        self._port = serial.Serial(self.uart1, timeout=0.05)  # pyserial's open makes the pty raw
         self._threads = [
             threading.Thread(target=self._read_uart1, daemon=True, name="qemu-uart1"),
             threading.Thread(target=self._drain_stdout, daemon=True, name="qemu-stdout"),
@@ -201,8 +202,6 @@ class FirmwareLoop(AbstractContextManager):
 
     @classmethod
     def start(cls, firmware, scene=None, clock: str = "step", speed: float = 1.0, workdir=None, machine: str = "mps2-an385", icount: int | None = None) -> "FirmwareLoop":
-        import tempfile
-
         work = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="arva-fw-"))
         ours = work if workdir is None else None  # a temporary folder, removed at stop
         board = Board(firmware, work, machine=machine, icount=icount)

@@ -18,7 +18,7 @@ from emulator.closed_loop.mavlink import (  # noqa: E402
     MavlinkPoseSource,
     frd_ned_to_flu_enu,
 )
-from emulator.pipeline import arva_stream  # noqa: E402
+from emulator.pipeline import scene_streams  # noqa: E402
 from mavlink_helpers import free_udp_port, ned_quaternion  # noqa: E402
 from scene_builders import external_mavlink_text  # noqa: E402
 from emulator.receiver.model import measure_one  # noqa: E402
@@ -109,7 +109,7 @@ def test_no_warning_when_both_halves_arrive(caplog):
 @pytest.mark.slow
 def test_an_ardupilot_like_autopilot_is_greeted_asked_and_ridden():
     port = free_udp_port()
-    stream = arva_stream(loads_scene(external_mavlink_text(port), "ext.toml"), 0)
+    stream = scene_streams(loads_scene(external_mavlink_text(port), "ext.toml"))[0]
     src = stream.receiver.pose_source.start()
     ap = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
     try:

@@ -19,7 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
 from emulator.closed_loop.mavlink import MavlinkPoseSource, Pose, frd_ned_to_flu_enu, ned_to_enu  # noqa: E402
 from emulator.receiver.model import measure_one  # noqa: E402
 from emulator.scene.reader import loads_scene  # noqa: E402
-from emulator.pipeline import arva_stream  # noqa: E402
+from emulator.pipeline import scene_streams  # noqa: E402
 from mavlink_helpers import free_udp_port, ned_quaternion  # noqa: E402
 from scene_builders import external_mavlink_text  # noqa: E402
 from firmware_proto.sentences import encode_parva  # noqa: E402
@@ -134,7 +134,7 @@ def test_wait_times_out_on_a_silent_link():
 def test_receiver_rides_along_the_autopilot():
     port = free_udp_port()
     scene = loads_scene(external_mavlink_text(port), "ext.toml")
-    stream = arva_stream(scene, 0)
+    stream = scene_streams(scene)[0]
     src = stream.receiver.pose_source.start()
     out = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1)
     try:
@@ -154,7 +154,7 @@ def test_receiver_rides_along_the_autopilot():
 
 def test_before_any_message_epochs_use_the_start_pose():
     scene = loads_scene(external_mavlink_text(free_udp_port()), "ext.toml")
-    stream = arva_stream(scene, 0)
+    stream = scene_streams(scene)[0]
     try:
         # The vehicle's start pose: (0, 0) at r_s = 1 m, yaw 0 -> 15.03 m from the dipole.
         d, delta = measure_one([0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0], [15.0, 0.0, 0.0])
@@ -202,7 +202,7 @@ def test_serial_link_baud_comes_from_the_scene():
     from firmware_proto.errors import SceneError
 
     scene = loads_scene(external_mavlink_text(14551) + "mavlink_baud = 921600\n", "ext.toml")
-    stream = arva_stream(scene, 0)
+    stream = scene_streams(scene)[0]
     assert stream.receiver.pose_source.baud == 921600
     assert loads_scene(external_mavlink_text(14551), "ext.toml").receivers[0].vehicle.mavlink_baud == 57600
     with pytest.raises(SceneError, match=r"ext.toml: receiver.vehicle.mavlink_baud: must be in 50..12000000, got 7$"):
