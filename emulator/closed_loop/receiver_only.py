@@ -17,7 +17,6 @@ from emulator.closed_loop.strategy import (
     APPROACH, FINE, INNER_CM, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays,
     Observation, StateArrays, TickPlan, atan2, cos, exact, hypot, pick_slots, sin, speed_law,
 )
-from emulator.closed_loop.flux import FluxFollower
 from emulator.closed_loop.vehicle import VehicleSpec
 from emulator.receiver.model import ModelParams
 
@@ -297,10 +296,6 @@ class ReceiverOnlySearch(Controller):
         self.params = RxParams.of([spec], model)
         super().__init__(spec, model, dt)
         self._plan = self.tick_plan()
-
-    phase = FluxFollower.phase
-    target = FluxFollower.target
-    heading = property(lambda self: float(self.state.heading[0]) if self.state.headed[0] else None)
 
     def command(self, obs: Observation) -> tuple[float, float, float]:
         vz = self.height_hold(obs)

@@ -197,7 +197,8 @@ def strip_velocity(wp, count, nxt, x, y, speed) -> tuple[np.ndarray, np.ndarray]
 
 class Controller:
     """Common parts: height hold, target selection with marking, signal search. A subclass
-    gives ``phase`` ("search", ...) and ``target`` (an id or None) from its state arrays."""
+    keeps its state in ``state`` (:class:`StateArrays` of one run), read here as ``phase``
+    ("search", ...) and ``target`` (an id or None)."""
 
     name = "controller"
     #: The search phase sets ``heading`` from each non-zero strip velocity.
@@ -210,6 +211,9 @@ class Controller:
         self.located: list[Located] = []
         self.marked: set[int] = set()
         self.strips = StripSearch(spec.search_area, spec.strip_width) if spec.search_area else None
+
+    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])])
+    target = property(lambda self: None if self.state.target[0] < 0 else int(self.state.target[0]))
 
     @property
     def exhausted(self) -> bool:
