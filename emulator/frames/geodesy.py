@@ -22,14 +22,13 @@ to < 1e-9 deg and the height to < 1e-6 m for heights from -5,000 km to 40,000 km
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from firmware_proto.errors import InputError
+from firmware_proto.errors import PoseError
 
 # WGS-84 defining constants (NIMA TR8350.2) and the derived ones we use.
 WGS84_A = 6378137.0  #: semi-major axis, m
@@ -43,18 +42,13 @@ _BOWRING_STEPS = 3
 Vec3 = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 
 
-class GeodeticError(InputError):
+class GeodeticError(PoseError):
     """A geodetic coordinate that cannot be used; ``field`` names it (e.g. ``origin.lat``)."""
 
-    def __init__(self, field: str, reason: str) -> None:
-        self.field = field
-        self.reason = reason
-        super().__init__(f"{field}: {reason}")
 
-
-def finite_arrays(error: Callable[[str, str], InputError], /, **values: ArrayLike) -> list[NDArray]:
-    """Each value as a float64 array; ``error(field, reason)`` (:class:`GeodeticError`,
-    :class:`~firmware_proto.errors.PoseError`) names the first one that is not finite numbers."""
+def finite_arrays(error: type[PoseError], /, **values: ArrayLike) -> list[NDArray[np.float64]]:
+    """Each value as a float64 array; an ``error`` (a :class:`~firmware_proto.errors.PoseError`
+    class, e.g. :class:`GeodeticError`) names the first one that is not finite numbers."""
     out = []
     for field, value in values.items():
         try:
