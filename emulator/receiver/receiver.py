@@ -84,10 +84,7 @@ class Receiver:
 
     def evaluate(self, t: np.ndarray) -> Epochs:
         """Channel-selected epochs at scene times ``t`` (draws noise if enabled)."""
-        if len(self.ids) == 0:
-            return self.evaluate_poses(t, None, None)
-        rx_pos, rx_quat = self.trajectory.at(t)
-        return self.evaluate_poses(t, rx_pos, rx_quat)
+        return self.evaluate_poses(t, *self.trajectory.at(t))
 
     def evaluate_poses(self, t: np.ndarray, rx_pos, rx_quat) -> Epochs:
         """Like :meth:`evaluate`, with the receiver poses (N, 3), (N, 4) given by the
