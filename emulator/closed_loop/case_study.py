@@ -81,16 +81,12 @@ def terrain_grid() -> np.ndarray:
 
 
 def write_terrain(path: Path) -> None:
-    z = terrain_grid()
     header = (
-        "# Case-study DEM (emulator/closed_loop/case_study.py): elevation in metres; row j, column i is\n"
-        f"# (x, y) = ({TERRAIN_ORIGIN[0]:g} + {TERRAIN_SPACING[0]:g} i, {TERRAIN_ORIGIN[1]:g} + "
-        f"{TERRAIN_SPACING[1]:g} j); row 0 is the southern edge.\n"
+        "Case-study DEM (emulator/closed_loop/case_study.py): elevation in metres; row j, column i is\n"
+        f"(x, y) = ({TERRAIN_ORIGIN[0]:g} + {TERRAIN_SPACING[0]:g} i, {TERRAIN_ORIGIN[1]:g} + "
+        f"{TERRAIN_SPACING[1]:g} j); row 0 is the southern edge."
     )
-    with open(path, "w") as f:
-        f.write(header)
-        for row in z:
-            f.write(",".join(f"{v:.4f}" for v in row) + "\n")
+    np.savetxt(path, terrain_grid(), fmt="%.4f", delimiter=",", header=header, comments="# ")
 
 
 def summarize(case: int, result: RunResult) -> dict:
