@@ -135,7 +135,6 @@ class PulseEffect:
         self.pulse_s = config.pulse_ms / 1000.0
         if seed is None:  # unseeded: random timings, but the same for every transmitter's stream
             seed = np.random.SeedSequence().entropy
-        self.seed = seed
         lo, hi = config.period_ms
         self.periods_s, self.phases_s = np.empty((2, ids.size))
         for j, tx_id in enumerate(ids.tolist()):

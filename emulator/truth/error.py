@@ -76,7 +76,6 @@ class GroundTruthError:
     name = "ground_truth_error"
 
     def __init__(self, config: GroundTruthErrorConfig, seed: int | None, stream: int = 0) -> None:
-        self.config = config
         if seed is None:
             seed = np.random.SeedSequence().entropy
         self._sigma = np.array(config.gps_sigma_m)
