@@ -229,9 +229,7 @@ class ClosedLoop:
             p = self.uav.position
             path += math.dist(p, last)
             last = p
-            if stop_when_found and want <= self.controller.marked:
-                break
-            if self.controller.exhausted:
+            if (stop_when_found and want <= self.controller.marked) or self.controller.exhausted:
                 break
         return run_result(
             self.scene, self.channels, (self._ticks_t, self._ticks_p), self._epochs,
