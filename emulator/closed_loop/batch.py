@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from emulator.closed_loop.controllers import (
-    PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, EpochArrays, FluxFollower, FluxParams, FluxState, Located, RxParams,
+    PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, EpochArrays, FluxFollower, FluxParams, FluxState, RxParams,
     RxState, fly_back, flux_epoch, rx_arrive, rx_epoch, rx_plan, strip_velocity,
 )
 from emulator.closed_loop.loop import RunResult, control_ticks, make_vehicle, run_result
@@ -113,14 +113,13 @@ class BatchLoop:
         self.has_strips = np.array([st is not None for st in strips])
         self.sets_heading = np.array([c.search_sets_heading for c in self.ctrl])
         # The controllers decide in numpy, all runs of a strategy together (flux_epoch,
-        # rx_epoch: the code each controller object runs on a batch of one); their state,
-        # and what they located, live here.
+        # rx_epoch: the code each controller object runs on a batch of one); their state
+        # lives here, what they located in the controller objects (Controller.record).
         self.is_flux = np.array([isinstance(c, FluxFollower) for c in self.ctrl])
         self.flux = FluxState.empty(n)
         self.flux_par = FluxParams.of(specs)
         self.rx = RxState.empty(n)
         self.rx_par = RxParams.of(specs, self.model)
-        self.found: list[list[Located]] = [[] for _ in range(n)]
         self.marked = np.zeros((n, m + 1), dtype=bool)  # by id column; column m: no id
         self.col = np.full(int(self.ids.max()) + 2, m, dtype=np.int64)  # id + 1 -> column
         self.col[self.ids + 1] = np.arange(m)
@@ -224,7 +223,7 @@ class BatchLoop:
     def _record(self, j: np.ndarray, tx_ids: np.ndarray, t: float, x: np.ndarray, y: np.ndarray) -> None:
         """Runs j located tx_ids under (x, y) at time t: marked from now on."""
         for k, tx_id, xk, yk in zip(j.tolist(), tx_ids.tolist(), x.tolist(), y.tolist()):
-            self.found[k].append(Located(tx_id, t, xk, yk))
+            self.ctrl[k].record(tx_id, t, xk, yk)
             self.marked[k, self.col[tx_id + 1]] = True
             self.n_marked[k] += 1
 
@@ -325,8 +324,8 @@ class BatchLoop:
         wall = time.perf_counter() - wall
         return [
             run_result(
-                self.scenes[j], self.channels, ([], []), [], located=list(self.found[j]), t_end=float(t_end[j]),
-                exhausted=bool(self._exhausted(np.array([j]))[0]), wall_s=wall / n,
+                self.scenes[j], self.channels, ([], []), [], located=list(self.ctrl[j].located),
+                t_end=float(t_end[j]), exhausted=bool(self._exhausted(np.array([j]))[0]), wall_s=wall / n,
                 ground_contacts=int(self.contacts[j]), path_length=float(self.path[j]),
             )
             for j in range(n)

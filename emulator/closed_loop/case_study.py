@@ -26,6 +26,7 @@ import numpy as np
 
 from firmware_proto.errors import MissingExtra
 
+from emulator.cli_types import OneLineParser, output_dir, run_main
 from emulator.closed_loop.loop import ClosedLoop, RunResult
 from emulator.scene.reader import load_scene
 from emulator.scene.types import Scene
@@ -80,16 +81,12 @@ def terrain_grid() -> np.ndarray:
 
 
 def write_terrain(path: Path) -> None:
-    z = terrain_grid()
     header = (
-        "# Case-study DEM (emulator/closed_loop/case_study.py): elevation in metres; row j, column i is\n"
-        f"# (x, y) = ({TERRAIN_ORIGIN[0]:g} + {TERRAIN_SPACING[0]:g} i, {TERRAIN_ORIGIN[1]:g} + "
-        f"{TERRAIN_SPACING[1]:g} j); row 0 is the southern edge.\n"
+        "Case-study DEM (emulator/closed_loop/case_study.py): elevation in metres; row j, column i is\n"
+        f"(x, y) = ({TERRAIN_ORIGIN[0]:g} + {TERRAIN_SPACING[0]:g} i, {TERRAIN_ORIGIN[1]:g} + "
+        f"{TERRAIN_SPACING[1]:g} j); row 0 is the southern edge."
     )
-    with open(path, "w") as f:
-        f.write(header)
-        for row in z:
-            f.write(",".join(f"{v:.4f}" for v in row) + "\n")
+    np.savetxt(path, terrain_grid(), fmt="%.4f", delimiter=",", header=header, comments="# ")
 
 
 def summarize(case: int, result: RunResult) -> dict:
@@ -170,20 +167,19 @@ def plot_case(case: int, results: dict[str, RunResult], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m emulator.closed_loop.case_study", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", type=Path, help="write case_study_<n>.png here")
+    p = OneLineParser(prog="python -m emulator.closed_loop.case_study", description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=output_dir, help="write case_study_<n>.png here")
     p.add_argument("--controllers", default="flux,receiver_only", help="comma-separated (default: both)")
     p.add_argument("--terrain", action="store_true", help="regenerate emulator/scenes/case_study_terrain.csv")
-    args = p.parse_args(argv)
+    return run_main(p.prog, lambda: p.parse_args(argv), _run)
+
+
+def _run(args: argparse.Namespace) -> int:
     if args.terrain:
         write_terrain(SCENES_DIR / "case_study_terrain.csv")
     names = [c for c in args.controllers.split(",") if c]
     if args.out is not None:
-        try:
-            _pyplot()  # before minutes of flying, not after
-        except MissingExtra as exc:
-            print(f"{p.prog}: {exc}", file=sys.stderr)
-            return 2
+        _pyplot()  # a missing matplotlib before minutes of flying, not after
     print("| case | strategy | start [m] | max [m] (at s) | growth | located at [s] | error [m] | final 3-D [m] |")
     print("|---|---|---|---|---|---|---|---|")
     for case in CASES:

@@ -22,7 +22,7 @@ from emulator.closed_loop.receiver_only import (
 )
 from emulator.closed_loop.strategy import (
     APPROACH, FINE, FOLLOW, INNER_CM, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays, Located,
-    Observation, StripSearch, TickPlan, speed_law, strip_velocity,
+    Observation, StripSearch, speed_law, strip_velocity,
 )
 from emulator.closed_loop.vehicle import VehicleSpec
 from emulator.receiver.model import ModelParams
@@ -30,7 +30,7 @@ from emulator.receiver.model import ModelParams
 __all__ = [  # the strategies' public names, re-exported from flux, receiver_only and strategy
     "APPROACH", "FINE", "FOLLOW", "INNER_CM", "PLAN_BACK", "PLAN_CONST", "PLAN_SEARCH", "SEARCH",
     "Controller", "EpochArrays", "FluxFollower", "FluxParams", "FluxState", "Located", "Observation",
-    "ReceiverOnlySearch", "RxParams", "RxState", "StripSearch", "TickPlan", "fly_back", "flux_epoch",
+    "ReceiverOnlySearch", "RxParams", "RxState", "StripSearch", "fly_back", "flux_epoch",
     "make_controller", "rx_arrive", "rx_epoch", "rx_plan", "speed_law", "strip_velocity",
 ]
 

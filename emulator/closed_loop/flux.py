@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from emulator.closed_loop.strategy import (
-    FOLLOW, PHASE_NAMES, SEARCH, Controller, EpochArrays, Observation, StateArrays, cos, exact, hypot, pick_slots,
+    FOLLOW, SEARCH, Controller, EpochArrays, Observation, StateArrays, cos, exact, hypot, pick_slots,
     power, sin, speed_law,
 )
 from emulator.closed_loop.vehicle import VehicleSpec
@@ -116,10 +116,6 @@ class FluxFollower(Controller):
         self.state = FluxState.empty(1)  # this run's state: flux_epoch on a batch of one
         self.params = FluxParams.of([spec])
         super().__init__(spec, model, dt)
-
-    # The state array's element, under the names the rest of the code reads.
-    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])])
-    target = property(lambda self: None if self.state.target[0] < 0 else int(self.state.target[0]))
 
     def command(self, obs: Observation) -> tuple[float, float, float]:
         vz = self.height_hold(obs)

@@ -111,7 +111,7 @@ def make_vehicle(scene: Scene, index: int, dt: float) -> tuple[UAV, Controller]:
 class ClosedLoop:
     """Receiver ``index`` of ``scene`` on its vehicle (see the module docstring)."""
 
-    def __init__(self, scene: Scene, index: int = 0, record: bool = True, pose_source=None) -> None:
+    def __init__(self, scene: Scene, index: int = 0, record: bool = True) -> None:
         spec: VehicleSpec | None = scene.receivers[index].vehicle
         if spec is None:
             raise ValueError(f"receiver {scene.receivers[index].id} has no vehicle")
@@ -131,7 +131,7 @@ class ClosedLoop:
 
             self.uav = None
             self.controller: Controller | None = None
-            self.pose_source = pose_source or MavlinkPoseSource(spec.mavlink, spec.mavlink_origin, baud=spec.mavlink_baud)
+            self.pose_source = MavlinkPoseSource(spec.mavlink, spec.mavlink_origin, baud=spec.mavlink_baud)
             self._start_pose = scene.receivers[index].trajectory.at([0.0])
             self._last_render: float | None = None
             self._waiting_logged = False
@@ -229,9 +229,7 @@ class ClosedLoop:
             p = self.uav.position
             path += math.dist(p, last)
             last = p
-            if stop_when_found and want <= self.controller.marked:
-                break
-            if self.controller.exhausted:
+            if (stop_when_found and want <= self.controller.marked) or self.controller.exhausted:
                 break
         return run_result(
             self.scene, self.channels, (self._ticks_t, self._ticks_p), self._epochs,

@@ -116,12 +116,6 @@ class MavlinkPoseSource:
         self._thread.start()
         return self
 
-    def __enter__(self) -> "MavlinkPoseSource":
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
     def close(self) -> None:
         self._stop.set()
         if self._thread is not None:

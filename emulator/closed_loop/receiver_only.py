@@ -15,9 +15,8 @@ import numpy as np
 
 from emulator.closed_loop.strategy import (
     APPROACH, FINE, INNER_CM, PLAN_BACK, PLAN_CONST, PLAN_SEARCH, SEARCH, Controller, EpochArrays,
-    Observation, StateArrays, TickPlan, atan2, cos, exact, hypot, pick_slots, sin, speed_law,
+    Observation, StateArrays, atan2, cos, exact, hypot, pick_slots, sin, speed_law,
 )
-from emulator.closed_loop.flux import FluxFollower
 from emulator.closed_loop.vehicle import VehicleSpec
 from emulator.receiver.model import ModelParams
 
@@ -298,32 +297,27 @@ class ReceiverOnlySearch(Controller):
         super().__init__(spec, model, dt)
         self._plan = self.tick_plan()
 
-    phase = FluxFollower.phase
-    target = FluxFollower.target
-    heading = property(lambda self: float(self.state.heading[0]) if self.state.headed[0] else None)
-
     def command(self, obs: Observation) -> tuple[float, float, float]:
         vz = self.height_hold(obs)
         if obs.new_epoch:
             rx_epoch(self.state, EpochArrays.of(obs, self.marked), self.params)
             self._plan = self.tick_plan()
-        plan = self._plan
-        if plan.mode == PLAN_SEARCH:
+        mode, vx, vy, bx, by, speed = self._plan
+        if mode[0] == PLAN_SEARCH:
             vx, vy = self.search_velocity(obs)
             if vx or vy:
                 self.state.heading[0], self.state.headed[0] = math.atan2(vy, vx), True
             return vx, vy, vz
-        if plan.mode == PLAN_BACK:
+        if mode[0] == PLAN_BACK:
             x, y = np.array([obs.x]), np.array([obs.y])
-            vx, vy, arrived = fly_back(np.array([plan.x]), np.array([plan.y]), np.array([plan.speed]), x, y, self.dt)
+            vx, vy, arrived = fly_back(bx, by, speed, x, y, self.dt)
             if arrived[0]:
                 marks, ids, lx, ly, vx, vy = rx_arrive(self.state, x, y, self.params)
                 if marks[0]:
                     self.record(int(ids[0]), obs.t, float(lx[0]), float(ly[0]))
                 self._plan = self.tick_plan()
-            return float(vx[0]), float(vy[0]), vz
-        return plan.vx, plan.vy, vz
+        return float(vx[0]), float(vy[0]), vz
 
-    def tick_plan(self) -> TickPlan:
-        mode, vx, vy, x, y, speed = rx_plan(self.state, np.array([self.strips is not None]))
-        return TickPlan(int(mode[0]), float(vx[0]), float(vy[0]), float(x[0]), float(y[0]), float(speed[0]))
+    def tick_plan(self) -> tuple[np.ndarray, ...]:
+        """:func:`rx_plan` on this batch of one: (mode, vx, vy, x, y, speed), each (1,)."""
+        return rx_plan(self.state, np.array([self.strips is not None]))

@@ -109,28 +109,12 @@ SEARCH, FOLLOW, APPROACH, FINE = 0, 1, 2, 3
 PHASE_NAMES = {SEARCH: "search", FOLLOW: "follow", APPROACH: "approach", FINE: "fine"}
 
 
-#: :class:`TickPlan` modes.
+#: Tick plan modes (:func:`~emulator.closed_loop.receiver_only.rx_plan`): what a controller
+#: does on the ticks after an epoch until the next one, so a batch loop can replay them in
+#: numpy. PLAN_CONST: hold (vx, vy); PLAN_SEARCH: the strip search velocity (at v_max; a
+#: controller with ``search_sets_heading`` also sets its heading); PLAN_BACK: fly to (x, y)
+#: at min(speed, dist / dt), and once within 2 cm the controller decides what comes next.
 PLAN_CONST, PLAN_SEARCH, PLAN_BACK = 0, 1, 2
-
-
-@dataclass(slots=True)
-class TickPlan:
-    """What :meth:`Controller.command` does on the ticks after an epoch (``new_epoch``
-    false) until the next one, so a batch loop can replay those ticks in numpy:
-
-    * ``PLAN_CONST``: return (``vx``, ``vy``) every tick;
-    * ``PLAN_SEARCH``: the strip search velocity (:meth:`StripSearch.velocity` at
-      ``spec.v_max``; a controller with ``search_sets_heading`` also sets ``heading``);
-    * ``PLAN_BACK``: fly to (``x``, ``y``) at min(``speed``, dist / dt); once within
-      2 cm the controller itself decides what comes next (call :meth:`command`).
-    """
-
-    mode: int
-    vx: float = 0.0
-    vy: float = 0.0
-    x: float = 0.0
-    y: float = 0.0
-    speed: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -197,7 +181,8 @@ def strip_velocity(wp, count, nxt, x, y, speed) -> tuple[np.ndarray, np.ndarray]
 
 class Controller:
     """Common parts: height hold, target selection with marking, signal search. A subclass
-    gives ``phase`` ("search", ...) and ``target`` (an id or None) from its state arrays."""
+    keeps its state in ``state`` (:class:`StateArrays` of one run), read here as ``phase``
+    ("search", ...) and ``target`` (an id or None)."""
 
     name = "controller"
     #: The search phase sets ``heading`` from each non-zero strip velocity.
@@ -210,6 +195,9 @@ class Controller:
         self.located: list[Located] = []
         self.marked: set[int] = set()
         self.strips = StripSearch(spec.search_area, spec.strip_width) if spec.search_area else None
+
+    phase = property(lambda self: PHASE_NAMES[int(self.state.phase[0])])
+    target = property(lambda self: None if self.state.target[0] < 0 else int(self.state.target[0]))
 
     @property
     def exhausted(self) -> bool:

@@ -30,23 +30,14 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from firmware_proto.errors import InputError
+from firmware_proto.errors import PoseError
 
+from emulator.frames.geodesy import finite_arrays
 from emulator.frames.rotation import normalize_quaternions, quaternion_matrices
 
 _GIMBAL_LOCK_COS = 1e-10
 
 HPR = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
-
-
-def _finite(value: ArrayLike, field: str) -> NDArray[np.float64]:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{field}: not a number: {value!r}") from exc
-    if not np.all(np.isfinite(arr)):
-        raise InputError(f"{field}: must be finite")
-    return arr
 
 
 def wrap_heading(heading_deg: ArrayLike) -> NDArray[np.float64]:
@@ -59,16 +50,14 @@ def hpr_to_quaternion(heading: ArrayLike, roll: ArrayLike, pitch: ArrayLike) -> 
     """Unit quaternions (..., 4) ``[w, x, y, z]`` (w >= 0) of heading/roll/pitch in degrees.
 
     Any finite angles are accepted (a pitch beyond +-90 is still a rotation); non-finite
-    ones raise :class:`InputError` naming the field.
+    ones raise :class:`~firmware_proto.errors.PoseError` naming the field.
 
     Computed as the product of the three half-angle quaternions
     q = qz(90 deg - heading) * qy(-pitch) * qx(roll), written out: the bench calls this
     once per $PASHR sentence, where scipy's ``Rotation.from_euler`` (which the tests
     check this against) costs ten times more for one rotation.
     """
-    h = _finite(heading, "heading")
-    r = _finite(roll, "roll")
-    p = _finite(pitch, "pitch")
+    h, r, p = finite_arrays(PoseError, heading=heading, roll=roll, pitch=pitch)
     half = np.radians(0.5)
     a, b, c = (90.0 - h) * half, -p * half, r * half
     ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)

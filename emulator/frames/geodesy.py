@@ -28,7 +28,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from firmware_proto.errors import InputError
+from firmware_proto.errors import PoseError
 
 # WGS-84 defining constants (NIMA TR8350.2) and the derived ones we use.
 WGS84_A = 6378137.0  #: semi-major axis, m
@@ -42,26 +42,21 @@ _BOWRING_STEPS = 3
 Vec3 = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 
 
-class GeodeticError(InputError):
+class GeodeticError(PoseError):
     """A geodetic coordinate that cannot be used; ``field`` names it (e.g. ``origin.lat``)."""
 
-    def __init__(self, field: str, reason: str) -> None:
-        self.field = field
-        self.reason = reason
-        super().__init__(f"{field}: {reason}")
 
-
-def _float_arrays(**values: ArrayLike) -> list[NDArray[np.float64]]:
-    """Each value as a float64 array; a GeodeticError names the first one that is not
-    finite numbers."""
+def finite_arrays(error: type[PoseError], /, **values: ArrayLike) -> list[NDArray[np.float64]]:
+    """Each value as a float64 array; an ``error`` (a :class:`~firmware_proto.errors.PoseError`
+    class, e.g. :class:`GeodeticError`) names the first one that is not finite numbers."""
     out = []
     for field, value in values.items():
         try:
             out.append(np.asarray(value, dtype=np.float64))
         except (TypeError, ValueError) as exc:
-            raise GeodeticError(field, f"not a number: {value!r}") from exc
+            raise error(field, f"not a number: {value!r}") from exc
         if not np.all(np.isfinite(out[-1])):
-            raise GeodeticError(field, "must be finite")
+            raise error(field, "must be finite")
     return out
 
 
@@ -109,7 +104,7 @@ class Origin:
 
 def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, alt: ArrayLike) -> Vec3:
     """ECEF metres of geodetic (deg, deg, m HAE). Raises GeodeticError on bad input."""
-    lat_a, lon_a, alt_a = _float_arrays(lat=lat, lon=lon, alt=alt)
+    lat_a, lon_a, alt_a = finite_arrays(GeodeticError, lat=lat, lon=lon, alt=alt)
     if np.any(np.abs(lat_a) > 90.0):
         raise GeodeticError("lat", "latitude must be in [-90, 90] degrees")
     if np.any(np.abs(lon_a) > 180.0):
@@ -130,7 +125,7 @@ def ecef_to_geodetic(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Vec3:
 
     Longitude is in [-180, 180]; on the polar axis it is 0 (any value is correct there).
     """
-    xa, ya, za = np.broadcast_arrays(*_float_arrays(x=x, y=y, z=z))
+    xa, ya, za = np.broadcast_arrays(*finite_arrays(GeodeticError, x=x, y=y, z=z))
     p = np.hypot(xa, ya)
     beta = np.arctan2(za, (1.0 - WGS84_F) * p)
     phi = beta
@@ -146,7 +141,7 @@ def ecef_to_geodetic(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> Vec3:
 
 def ecef_to_enu(x: ArrayLike, y: ArrayLike, z: ArrayLike, origin: Origin) -> Vec3:
     """ENU metres about ``origin`` of ECEF metres."""
-    xa, ya, za = _float_arrays(x=x, y=y, z=z)
+    xa, ya, za = finite_arrays(GeodeticError, x=x, y=y, z=z)
     # Subtract first: both are ~6.4e6 m, so the difference is exact to ~1e-9 m and the
     # rotation then acts on small numbers.
     dx, dy, dz = xa - origin.ecef[0], ya - origin.ecef[1], za - origin.ecef[2]
@@ -160,7 +155,7 @@ def ecef_to_enu(x: ArrayLike, y: ArrayLike, z: ArrayLike, origin: Origin) -> Vec
 
 def enu_to_ecef(e: ArrayLike, n: ArrayLike, u: ArrayLike, origin: Origin) -> Vec3:
     """ECEF metres of ENU metres about ``origin``."""
-    ea, na, ua = _float_arrays(e=e, n=n, u=u)
+    ea, na, ua = finite_arrays(GeodeticError, e=e, n=n, u=u)
     r = origin.enu_rotation  # orthonormal: the inverse is the transpose
     x = r[0, 0] * ea + r[1, 0] * na + r[2, 0] * ua + origin.ecef[0]
     y = r[0, 1] * ea + r[1, 1] * na + r[2, 1] * ua + origin.ecef[1]

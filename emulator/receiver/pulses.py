@@ -124,7 +124,7 @@ class PulseEffect:
 
     name = "pulses"
 
-    def __init__(self, config: PulseConfig, tx_ids: ArrayLike, seed: int | None) -> None:
+    def __init__(self, config: PulseConfig, tx_ids: ArrayLike, seed: int) -> None:
         ids = np.asarray(tx_ids, dtype=np.int64)
         if ids.ndim != 1:
             raise InputError(f"pulses: transmitter ids must be a 1-D array, got shape {ids.shape}")
@@ -133,9 +133,6 @@ class PulseEffect:
         self.config = config
         self.ids = ids
         self.pulse_s = config.pulse_ms / 1000.0
-        if seed is None:  # unseeded: random timings, but the same for every transmitter's stream
-            seed = np.random.SeedSequence().entropy
-        self.seed = seed
         lo, hi = config.period_ms
         self.periods_s, self.phases_s = np.empty((2, ids.size))
         for j, tx_id in enumerate(ids.tolist()):

@@ -67,9 +67,9 @@ class Receiver:
         fx = self.scene.effects
         self.pulses = PulseEffect(fx.pulses, self.ids, self.scene.seed) if fx.pulses and len(self.ids) else None
         self._static_tx = all(tx.trajectory.is_static for tx in txs)
-        if self._static_tx and txs:
-            self._tx_pos = np.stack([tx.trajectory.positions[0] for tx in txs])
-            self._tx_quat = np.stack([tx.trajectory.orientations[0] for tx in txs])
+        if self._static_tx:  # (0, 3), (0, 4) without transmitters: the model gives empty epochs
+            self._tx_pos = np.array([tx.trajectory.positions[0] for tx in txs]).reshape(-1, 3)
+            self._tx_quat = np.array([tx.trajectory.orientations[0] for tx in txs]).reshape(-1, 4)
 
     def pin(self, trajectory: Trajectory | None) -> None:
         """Take poses from ``trajectory`` from the next epoch on (e.g. a static pose a
@@ -84,19 +84,12 @@ class Receiver:
 
     def evaluate(self, t: np.ndarray) -> Epochs:
         """Channel-selected epochs at scene times ``t`` (draws noise if enabled)."""
-        if len(self.ids) == 0:
-            return self.evaluate_poses(t, None, None)
-        rx_pos, rx_quat = self.trajectory.at(t)
-        return self.evaluate_poses(t, rx_pos, rx_quat)
+        return self.evaluate_poses(t, *self.trajectory.at(t))
 
     def evaluate_poses(self, t: np.ndarray, rx_pos, rx_quat) -> Epochs:
         """Like :meth:`evaluate`, with the receiver poses (N, 3), (N, 4) given by the
         caller (a vehicle in closed loop, an autopilot) instead of the scene trajectory."""
         n, m = t.size, len(self.ids)
-        if m == 0:
-            empty = np.full((n, self.channels), -1, dtype=np.int64)
-            field = np.zeros((n, self.channels, 3)) if self.want_field else None
-            return Epochs(empty, empty.copy(), empty.copy(), empty.copy(), field)
         if self._static_tx:
             tx_pos, tx_quat = self._tx_pos, self._tx_quat
         else:

@@ -75,10 +75,7 @@ class GroundTruthError:
 
     name = "ground_truth_error"
 
-    def __init__(self, config: GroundTruthErrorConfig, seed: int | None, stream: int = 0) -> None:
-        self.config = config
-        if seed is None:
-            seed = np.random.SeedSequence().entropy
+    def __init__(self, config: GroundTruthErrorConfig, seed: int, stream: int = 0) -> None:
         self._sigma = np.array(config.gps_sigma_m)
         self._bias = np.array(config.gps_bias_m)
         self._noisy = bool(self._sigma.any())
