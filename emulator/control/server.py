@@ -73,7 +73,8 @@ class ControlAddress:
 
 def control_address(text: str) -> ControlAddress:
     """Parse ``unix:PATH`` / ``tcp:HOST:PORT``; :class:`InputError` names what is wrong
-    (also an argparse type: ValueError subclasses become a usage error)."""
+    (``--control`` wraps it in :func:`runtime._address`: argparse would print its own
+    "invalid value" line for a ValueError, not this message)."""
     kind, sep, rest = text.partition(":")
     if kind == "unix" and sep and rest:
         if len(os.fsencode(rest)) > 107:
