@@ -333,15 +333,17 @@ class Notifier:
                 work.put(("lost", p, str(exc) or type(exc).__name__))
 
     # -- the work thread: decode, notify, tick ------------------------------------------------
-    def _notify(self, method: str, device: Device, arg) -> None:
+    def _notify(self, method: str, *args) -> None:
+        """``listener.<method>(*args)`` for each listener; one that raises is dropped."""
         for listener in self._listeners:
             try:
-                getattr(listener, method)(device, arg)
+                getattr(listener, method)(*args)
             except LinkError as exc:
                 self._dropped(listener, exc)
             except Exception as exc:  # noqa: BLE001 - a listener's bug must not stop the others
-                log.exception("listener %r failed on %s of %s", listener, method, device.spec.name)
-                self._dropped(listener, LinkError(f"{device.spec.name}: {type(listener).__name__} failed: {exc!r}"))
+                where = f"{args[0].spec.name}: " if args and isinstance(args[0], Device) else ""
+                log.exception("listener %r failed: %s%s", listener, where, method)
+                self._dropped(listener, LinkError(f"{where}{type(listener).__name__} failed: {exc!r}"))
 
     def _ingest(self, p: _Port, data: bytes, mono: float, utc: float) -> Read:
         try:
@@ -389,8 +391,7 @@ class Notifier:
             for dev in self.devices:
                 self._notify("on_read", dev, dev.stop(mono, utc))
                 dev.stats.connected = False
-            for listener in self._listeners:
-                listener.stop()
+            self._notify("stop")
 
     def _up(self, p: _Port) -> None:
         dev = p.device
@@ -431,11 +432,7 @@ class Notifier:
                 else:
                     p.close()
                     self._lost(p, reason)
-        for listener in self._listeners:
-            try:
-                listener.on_tick(now)
-            except LinkError as exc:
-                self._dropped(listener, exc)
+        self._notify("on_tick", now)
 
     # -- the opener thread --------------------------------------------------------------------
     def _open_loop(self) -> None:
