@@ -511,10 +511,6 @@ class RawLog:
             pass
         return self
 
-    def first_read(self) -> RawRead | None:
-        """The first read whose ``mono`` is a finite number (no stamp check), or None."""
-        return next((read for read in RawLog(self.path) if math.isfinite(read.mono)), None)
-
 
 def read_raw(path: str | Path) -> RawFile:
     """All reads in a ``.raw`` file, in a list (small files: tests, tools); the commands
@@ -543,10 +539,11 @@ def session_logs(directory: str | Path, names: Iterable[str]) -> dict[str, RawLo
     """The raw logs of the devices ``names`` that logged something, keyed by name, each
     checked against the session's clock (its earliest first read: :class:`SessionClock`)."""
     paths = {name: p for name in names if (p := raw_path(directory, name)) is not None}
-    firsts = [r for p in paths.values() if (r := RawLog(p).first_read()) is not None]
-    if not firsts:
+    # Each log's first read with a finite ``mono``, unchecked (there is no clock yet).
+    firsts = [next((r for r in RawLog(p) if math.isfinite(r.mono)), None) for p in paths.values()]
+    if not any(firsts):
         return {name: RawLog(p) for name, p in paths.items()}  # no read anywhere: nothing to check
-    ref = min(firsts, key=lambda r: r.mono)
+    ref = min((r for r in firsts if r is not None), key=lambda r: r.mono)
     clock = SessionClock(ref.mono, ref.utc)
     return {name: RawLog(p, clock) for name, p in paths.items()}
 
