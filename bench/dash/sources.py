@@ -115,6 +115,8 @@ class DeviceFeed(Listener):
 
     # -- from the reader -------------------------------------------------------------------
     def on_read(self, device: Device, read: Read) -> None:
+        if device is not self.device:  # a notifier tells every listener of every device
+            return
         if (recorder := self.recorder) is not None:
             recorder.on_read(device, read)
         self._handle(read.records)
@@ -123,6 +125,8 @@ class DeviceFeed(Listener):
             self.status(read.mono)
 
     def on_link(self, device: Device, event: LinkEvent) -> None:
+        if device is not self.device:
+            return
         if (recorder := self.recorder) is not None:
             recorder.on_link(device, event)
         if event.kind in ("up", "reconnect"):

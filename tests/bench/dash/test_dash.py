@@ -468,6 +468,24 @@ def test_live_source_reopens_a_silent_device_by_itself():
     assert post.of(LinkStatus)[1].reason == "no data for 0.3 s: reopening"
 
 
+def test_live_source_feeds_take_only_their_own_devices_reads_and_links():
+    """The notifier tells every feed of every device: a GPS feed must not post the
+    receiver's epochs as its own (nor hand them to a recording a second time)."""
+    post = Collect()
+    feeds = [DeviceFeed(DeviceSpec("arva", "arva", "arvaemu://?speed=0&frames=5", "rx"), post),
+             DeviceFeed(DeviceSpec("gps-rx", "gps", "loop://", "rx"), post)]  # fmt: skip
+    src = LiveSource(feeds, stale_after=5)
+    src.start()
+    try:
+        post.wait(lambda: len(post.of(EpochReceived)) >= 5)
+    finally:
+        src.request_stop()
+        src.join(5)
+    assert [(e.device, e.seq, e.count) for e in post.of(EpochReceived)] == [("arva", k, k + 1) for k in range(5)]
+    assert feeds[1].counters().records == 0
+    assert [m.state for m in post.of(LinkStatus) if m.device == "gps-rx"][:1] == ["up"]
+
+
 def test_live_source_reads_the_in_process_emulator_with_scene_truth():
     post = Collect()
     spec = DeviceSpec("arva", "arva", "arvaemu://?speed=0&frames=3", "rx")
