@@ -253,15 +253,23 @@ class SessionWriter(contextlib.AbstractContextManager):
 
 
 # -- the manifest, typed ---------------------------------------------------------------
-class DeviceEntry(msgspec.Struct, frozen=True):
-    """One logged device: its ``<name>.raw`` holds the reads. ``baudrate`` (bit/s, 8N1) is
-    the link's, used by the stamp rule (:mod:`bench.ingest.stamp`)."""
+class DeviceSpec(msgspec.Struct, frozen=True):
+    """A device to read, or one a session logged (its ``<name>.raw`` holds the reads):
+    ``name`` in the session (``arva``, ``gps-rx``, ``attitude-tx1``), ``kind`` (arva, gps,
+    attitude), ``role`` (``rx``, ``rx<id>`` or ``tx<id>``), ``format`` (None: the kind's
+    default; ``mavlink`` for a MAVLink attitude source), ``baudrate`` (bit/s, 8N1: the
+    port's setting and the stamp rule's byte time, :mod:`bench.ingest.stamp`)."""
 
+    name: str
     kind: Literal[KINDS]
     url: str = ""
     role: Text(r"\A(rx|rx\d+|tx\d+)\Z", "rx, rx<ID> or tx<ID>") = "rx"
     baudrate: Int(*BAUD_LIMITS) = 115200
     format: str | None = None
+
+    def manifest(self) -> dict:
+        """The device's entry in the manifest (under its name; ``format`` only when given)."""
+        return {k: v for k, v in msgspec.structs.asdict(self).items() if k != "name" and v is not None}
 
 
 class GeoPose(msgspec.Struct, frozen=True):
@@ -283,7 +291,7 @@ class _ManifestTable(msgspec.Struct, frozen=True):
     """What this program reads of a manifest (other keys, a note, the command, are kept)."""
 
     version: Int(1, 2**31)
-    devices: dict[str, dict] = {}  # each a DeviceEntry, converted one by one to name it
+    devices: dict[str, dict] = {}  # each a DeviceSpec, converted one by one to name it
     start_utc: str | None = None
     stop_utc: str | None = None
     origin: _Origin | None = None
@@ -304,7 +312,7 @@ class Manifest:
     their read's time), 2 (records stamped by the stamp rule of :mod:`bench.ingest.stamp`);
     the raw reads, from which every reader re-derives the records, are the same in both."""
 
-    devices: dict[str, DeviceEntry]
+    devices: dict[str, DeviceSpec]
     origin: GeoPose | None
     tx_poses: dict[int, GeoPose]
     raw: dict  # the JSON object as read (version, times and summary are checked, read from here)
@@ -323,7 +331,8 @@ class Manifest:
         for name, entry in doc.devices.items():
             if not name or "/" in name or "\\" in name or name.startswith("."):
                 raise ValueError(f"devices.{name}: {name!r} is not a device name (it names a file in the session)")
-            devices[name] = dev = _typed(entry, DeviceEntry, f"devices.{name}")
+            named = {**entry, "name": name} if isinstance(entry, dict) else entry
+            devices[name] = dev = _typed(named, DeviceSpec, f"devices.{name}")
             if dev.format is not None and dev.format not in FORMATS.get(dev.kind, ()):
                 raise ValueError(f"devices.{name}.format: a {dev.kind} device cannot speak {json.dumps(dev.format)}")
         if not devices:

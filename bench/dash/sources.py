@@ -10,9 +10,9 @@ import threading
 import time
 import urllib.parse
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
+from msgspec.structs import replace
 from serial import SerialException
 
 from firmware_proto.errors import InputError

@@ -30,13 +30,14 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import serial
 
 from firmware_proto.errors import LinkError
 
 from ..records import RecordDecoder, decoder_for
+from ..session import DeviceSpec
 from ..transport import open_device
 from .stamp import Stamped, StampedDecoder
 
@@ -52,25 +53,6 @@ TICK = 0.1
 SWITCH_INTERVAL = 0.0002
 #: Read timeout (s) of ports read by a thread (no descriptor).
 THREAD_READ_TIMEOUT = 0.1
-
-
-@dataclass
-class DeviceSpec:
-    """A device to read: ``name`` in the session (``arva``, ``gps-rx``, ``attitude-tx1``),
-    ``kind`` (arva, gps, attitude), ``role`` (``rx``, ``rx<id>`` or ``tx<id>``), ``format``
-    (None: the kind's default; ``mavlink`` for a MAVLink attitude source), ``baudrate``
-    (bit/s: the port's setting and the stamp rule's byte time)."""
-
-    name: str
-    kind: str
-    url: str
-    role: str = "rx"
-    baudrate: int = 115200
-    format: str | None = None
-
-    def manifest(self) -> dict:
-        """The device's entry in the manifest (under its name; ``format`` only when given)."""
-        return {k: v for k, v in asdict(self).items() if k != "name" and v is not None}
 
 
 @dataclass
