@@ -26,7 +26,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, TypeVar
@@ -38,6 +38,7 @@ from emulator.files import open_regular
 from emulator.schema import Int, Number, SchemaError, Text, convert, join_key, type_name
 from firmware_proto.errors import InputError, LinkError
 
+from .ingest.stamp import Stamped
 from .records import FORMATS, KINDS
 
 MANIFEST = "manifest.json"
@@ -417,20 +418,23 @@ def _json(text: str | bytes, where: str | Path) -> object:
     raise InputError(f"{where}: JSON nested more than {MAX_JSON_DEPTH} deep")
 
 
-@dataclass(frozen=True)
-class RawRead:
-    """One logged read: ``mono`` (s, logger's monotonic clock), ``utc`` (POSIX s)."""
+@dataclass(frozen=True, slots=True)
+class Read:
+    """One read of a device, stamped at its return: ``mono`` (s, the logger's monotonic
+    clock), ``utc`` (POSIX s), ``data`` (empty for records an idle link or the end
+    released), and the ``records`` it completed (none in a raw log: its line holds the rest)."""
 
     mono: float
     utc: float
     data: bytes
+    records: Sequence[Stamped] = ()
 
 
 @dataclass
 class RawFile:
     """A device's raw log: its reads, and whether the last line was torn."""
 
-    reads: list[RawRead]
+    reads: list[Read]
     torn_tail: bool
 
 
@@ -442,7 +446,7 @@ class SessionClock:
     mono: float
     utc: float
 
-    def check(self, path: Path, line: int, read: RawRead, previous: RawRead | None) -> None:
+    def check(self, path: Path, line: int, read: Read, previous: Read | None) -> None:
         """:class:`InputError` naming ``path`` and ``line`` when ``read``'s stamps break a rule."""
         where = f"{path}: line {line}"
         if not math.isfinite(read.mono):
@@ -461,7 +465,7 @@ class SessionClock:
 
 
 class RawLog:
-    """One device's ``<name>.raw``, read as a stream of :class:`RawRead` (never whole).
+    """One device's ``<name>.raw``, read as a stream of :class:`Read` (never whole).
 
     Every pass (``for read in log``) reads the file again, one line at a time (at most
     :data:`MAX_RAW_LINE` bytes), checks each read's stamps against ``clock`` when one is
@@ -474,21 +478,21 @@ class RawLog:
 
     # What the last pass saw (the values before any).
     reads = bytes = 0
-    first: RawRead | None = None
-    last: RawRead | None = None
+    first: Read | None = None
+    last: Read | None = None
     torn_tail = False
 
     def __init__(self, path: str | Path, clock: SessionClock | None = None) -> None:
         self.path = Path(path)
         self.clock = clock
 
-    def __iter__(self) -> Iterator[RawRead]:
+    def __iter__(self) -> Iterator[Read]:
         path, clock = self.path, self.clock
         self.reads = self.bytes = 0
         self.first = self.last = None
         self.torn_tail = False
         bad: tuple[int, Exception] | None = None
-        previous: RawRead | None = None
+        previous: Read | None = None
         for number, line, complete in _lines(path, MAX_RAW_LINE, "raw log"):
             if not complete:
                 self.torn_tail = True
@@ -497,7 +501,7 @@ class RawLog:
                 continue
             try:
                 mono, utc, b64 = line.split(b"\t")
-                read = RawRead(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
+                read = Read(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
             except (ValueError, binascii.Error) as exc:
                 bad = bad or (number, exc)
                 continue

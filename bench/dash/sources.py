@@ -23,7 +23,7 @@ from ..ingest.pacer import pace
 from ..ingest.reader import Device, DeviceSpec, LinkEvent, Listener, Notifier, Read
 from ..ingest.stamp import Stamped
 from ..records import ArvaRecords, GroundTruthRecords
-from ..session import RawLog, RawRead, session_logs
+from ..session import RawLog, session_logs
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkCounters, LinkStatus, TruthPose
 
 #: Seconds between idle ticks of a replay (a quiet link's epochs are released, statuses posted).
@@ -268,7 +268,7 @@ class ReplaySource(threading.Thread):
                 feed.on_read(feed.device, read)
             feed.on_tick(mono)
 
-    def _deliver(self, name: str, raw: RawRead) -> None:
+    def _deliver(self, name: str, raw: Read) -> None:
         feed = self._by_name[name]
         feed.on_read(feed.device, feed.device.ingest(raw.data, time.monotonic(), time.time()))
 

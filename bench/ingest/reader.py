@@ -37,9 +37,9 @@ import serial
 from firmware_proto.errors import LinkError
 
 from ..records import RecordDecoder, decoder_for
-from ..session import DeviceSpec
+from ..session import DeviceSpec, Read
 from ..transport import open_device
-from .stamp import Stamped, StampedDecoder
+from .stamp import StampedDecoder
 
 log = logging.getLogger(__name__)
 
@@ -65,17 +65,6 @@ class DeviceStats:
     gaps: int = 0
     connected: bool = False
     last_data_mono: float | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Read:
-    """One read of a device (``data``, empty for records an idle link or the end released),
-    stamped ``mono``/``utc`` at its return, with the records it completed."""
-
-    mono: float
-    utc: float
-    data: bytes
-    records: list[Stamped]
 
 
 @dataclass(frozen=True, slots=True)
