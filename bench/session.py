@@ -26,7 +26,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, TypeVar
@@ -38,6 +38,7 @@ from emulator.files import open_regular
 from emulator.schema import Int, Number, SchemaError, Text, convert, join_key, type_name
 from firmware_proto.errors import InputError, LinkError
 
+from .ingest.stamp import Stamped
 from .records import FORMATS, KINDS
 
 MANIFEST = "manifest.json"
@@ -253,15 +254,23 @@ class SessionWriter(contextlib.AbstractContextManager):
 
 
 # -- the manifest, typed ---------------------------------------------------------------
-class DeviceEntry(msgspec.Struct, frozen=True):
-    """One logged device: its ``<name>.raw`` holds the reads. ``baudrate`` (bit/s, 8N1) is
-    the link's, used by the stamp rule (:mod:`bench.ingest.stamp`)."""
+class DeviceSpec(msgspec.Struct, frozen=True):
+    """A device to read, or one a session logged (its ``<name>.raw`` holds the reads):
+    ``name`` in the session (``arva``, ``gps-rx``, ``attitude-tx1``), ``kind`` (arva, gps,
+    attitude), ``role`` (``rx``, ``rx<id>`` or ``tx<id>``), ``format`` (None: the kind's
+    default; ``mavlink`` for a MAVLink attitude source), ``baudrate`` (bit/s, 8N1: the
+    port's setting and the stamp rule's byte time, :mod:`bench.ingest.stamp`)."""
 
+    name: str
     kind: Literal[KINDS]
     url: str = ""
     role: Text(r"\A(rx|rx\d+|tx\d+)\Z", "rx, rx<ID> or tx<ID>") = "rx"
     baudrate: Int(*BAUD_LIMITS) = 115200
     format: str | None = None
+
+    def manifest(self) -> dict:
+        """The device's entry in the manifest (under its name; ``format`` only when given)."""
+        return {k: v for k, v in msgspec.structs.asdict(self).items() if k != "name" and v is not None}
 
 
 class GeoPose(msgspec.Struct, frozen=True):
@@ -283,7 +292,7 @@ class _ManifestTable(msgspec.Struct, frozen=True):
     """What this program reads of a manifest (other keys, a note, the command, are kept)."""
 
     version: Int(1, 2**31)
-    devices: dict[str, dict] = {}  # each a DeviceEntry, converted one by one to name it
+    devices: dict[str, dict] = {}  # each a DeviceSpec, converted one by one to name it
     start_utc: str | None = None
     stop_utc: str | None = None
     origin: _Origin | None = None
@@ -304,7 +313,7 @@ class Manifest:
     their read's time), 2 (records stamped by the stamp rule of :mod:`bench.ingest.stamp`);
     the raw reads, from which every reader re-derives the records, are the same in both."""
 
-    devices: dict[str, DeviceEntry]
+    devices: dict[str, DeviceSpec]
     origin: GeoPose | None
     tx_poses: dict[int, GeoPose]
     raw: dict  # the JSON object as read (version, times and summary are checked, read from here)
@@ -323,7 +332,8 @@ class Manifest:
         for name, entry in doc.devices.items():
             if not name or "/" in name or "\\" in name or name.startswith("."):
                 raise ValueError(f"devices.{name}: {name!r} is not a device name (it names a file in the session)")
-            devices[name] = dev = _typed(entry, DeviceEntry, f"devices.{name}")
+            named = {**entry, "name": name} if isinstance(entry, dict) else entry
+            devices[name] = dev = _typed(named, DeviceSpec, f"devices.{name}")
             if dev.format is not None and dev.format not in FORMATS.get(dev.kind, ()):
                 raise ValueError(f"devices.{name}.format: a {dev.kind} device cannot speak {json.dumps(dev.format)}")
         if not devices:
@@ -408,20 +418,23 @@ def _json(text: str | bytes, where: str | Path) -> object:
     raise InputError(f"{where}: JSON nested more than {MAX_JSON_DEPTH} deep")
 
 
-@dataclass(frozen=True)
-class RawRead:
-    """One logged read: ``mono`` (s, logger's monotonic clock), ``utc`` (POSIX s)."""
+@dataclass(frozen=True, slots=True)
+class Read:
+    """One read of a device, stamped at its return: ``mono`` (s, the logger's monotonic
+    clock), ``utc`` (POSIX s), ``data`` (empty for records an idle link or the end
+    released), and the ``records`` it completed (none in a raw log: its line holds the rest)."""
 
     mono: float
     utc: float
     data: bytes
+    records: Sequence[Stamped] = ()
 
 
 @dataclass
 class RawFile:
     """A device's raw log: its reads, and whether the last line was torn."""
 
-    reads: list[RawRead]
+    reads: list[Read]
     torn_tail: bool
 
 
@@ -433,7 +446,7 @@ class SessionClock:
     mono: float
     utc: float
 
-    def check(self, path: Path, line: int, read: RawRead, previous: RawRead | None) -> None:
+    def check(self, path: Path, line: int, read: Read, previous: Read | None) -> None:
         """:class:`InputError` naming ``path`` and ``line`` when ``read``'s stamps break a rule."""
         where = f"{path}: line {line}"
         if not math.isfinite(read.mono):
@@ -452,7 +465,7 @@ class SessionClock:
 
 
 class RawLog:
-    """One device's ``<name>.raw``, read as a stream of :class:`RawRead` (never whole).
+    """One device's ``<name>.raw``, read as a stream of :class:`Read` (never whole).
 
     Every pass (``for read in log``) reads the file again, one line at a time (at most
     :data:`MAX_RAW_LINE` bytes), checks each read's stamps against ``clock`` when one is
@@ -465,21 +478,21 @@ class RawLog:
 
     # What the last pass saw (the values before any).
     reads = bytes = 0
-    first: RawRead | None = None
-    last: RawRead | None = None
+    first: Read | None = None
+    last: Read | None = None
     torn_tail = False
 
     def __init__(self, path: str | Path, clock: SessionClock | None = None) -> None:
         self.path = Path(path)
         self.clock = clock
 
-    def __iter__(self) -> Iterator[RawRead]:
+    def __iter__(self) -> Iterator[Read]:
         path, clock = self.path, self.clock
         self.reads = self.bytes = 0
         self.first = self.last = None
         self.torn_tail = False
         bad: tuple[int, Exception] | None = None
-        previous: RawRead | None = None
+        previous: Read | None = None
         for number, line, complete in _lines(path, MAX_RAW_LINE, "raw log"):
             if not complete:
                 self.torn_tail = True
@@ -488,7 +501,7 @@ class RawLog:
                 continue
             try:
                 mono, utc, b64 = line.split(b"\t")
-                read = RawRead(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
+                read = Read(float(mono), parse_utc(utc.decode()), base64.b64decode(b64, validate=True))
             except (ValueError, binascii.Error) as exc:
                 bad = bad or (number, exc)
                 continue
@@ -510,10 +523,6 @@ class RawLog:
         for _ in self:
             pass
         return self
-
-    def first_read(self) -> RawRead | None:
-        """The first read whose ``mono`` is a finite number (no stamp check), or None."""
-        return next((read for read in RawLog(self.path) if math.isfinite(read.mono)), None)
 
 
 def read_raw(path: str | Path) -> RawFile:
@@ -543,10 +552,11 @@ def session_logs(directory: str | Path, names: Iterable[str]) -> dict[str, RawLo
     """The raw logs of the devices ``names`` that logged something, keyed by name, each
     checked against the session's clock (its earliest first read: :class:`SessionClock`)."""
     paths = {name: p for name in names if (p := raw_path(directory, name)) is not None}
-    firsts = [r for p in paths.values() if (r := RawLog(p).first_read()) is not None]
-    if not firsts:
+    # Each log's first read with a finite ``mono``, unchecked (there is no clock yet).
+    firsts = [next((r for r in RawLog(p) if math.isfinite(r.mono)), None) for p in paths.values()]
+    if not any(firsts):
         return {name: RawLog(p) for name, p in paths.items()}  # no read anywhere: nothing to check
-    ref = min(firsts, key=lambda r: r.mono)
+    ref = min((r for r in firsts if r is not None), key=lambda r: r.mono)
     clock = SessionClock(ref.mono, ref.utc)
     return {name: RawLog(p, clock) for name, p in paths.items()}
 

@@ -29,9 +29,8 @@ from firmware_proto.errors import InputError
 
 from ..ingest.pacer import load_reads
 from ..log import add_truth_arguments, device_arg, device_specs
-from ..logger import DeviceSpec
 from ..preflight import check_sources
-from ..session import MANIFEST, load_manifest
+from ..session import load_manifest
 
 DEFAULT_SOURCE = "arvaemu://"
 
@@ -79,12 +78,9 @@ def build_config(args: argparse.Namespace, argv: list[str] | None = None):
         if len(sources) > 1 or args.gps or args.attitude:
             raise InputError("dash: a session directory replays all its devices: give it as the only source")
         directory = Path(sessions[0])
-        if not (directory / MANIFEST).exists():
-            raise InputError(f"dash: {directory}: not a session directory (no {MANIFEST})")
         manifest = load_manifest(directory)
         logged = load_reads(directory, manifest.devices)  # a corrupt log: one line now, not a dead panel later
-        specs = [DeviceSpec(name, dev.kind, dev.url, dev.role, dev.baudrate, dev.format)
-                 for name, dev in manifest.devices.items() if name in logged]
+        specs = [dev for name, dev in manifest.devices.items() if name in logged]
         if not specs:
             raise InputError(f"dash: {directory}: no device has logged anything")
         origin = args.origin

@@ -10,9 +10,9 @@ import threading
 import time
 import urllib.parse
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
+from msgspec.structs import replace
 from serial import SerialException
 
 from firmware_proto.errors import InputError
@@ -23,7 +23,7 @@ from ..ingest.pacer import pace
 from ..ingest.reader import Device, DeviceSpec, LinkEvent, Listener, Notifier, Read
 from ..ingest.stamp import Stamped
 from ..records import ArvaRecords, GroundTruthRecords
-from ..session import RawLog, RawRead, session_logs
+from ..session import RawLog, session_logs
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkCounters, LinkStatus, TruthPose
 
 #: Seconds between idle ticks of a replay (a quiet link's epochs are released, statuses posted).
@@ -115,6 +115,8 @@ class DeviceFeed(Listener):
 
     # -- from the reader -------------------------------------------------------------------
     def on_read(self, device: Device, read: Read) -> None:
+        if device is not self.device:  # a notifier tells every listener of every device
+            return
         if (recorder := self.recorder) is not None:
             recorder.on_read(device, read)
         self._handle(read.records)
@@ -123,6 +125,8 @@ class DeviceFeed(Listener):
             self.status(read.mono)
 
     def on_link(self, device: Device, event: LinkEvent) -> None:
+        if device is not self.device:
+            return
         if (recorder := self.recorder) is not None:
             recorder.on_link(device, event)
         if event.kind in ("up", "reconnect"):
@@ -264,7 +268,7 @@ class ReplaySource(threading.Thread):
                 feed.on_read(feed.device, read)
             feed.on_tick(mono)
 
-    def _deliver(self, name: str, raw: RawRead) -> None:
+    def _deliver(self, name: str, raw: Read) -> None:
         feed = self._by_name[name]
         feed.on_read(feed.device, feed.device.ingest(raw.data, time.monotonic(), time.time()))
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from emulator.cli_types import speed_value
 
-from ..session import RawLog, RawRead, session_logs
+from ..session import RawLog, Read, session_logs
 
 
 def load_reads(directory: str | Path, names: Iterable[str]) -> dict[str, RawLog]:
@@ -28,7 +28,7 @@ def load_reads(directory: str | Path, names: Iterable[str]) -> dict[str, RawLog]
     return {name: log.scan() for name, log in session_logs(directory, names).items()}
 
 
-def pace(reads: dict[str, Iterable[RawRead]], deliver: Callable[[str, RawRead], None], speed: float = 1.0,
+def pace(reads: dict[str, Iterable[Read]], deliver: Callable[[str, Read], None], speed: float = 1.0,
          stop: threading.Event | None = None, tick: Callable[[], None] | None = None,
          tick_interval: float = 0.1) -> int:  # fmt: skip
     """Deliver every read (``deliver(name, read)``) in the logger's order at its recorded

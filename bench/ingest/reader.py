@@ -30,15 +30,16 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import serial
 
 from firmware_proto.errors import LinkError
 
 from ..records import RecordDecoder, decoder_for
+from ..session import DeviceSpec, Read
 from ..transport import open_device
-from .stamp import Stamped, StampedDecoder
+from .stamp import StampedDecoder
 
 log = logging.getLogger(__name__)
 
@@ -55,25 +56,6 @@ THREAD_READ_TIMEOUT = 0.1
 
 
 @dataclass
-class DeviceSpec:
-    """A device to read: ``name`` in the session (``arva``, ``gps-rx``, ``attitude-tx1``),
-    ``kind`` (arva, gps, attitude), ``role`` (``rx``, ``rx<id>`` or ``tx<id>``), ``format``
-    (None: the kind's default; ``mavlink`` for a MAVLink attitude source), ``baudrate``
-    (bit/s: the port's setting and the stamp rule's byte time)."""
-
-    name: str
-    kind: str
-    url: str
-    role: str = "rx"
-    baudrate: int = 115200
-    format: str | None = None
-
-    def manifest(self) -> dict:
-        """The device's entry in the manifest (under its name; ``format`` only when given)."""
-        return {k: v for k, v in asdict(self).items() if k != "name" and v is not None}
-
-
-@dataclass
 class DeviceStats:
     """Counters of one device since its reader started (ints: a torn read is impossible)."""
 
@@ -83,17 +65,6 @@ class DeviceStats:
     gaps: int = 0
     connected: bool = False
     last_data_mono: float | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Read:
-    """One read of a device (``data``, empty for records an idle link or the end released),
-    stamped ``mono``/``utc`` at its return, with the records it completed."""
-
-    mono: float
-    utc: float
-    data: bytes
-    records: list[Stamped]
 
 
 @dataclass(frozen=True, slots=True)
@@ -333,15 +304,17 @@ class Notifier:
                 work.put(("lost", p, str(exc) or type(exc).__name__))
 
     # -- the work thread: decode, notify, tick ------------------------------------------------
-    def _notify(self, method: str, device: Device, arg) -> None:
+    def _notify(self, method: str, *args) -> None:
+        """``listener.<method>(*args)`` for each listener; one that raises is dropped."""
         for listener in self._listeners:
             try:
-                getattr(listener, method)(device, arg)
+                getattr(listener, method)(*args)
             except LinkError as exc:
                 self._dropped(listener, exc)
             except Exception as exc:  # noqa: BLE001 - a listener's bug must not stop the others
-                log.exception("listener %r failed on %s of %s", listener, method, device.spec.name)
-                self._dropped(listener, LinkError(f"{device.spec.name}: {type(listener).__name__} failed: {exc!r}"))
+                where = f"{args[0].spec.name}: " if args and isinstance(args[0], Device) else ""
+                log.exception("listener %r failed: %s%s", listener, where, method)
+                self._dropped(listener, LinkError(f"{where}{type(listener).__name__} failed: {exc!r}"))
 
     def _ingest(self, p: _Port, data: bytes, mono: float, utc: float) -> Read:
         try:
@@ -389,8 +362,7 @@ class Notifier:
             for dev in self.devices:
                 self._notify("on_read", dev, dev.stop(mono, utc))
                 dev.stats.connected = False
-            for listener in self._listeners:
-                listener.stop()
+            self._notify("stop")
 
     def _up(self, p: _Port) -> None:
         dev = p.device
@@ -431,11 +403,7 @@ class Notifier:
                 else:
                     p.close()
                     self._lost(p, reason)
-        for listener in self._listeners:
-            try:
-                listener.on_tick(now)
-            except LinkError as exc:
-                self._dropped(listener, exc)
+        self._notify("on_tick", now)
 
     # -- the opener thread --------------------------------------------------------------------
     def _open_loop(self) -> None:

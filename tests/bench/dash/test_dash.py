@@ -441,15 +441,20 @@ def test_feed_counts_checksum_errors_gaps_and_dropped_bytes():
     assert post.of(EpochReceived)[1].gap == 2
 
 
-def test_live_source_marks_an_unavailable_device_down_and_keeps_trying(tmp_path):
-    post = Collect()
-    src = LiveSource([DeviceFeed(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty"), "rx"), post)])
+def run_until(src, post, predicate):
+    """Start the source ``src``; stop it once ``post`` has what ``predicate`` waits for."""
     src.start()
     try:
-        post.wait(lambda: any(m.state == "down" for m in post.of(LinkStatus)))
+        post.wait(predicate)
     finally:
         src.request_stop()
         src.join(5)
+
+
+def test_live_source_marks_an_unavailable_device_down_and_keeps_trying(tmp_path):
+    post = Collect()
+    src = LiveSource([DeviceFeed(DeviceSpec("arva", "arva", str(tmp_path / "no-such-tty"), "rx"), post)])
+    run_until(src, post, lambda: any(m.state == "down" for m in post.of(LinkStatus)))
     assert not src.thread.is_alive()
     assert "no-such-tty" in post.of(LinkStatus)[-1].reason
 
@@ -457,27 +462,35 @@ def test_live_source_marks_an_unavailable_device_down_and_keeps_trying(tmp_path)
 def test_live_source_reopens_a_silent_device_by_itself():
     post = Collect()
     src = LiveSource([DeviceFeed(DeviceSpec("arva", "arva", "loop://", "rx"), post)], stale_after=0.3)
-    src.start()
-    try:
-        post.wait(lambda: any(m.counters.reconnects >= 2 for m in post.of(LinkStatus)))
-    finally:
-        src.request_stop()
-        src.join(5)
+    run_until(src, post, lambda: any(m.counters.reconnects >= 2 for m in post.of(LinkStatus)))
     states = [m.state for m in post.of(LinkStatus)]
     assert states[:3] == ["up", "down", "up"]
     assert post.of(LinkStatus)[1].reason == "no data for 0.3 s: reopening"
+
+
+def test_live_source_feeds_take_only_their_own_devices_reads_and_links():
+    """The notifier tells every feed of every device: a GPS feed must not post the
+    receiver's epochs as its own (nor hand them to a recording a second time)."""
+    post = Collect()
+    feeds = [DeviceFeed(DeviceSpec("arva", "arva", "arvaemu://?speed=0&frames=5", "rx"), post),
+             DeviceFeed(DeviceSpec("gps-rx", "gps", "loop://", "rx"), post)]  # fmt: skip
+    src = LiveSource(feeds, stale_after=5)
+
+    def done() -> bool:  # five epochs, and the GPS link up
+        gps_up = any(m.device == "gps-rx" and m.state == "up" for m in post.of(LinkStatus))
+        return gps_up and len(post.of(EpochReceived)) >= 5
+
+    run_until(src, post, done)
+    epochs = post.of(EpochReceived)
+    assert [(e.device, e.seq, e.count) for e in epochs] == [("arva", k, k + 1) for k in range(5)]
+    assert feeds[1].counters().records == 0
 
 
 def test_live_source_reads_the_in_process_emulator_with_scene_truth():
     post = Collect()
     spec = DeviceSpec("arva", "arva", "arvaemu://?speed=0&frames=3", "rx")
     src = LiveSource([DeviceFeed(spec, post, SceneTruth.for_url(spec.url, "rx"))], stale_after=5)
-    src.start()
-    try:
-        post.wait(lambda: len(post.of(EpochReceived)) >= 3)
-    finally:
-        src.request_stop()
-        src.join(5)
+    run_until(src, post, lambda: len(post.of(EpochReceived)) >= 3)
     epochs = post.of(EpochReceived)
     assert [(e.seq, e.slots) for e in epochs] == [(k, DEFAULT_SLOTS) for k in range(3)]
     assert [e.count for e in epochs] == [1, 2, 3]

@@ -249,6 +249,26 @@ def test_a_port_without_a_descriptor_is_read_in_chunks_by_its_thread():
     assert sentences == 50 * 4 and len(got.reads) < sentences  # several sentences per read
 
 
+def test_a_listener_failing_on_a_tick_is_dropped_and_the_others_go_on():
+    """Every listener call goes through one guard: a bug in ``on_tick`` drops that listener
+    (reported through ``on_error``), it does not end the reading for the others."""
+
+    class BrokenTick(Listener):
+        def on_tick(self, mono):
+            raise RuntimeError("boom")
+
+    dev = Device(DeviceSpec("arva", "arva", "arvaemu://?speed=0&frames=50"))
+    got, errors = Collect(), []
+    notifier = Notifier([dev], [BrokenTick(), got], on_error=errors.append)
+    notifier.start()
+    try:
+        wait_for(lambda: errors and sum(len(r.records) for r in got.reads) >= 50)  # a tick is every 0.1 s
+    finally:
+        notifier.stop()
+    assert [str(e) for e in errors] == ["BrokenTick failed: RuntimeError('boom')"]
+    assert [s.record["seq"] for r in got.reads for s in r.records] == list(range(50))
+
+
 @pytest.mark.pty
 def test_reopening_keeps_what_the_os_buffered():
     master, slave = os.openpty()
