@@ -90,10 +90,15 @@ def control_address(text: str) -> ControlAddress:
 
 
 def check_host(address: ControlAddress, any_host: bool) -> None:
-    """InputError unless ``address`` is unix, loopback TCP, or ``any_host`` allows any."""
+    """InputError unless ``address`` is unix, loopback TCP, or ``any_host`` allows any (the
+    command line's early check; the listener checks again on the addresses it binds)."""
     if address.kind == "tcp" and not any_host and not is_loopback(address.host):
-        raise InputError(f"--control {address}: {address.host} is not a loopback address "
-                         "(the channel has no authentication; add --control-any-host to serve other hosts)")
+        raise InputError(f"--control {address}: {_remote(address)}")
+
+
+def _remote(address: ControlAddress) -> str:
+    return (f"{address.host} is not a loopback address (the channel has no authentication; "
+            "add --control-any-host to serve other hosts)")
 
 
 class ControlServer:
@@ -133,8 +138,8 @@ class ControlServer:
             sock.listen(16)  # connections wait in the backlog until the loop runs
             bound = a
         else:
-            check_host(a, self.any_host)
-            sock = tcp_listener(a.host, a.port, f"--control {a}", backlog=16)
+            remote = None if self.any_host else _remote(a)
+            sock = tcp_listener(a.host, a.port, f"--control {a}", backlog=16, remote=remote)
             bound = ControlAddress("tcp", host=a.host, port=sock.getsockname()[1])
         self._listener = sock
         self._loop = asyncio.new_event_loop()

@@ -361,19 +361,30 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     try:
         infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
-    except OSError:
+    except (OSError, UnicodeError):  # (UnicodeError: a name IDNA cannot encode, e.g. "a..b")
         return False
+    return _all_loopback(infos)
+
+
+def _all_loopback(infos: list) -> bool:
     return bool(infos) and all(ipaddress.ip_address(i[4][0].split("%")[0]).is_loopback for i in infos)
 
 
-def tcp_listener(host: str, port: int, where: str, backlog: int) -> socket.socket:
+def tcp_listener(host: str, port: int, where: str, backlog: int,
+                 remote: str | None = None) -> socket.socket:
     """A socket listening on the first address ``host``:``port`` resolves to (the stream
-    servers here, the control channel); InputError if ``host`` does not resolve, LinkError
-    if it cannot be bound, each one line starting with ``where`` (``port SPEC`` ...)."""
+    servers here, the control channel); InputError if ``host`` does not resolve, or, with
+    ``remote`` (the refusal's text), if it resolves to an address that is not loopback
+    (checked on the addresses it binds: one lookup), LinkError if it cannot be bound, each
+    one line starting with ``where`` (``port SPEC`` ...)."""
     try:
-        family, _, _, _, sockaddr = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
-    except OSError as exc:
-        raise InputError(f"{where}: cannot resolve {host!r}: {exc.strerror or exc}") from None
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except (OSError, UnicodeError) as exc:
+        reason = getattr(exc, "strerror", None) or exc
+        raise InputError(f"{where}: cannot resolve {host!r}: {reason}") from None
+    if remote is not None and not _all_loopback(infos):
+        raise InputError(f"{where}: {remote}")
+    family, _, _, _, sockaddr = infos[0]
     sock = socket.socket(family, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
@@ -383,6 +394,10 @@ def tcp_listener(host: str, port: int, where: str, backlog: int) -> socket.socke
         sock.close()
         raise LinkError(f"{where}: cannot listen: {exc.strerror or exc}") from None
     return sock
+
+
+#: A stream server's refusal of a host that is not loopback (``--serve-any-host`` allows it).
+NOT_LOOPBACK = "{host} is not a loopback address; add --serve-any-host to serve other hosts"
 
 
 class ServerPort(Port):
@@ -395,10 +410,8 @@ class ServerPort(Port):
         self.spec = spec
         self.settings = settings or LineSettings()
         self.notify = notify or (lambda _line: None)
-        if not serve_any_host and not is_loopback(spec.host):
-            raise InputError(f"port {spec.text}: {spec.host} is not a loopback address; "
-                             "add --serve-any-host to serve other hosts")
-        self._listener = tcp_listener(spec.host, spec.port, f"port {spec.text}", backlog=8)
+        remote = None if serve_any_host else NOT_LOOPBACK.format(host=spec.host)
+        self._listener = tcp_listener(spec.host, spec.port, f"port {spec.text}", backlog=8, remote=remote)
         self._listener.setblocking(False)  # the selector says when a client waits
         self._wake_r, self._wake_w = socket.socketpair()  # close() wakes the accept loop through it
         self._selector = selectors.DefaultSelector()

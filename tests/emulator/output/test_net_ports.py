@@ -190,6 +190,45 @@ def test_loopback_only_unless_allowed():
         port.close()
 
 
+def test_a_host_that_does_not_resolve_is_named_as_such(monkeypatch):
+    def refuse(*_args, **_kwargs):
+        raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+
+    monkeypatch.setattr(socket, "getaddrinfo", refuse)
+    with pytest.raises(InputError) as err:
+        ServerPort("arva", parse_server_spec("tcp-server:nowhere.invalid:0"))
+    assert str(err.value) == "port tcp-server:nowhere.invalid:0: cannot resolve 'nowhere.invalid': Name or service not known"
+
+
+def test_a_name_idna_cannot_encode_is_one_input_error():
+    with pytest.raises(InputError) as err:
+        ServerPort("arva", parse_server_spec("tcp-server:a..b:0"), serve_any_host=True)
+    assert str(err.value).startswith("port tcp-server:a..b:0: cannot resolve 'a..b': ")
+
+
+def test_the_loopback_check_is_on_the_addresses_bound(monkeypatch):
+    """One lookup: a name whose answer changes between a check and the bind (DNS rebinding)
+    cannot put the unauthenticated server on another host."""
+    answers = [("127.0.0.1", 0), ("0.0.0.0", 0)]
+    real = socket.getaddrinfo
+
+    def rebinding(host, port, *args, **kwargs):
+        addr = answers.pop(0) if host == "rebind.test" else None
+        return real(addr[0] if addr else host, port, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", rebinding)
+    port = ServerPort("arva", parse_server_spec("tcp-server:rebind.test:0"))
+    try:
+        assert port.path.startswith("socket://127.0.0.1:") and answers == [("0.0.0.0", 0)]
+    finally:
+        port.close()
+    with pytest.raises(InputError) as err:
+        ServerPort("arva", parse_server_spec("tcp-server:rebind.test:0"))
+    assert str(err.value) == (
+        "port tcp-server:rebind.test:0: rebind.test is not a loopback address; add --serve-any-host to serve other hosts"
+    )
+
+
 # --- served emulator ------------------------------------------------------------------
 
 
