@@ -253,7 +253,6 @@ class BatchLoop:
 
     # -- one epoch ----------------------------------------------------------------------
     def _measure(self, live: np.ndarray):
-        n = live.size
         noise = None
         if self.noise is not None:
             if self.noise_used == self.NOISE_BLOCK:

@@ -299,9 +299,7 @@ def summarize(rows: list[dict], bootstrap: int = 1000, seed: int = 0) -> list[di
         groups.setdefault((row["strategy"], row["v_max"], row["k_c"]), []).append(row)
     out = []
     for (strategy, v_max, k_c), rs in groups.items():
-        runs: dict[int, dict] = {}
-        for r in rs:
-            runs.setdefault(r["burial"], r)
+        runs = {r["burial"]: r for r in rs}  # a run's columns (all_found, t_all_s) are on each of its rows
         found = [r for r in rs if r["found"]]
         t_found = [r["t_found_s"] for r in found]
         errors = [r["error_m"] for r in found]
