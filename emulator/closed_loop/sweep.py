@@ -201,11 +201,9 @@ def sweep(
         return part
     if scheduler is not None:
         try:
-            from distributed import Client
+            from distributed import Client, as_completed
         except ImportError:
             raise MissingExtra("--scheduler (a dask cluster)", "dask.distributed", "cluster") from None
-
-        from distributed import as_completed
 
         try:
             client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
