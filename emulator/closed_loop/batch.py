@@ -60,15 +60,12 @@ class BatchLoop:
             self._check(s, index)
         n, m = len(scenes), len(self.ids)
         self.m = np.array([len(s.transmitter_ids) for s in scenes])
-        tx_pos = np.zeros((n, m, 3))
-        tx_pos[:, :, 2] = _FAR
-        tx_quat = np.zeros((n, m, 4))
-        tx_quat[:, :, 0] = 1.0
+        self.tx_pos = np.full((n, m, 3), (0.0, 0.0, _FAR))
+        self.tx_quat = np.full((n, m, 4), (1.0, 0.0, 0.0, 0.0))
         for j, s in enumerate(scenes):
             for c, tx in enumerate(s.transmitters):
-                tx_pos[j, c] = tx.trajectory.positions[0]
-                tx_quat[j, c] = tx.trajectory.orientations[0]
-        self.tx_pos, self.tx_quat = tx_pos, tx_quat
+                self.tx_pos[j, c] = tx.trajectory.positions[0]
+                self.tx_quat[j, c] = tx.trajectory.orientations[0]
         self.noise = [NoiseEffect(s.seed, index) for s in scenes] if self.noise_on else None
         # Each run's noise normals, NOISE_BLOCK epochs ahead (the same stream: see NoiseEffect).
         self.noise_buf = np.zeros((n, self.NOISE_BLOCK, m, 5)) if self.noise_on else None
@@ -253,7 +250,6 @@ class BatchLoop:
 
     # -- one epoch ----------------------------------------------------------------------
     def _measure(self, live: np.ndarray):
-        n = live.size
         noise = None
         if self.noise is not None:
             if self.noise_used == self.NOISE_BLOCK:

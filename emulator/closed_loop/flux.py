@@ -107,7 +107,6 @@ class FluxFollower(Controller):
     (not in the paper): docs/closed_loop.md, "Strategies"; the reversal rule's numbers
     are the constants below."""
 
-    name = "flux"
     SETTLE_EPOCHS = 3
     REVERSE_GROWTH = 1.1
     REVERSE_EVERY = 5

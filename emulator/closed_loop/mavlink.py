@@ -84,7 +84,6 @@ class MavlinkPoseSource:
         self.source_system = source_system
         self.rate_hz = rate_hz
         self.counts = {name: 0 for name in self.MESSAGES}
-        self.errors = 0
         self.heartbeats = 0
         self.requests = 0
         self.warned: str | None = None
@@ -133,7 +132,6 @@ class MavlinkPoseSource:
             except Exception:  # noqa: BLE001 - a bad packet or a closed link must not kill us
                 if self._stop.is_set():
                     return
-                self.errors += 1
                 time.sleep(0.05)
                 continue
             if msg is None:
@@ -173,7 +171,6 @@ class MavlinkPoseSource:
             pos = (self.origin[0] + e, self.origin[1] + n, self.origin[2] + u)
             vel = ned_to_enu((msg.vx, msg.vy, msg.vz))
             if not all(math.isfinite(c) for c in (*pos, *vel)):
-                self.errors += 1
                 return
             with self._lock:
                 self._pos = (pos, vel, now, int(msg.time_boot_ms))
@@ -188,7 +185,6 @@ class MavlinkPoseSource:
                     q = frd_ned_to_flu_enu((msg.q1, msg.q2, msg.q3, msg.q4))
                     self._quaternion_seen = True
             except ValueError:
-                self.errors += 1
                 return
             with self._lock:
                 self._quat = q

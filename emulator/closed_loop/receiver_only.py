@@ -277,7 +277,6 @@ class ReceiverOnlySearch(Controller):
     constants below. This object runs the array logic (:func:`rx_epoch` ...) on a batch
     of one."""
 
-    name = "receiver_only"
     search_sets_heading = True
     REVERSE_FRACTION = 0.1
     REVERSE_CM = 100

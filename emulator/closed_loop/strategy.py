@@ -184,7 +184,6 @@ class Controller:
     keeps its state in ``state`` (:class:`StateArrays` of one run), read here as ``phase``
     ("search", ...) and ``target`` (an id or None)."""
 
-    name = "controller"
     #: The search phase sets ``heading`` from each non-zero strip velocity.
     search_sets_heading = False
 

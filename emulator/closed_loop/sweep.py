@@ -201,11 +201,9 @@ def sweep(
         return part
     if scheduler is not None:
         try:
-            from distributed import Client
+            from distributed import Client, as_completed
         except ImportError:
             raise MissingExtra("--scheduler (a dask cluster)", "dask.distributed", "cluster") from None
-
-        from distributed import as_completed
 
         try:
             client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
@@ -299,9 +297,7 @@ def summarize(rows: list[dict], bootstrap: int = 1000, seed: int = 0) -> list[di
         groups.setdefault((row["strategy"], row["v_max"], row["k_c"]), []).append(row)
     out = []
     for (strategy, v_max, k_c), rs in groups.items():
-        runs: dict[int, dict] = {}
-        for r in rs:
-            runs.setdefault(r["burial"], r)
+        runs = {r["burial"]: r for r in rs}  # a run's columns (all_found, t_all_s) are on each of its rows
         found = [r for r in rs if r["found"]]
         t_found = [r["t_found_s"] for r in found]
         errors = [r["error_m"] for r in found]

@@ -13,8 +13,6 @@ class NoiseEffect:
     docs/model.md section 3).
     """
 
-    name = "noise"
-
     def __init__(self, seed: int, stream: int = 0) -> None:
         # One independent stream per receiver, derived from the scene seed.
         self._rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(stream,)))

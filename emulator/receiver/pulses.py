@@ -122,8 +122,6 @@ class PulseEffect:
     transmitters that ended in a window), ``pulses_hidden`` (of those, hidden by overlap).
     """
 
-    name = "pulses"
-
     def __init__(self, config: PulseConfig, tx_ids: ArrayLike, seed: int) -> None:
         ids = np.asarray(tx_ids, dtype=np.int64)
         if ids.ndim != 1:

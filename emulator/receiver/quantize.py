@@ -88,8 +88,6 @@ class QuantizeEffect:
     integer arrays; no random draws. Measured: ~0.13 us/epoch for (4096, 4) arrays.
     """
 
-    name = "quantize"
-
     def __init__(self, config: QuantizeConfig) -> None:
         self.config = config
 

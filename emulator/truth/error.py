@@ -73,8 +73,6 @@ class GroundTruthError:
     overheads), fine at real-time rates.
     """
 
-    name = "ground_truth_error"
-
     def __init__(self, config: GroundTruthErrorConfig, seed: int, stream: int = 0) -> None:
         self._sigma = np.array(config.gps_sigma_m)
         self._bias = np.array(config.gps_bias_m)

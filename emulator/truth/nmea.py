@@ -129,10 +129,6 @@ def _fixed(value: float, decimals: int, short: bool) -> str:
     return text
 
 
-def _serialize(talker: str, msg_id: str, fields: list[str]) -> bytes:
-    return NMEAMessage(talker, msg_id, GET, payload=fields).serialize()
-
-
 # ---------------------------------------------------------------------------- GPS
 def speed_course_from_enu(v_east: float, v_north: float) -> tuple[float, float | None]:
     """(speed over ground in knots, course over ground in degrees true [0, 360) or None).
@@ -175,7 +171,7 @@ def gga_sentence(
     else:
         fields += [f"{_number(alt, 'alt') - sep:.3f}", "M", _fixed(sep, 3, short), "M"]
     fields += ["", ""]  # age of differential corrections, reference station id
-    return _serialize(_talker(talker), "GGA", fields)
+    return NMEAMessage(_talker(talker), "GGA", GET, payload=fields).serialize()
 
 
 def rmc_sentence(
@@ -209,7 +205,7 @@ def rmc_sentence(
               "" if speed is None else f"{speed:.3f}", "" if cog is None else _degrees_true(cog, 1),
               f"{t.day:02d}{t.month:02d}{t.year % 100:02d}",
               "", "", faa]  # no magnetic variation: ground truth is true north only
-    return _serialize(_talker(talker), "RMC", fields)
+    return NMEAMessage(_talker(talker), "RMC", GET, payload=fields).serialize()
 
 
 def _degrees_true(angle: float, digits: int) -> str:
@@ -269,7 +265,7 @@ def pashr_sentence(
         _accuracy(heading_accuracy, "heading_accuracy"),
         str(_integer(gps_quality, "gps_quality", 0, 9)), str(_integer(ins_status, "ins_status", 0, 9)),
     ]
-    return _serialize("P", "ASHR", fields)
+    return NMEAMessage("P", "ASHR", GET, payload=fields).serialize()
 
 
 def pashr_from_quaternion(utc: datetime, q: ArrayLike, **kwargs: object) -> bytes:

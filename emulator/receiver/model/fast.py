@@ -56,16 +56,14 @@ class FastTables:
         k = np.arange(181)  # floor(degrees + 90.5) -> delta
         self.delta = np.clip(k - 90, -MAX_DELTA_DEG, MAX_DELTA_DEG).astype(np.int64)
 
-    @staticmethod
-    def applies(params: ModelParams) -> bool:
-        c = params.distance_scale
-        return params.antennas == 3 and 1e-6 < c < 1e6 and params.r_inner < 1e6 and params.r_outer < 1e6
-
 
 def applies(batch: Batch) -> bool:
     """Whether the fast path can take this call: no noise, no field, static transmitters,
     a 3-antenna receiver with constants in range."""
-    return batch.noise is None and batch.field is None and not batch.moving_tx and FastTables.applies(batch.params)
+    p = batch.params
+    if batch.noise is not None or batch.field is not None or batch.moving_tx:
+        return False
+    return p.antennas == 3 and 1e-6 < p.distance_scale < 1e6 and p.r_inner < 1e6 and p.r_outer < 1e6
 
 
 class FastPath:
