@@ -6,16 +6,14 @@ receiver pins, faults on demand, the step clock's :meth:`~emulator.pipeline.Pipe
 ``step``, a :class:`StepJob` the server runs :data:`STEP_SLICE` epochs at a time). It
 holds the scheduler's lock while it works, so a change lands between two epochs and
 takes effect from the next epoch rendered, whose index the reply carries (``epoch``).
-Errors raise :class:`~emulator.control.requests.ControlError` and change nothing. What
+Errors raise :class:`~emulator.control.requests.ControlError` (or the pipeline's
+:class:`InputError`, which the server names by the request's ``op``) and change nothing. What
 each request does: docs/hil_testing.md, "Protocol".
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict
-
-from firmware_proto.errors import InputError
 
 from emulator.output.scheduler import STEP_DRAIN_WAIT, EpochScheduler
 from emulator.pipeline import Pipeline
@@ -50,19 +48,8 @@ class Controller:
         """The reply; for a ``step``, a :class:`StepJob` that the server runs a slice at a time."""
         if isinstance(req, rq.Step):
             return StepJob(self, req.n)
-        return self.locked(req.op, lambda: {"ok": True, **self._dispatch(req)})
-
-    def locked(self, op: str, work: Callable[[], dict | None]) -> dict | None:
-        """``work()`` under the scheduler's lock (between two epochs); the pipeline's own
-        checks become a :class:`ControlError` named by ``op``."""
-        with self.scheduler.lock:
-            try:
-                return work()
-            except ControlError:
-                raise
-            except InputError as exc:  # the pipeline's own checks: one line, named by op
-                text = str(exc)
-                raise ControlError(text if text.startswith(f"{op}:") else f"{op}: {text}") from None
+        with self.scheduler.lock:  # between two epochs
+            return {"ok": True, **self._dispatch(req)}
 
     def start_step(self, n: int) -> None:
         """Check that a ``step`` of ``n`` epochs can run now (under the lock)."""
@@ -132,8 +119,10 @@ class StepJob:
         self.done = 0
         self.started = False
 
+    op = "step"  # names the pipeline's errors in the server's replies
+
     def advance(self) -> dict | None:
-        def work() -> dict | None:
+        with self.controller.scheduler.lock:  # between two epochs
             if not self.started:
                 self.controller.start_step(self.n)
                 self.started = True
@@ -141,8 +130,6 @@ class StepJob:
             self.controller.pipe.step(count)
             self.done += count
             return {"ok": True, **self.controller._epoch()} if self.done == self.n else None
-
-        return self.controller.locked("step", work)
 
     def abandon(self, why: str) -> dict:
         return error_reply(f"step: {why}: stopped after {self.done} of {self.n} epochs")
