@@ -51,17 +51,6 @@ class Controller:
         with self.scheduler.lock:  # between two epochs
             return {"ok": True, **self._dispatch(req)}
 
-    def start_step(self, n: int) -> None:
-        """Check that a ``step`` of ``n`` epochs can run now (under the lock)."""
-        sch = self.scheduler
-        if self.clock != "step":
-            raise ControlError("step: the emulator runs on the real clock (start it with --clock step)")
-        left = sch.remaining()
-        if left is not None and n > left:
-            raise ControlError(f"step: n = {n} but only {left} epochs are left (--frames)")
-        for r in sch.routes:
-            r.port.set_drain_wait(STEP_DRAIN_WAIT)  # a reader that keeps reading loses nothing
-
     def _epoch(self) -> dict:
         return {"epoch": self.scheduler.next_epoch}
 
@@ -113,23 +102,31 @@ class StepJob:
     step queued before it); the slices together write exactly the bytes of one
     ``Pipeline.step(n)``. Its reply, ``{"ok": true, "epoch": ...}``, comes after its last epoch."""
 
+    op = "step"  # names the pipeline's errors in the server's replies
+
     def __init__(self, controller: Controller, n: int) -> None:
         self.controller = controller
         self.n = n
         self.done = 0
         self.started = False
 
-    op = "step"  # names the pipeline's errors in the server's replies
-
     def advance(self) -> dict | None:
-        with self.controller.scheduler.lock:  # between two epochs
+        ctl, sch = self.controller, self.controller.scheduler
+        with sch.lock:  # between two epochs
             if not self.started:
-                self.controller.start_step(self.n)
+                if ctl.clock != "step":
+                    raise ControlError("step: the emulator runs on the real clock "
+                                       "(start it with --clock step)")
+                left = sch.remaining()
+                if left is not None and self.n > left:
+                    raise ControlError(f"step: n = {self.n} but only {left} epochs are left (--frames)")
+                for r in sch.routes:
+                    r.port.set_drain_wait(STEP_DRAIN_WAIT)  # a reader that keeps reading loses nothing
                 self.started = True
             count = min(STEP_SLICE, self.n - self.done)
-            self.controller.pipe.step(count)
+            ctl.pipe.step(count)
             self.done += count
-            return {"ok": True, **self.controller._epoch()} if self.done == self.n else None
+            return {"ok": True, "epoch": sch.next_epoch} if self.done == self.n else None
 
     def abandon(self, why: str) -> dict:
         return error_reply(f"step: {why}: stopped after {self.done} of {self.n} epochs")
