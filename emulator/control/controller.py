@@ -51,21 +51,16 @@ class Controller:
         with self.scheduler.lock:  # between two epochs
             return {"ok": True, **self._dispatch(req)}
 
-    def _epoch(self) -> dict:
-        return {"epoch": self.scheduler.next_epoch}
-
-    def _t(self) -> float:
-        return self.scheduler.next_epoch / self.rate0
-
     def _dispatch(self, req: Request) -> dict:
         sch, pipe = self.scheduler, self.pipe
+        t = sch.next_epoch / self.rate0  # the next epoch's scene time (s)
         if isinstance(req, rq.Status):
-            return {"epoch": sch.next_epoch, "t": self._t(), "clock": self.clock, "paused": sch.paused,
+            return {"epoch": sch.next_epoch, "t": t, "clock": self.clock, "paused": sch.paused,
                     "streams": {r.stream.label: r.port.path or "-" for r in sch.routes}}
         if isinstance(req, rq.Truth):
-            t = self._t()
             receivers = [{"id": p.id, "position": p.position, "orientation": p.orientation} for p in pipe.receiver_poses(t)]
-            return {**self._epoch(), "t": t, "receivers": receivers, "transmitters": list(map(asdict, pipe.transmitter_poses(t)))}
+            transmitters = list(map(asdict, pipe.transmitter_poses(t)))
+            return {"epoch": sch.next_epoch, "t": t, "receivers": receivers, "transmitters": transmitters}
         if isinstance(req, rq.Quit):
             return {}
         # The changes: each takes effect from the epoch the reply names.
@@ -91,7 +86,7 @@ class Controller:
             pipe.fault(req.stream, req.kind, amount)  # from the stream's next epoch
         else:
             raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
-        return self._epoch()
+        return {"epoch": sch.next_epoch}
 
 
 class StepJob:
