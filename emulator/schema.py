@@ -118,10 +118,9 @@ def explain(message: str, data: Any, type_: Any, table: str = "a table") -> Sche
 
 
 def _name_keys(message: str, data: Any, type_: Any, parts: list[str | int]) -> None:
-    """Replace each ``...`` in ``parts`` (msgspec does not name a mapping's key) by the key
-    of the mapping's first entry that fails as ``message`` says. msgspec checks the entries
-    in order, so that is the last of the shortest prefix that fails so: bisected, in
-    log2(entries) conversions of ``data`` left with that prefix of the mapping."""
+    """Replace each ``...`` in ``parts`` (msgspec does not name a mapping's key) by the key of
+    the mapping's first entry failing as ``message`` says: msgspec checks entries in order,
+    so the last of the shortest prefix failing so, bisected (log2(entries) conversions)."""
     for i, part in enumerate(parts):
         if part == "...":
             items = list(functools.reduce(operator.getitem, parts[:i], data).items())
