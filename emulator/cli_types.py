@@ -429,9 +429,8 @@ def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[
     """
     try:
         args = parse()
-        logging.basicConfig(
-            level=logging.WARNING - 10 * getattr(args, "verbose", 0), stream=sys.stderr, format=f"{prog}: %(message)s"
-        )
+        logging.basicConfig(level=logging.WARNING - 10 * getattr(args, "verbose", 0), stream=sys.stderr,
+                            format=f"{prog}: %(message)s")
         return int(run(args) or 0)
     except (InputError, LinkError) as exc:
         bare = bare_scene_errors and isinstance(exc, SceneError)
