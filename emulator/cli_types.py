@@ -429,13 +429,8 @@ def run_main(prog: str, parse: Callable[[], argparse.Namespace], run: Callable[[
     """
     try:
         args = parse()
-    except OSError as exc:
-        print(f"{prog}: {one_line(_os_error_line(exc))}", file=sys.stderr, flush=True)
-        return 2
-    logging.basicConfig(
-        level=logging.WARNING - 10 * getattr(args, "verbose", 0), stream=sys.stderr, format=f"{prog}: %(message)s"
-    )
-    try:
+        logging.basicConfig(level=logging.WARNING - 10 * getattr(args, "verbose", 0), stream=sys.stderr,
+                            format=f"{prog}: %(message)s")
         return int(run(args) or 0)
     except (InputError, LinkError) as exc:
         bare = bare_scene_errors and isinstance(exc, SceneError)

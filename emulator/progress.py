@@ -17,14 +17,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 
-def stderr_is_terminal(stream=None) -> bool:
-    stream = sys.stderr if stream is None else stream
-    try:
-        return stream.isatty()
-    except (AttributeError, ValueError):  # closed or not a real file
-        return False
-
-
 class Tracker:
     """What :func:`progress` yields. The base class is the disabled one: every method
     is a no-op, so callers never test whether a bar is shown."""
@@ -88,7 +80,10 @@ def progress(description: str, total: float | None = None, unit: str = "", strea
     """
     stream = sys.stderr if stream is None else stream
     if enabled is None:
-        enabled = stderr_is_terminal(stream)
+        try:
+            enabled = stream.isatty()
+        except (AttributeError, ValueError):  # closed or not a real file
+            enabled = False
     if not enabled:
         yield Tracker()
         return

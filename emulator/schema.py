@@ -11,8 +11,10 @@ mapping: docs/architecture.md "The schema library".
 from __future__ import annotations
 
 import datetime
+import functools
 import json
 import math
+import operator
 import re
 import sys
 from typing import Annotated, Any
@@ -76,7 +78,7 @@ TYPE_NAMES = {bool: "a boolean", int: "an integer", float: "a number", str: "a s
               dict: "a table", type(None): "null", datetime.datetime: "a date-time"}
 _EXPECTED = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string",
              "array": "an array", "object": "a table", "datetime": "a date-time", "null": "null"}
-_AT = re.compile(r"\.([^.\[]+)|\[(\d+)\]")
+_AT = re.compile(r"\.([^.\[]+)|\[(\d+)\]|\[(\.\.\.)\]")  # [...]: a mapping's key, unnamed
 
 
 def type_name(value: Any, table: str = "a table") -> str:
@@ -100,7 +102,8 @@ def given(table: msgspec.Struct) -> dict:
 def explain(message: str, data: Any, type_: Any, table: str = "a table") -> SchemaError:
     """msgspec's ``REASON - at `$.PATH``` about ``data`` as ``type_``, in our words."""
     text, _, at = message.partition(" - at `$")
-    parts: list[str | int] = [m[1] if m[1] is not None else int(m[2]) for m in _AT.finditer(at.rstrip("`"))]
+    parts: list[str | int] = [m[1] or m[3] or int(m[2]) for m in _AT.finditer(at.rstrip("`"))]
+    _name_keys(message, data, type_, parts)
     field = re.fullmatch(r"Object (missing required|contains unknown) field `(.*)`", text)
     if field:
         return SchemaError(_key([*parts, field[2]]), "missing" if field[1].startswith("missing") else "unknown key")
@@ -112,6 +115,35 @@ def explain(message: str, data: Any, type_: Any, table: str = "a table") -> Sche
         except (LookupError, TypeError):
             value = None
     return SchemaError(_key(parts), _reason(text, value, node, table))
+
+
+def _name_keys(message: str, data: Any, type_: Any, parts: list[str | int]) -> None:
+    """Replace each ``...`` in ``parts`` (msgspec does not name a mapping's key) by the key of
+    the mapping's first entry failing as ``message`` says: msgspec checks entries in order,
+    so the last of the shortest prefix failing so, bisected (log2(entries) conversions)."""
+    for i, part in enumerate(parts):
+        if part == "...":
+            items = list(functools.reduce(operator.getitem, parts[:i], data).items())
+            lo, hi = 1, len(items)
+            while lo < hi:
+                mid = (lo + hi) // 2
+                try:
+                    msgspec.convert(_put(data, parts[:i], dict(items[:mid])), type_, strict=True)
+                    same = False
+                except msgspec.ValidationError as exc:
+                    same = str(exc) == message
+                lo, hi = (lo, mid) if same else (mid + 1, hi)
+            parts[i] = items[hi - 1][0]
+            data = _put(data, parts[:i], dict(items[hi - 1:hi]))  # its entry alone: for a key deeper
+
+
+def _put(data: Any, path: list[str | int], value: Any) -> Any:
+    """``data`` with the item at ``path`` replaced by ``value``, the containers on the way copied."""
+    if not path:
+        return value
+    copy = list(data) if isinstance(data, (list, tuple)) else dict(data)
+    copy[path[0]] = _put(data[path[0]], path[1:], value)
+    return copy
 
 
 def join_key(path: str, key: str) -> str:

@@ -6,16 +6,14 @@ receiver pins, faults on demand, the step clock's :meth:`~emulator.pipeline.Pipe
 ``step``, a :class:`StepJob` the server runs :data:`STEP_SLICE` epochs at a time). It
 holds the scheduler's lock while it works, so a change lands between two epochs and
 takes effect from the next epoch rendered, whose index the reply carries (``epoch``).
-Errors raise :class:`~emulator.control.requests.ControlError` and change nothing. What
+Errors raise :class:`~emulator.control.requests.ControlError` (or the pipeline's
+:class:`InputError`, which the server names by the request's ``op``) and change nothing. What
 each request does: docs/hil_testing.md, "Protocol".
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict
-
-from firmware_proto.errors import InputError
 
 from emulator.output.scheduler import STEP_DRAIN_WAIT, EpochScheduler
 from emulator.pipeline import Pipeline
@@ -50,46 +48,19 @@ class Controller:
         """The reply; for a ``step``, a :class:`StepJob` that the server runs a slice at a time."""
         if isinstance(req, rq.Step):
             return StepJob(self, req.n)
-        return self.locked(req.op, lambda: {"ok": True, **self._dispatch(req)})
-
-    def locked(self, op: str, work: Callable[[], dict | None]) -> dict | None:
-        """``work()`` under the scheduler's lock (between two epochs); the pipeline's own
-        checks become a :class:`ControlError` named by ``op``."""
-        with self.scheduler.lock:
-            try:
-                return work()
-            except ControlError:
-                raise
-            except InputError as exc:  # the pipeline's own checks: one line, named by op
-                text = str(exc)
-                raise ControlError(text if text.startswith(f"{op}:") else f"{op}: {text}") from None
-
-    def start_step(self, n: int) -> None:
-        """Check that a ``step`` of ``n`` epochs can run now (under the lock)."""
-        sch = self.scheduler
-        if self.clock != "step":
-            raise ControlError("step: the emulator runs on the real clock (start it with --clock step)")
-        left = sch.remaining()
-        if left is not None and n > left:
-            raise ControlError(f"step: n = {n} but only {left} epochs are left (--frames)")
-        for r in sch.routes:
-            r.port.set_drain_wait(STEP_DRAIN_WAIT)  # a reader that keeps reading loses nothing
-
-    def _epoch(self) -> dict:
-        return {"epoch": self.scheduler.next_epoch}
-
-    def _t(self) -> float:
-        return self.scheduler.next_epoch / self.rate0
+        with self.scheduler.lock:  # between two epochs
+            return {"ok": True, **self._dispatch(req)}
 
     def _dispatch(self, req: Request) -> dict:
         sch, pipe = self.scheduler, self.pipe
+        t = sch.next_epoch / self.rate0  # the next epoch's scene time (s)
         if isinstance(req, rq.Status):
-            return {"epoch": sch.next_epoch, "t": self._t(), "clock": self.clock, "paused": sch.paused,
+            return {"epoch": sch.next_epoch, "t": t, "clock": self.clock, "paused": sch.paused,
                     "streams": {r.stream.label: r.port.path or "-" for r in sch.routes}}
         if isinstance(req, rq.Truth):
-            t = self._t()
             receivers = [{"id": p.id, "position": p.position, "orientation": p.orientation} for p in pipe.receiver_poses(t)]
-            return {**self._epoch(), "t": t, "receivers": receivers, "transmitters": list(map(asdict, pipe.transmitter_poses(t)))}
+            transmitters = list(map(asdict, pipe.transmitter_poses(t)))
+            return {"epoch": sch.next_epoch, "t": t, "receivers": receivers, "transmitters": transmitters}
         if isinstance(req, rq.Quit):
             return {}
         # The changes: each takes effect from the epoch the reply names.
@@ -115,7 +86,7 @@ class Controller:
             pipe.fault(req.stream, req.kind, amount)  # from the stream's next epoch
         else:
             raise ControlError(f"unknown request {req!r}")  # parse_request never makes one
-        return self._epoch()
+        return {"epoch": sch.next_epoch}
 
 
 class StepJob:
@@ -126,6 +97,8 @@ class StepJob:
     step queued before it); the slices together write exactly the bytes of one
     ``Pipeline.step(n)``. Its reply, ``{"ok": true, "epoch": ...}``, comes after its last epoch."""
 
+    op = "step"  # names the pipeline's errors in the server's replies
+
     def __init__(self, controller: Controller, n: int) -> None:
         self.controller = controller
         self.n = n
@@ -133,16 +106,22 @@ class StepJob:
         self.started = False
 
     def advance(self) -> dict | None:
-        def work() -> dict | None:
+        ctl, sch = self.controller, self.controller.scheduler
+        with sch.lock:  # between two epochs
             if not self.started:
-                self.controller.start_step(self.n)
+                if ctl.clock != "step":
+                    raise ControlError("step: the emulator runs on the real clock "
+                                       "(start it with --clock step)")
+                left = sch.remaining()
+                if left is not None and self.n > left:
+                    raise ControlError(f"step: n = {self.n} but only {left} epochs are left (--frames)")
+                for r in sch.routes:
+                    r.port.set_drain_wait(STEP_DRAIN_WAIT)  # a reader that keeps reading loses nothing
                 self.started = True
             count = min(STEP_SLICE, self.n - self.done)
-            self.controller.pipe.step(count)
+            ctl.pipe.step(count)
             self.done += count
-            return {"ok": True, **self.controller._epoch()} if self.done == self.n else None
-
-        return self.controller.locked("step", work)
+            return {"ok": True, "epoch": sch.next_epoch} if self.done == self.n else None
 
     def abandon(self, why: str) -> dict:
         return error_reply(f"step: {why}: stopped after {self.done} of {self.n} epochs")

@@ -107,7 +107,7 @@ class ControlServer:
     ``handle`` returns the reply, or a :class:`Sliced` request to run a slice at a time;
     it is called in the server's thread, the slices in its worker thread, at the same
     time as ``handle`` may be: both guard the state they share with one lock (as
-    :meth:`~emulator.control.controller.Controller.locked` does). ``on_quit`` is called
+    :class:`~emulator.control.controller.Controller` does). ``on_quit`` is called
     (in the server's thread) once a ``quit`` reply has been sent, or its client has gone.
     """
 
@@ -305,10 +305,10 @@ class ControlServer:
         """``work()`` (the handler, or a slice of a long request), its errors as error replies."""
         try:
             return work()
-        except ControlError as exc:
-            return error_reply(str(exc))
-        except InputError as exc:  # a value the model or a config rejected
-            return error_reply(f"{getattr(request, 'op', 'request')}: {exc}")
+        except InputError as exc:  # a ControlError: the reply's text; else named by the request's op
+            op, text = getattr(request, "op", "request"), str(exc)
+            named = isinstance(exc, ControlError) or text.startswith(f"{op}:")
+            return error_reply(text if named else f"{op}: {text}")
         except Exception as exc:  # noqa: BLE001 - the emulator never dies of a request
             log.error("control: request %r failed:\n%s", request, traceback.format_exc())
             return error_reply(f"internal error: {type(exc).__name__}: {exc}")

@@ -204,9 +204,6 @@ class _ClientUart(VirtualLine, SerialBase):
     def reset_input_buffer(self) -> None:  # data from the device not yet sent to the client
         self._on_purge()
 
-    def reset_output_buffer(self) -> None:  # data from the client to the device: none kept
-        pass
-
 
 class ServedClient:
     """One connected client: its UART, its outgoing queue and a sender and reader thread."""

@@ -167,6 +167,8 @@ CASES |= {
     "tx-pose-no-lon": (lambda p: edit_manifest(p, _no_lon), M + ": tx_poses.1.lon: missing"),
     "unknown-kind": (lambda p: edit_manifest(p, _kind),
                      M + ': devices.attitude-rx.kind: must be one of arva, attitude, gps, got "radar"'),
+    "device-not-an-object": (lambda p: edit_manifest(p, lambda m: m["devices"].update(arva=5)),
+                             M + ": devices.arva: expected an object, got an integer"),
     "device-name-escapes": (lambda p: edit_manifest(p, _escape),
                             M + ": devices.../etc: '../etc' is not a device name (it names a file in the session)"),
     "raw-is-a-directory": (_raw_dir, "{d}/attitude-rx.raw: a directory, not a log file"),

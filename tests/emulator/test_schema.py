@@ -79,6 +79,38 @@ def test_errors_name_the_key_and_the_rule(data, message):
     assert str(info.value) == message
 
 
+class Tables(Strict):
+    names: dict[str, dict] = {}
+    nested: dict[str, dict[str, Point]] = {}
+    listed: list[dict[str, int]] = []
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"names": {"arva": 5}}, "names.arva: expected a table, got an integer"),
+        ({"names": {"a": {}, "b": {}, "arva": [], "c": 1}}, "names.arva: expected a table, got an array"),
+        ({"nested": {"a": {"x": {"t": 0, "position": [0, 0, 0]}}, "b": {"y": {"t": 0}}}}, "nested.b.y.position: missing"),
+        ({"nested": {"a": {"x": {"t": 0, "position": [0, 0, 0], "q": 1}}}}, "nested.a.x.q: unknown key"),
+        ({"nested": {"a": {"x": 1}, "b": {"y": 2}}}, "nested.a.x: expected a table, got an integer"),
+        ({"nested": {"a": {"x": {"t": 0, "position": [0, 0, 0]}}, "b": {"y": {"t": 0, "position": [0, 0, "z"]}}}},
+         "nested.b.y.position[2]: expected a number, got a string"),
+        ({"listed": [{"a": 1}, {"b": 2, "c": "x"}]}, "listed[1].c: expected an integer, got a string"),
+    ],
+)
+def test_errors_name_a_mappings_key(data, message):
+    """msgspec writes a mapping's key as ``[...]``; the message names it (was ``names.]``, got null)."""
+    with pytest.raises(SchemaError) as info:
+        convert(data, Tables)
+    assert str(info.value) == message
+
+
+def test_a_mappings_key_among_many_is_found_by_bisection():
+    data = {"names": {f"n{i}": {} for i in range(100_000)} | {"last": None}}
+    with pytest.raises(SchemaError, match=r"^names\.last: expected a table, got null$"):
+        convert(data, Tables)
+
+
 def test_a_good_table_and_its_given_fields():
     thing = convert({"id": 7, "pose": [1, 2, 3], "path": [{"t": 0, "position": [0, 0, 0]}]}, Thing)
     assert thing.pose == (1.0, 2.0, 3.0) and type(thing.pose[0]) is float
@@ -100,7 +132,8 @@ def test_join_key():
 values = st.recursive(
     st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=6),
     lambda inner: st.lists(inner, max_size=4) | st.dictionaries(
-        st.sampled_from(["id", "rate", "gain", "pose", "talker", "kind", "mode", "on", "path", "t", "position", "x"]),
+        st.sampled_from(["id", "rate", "gain", "pose", "talker", "kind", "mode", "on", "path", "t", "position", "x",
+                         "names", "nested", "listed"]),
         inner, max_size=5),
     max_leaves=16,
 )
@@ -117,3 +150,13 @@ def test_any_value_is_a_thing_or_one_schema_error(data):
         return
     assert 0 <= thing.id <= 65535 and 1e-3 <= thing.rate <= 1e4
     assert thing.pose is None or all(math.isfinite(v) for v in thing.pose)
+
+
+@pytest.mark.slow
+@settings(max_examples=300, deadline=None)
+@given(data=values)
+def test_any_value_is_tables_or_one_schema_error_naming_real_keys(data):
+    try:
+        convert(data, Tables)
+    except SchemaError as exc:
+        assert "\n" not in str(exc) and "..." not in exc.key and ".]" not in exc.key

@@ -184,6 +184,9 @@ def test_garbage_gets_one_error_reply_each_and_changes_nothing(arva_emulator):
         reply = c.send_line(line)
         assert reply["ok"] is False and isinstance(reply["error"], str) and "\n" not in reply["error"], line[:40]
     assert c.send_line(b'{"op": "remove_transmitter", "id": 9}')["error"] == "remove_transmitter: no transmitter 9 (ids: 1)"
+    # the pipeline's own errors, named by the op once (the server's rule)
+    assert c.send_line(hostile[8])["error"] == "set_transmitter: transmitter 9 is new: position required"
+    assert c.send_line(hostile[11])["error"] == "fault: no stream 'gps' (streams: arva)"
     assert c.send_line(b'{"op": "pause"}')["error"] == (
         "pause: the step clock emits only on step (pause/resume are for --clock real)")
     assert emu.truth() == before

@@ -41,7 +41,7 @@ class Server:
         self.gate.set()
         self.calls: list[str] = []
         self.quitted = threading.Event()
-        self.lock = threading.Lock()  # the emulator's (Controller.locked)
+        self.lock = threading.Lock()  # the emulator's (the Controller's scheduler lock)
         self.big = big
         self.server = ControlServer(control_address(f"unix:{path}"), self.handle, self.quitted.set)
         self.path = path
