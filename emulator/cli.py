@@ -8,6 +8,7 @@ summary go to stderr.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
@@ -128,7 +129,14 @@ def run(args: argparse.Namespace) -> int:
     options = PortOptions(LineSettings(args.baud, args.bytesize, args.parity, args.stopbits), rtscts=args.rtscts,
                           xonxoff=args.xonxoff, link_dir=args.link, serve_any_host=args.serve_any_host,
                           notify=stderr_notifier("arva-emulate"))
-    try:
+
+    def close_ports() -> None:  # (``ports`` may be the capture wrappers by then)
+        for port in ports.values():
+            port.close()
+
+    with contextlib.ExitStack() as opened:
+        opened.callback(pipe.close_sources)
+        opened.callback(close_ports)
         for label in pipe.labels:
             port = ports[label] = open_port(label, specs[label], options)
             if isinstance(port, (PtyPort, ServerPort)):
@@ -136,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
                 # reads the path from here and opens it (again after a simulated unplug).
                 port.on_reconnect = announce
                 announce(port)
-        if with_control:  # --capture: the ports wrapped, so closed through the wrappers below
+        if with_control:  # --capture: the ports wrapped, so closed through the wrappers
             ports = control_runtime.capture_ports(args, ports)
         real = args.clock == "real"
         # Under the step clock a scene's link-fault stalls cost no wall time.
@@ -151,40 +159,32 @@ def run(args: argparse.Namespace) -> int:
             except OSError as exc:
                 raise InputError(f"--timing-log: cannot write {args.timing_log}: {exc.strerror}") from None
             scheduler.on_write = lambda r, k, *times: timing.append((r.port.label, k, *times))
-        control = workers = None
-        if with_control:
-            control = control_runtime.start_server(args, pipe, scheduler, stop,
-                                                   lambda line: _say(announce_to, line))
-        if args.realtime and args.speed != 0 and real:
-            if args.realtime_workers:  # before our own SCHED_FIFO, which the keeper would inherit
-                workers, refused = raise_workers()
+        with contextlib.ExitStack() as running:  # (closed whatever raises, before the summary)
+            if with_control:
+                running.callback(control_runtime.start_server(args, pipe, scheduler, stop,
+                                                              lambda line: _say(announce_to, line)).close)
+            if args.realtime and args.speed != 0 and real:
+                if args.realtime_workers:  # before our own SCHED_FIFO, which the keeper would inherit
+                    workers, refused = raise_workers()
+                    if workers is not None:
+                        running.callback(workers.close)
+                    if refused:
+                        _say(sys.stderr, refused)
+                refused = request_realtime().message()
                 if refused:
                     _say(sys.stderr, refused)
-            refused = request_realtime().message()
-            if refused:
-                _say(sys.stderr, refused)
-        try:
+            if status is not None:
+                running.callback(sys.stderr.write, "\r\x1b[K")
             scheduler.wait(args.delay)
             if real:
                 scheduler.run()
             else:  # the step clock: the control thread steps; wait for quit or a signal
                 while not stop.wait(0.2):
                     pass
-        finally:
-            if control is not None:
-                control.close()
-            if workers is not None:
-                workers.close()
-            if status is not None:
-                sys.stderr.write("\r\x1b[K")
         if args.timing_log is not None:
             _write_timing_log(args.timing_log, timing)
         # Only after a normal end: an error is then the one line on stderr.
         _say(sys.stderr, f"arva-emulate: {summary_line(routes)}")
-    finally:
-        for port in ports.values():
-            port.close()
-        pipe.close_sources()
     return 0
 
 

@@ -6,6 +6,7 @@ import sys
 import pytest
 from scene_builders import one_tx
 
+import emulator.cli as emulate_cli
 from emulator.cli import parse_args
 
 NOISY = """spec = 1
@@ -140,3 +141,18 @@ def test_real_time_pacing_is_roughly_real_time(scene_file):
     proc = emulate("--scene", scene_file(scene), "--frames", "3", "--speed", "1")
     assert proc.returncode == 0 and proc.stdout.count(b"\r\n") == 3
     assert time.monotonic() - t0 >= 0.1
+
+
+def test_a_failure_after_the_control_channel_started_still_closes_it(monkeypatch, tmp_path, capsys):
+    """The control socket is removed even when what follows its start raises (here the
+    keeper of --realtime-workers): it was left on disk before."""
+
+    def keeper_fails(*_args, **_kwargs):
+        raise OSError(24, "Too many open files")
+
+    monkeypatch.setattr(emulate_cli, "raise_workers", keeper_fails)
+    path = tmp_path / "ctl.sock"
+    argv = ["--control", f"unix:{path}", "--realtime", "--realtime-workers", "--frames", "2", "--port", "-"]
+    assert emulate_cli.main(argv) == 2
+    assert capsys.readouterr().err == f"control unix:{path}\narva-emulate: Too many open files\n"
+    assert not path.exists()
