@@ -88,11 +88,14 @@ def send_pose(conn, north, east, down, yaw_deg, boot_ms=1000, v=(0.0, 0.0, 0.0))
     conn.mav.attitude_quaternion_send(boot_ms, *ned_quaternion(yaw_deg), 0.0, 0.0, 0.0)
 
 
-def wait_for(src, boot_ms, timeout=5.0):
+def wait_for(src, boot_ms, attitudes=1, timeout=5.0):
+    """The pose of ``boot_ms`` once ``attitudes`` ATTITUDE_QUATERNIONs have been taken (the
+    position and the attitude are two messages: the second pose's attitude may come later)."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         pose = src.latest()
-        if pose is not None and pose.time_boot_ms == boot_ms and src.counts["ATTITUDE_QUATERNION"] >= 1:
+        taken = src.counts["ATTITUDE_QUATERNION"]
+        if pose is not None and pose.time_boot_ms == boot_ms and taken >= attitudes:
             return pose
         time.sleep(0.005)
     raise TimeoutError(f"no pose with time_boot_ms {boot_ms}")
@@ -144,7 +147,7 @@ def test_receiver_rides_along_the_autopilot():
         assert stream.render(0, 1) == encode_parva(0, 1, 1, 1, 917, 0)
         # 4 m north and 3 m east of the origin, facing north: what the model says there.
         send_pose(out, 4.0, 3.0, 0.0, 0.0, boot_ms=2)
-        wait_for(src, 2)
+        wait_for(src, 2, attitudes=2)
         d, delta = measure_one([8.0, 4.0, 0.0], [math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)], [15.0, 0.0, 0.0])
         assert stream.render(1, 1) == encode_parva(1, 1, 1, 1, d, delta)
     finally:
