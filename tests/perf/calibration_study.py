@@ -100,6 +100,7 @@ REPORT_RUNS = (
     ReportRun("calibration_study_junk_dropout_report50_29616eb.jsonl", "29616eb"),
     ReportRun("calibration_study_heavy_junk_report50_134a440.jsonl", "134a440"),
     ReportRun("calibration_study_junk_report50_94214b2.jsonl", "94214b2"),
+    ReportRun("calibration_study_student_outlier_report20_94214b2.jsonl", "94214b2"),
 )
 OUT = ROOT / "tests/perf/out"
 DOCS = (ROOT / "docs/calibration.md", ROOT / "docs/accuracy.md")
