@@ -106,12 +106,7 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
     options = FitOptions() if options is None else options
     res = fit_restarted(table, options)
     steps: list[str] = []  # the first note of each step that replaced the fit
-    # (the outlier fallback twice: the fit with the attitude held is a new search, which
-    # stopped with the GPS outliers' share on its bound on level-student report seed 1,000,019)
-    for step in (
-        without_outliers_if_stuck, held_attitude, without_outliers_if_stuck, floors_if_better, exact_if_invisible,
-        dropout_if_spurious,
-    ):  # fmt: skip
+    for step in STEPS:
         new, options = step(table, options, res)
         if new is not res and new.notes[0] not in steps:
             steps.append(new.notes[0])
@@ -418,19 +413,14 @@ def without_outliers_if_stuck(table: Table, options: FitOptions, res: FitResult)
 
 
 def dropout_if_spurious(table: Table, options: FitOptions, res: FitResult) -> tuple[FitResult, FitOptions]:
-    """``res`` and ``options``, or, when its goodness-of-fit check finds more rows saying
-    "nothing heard" (d = -1) where the model gives that less than
-    :data:`diagnostics.UNEXPECTED_CENSORED` chance than the model explains (its
-    ``p_unexpected`` below :data:`diagnostics.ALPHA`), the fit with ``dropout`` free (as
-    ``--fit dropout``), with a first note, when it converges.
-
-    Why (issue 28, item 3): spurious -1 rows (a receiver or logger that drops readings)
-    pull r_en low. On the study's junk walk (2 % of the heard rows turned into -1) the
-    check named them on 49 and 50 of 50 report fits, and those fits' r_en came out -3.5 %
-    with intervals covering 72 %; refitted so, +1.0 % and 89 % (fit code 94214b2). On the
-    walks without junk it fired on 6 of 700 report fits; there the dropout came out
-    0.03-0.3 % and the estimates moved by <= 0.08 s.e. (docs/calibration.md, "Spurious -1
-    rows"). ``options.spurious_refit`` False turns the step off."""
+    """``res`` and ``options``, or, when its goodness-of-fit check finds more "nothing
+    heard" rows where the model gives < :data:`diagnostics.UNEXPECTED_CENSORED` than it
+    explains (``p_unexpected`` < :data:`diagnostics.ALPHA`), the fit with ``dropout`` free
+    (as ``--fit dropout``) with a first note, when it converges; ``options.spurious_refit``
+    False: never. Why (issue 28, item 3): spurious -1 rows pull r_en low. On the study's
+    junk walk the check fired on 50 of 50 report fits, r_en -3.5 % covering 72 %; refitted
+    so, +1.0 % and 89 % (94214b2). On the walks without junk it fired on 6 of 700; there the
+    dropout came out 0.03-0.3 %, the estimates moved <= 0.08 s.e. (docs/calibration.md)."""
     gof = res.goodness_of_fit
     if not (
         options.spurious_refit and res.converged and gof is not None and gof.p_unexpected < ALPHA
@@ -453,6 +443,13 @@ def dropout_if_spurious(table: Table, options: FitOptions, res: FitResult) -> tu
         f"{100 * junk.params.dropout:.2g} % of rows read -1 whatever the signal",
     )
     return junk, junk_options
+
+
+#: :func:`fit`'s steps, in order, each of which may replace the fit (the outlier fallback twice:
+#: the fit with the attitude held is a new search, which stopped with the GPS outliers' share on
+#: its bound on level-student report seed 1,000,019).
+STEPS = (without_outliers_if_stuck, held_attitude, without_outliers_if_stuck, floors_if_better,
+         exact_if_invisible, dropout_if_spurious)
 
 
 def outlier_width_held(free, held) -> np.ndarray:

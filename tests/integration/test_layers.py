@@ -1,7 +1,8 @@
 """What import-linter does not check of the package layers (docs/architecture.md): no import
 cycles between modules (function-level imports included), no private names imported across
-modules. The layer order itself (firmware_proto depends on nothing of ours, emulator never
-imports bench) is pyproject.toml's import-linter contract, run by `make test`."""
+modules, no module over 700 lines. The layer order itself (firmware_proto depends on nothing
+of ours, emulator never imports bench) is pyproject.toml's import-linter contract, run by
+`make test`."""
 
 import ast
 from pathlib import Path
@@ -94,3 +95,12 @@ def test_no_private_names_across_modules():
     _, private = graph()
     assert private == []
 
+
+
+#: Issues 28 and 30: no module a newcomer must read whole is longer than this.
+MAX_LINES = 700
+
+
+def test_no_module_is_longer_than_700_lines():
+    long = {name: n for name, path in modules().items() if (n := len(path.read_text().splitlines())) > MAX_LINES}
+    assert long == {}
