@@ -113,8 +113,9 @@ def test_a_sigma_without_measurable_curvature_is_held_for_the_others():
 
 def test_a_step_that_replaces_the_fit_keeps_the_notes_of_the_steps_before_it(monkeypatch):
     """fit() runs its steps in order (the fit without GPS outliers, the attitude held,
-    exact poses, the clock offset); each that replaces the fit brings a fresh result with
-    only its own notes, so fit() puts the earlier steps' first notes back, in order."""
+    exact poses, dropout, the clock offset); each that replaces the fit brings a fresh
+    result with only its own notes, so fit() puts the earlier steps' first notes back, in
+    order."""
     import numpy as np
 
     from bench.fit import estimate
@@ -130,10 +131,14 @@ def test_a_step_that_replaces_the_fit_keeps_the_notes_of_the_steps_before_it(mon
     def replacing(note):
         return lambda table, options, res: (result(note, "its own routine note"), options)
 
+    def keeps(table, options, res):
+        return res, options
+
     monkeypatch.setattr(estimate, "fit_restarted", lambda table, options: result("first fit"))
-    monkeypatch.setattr(estimate, "without_outliers_if_stuck", replacing("no outliers"))
-    monkeypatch.setattr(estimate, "held_attitude", lambda table, options, res: (res, options))  # keeps the fit
-    monkeypatch.setattr(estimate, "exact_if_invisible", replacing("exact poses"))
+    # estimate.STEPS: the outlier fallback (twice), the attitude held, the floors, exact poses, dropout
+    no_outliers = replacing("no outliers")
+    steps = (no_outliers, keeps, no_outliers, keeps, replacing("exact poses"), keeps)
+    monkeypatch.setattr(estimate, "STEPS", steps)
     monkeypatch.setattr(estimate, "offset_fitted", lambda table, options, res: result("offset fitted"))
     res = estimate.fit(None, estimate.FitOptions())
     assert res.notes == ["no outliers", "exact poses", "offset fitted"]
