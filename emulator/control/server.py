@@ -30,7 +30,7 @@ from typing import Protocol, runtime_checkable
 
 from firmware_proto.errors import InputError, LinkError
 
-from emulator.output.net_ports import format_addr, is_loopback, tcp_listener
+from emulator.output.net_ports import all_loopback, format_addr, resolve, tcp_listener
 
 from emulator.control.requests import MAX_LINE, ControlError, Quit, Request, encode_reply, error_reply, parse_request
 
@@ -92,8 +92,9 @@ def control_address(text: str) -> ControlAddress:
 def check_host(address: ControlAddress, any_host: bool) -> None:
     """InputError unless ``address`` is unix, loopback TCP, or ``any_host`` allows any (the
     command line's early check; the listener checks again on the addresses it binds)."""
-    if address.kind == "tcp" and not any_host and not is_loopback(address.host):
-        raise InputError(f"--control {address}: {_remote(address)}")
+    where = f"--control {address}"
+    if address.kind == "tcp" and not any_host and not all_loopback(resolve(address.host, None, where)):
+        raise InputError(f"{where}: {_remote(address)}")
 
 
 def _remote(address: ControlAddress) -> str:

@@ -352,19 +352,26 @@ class ServedClient:
         self._reader.join(1.0)
 
 
-def is_loopback(host: str) -> bool:
-    """True if every address ``host`` resolves to is a loopback address."""
-    with contextlib.suppress(ValueError):
-        return ipaddress.ip_address(host).is_loopback
+def resolve(host: str, port: int | None, where: str) -> list:
+    """getaddrinfo's TCP answers for ``host``; InputError ``WHERE: cannot resolve 'HOST': why``."""
     try:
-        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
-    except (OSError, UnicodeError):  # (UnicodeError: a name IDNA cannot encode, e.g. "a..b")
-        return False
-    return _all_loopback(infos)
+        return socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except (OSError, UnicodeError) as exc:  # (UnicodeError: a name IDNA cannot encode, e.g. "a..b")
+        reason = getattr(exc, "strerror", None) or exc
+        raise InputError(f"{where}: cannot resolve {host!r}: {reason}") from None
 
 
-def _all_loopback(infos: list) -> bool:
+def all_loopback(infos: list) -> bool:
+    """True if every address of ``infos`` (getaddrinfo's answers) is a loopback address."""
     return bool(infos) and all(ipaddress.ip_address(i[4][0].split("%")[0]).is_loopback for i in infos)
+
+
+def is_loopback(host: str) -> bool:
+    """True if every address ``host`` resolves to is a loopback address (False if none)."""
+    try:
+        return all_loopback(resolve(host, None, host))
+    except InputError:
+        return False
 
 
 def tcp_listener(host: str, port: int, where: str, backlog: int,
@@ -374,12 +381,8 @@ def tcp_listener(host: str, port: int, where: str, backlog: int,
     ``remote`` (the refusal's text), if it resolves to an address that is not loopback
     (checked on the addresses it binds: one lookup), LinkError if it cannot be bound, each
     one line starting with ``where`` (``port SPEC`` ...)."""
-    try:
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-    except (OSError, UnicodeError) as exc:
-        reason = getattr(exc, "strerror", None) or exc
-        raise InputError(f"{where}: cannot resolve {host!r}: {reason}") from None
-    if remote is not None and not _all_loopback(infos):
+    infos = resolve(host, port, where)
+    if remote is not None and not all_loopback(infos):
         raise InputError(f"{where}: {remote}")
     family, _, _, _, sockaddr = infos[0]
     sock = socket.socket(family, socket.SOCK_STREAM)

@@ -3,6 +3,7 @@ and no input at all that makes the parser raise anything but ControlError."""
 
 import json
 import math
+import socket
 
 import pytest
 from hypothesis import given, settings
@@ -24,7 +25,8 @@ from emulator.control.requests import (
     encode_reply,
     parse_request,
 )
-from emulator.control.server import ControlAddress, control_address, is_loopback
+from emulator.control.server import ControlAddress, check_host, control_address
+from emulator.output.net_ports import is_loopback
 from firmware_proto.errors import InputError
 
 
@@ -178,6 +180,21 @@ def test_bad_control_addresses(text):
 def test_loopback_check():
     assert is_loopback("127.0.0.1") and is_loopback("::1") and is_loopback("127.3.4.5")
     assert not is_loopback("0.0.0.0") and not is_loopback("192.168.1.10") and not is_loopback("::")
+    assert not is_loopback("a..b")  # (a name IDNA cannot encode: not resolvable, no exception)
+
+
+def test_a_control_host_that_does_not_resolve_is_named_as_such(monkeypatch):
+    """Not "not a loopback address; add --control-any-host", which would not help."""
+
+    def refuse(*_args, **_kwargs):
+        raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+
+    monkeypatch.setattr(socket, "getaddrinfo", refuse)
+    with pytest.raises(InputError) as err:
+        check_host(control_address("tcp:nowhere.invalid:7000"), any_host=False)
+    assert str(err.value) == (
+        "--control tcp:nowhere.invalid:7000: cannot resolve 'nowhere.invalid': Name or service not known"
+    )
 
 
 @pytest.fixture(scope="module")
