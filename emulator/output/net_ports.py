@@ -366,14 +366,6 @@ def all_loopback(infos: list) -> bool:
     return bool(infos) and all(ipaddress.ip_address(i[4][0].split("%")[0]).is_loopback for i in infos)
 
 
-def is_loopback(host: str) -> bool:
-    """True if every address ``host`` resolves to is a loopback address (False if none)."""
-    try:
-        return all_loopback(resolve(host, None, host))
-    except InputError:
-        return False
-
-
 def tcp_listener(host: str, port: int, where: str, backlog: int,
                  remote: str | None = None) -> socket.socket:
     """A socket listening on the first address ``host``:``port`` resolves to (the stream

@@ -26,7 +26,7 @@ from emulator.control.requests import (
     parse_request,
 )
 from emulator.control.server import ControlAddress, check_host, control_address
-from emulator.output.net_ports import is_loopback
+from emulator.output.net_ports import all_loopback, resolve
 from firmware_proto.errors import InputError
 
 
@@ -175,6 +175,14 @@ def test_control_addresses(text, address):
 def test_bad_control_addresses(text):
     with pytest.raises(InputError):
         control_address(text)
+
+
+def is_loopback(host: str) -> bool:
+    """check_host's rule: every address ``host`` resolves to is loopback (False if none)."""
+    try:
+        return all_loopback(resolve(host, None, host))
+    except InputError:
+        return False
 
 
 def test_loopback_check():
