@@ -112,8 +112,8 @@ def test_a_sigma_without_measurable_curvature_is_held_for_the_others():
 
 
 def test_a_step_that_replaces_the_fit_keeps_the_notes_of_the_steps_before_it(monkeypatch):
-    """fit() runs its steps in order (the fit without GPS outliers, the attitude held,
-    exact poses, dropout, the clock offset); each that replaces the fit brings a fresh
+    """fit() runs its steps in order (the first fit, which may fall back to the fit without
+    GPS outliers, the attitude held, exact poses, dropout, the clock offset); each that replaces the fit brings a fresh
     result with only its own notes, so fit() puts the earlier steps' first notes back, in
     order."""
     import numpy as np
@@ -134,14 +134,15 @@ def test_a_step_that_replaces_the_fit_keeps_the_notes_of_the_steps_before_it(mon
     def keeps(table, options, res):
         return res, options
 
-    monkeypatch.setattr(estimate, "fit_restarted", lambda table, options: result("first fit"))
-    # estimate.STEPS: the outlier fallback (twice), the attitude held, the floors, exact poses, dropout
-    no_outliers = replacing("no outliers")
-    steps = (no_outliers, keeps, no_outliers, keeps, replacing("exact poses"), keeps)
+    # the first fit fell back to the one without GPS outliers (estimate.fit_continued)
+    no_outliers = f"{estimate.OUTLIERS_FAILED} (why); these are the numbers without it"
+    monkeypatch.setattr(estimate, "fit_continued", lambda table, options: (result(no_outliers, "first fit"), options))
+    # estimate.STEPS: the attitude held, the floors, exact poses, dropout
+    steps = (replacing("attitude held"), keeps, replacing("exact poses"), keeps)
     monkeypatch.setattr(estimate, "STEPS", steps)
     monkeypatch.setattr(estimate, "offset_fitted", lambda table, options, res: result("offset fitted"))
     res = estimate.fit(None, estimate.FitOptions())
-    assert res.notes == ["no outliers", "exact poses", "offset fitted"]
+    assert res.notes == [no_outliers, "attitude held", "exact poses", "offset fitted"]
     monkeypatch.setattr(estimate, "offset_fitted", lambda table, options, res: res)  # keeps the fit
     res = estimate.fit(None, estimate.FitOptions())
-    assert res.notes == ["no outliers", "exact poses", "its own routine note"]
+    assert res.notes == [no_outliers, "attitude held", "exact poses", "its own routine note"]
