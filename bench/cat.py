@@ -27,6 +27,8 @@ from firmware_proto.decoder import Decoder
 from firmware_proto.errors import LinkError
 from firmware_proto.events import Epoch
 
+from .transport import open_device
+
 #: Silence after which an epoch held for its last ``$PARVH`` is released (seconds).
 IDLE_SECONDS = 0.1
 CHUNK = 65536
@@ -69,12 +71,6 @@ class SerialSource:
         self.port.close()
 
 
-def _serial_for_url(url: str, baud: int):  # type: ignore[no-untyped-def]
-    from .transport import open_device  # registers usb:// and arvaemu://
-
-    return open_device(url, baudrate=baud, timeout=IDLE_SECONDS)
-
-
 def open_source(spec: str, baud: int = 115200) -> FileSource | SerialSource:
     """Open SOURCE, whose ``read()`` gives the next bytes, ``b""`` at end of input, None when
     nothing came for IDLE_SECONDS; raise :class:`LinkError` (``cat: SOURCE: reason``) when
@@ -83,7 +79,7 @@ def open_source(spec: str, baud: int = 115200) -> FileSource | SerialSource:
         return StreamSource(sys.stdin.buffer.fileno(), owned=False)
     try:
         if "://" in spec or stat.S_ISCHR(mode := os.stat(spec).st_mode):
-            return SerialSource(_serial_for_url(spec, baud))
+            return SerialSource(open_device(spec, baudrate=baud, timeout=IDLE_SECONDS))
         if stat.S_ISDIR(mode):
             raise IsADirectoryError(21, "Is a directory")
         fd = os.open(spec, os.O_RDONLY | (os.O_NONBLOCK if stat.S_ISFIFO(mode) else 0))

@@ -164,16 +164,6 @@ def mark_duplicates(usb: Iterable[Found], others: list[Found]) -> None:
             dev.note = "; ".join(filter(None, [dev.note, "also " + ", ".join(also)]))
 
 
-def find_all(err=None) -> list[Found]:  # type: ignore[no-untyped-def]
-    """Every device of the three sources: serial ports, HID devices, USB devices."""
-    err = err or sys.stderr
-    ports = serial_ports()
-    hids = hid_devices(err)
-    usbs = usb_devices(err)
-    mark_duplicates(usbs, ports + hids)
-    return ports + hids + usbs
-
-
 # -- output ------------------------------------------------------------------------------
 def table(found: list[Found]) -> list[str]:
     """Lines of the aligned table (header first), with no trailing blanks."""
@@ -196,7 +186,11 @@ def _natural(text: str) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
-    found = find_all(sys.stderr)
+    ports = serial_ports()
+    hids = hid_devices(sys.stderr)
+    usbs = usb_devices(sys.stderr)
+    mark_duplicates(usbs, ports + hids)
+    found = ports + hids + usbs
     if args.json:
         print(json.dumps([f.to_json() for f in found], indent=None))
     elif found:

@@ -32,7 +32,6 @@ from .logger import DeviceSpec, SessionListener
 from .records import FORMATS, decoder_for
 from .preflight import check_sources
 from .session import SessionWriter
-from .transport import check_url
 
 
 def device_arg(kind: str):
@@ -76,8 +75,6 @@ def device_specs(args: argparse.Namespace, command: str = "log") -> list[DeviceS
             if fmt is not None:
                 decoder_for(kind, fmt)  # a missing extra is reported now, before a session exists
             specs.append(DeviceSpec(f"{kind}-{role}", kind, url, role, args.baud, fmt))
-    for s in specs:
-        check_url(s.url)  # a missing extra is reported now, not retried as an absent device
     names = [s.name for s in specs]
     for name in names:
         if names.count(name) > 1:

@@ -22,6 +22,7 @@ attitude, ``mavlink`` (ATTITUDE_QUATERNION / ATTITUDE, the ``mavlink`` extra).
 from __future__ import annotations
 
 from bench.ground_truth import Attitude, GpsFix, GroundTruthReader
+from bench.ground_truth.mavlink import MavlinkAttitudeReader
 from firmware_proto.decoder import Decoder
 from firmware_proto.events import DecodeError, Epoch, ErrorKind
 
@@ -97,12 +98,8 @@ class GroundTruthRecords:
         if fmt not in ("nmea", "mavlink"):
             raise ValueError(f"ground-truth format must be nmea or mavlink, got {fmt!r}")
         self.format = fmt
-        if fmt == "mavlink":
-            from bench.ground_truth.mavlink import MavlinkAttitudeReader  # the optional extra
-
-            self.reader = MavlinkAttitudeReader()
-        else:
-            self.reader = GroundTruthReader()
+        # MavlinkAttitudeReader imports pymavlink (the mavlink extra) when it is made.
+        self.reader = MavlinkAttitudeReader() if fmt == "mavlink" else GroundTruthReader()
         self.records = 0
         self.errors = 0
 

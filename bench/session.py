@@ -34,7 +34,7 @@ from typing import Literal, TypeVar
 import msgspec
 
 from emulator.cli_types import BAUD_LIMITS
-from emulator.files import open_regular
+from emulator.files import open_regular, read_regular
 from emulator.schema import Int, Number, SchemaError, Text, convert, join_key, type_name
 from firmware_proto.errors import InputError, LinkError
 
@@ -594,14 +594,8 @@ def load_manifest(directory: str | Path) -> Manifest:
     except FileNotFoundError:
         raise InputError(f"{directory}: not a session directory (no {MANIFEST})") from None
     except OSError:
-        pass  # open_regular says why
-    with open_regular(path, "manifest file") as f:
-        try:
-            data = f.read(MAX_MANIFEST_BYTES + 1)
-        except OSError as exc:
-            raise InputError(f"{path}: unreadable: {exc.strerror or exc}") from None
-    if len(data) > MAX_MANIFEST_BYTES:
-        raise InputError(f"{path}: larger than {MAX_MANIFEST_BYTES} bytes (not a session manifest)")
+        pass  # read_regular says why
+    data = read_regular(path, MAX_MANIFEST_BYTES, "manifest file")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -28,6 +28,7 @@ from textual.widgets import Footer, Static
 from emulator.frames.geodesy import Origin
 from firmware_proto.errors import InputError
 
+from ..log import manifest
 from ..logger import DeviceSpec
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkStatus, TruthPose
 from .recorder import SessionRecorder
@@ -270,8 +271,6 @@ class DashApp(App):
         return path
 
     def _manifest(self) -> dict:
-        from ..log import manifest  # only when recording: bench.log imports every transport
-
         args = argparse.Namespace(note=self.config.note, origin=self.config.origin, tx_pose=self.config.tx_poses)
         out = manifest(args, self.config.specs, self.config.argv)
         if self.config.replay is not None:

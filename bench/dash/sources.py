@@ -19,11 +19,10 @@ from firmware_proto.errors import InputError
 
 from emulator.urlhandler.protocol_arvaemu import parse_url
 
-from ..ingest.pacer import pace
+from ..ingest.pacer import load_reads, pace
 from ..ingest.reader import Device, DeviceSpec, LinkEvent, Listener, Notifier, Read
 from ..ingest.stamp import Stamped
 from ..records import ArvaRecords, GroundTruthRecords
-from ..session import RawLog, session_logs
 from .messages import AttitudeReceived, EpochReceived, FixReceived, LinkCounters, LinkStatus, TruthPose
 
 #: Seconds between idle ticks of a replay (a quiet link's epochs are released, statuses posted).
@@ -273,21 +272,14 @@ class ReplaySource(threading.Thread):
         feed.on_read(feed.device, feed.device.ingest(raw.data, time.monotonic(), time.time()))
 
     def run(self) -> None:
-        reads: dict[str, RawLog] = {}
         try:
-            logs = session_logs(self.directory, self._by_name)
-        except InputError as exc:
-            logs = {}
+            reads = load_reads(self.directory, self._by_name)  # checked whole first; replayed as a stream
+        except InputError as exc:  # a log changed since the command line checked it
+            reads = {}
             for feed in self.feeds:
                 feed.set_state("down", str(exc))
-        for name, log in logs.items():
-            feed = self._by_name[name]
-            try:
-                reads[name] = log.scan()  # checked whole first; replayed as a stream
-            except InputError as exc:
-                feed.set_state("down", str(exc))
-            else:
-                feed.set_state("up")
+        for name in reads:
+            self._by_name[name].set_state("up")
         pace(reads, self._deliver, self.speed, self.stopping, tick=self._tick, tick_interval=READ_TIMEOUT)
         mono, utc = time.monotonic(), time.time()
         for feed in self.feeds:

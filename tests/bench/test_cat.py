@@ -136,13 +136,13 @@ def test_unreachable_socket_url_exits_2() -> None:
 def test_loop_url_in_process(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     opened = []
 
-    def loop_with_data(url: str, baud: int) -> serial.SerialBase:
-        port = serial.serial_for_url(url, baudrate=baud, timeout=cat.IDLE_SECONDS)
+    def loop_with_data(url: str, baudrate: int, timeout: float) -> serial.SerialBase:
+        port = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout)
         port.write(STREAM)
         opened.append(port)
         return port
 
-    monkeypatch.setattr(cat, "_serial_for_url", loop_with_data)
+    monkeypatch.setattr(cat, "open_device", loop_with_data)
     assert main(["cat", "loop://", "--until-idle", "0.3"]) == 0
     out, err = capsys.readouterr()
     assert json_lines(out.encode()) == STREAM_JSON
@@ -152,12 +152,12 @@ def test_loop_url_in_process(monkeypatch: pytest.MonkeyPatch, capsys: pytest.Cap
 
 @pytest.mark.timeout(60)
 def test_epochs_option_stops_early(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    def loop_with_data(url: str, baud: int) -> serial.SerialBase:
-        port = serial.serial_for_url(url, timeout=cat.IDLE_SECONDS)
+    def loop_with_data(url: str, baudrate: int, timeout: float) -> serial.SerialBase:
+        port = serial.serial_for_url(url, timeout=timeout)
         port.write(b"".join(encode_epoch(s, [(1, 100 + s, 0)]) for s in range(50)))
         return port
 
-    monkeypatch.setattr(cat, "_serial_for_url", loop_with_data)
+    monkeypatch.setattr(cat, "open_device", loop_with_data)
     assert main(["cat", "loop://", "--epochs", "3"]) == 0
     out, _ = capsys.readouterr()
     assert [o["seq"] for o in json_lines(out.encode())] == [0, 1, 2]

@@ -144,7 +144,7 @@ CASES |= {
                              M + ": " + NOT_REGULAR.format(kind="character device", what="manifest file")),
     "raw-line-too-long": (_raw_line_too_long, f"{{d}}/arva.raw: line 2: longer than {MAX_RAW_LINE} bytes (not a raw log line)"),
     "manifest-too-large": (lambda p: set_manifest(p, b'{"format": "arva-session", "note": "' + b"x" * (1 << 20) + b'"}'),
-                           M + ": larger than 1048576 bytes (not a session manifest)"),
+                           M + ": larger than 1048576 bytes: not a manifest file"),
 }
 CASES |= {
     # issue 29, item 5: nesting that exhausts the JSON parser's recursion, or just deep

@@ -546,6 +546,23 @@ def test_replay_source_feeds_a_session_with_its_timing(tmp_path):
     assert kinds[:3] == ["EpochReceived", "AttitudeReceived", "EpochReceived"]  # interleaved by the log's clock
 
 
+def test_replay_source_with_a_corrupt_log_shows_every_link_down_with_the_line(tmp_path):
+    _session(tmp_path / "s")
+    with open(tmp_path / "s" / "arva.raw", "ab") as f:
+        f.write(b"not a raw line\n1.0\t2026-01-01T00:00:00.000000Z\t\n")  # a bad line, then a good one
+    post = Collect()
+    feeds = [DeviceFeed(DeviceSpec("arva", "arva", "x", "rx"), post),
+             DeviceFeed(DeviceSpec("attitude-rx", "attitude", "y", "rx"), post)]  # fmt: skip
+    src = ReplaySource(tmp_path / "s", feeds, speed=0)
+    src.start()
+    src.join(10)
+    assert not src.is_alive()
+    down = [(m.device, m.reason) for m in post.of(LinkStatus) if m.state == "down"]
+    why = f"{tmp_path / 's' / 'arva.raw'}: line 5: not a raw record (not enough values to unpack (expected 3, got 1))"
+    assert down == [("arva", why), ("attitude-rx", why)]
+    assert post.of(EpochReceived) == []
+
+
 def test_recorder_writes_what_a_logger_would(tmp_path):
     spec = DeviceSpec("gps-rx", "gps", "loop://", "rx")
     rec = SessionRecorder(tmp_path / "s", [spec], {"devices": {"gps-rx": spec.manifest()}})
