@@ -35,9 +35,10 @@ __all__ = [  # the strategies' public names, re-exported from flux, receiver_onl
 ]
 
 
-def make_controller(spec: VehicleSpec, model: ModelParams = ModelParams()) -> Controller:
+def make_controller(spec: VehicleSpec, model: ModelParams = ModelParams(),
+                    dt: float | None = None) -> Controller:
     if spec.controller == "flux":
-        return FluxFollower(spec, model)
+        return FluxFollower(spec, dt)
     if spec.controller == "receiver_only":
-        return ReceiverOnlySearch(spec, model)
+        return ReceiverOnlySearch(spec, model, dt)
     raise ValueError(f"no onboard controller for {spec.controller!r}")

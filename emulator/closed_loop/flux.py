@@ -15,7 +15,6 @@ from emulator.closed_loop.strategy import (
     power, sin, speed_law,
 )
 from emulator.closed_loop.vehicle import VehicleSpec
-from emulator.receiver.model import ModelParams
 
 @dataclass
 class FluxState(StateArrays):
@@ -111,10 +110,10 @@ class FluxFollower(Controller):
     REVERSE_GROWTH = 1.1
     REVERSE_EVERY = 5
 
-    def __init__(self, spec: VehicleSpec, model: ModelParams = ModelParams(), dt: float | None = None) -> None:
+    def __init__(self, spec: VehicleSpec, dt: float | None = None) -> None:
         self.state = FluxState.empty(1)  # this run's state: flux_epoch on a batch of one
         self.params = FluxParams.of([spec])
-        super().__init__(spec, model, dt)
+        super().__init__(spec, dt)
 
     def command(self, obs: Observation) -> tuple[float, float, float]:
         vz = self.height_hold(obs)

@@ -103,9 +103,7 @@ def make_vehicle(scene: Scene, index: int, dt: float) -> tuple[UAV, Controller]:
     spec = scene.receivers[index].vehicle
     rng = np.random.default_rng(np.random.SeedSequence(scene.seed, spawn_key=(index, RANGE_STREAM)))
     uav = UAV(spec.terrain, spec.start, spec.height_start, spec.yaw_deg, spec.v_max, spec.v_z_max, spec.range_sigma_m, rng)
-    controller = make_controller(spec, scene.receiver_model(index))
-    controller.dt = dt
-    return uav, controller
+    return uav, make_controller(spec, scene.receiver_model(index), dt)
 
 
 class ClosedLoop:
@@ -210,7 +208,7 @@ class ClosedLoop:
         eps = [self.step() for _ in range(count)]
         fld = np.concatenate([e.field for e in eps]) if self.research else None
         cat = lambda name: np.concatenate([getattr(e, name) for e in eps])  # noqa: E731
-        epochs = Epochs(cat("ids"), cat("d"), cat("delta"), cat("tx_index"), fld)
+        epochs = Epochs(cat("ids"), cat("d"), cat("delta"), fld)
         return EpochBatch(k0, (k0 + np.arange(count, dtype=np.float64)) / self.rate_hz, epochs)
 
     # -- a whole search -------------------------------------------------------------

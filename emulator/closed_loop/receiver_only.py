@@ -293,7 +293,7 @@ class ReceiverOnlySearch(Controller):
     def __init__(self, spec: VehicleSpec, model: ModelParams = ModelParams(), dt: float | None = None) -> None:
         self.state = RxState.empty(1)
         self.params = RxParams.of([spec], model)
-        super().__init__(spec, model, dt)
+        super().__init__(spec, dt)
         self._plan = self.tick_plan()
 
     def command(self, obs: Observation) -> tuple[float, float, float]:

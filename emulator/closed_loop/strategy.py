@@ -13,7 +13,6 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from emulator.closed_loop.vehicle import VehicleSpec
-from emulator.receiver.model import ModelParams
 
 #: Inner zone: d <= this many centimetres (BRIEF 3: r_inner = 3 m) and delta = 0.
 INNER_CM = 300
@@ -187,9 +186,8 @@ class Controller:
     #: The search phase sets ``heading`` from each non-zero strip velocity.
     search_sets_heading = False
 
-    def __init__(self, spec: VehicleSpec, model: ModelParams = ModelParams(), dt: float | None = None) -> None:
+    def __init__(self, spec: VehicleSpec, dt: float | None = None) -> None:
         self.spec = spec
-        self.model = model
         self.dt = dt if dt is not None else 1.0 / spec.control_rate_hz
         self.located: list[Located] = []
         self.marked: set[int] = set()

@@ -99,16 +99,10 @@ class FaultyPort(PortWrapper):
     ``stalls``, ``disconnects``; ``faults_injected`` sums the injected faults.
     """
 
-    def __init__(self, port: Port, config: LinkFaultConfig, seed: int | None, stream: int = 0,
-                 sleep: Callable[[float], None] = time.sleep,
-                 clock: Callable[[], float] | None = None) -> None:
+    def __init__(self, port: Port, config: LinkFaultConfig, seed: int, stream: int = 0,
+                 sleep: Callable[[float], None] = time.sleep, *, clock: Callable[[], float]) -> None:
         super().__init__(port)
         self.config = config
-        if seed is None:
-            seed = np.random.SeedSequence().entropy
-        if clock is None:
-            t0 = time.monotonic()
-            clock = lambda: time.monotonic() - t0  # noqa: E731
         self._sleep = sleep
         self._clock = clock
         rng = lambda part: np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_TAG, stream, part)))  # noqa: E731

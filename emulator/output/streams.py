@@ -8,8 +8,6 @@ what feeds them, is decided once, by :mod:`emulator.pipeline`.
 
 from __future__ import annotations
 
-from typing import Protocol
-
 from firmware_proto.sentences import encode_epochs
 
 
@@ -24,21 +22,12 @@ class Stream:
         raise NotImplementedError
 
 
-class EpochSource(Protocol):
-    """What feeds an :class:`ArvaStream`: a :class:`~emulator.receiver.receiver.Receiver`
-    or a closed loop, producing channel-selected epochs strictly in order."""
-
-    next_k: int
-    channels: int
-
-    def next_batch(self, count: int):  # -> EpochBatch (k0, t, epochs)
-        ...
-
-
 class ArvaStream(Stream):
-    """The receiver's ``$PARVA`` (and optional ``$PARVH``) sentences from an epoch source."""
+    """The receiver's ``$PARVA`` (and optional ``$PARVH``) sentences from ``source``, a
+    :class:`~emulator.receiver.receiver.Receiver` or a closed loop: its ``next_batch(count)``
+    gives the channel-selected epochs ``next_k ..`` strictly in order (an ``EpochBatch``)."""
 
-    def __init__(self, label: str, rate_hz: float, source: EpochSource) -> None:
+    def __init__(self, label: str, rate_hz: float, source) -> None:
         super().__init__(label, rate_hz)
         self.receiver = source
 

@@ -18,14 +18,13 @@ from emulator.receiver.model.types import ZONE_OUTER, Measurement
 class Epochs:
     """Channel-selected receiver output for N epochs: arrays of shape (N, channels).
 
-    Empty slots are (id, d, delta) = (-1, -1, -1); ``tx_index`` is the column of the
-    selected transmitter in the Measurement (-1 when empty), ``field`` its field.
+    Empty slots are (id, d, delta) = (-1, -1, -1), ``field`` the selected transmitter's
+    field (zero when empty).
     """
 
     ids: NDArray[np.int64]
     d: NDArray[np.int64]
     delta: NDArray[np.int64]
-    tx_index: NDArray[np.int64]
     field: NDArray[np.float64] | None = None
 
 
@@ -42,13 +41,13 @@ def select_channels(meas: Measurement, ids: ArrayLike, channels: int) -> Epochs:
     kept = np.take_along_axis(meas.zone, order, axis=1) != ZONE_OUTER
     width = order.shape[1]
     d, delta = (np.take_along_axis(a, order, axis=1) for a in (meas.d, meas.delta))
-    selected = (ids[order], d, delta, order)
-    out_ids, out_d, out_delta, out_idx = (np.full((n, channels), -1, dtype=np.int64) for _ in selected)
-    for out, values in zip((out_ids, out_d, out_delta, out_idx), selected):
+    selected = (ids[order], d, delta)
+    out_ids, out_d, out_delta = (np.full((n, channels), -1, dtype=np.int64) for _ in selected)
+    for out, values in zip((out_ids, out_d, out_delta), selected):
         out[:, :width] = np.where(kept, values, -1)
     fld = None
     if meas.field is not None:
         fld = np.zeros((n, channels, 3))
         fld[:, :width] = np.take_along_axis(meas.field, order[..., None], axis=1)
-        fld[out_idx < 0] = 0.0
-    return Epochs(out_ids, out_d, out_delta, out_idx, fld)
+        fld[out_ids < 0] = 0.0
+    return Epochs(out_ids, out_d, out_delta, fld)
