@@ -26,7 +26,7 @@ import numpy as np
 
 from firmware_proto.errors import MissingExtra
 
-from emulator.cli_types import OneLineParser, output_dir, run_main
+from emulator.cli_types import OneLineParser, choice_list, output_dir, run_main
 from emulator.closed_loop.loop import ClosedLoop, RunResult
 from emulator.scene.reader import load_scene
 from emulator.scene.types import Scene
@@ -169,7 +169,8 @@ def plot_case(case: int, results: dict[str, RunResult], path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     p = OneLineParser(prog="python -m emulator.closed_loop.case_study", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=output_dir, help="write case_study_<n>.png here")
-    p.add_argument("--controllers", default="flux,receiver_only", help="comma-separated (default: both)")
+    p.add_argument("--controllers", type=choice_list(("flux", "receiver_only"), "controller"),
+                   default="flux,receiver_only", help="comma-separated (default: both)")
     p.add_argument("--terrain", action="store_true", help="regenerate emulator/scenes/case_study_terrain.csv")
     return run_main(p.prog, lambda: p.parse_args(argv), _run)
 
@@ -177,13 +178,12 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace) -> int:
     if args.terrain:
         write_terrain(SCENES_DIR / "case_study_terrain.csv")
-    names = [c for c in args.controllers.split(",") if c]
     if args.out is not None:
         _pyplot()  # a missing matplotlib before minutes of flying, not after
     print("| case | strategy | start [m] | max [m] (at s) | growth | located at [s] | error [m] | final 3-D [m] |")
     print("|---|---|---|---|---|---|---|---|")
     for case in CASES:
-        results = {name: run_case(case, name) for name in names}
+        results = {name: run_case(case, name) for name in args.controllers}
         for name, r in results.items():
             s = summarize(case, r)
             print(

@@ -18,6 +18,7 @@ The scene table ``[receiver.vehicle]`` is parsed here (:func:`parse_vehicle`: th
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,10 +28,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from emulator.cli_types import BAUD_LIMITS
+from emulator.files import read_regular
 from emulator.scene.tables import MAX_VEHICLE_COORD_M, VEHICLE_LIMITS, TableReader
 from emulator.schema import Int, Number, Strict, Text, Vector2, Vector3
 
 CONTROLLERS = ("flux", "receiver_only", "external_mavlink")
+MAX_DEM_BYTES = 256 << 20  #: largest terrain file read (bytes; a 4000 x 4000 float64 grid is 128 MB)
 
 
 # --------------------------------------------------------------------------- terrain
@@ -74,14 +77,15 @@ class GridTerrain:
     @classmethod
     def load(cls, path: str | Path, origin: tuple[float, float], spacing: tuple[float, float]) -> "GridTerrain":
         """Read ``.npy`` (a 2-D float array) or ``.csv`` (comma-separated rows of numbers,
-        lines starting with ``#`` ignored). Row 0 is the southern edge (y = origin y)."""
+        lines starting with ``#`` ignored). Row 0 is the southern edge (y = origin y). Only a
+        regular file of at most :data:`MAX_DEM_BYTES` is read (:class:`~emulator.files.FileRefused`)."""
         path = Path(path)
+        data = read_regular(path, MAX_DEM_BYTES, "terrain file")  # (a FIFO would block for ever)
         if path.suffix.lower() == ".npy":
-            z = np.load(path, allow_pickle=False)
+            z = np.load(io.BytesIO(data), allow_pickle=False)
         else:
-            with path.open(newline="") as f:
-                lines = [line for line in csv.reader(f) if line and not line[0].lstrip().startswith("#")]
-            rows = [[float(v) for v in line] for line in lines]
+            lines = [line for line in csv.reader(data.decode("utf-8").splitlines()) if line]
+            rows = [[float(v) for v in line] for line in lines if not line[0].lstrip().startswith("#")]
             if len({len(r) for r in rows}) > 1:
                 raise ValueError("rows of the terrain CSV have different lengths")
             z = np.array(rows, dtype=np.float64)
@@ -313,7 +317,5 @@ def _terrain(rd: TableReader, v: VehicleTable, path: str, scene_dir: Path | None
         raise rd.fail(p("terrain"), f"a DEM file must be .npy or .csv, got {v.terrain!r}")
     try:
         return GridTerrain.load(file, list(v.terrain_origin), list(v.terrain_spacing))
-    except OSError as exc:
-        raise rd.fail(p("terrain"), f"cannot read {str(file)!r}: {exc.strerror or exc}") from None
-    except ValueError as exc:
-        raise rd.fail(p("terrain"), f"{str(file)!r}: {exc}") from None
+    except ValueError as exc:  # (FileRefused too: its reason, without the path)
+        raise rd.fail(p("terrain"), f"{str(file)!r}: {getattr(exc, 'reason', exc)}") from None

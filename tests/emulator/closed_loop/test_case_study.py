@@ -136,3 +136,15 @@ def test_plots_without_matplotlib_say_which_extra_before_flying(tmp_path):
         "python -m emulator.closed_loop.case_study: case-study plots (--out) needs matplotlib "
         "(install the extra: pip install 'arva-bench[plot]')\n"
     )
+
+
+@pytest.mark.parametrize("value, item", [("flux,nope", "'nope'"), ("flux,", "''")])
+def test_an_unknown_controller_is_one_line_before_flying(capsys, value, item):
+    with pytest.raises(SystemExit) as exc:
+        main(["--controllers", value])
+    out, err = capsys.readouterr()
+    assert (exc.value.code, out) == (2, "")
+    assert err == (
+        f"python -m emulator.closed_loop.case_study: error: argument --controllers: unknown controller {item} "
+        "(choose from flux, receiver_only)\n"
+    )
