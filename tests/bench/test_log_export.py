@@ -136,7 +136,7 @@ def test_sigkill_mid_run_keeps_everything_before_the_last_second(tmp_path):
     out = tmp_path / "session"
     try:
         logger = start_logger(emu.ports, out)
-        time.sleep(1.5 + 3.0)  # delay, then 60 epochs at 20 Hz
+        time.sleep(1.5 + 1.5)  # delay, then 30 epochs at 20 Hz
         os.kill(logger.pid, signal.SIGKILL)
         logger.wait(timeout=10)
         killed_at = time.monotonic()
@@ -149,9 +149,9 @@ def test_sigkill_mid_run_keeps_everything_before_the_last_second(tmp_path):
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # nothing missing in between
     # Everything that arrived more than a second before the kill is there.
     assert raw.reads[-1].mono > killed_at - 1.0 - 0.2
-    assert len(seqs) >= 50
+    assert len(seqs) >= 20  # (0.5 s of slack for the logger's start, as before with 60 and 50)
     assert read_manifest(out)["devices"]["arva"]["kind"] == "arva"  # the session still opens
-    assert export_rows(out).rows >= 45
+    assert export_rows(out).rows >= 15
 
 
 @pytest.mark.timeout(90)
