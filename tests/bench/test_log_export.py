@@ -72,11 +72,11 @@ def run_emulator(tmp_path, frames, link_faults=None, link=None, speed=SPEED, **k
 
 @pytest.mark.timeout(90)
 def test_log_then_export_matches_the_scene(tmp_path):
-    N = 20  # at 2.5x real time: 8 s after the 1.5 s delay; the logger stops 1.5 s later
+    N = 10  # at 2.5x real time: 4 s after the 1.5 s delay; the logger stops 1.5 s later
     emu, scene_path = run_emulator(tmp_path, N, speed=2.5)
     out = tmp_path / "session"
     try:
-        logger = start_logger(emu.ports, out, duration=11.0)
+        logger = start_logger(emu.ports, out, duration=1.5 + N / 2.5 + 1.5)
         assert emu.proc.wait(timeout=60) == 0
         _, err = logger.communicate(timeout=60)
         assert logger.returncode == 0, err
@@ -136,7 +136,7 @@ def test_sigkill_mid_run_keeps_everything_before_the_last_second(tmp_path):
     out = tmp_path / "session"
     try:
         logger = start_logger(emu.ports, out)
-        time.sleep(1.5 + 3.0)  # delay, then 60 epochs at 20 Hz
+        time.sleep(1.5 + 1.5)  # delay, then 30 epochs at 20 Hz
         os.kill(logger.pid, signal.SIGKILL)
         logger.wait(timeout=10)
         killed_at = time.monotonic()
@@ -149,21 +149,22 @@ def test_sigkill_mid_run_keeps_everything_before_the_last_second(tmp_path):
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # nothing missing in between
     # Everything that arrived more than a second before the kill is there.
     assert raw.reads[-1].mono > killed_at - 1.0 - 0.2
-    assert len(seqs) >= 50
+    assert len(seqs) >= 20  # (0.5 s of slack for the logger's start, as before with 60 and 50)
     assert read_manifest(out)["devices"]["arva"]["kind"] == "arva"  # the session still opens
-    assert export_rows(out).rows >= 45
+    assert export_rows(out).rows >= 15
 
 
 @pytest.mark.timeout(90)
 def test_unplugged_receiver_is_retried_and_resumes(tmp_path):
     links = tmp_path / "links"
     links.mkdir()
-    faults = {"disconnect_every_s": 60.0, "disconnect_s": 10.0, "streams": ["arva"]}
-    emu, _ = run_emulator(tmp_path, 120, link_faults=faults, link=links)
+    outage, frames = 30, 60  # one outage, scene time 30 s to 40 s (the next would be at 60)
+    faults = {"disconnect_every_s": float(outage), "disconnect_s": 10.0, "streams": ["arva"]}
+    emu, _ = run_emulator(tmp_path, frames, link_faults=faults, link=links)
     out = tmp_path / "session"
     try:
         ports = {k: str(links / k.replace(":", "-")) for k in emu.ports}
-        logger = start_logger(ports, out, duration=8.5)
+        logger = start_logger(ports, out, duration=1.5 + frames / SPEED + 1.0)
         _, err = logger.communicate(timeout=60)
         assert logger.returncode == 0, err
     finally:
@@ -171,22 +172,23 @@ def test_unplugged_receiver_is_retried_and_resumes(tmp_path):
     events = [e["event"] for e in read_jsonl(out / "events.jsonl") if e.get("device") == "arva"]
     assert events[:2] == ["gap", "reconnect"]
     seqs = [r["seq"] for r in read_jsonl(out / "arva.jsonl") if "seq" in r]
-    # Outage from scene time 60 s to 70 s (0.5 s of wall time at 20x): epochs 60..69
+    # Outage from scene time 30 s to 40 s (0.5 s of wall time at 20x): epochs 30..39
     # never reach the logger; it retries with backoff 0.1, 0.2, 0.4, 0.8 s, so it is back
     # at most 0.8 s (16 epochs) after the device.
-    first_after = min(s for s in seqs if s > 59)
-    assert 59 in seqs and 70 <= first_after <= 86 and max(seqs) >= 100
+    first_after = min(s for s in seqs if s > outage - 1)
+    assert outage - 1 in seqs and outage + 10 <= first_after <= outage + 10 + 16 and max(seqs) >= frames - 20
     assert seqs == sorted(seqs) and set(range(first_after, max(seqs) + 1)) <= set(seqs)
     gps = [r for r in read_jsonl(out / "gps-rx.jsonl") if r.get("sentence") == "GGA"]
-    assert len(gps) >= 110  # the other devices kept logging through the outage
+    assert len(gps) >= frames - 10  # the other devices kept logging through the outage
 
 
 @pytest.mark.timeout(90)
 def test_corrupt_bytes_are_kept_and_flagged(tmp_path):
-    emu, _ = run_emulator(tmp_path, 80, link_faults={"corrupt": 0.01, "streams": ["arva"]})
+    frames = 40  # 11 error records at 1 % corrupt bytes
+    emu, _ = run_emulator(tmp_path, frames, link_faults={"corrupt": 0.01, "streams": ["arva"]})
     out = tmp_path / "session"
     try:
-        logger = start_logger(emu.ports, out, duration=7.0)
+        logger = start_logger(emu.ports, out, duration=1.5 + frames / SPEED + 1.5)
         _, err = logger.communicate(timeout=60)
         assert logger.returncode == 0, err
     finally:

@@ -148,6 +148,13 @@ def _expand(value: str | bytes, names: dict[str, str]) -> bytes:
     return raw
 
 
+#: (command, option, value) already run in this process and passed: derandomized hypothesis
+#: draws the same pair again (``--scene=nan`` 7 times and ``fit --imu-grade=1095349`` 6
+#: times in 56 lines, 2026-12-05), and the same command line ends the same way. A pair is
+#: added only once its batch passed, so hypothesis's replay of a failing batch still runs it.
+PASSED: set[tuple[str, str | None, str | bytes]] = set()
+
+
 def _argv(cmd: Command, opt: Opt, value: str | bytes, names: dict[str, str]) -> list[bytes]:
     base = [_expand(a, names) for a in cmd.base]
     v = _expand(value, names)
@@ -195,7 +202,8 @@ def _finish(cmd: Command, proc: subprocess.Popen, what: str) -> None:
 def test_every_option_survives_hostile_values(inputs, batch):
     root: Path = inputs["root"]
     running = []
-    for k, ((cmd, opt), value) in enumerate(batch):
+    todo = [(cmd, opt, value) for (cmd, opt), value in batch if (cmd.label, opt.name, value) not in PASSED]
+    for k, (cmd, opt, value) in enumerate(todo):
         cwd = root / f"cwd-{os.getpid()}-{len(list(root.iterdir()))}-{k}"
         cwd.mkdir()
         names = {**{n: inputs[n] for n in ("cat", "session", "csv", "file")}, "tmp": str(cwd), "new": str(cwd / "out")}
@@ -205,6 +213,7 @@ def test_every_option_survives_hostile_values(inputs, batch):
     try:
         for cmd, proc, what in running:
             _finish(cmd, proc, what)
+        PASSED.update((cmd.label, opt.name, value) for cmd, opt, value in todo)
     finally:
         # A failed assertion (or a pytest timeout) must not leave a dashboard running in
         # its own session for ever: kill whatever of this batch is still alive.

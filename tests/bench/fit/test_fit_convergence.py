@@ -29,7 +29,7 @@ def study_table(condition: str, seed: int):
     return camp, parse_csv(camp.csv_text().encode(), f"{condition}-{seed}.csv")
 
 
-def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible():
+def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible(fit_once_calls):
     """Radial walk with tilted holds, exact poses (tuning seed 0): the default fit puts
     both pose-error sigmas on their floors, where the model still smooths the noise edge
     by 0.05 deg and 5 mm; its r_en was 2.6 s.e. above the truth (the study's report seeds:
@@ -38,6 +38,9 @@ def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible():
     is held at 1e-5 (searched from the bound's estimate), r_en within 1.96 s.e."""
     camp, table = study_table("radial-exact", 0)
     res = fit(table, FitOptions(free=EIV_FREE))
+    # the fit before: at the floors (fit's first search, fit_once on the same table and options)
+    assert fit_once_calls[0][0] == FitOptions(free=EIV_FREE)
+    floors = fit_once_calls[0][1]
     on_bound = fit(table, FitOptions())
     # held at 1e-5, searched from the bound's estimate (at 1e-5 the likelihood is rough in r_en)
     held = fit(table, FitOptions(free=("kappa_eq", "r_en"), base=Params(pose_sigma=EXACT_POSE_SIGMA),
@@ -56,7 +59,6 @@ def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible():
         assert res.estimate[name] == held.estimate[name], name
         assert res.se[name] == held.se[name], name
     truth = camp.truth
-    floors = fit_once(table, FitOptions(free=EIV_FREE))  # the fit before: at the floors
     assert floors.estimate["r_en"] == float(m.group(1)) or abs(floors.estimate["r_en"] / float(m.group(1)) - 1) < 1e-5
     assert (floors.estimate["r_en"] - truth.r_en) / floors.se["r_en"] > 2.5  # its interval missed
     z = {name: (res.estimate[name] - getattr(truth, name)) / res.se[name] for name in ("kappa_eq", "r_en")}
@@ -68,15 +70,16 @@ def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible():
     assert (out["pose_sigma"], "pose_sigma_se" in out) == (1e-5, False)
 
 
-def test_an_attitude_error_the_passes_invented_on_exact_poses_is_dropped():
+def test_an_attitude_error_the_passes_invented_on_exact_poses_is_dropped(fit_once_calls):
     """Level walk, exact poses (tuning seed 0): the errors-in-variables passes settled at
     an attitude error of 0.85 deg with the GPS error on its floor (46 of 50 report fits of
     that walk kept 0.1-1.0 deg). Searched again from the floors the fit stays there with a
     far higher likelihood, so it says so and fits exact poses; both intervals cover."""
     camp, table = study_table("level-exact", 0)
-    before = fit_once(table, FitOptions(free=EIV_FREE))
-    assert before.converged and before.params.gps_sigma == 0.005 and 0.8 < np.degrees(before.params.attitude_sigma) < 0.9
     res = fit(table, FitOptions(free=EIV_FREE))
+    before_options, before = fit_once_calls[0]  # fit's first search: fit_once on the same table and options
+    assert before_options == FitOptions(free=EIV_FREE)
+    assert before.converged and before.params.gps_sigma == 0.005 and 0.8 < np.degrees(before.params.attitude_sigma) < 0.9
     m = re.fullmatch(
         r"the fit kept an attitude error of 0\.85 deg with no GPS error visible, but searched from the floors it fits "
         r"(\d+) nats better with none: that attitude error was where the passes settled, not what the data show",
@@ -146,16 +149,17 @@ def test_r_en_flat_at_its_ceiling_without_curvature_restarts_held_there():
     assert abs(res.estimate["kappa_eq"] - camp.truth.kappa_eq) < 1.96 * res.se["kappa_eq"]
 
 
-def test_a_search_that_runs_the_attitude_error_to_its_ceiling_is_fitted_with_it_held():
+def test_a_search_that_runs_the_attitude_error_to_its_ceiling_is_fitted_with_it_held(fit_once_calls):
     """Level walk with GPS multipath jumps (level-heavy, tuning seed 3): the default fit's
     search ran the attitude error to its upper bound (28.6 deg, the generator applies 2) and
     stopped there, kappa_eq 9 s.e. low: "did not converge", exit 1. An attitude error the
     walk cannot determine is held at the consumer IMU grade, as when a converged fit puts it
     above 4 deg: now it converges, says so first, and kappa_eq's interval covers."""
     camp, table = study_table("level-heavy", 3)
-    first = fit_once(table, FitOptions(free=EIV_FREE))
-    assert not first.converged and first.message == "attitude_sigma runs to its upper bound 0.5"
     res = fit(table, FitOptions(free=EIV_FREE))
+    first_options, first = fit_once_calls[0]  # fit's first search: fit_once on the same table and options
+    assert first_options == FitOptions(free=EIV_FREE)
+    assert not first.converged and first.message == "attitude_sigma runs to its upper bound 0.5"
     assert res.converged and res.params.attitude_sigma == np.radians(2.0) and "attitude_sigma" not in res.free
     assert res.notes[0] == (
         "attitude error not determined: the search ran it to its upper bound 28.6 deg and did not converge, which this "

@@ -13,7 +13,7 @@ import pytest
 
 from bench.cli import main
 from bench.fit import cli as fit_cli
-from bench.fit.estimate import fit, fit_once
+from bench.fit.estimate import fit
 from bench.fit.grades import GPS_GRADES, IMU_GRADES
 from bench.fit.identify import MIN_NOISE_ROWS, R_EN_TYPICAL, NoiseReach, noise_reach, noise_shows
 from bench.fit.likelihood import Params
@@ -98,7 +98,7 @@ def test_near_only_walk_reports_r_en_not_determined(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_a_search_that_stopped_converges_after_the_restart(monkeypatch):
+def test_a_search_that_stopped_converges_after_the_restart(monkeypatch, fit_once_calls):
     """The independent study's spiral walk, tuning seed 6 (60 minutes, Gauss-Markov GPS
     1 m / 1.5 m, 2 deg attitude): Newton stops with attitude_sigma a hair above its floor
     (before this restart: exit 1); from there with the sigma on its bound it converges,
@@ -112,9 +112,10 @@ def test_a_search_that_stopped_converges_after_the_restart(monkeypatch):
     from bench.fit.csvio import parse_csv
 
     table = parse_csv(camp.csv_text().encode(), "spiral-gm-6.csv")
-    first = fit_once(table, FitOptions(free=EIV_FREE))
-    assert (first.converged, first.message) == (False, "no step decreases the negative log-likelihood")
     res = fit(table, FitOptions(free=EIV_FREE))
+    first_options, first = fit_once_calls[0]  # fit's first search: fit_once on the same table and options
+    assert first_options == FitOptions(free=EIV_FREE)
+    assert (first.converged, first.message) == (False, "no step decreases the negative log-likelihood")
     assert res.converged and res.separable
     assert res.notes[0] == (
         "the first search stopped (no step decreases the negative log-likelihood); a restart from its point with "

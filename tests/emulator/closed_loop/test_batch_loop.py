@@ -16,8 +16,10 @@ from emulator.closed_loop.case_study import load_case
 from emulator.closed_loop.loop import ClosedLoop
 from emulator.closed_loop.sweep import SweepConfig, burial, run_chunk, sweep
 
-#: 50 burials, 1-4 transmitters each (most have several), EMI noise on.
-CONFIG = SweepConfig(n=50, seed=11, t_max=450.0, noise=True)
+#: 30 burials, 1-4 transmitters each (27 have several), EMI noise on. (50 before: the
+#: per-run reference is ~0.2 s of CPU a run; 30 still mix located transmitters, misses and
+#: runs that end early in every batch, 14 distinct end times or more per strategy.)
+CONFIG = SweepConfig(n=30, seed=11, t_max=450.0, noise=True)
 
 
 def exact(rows):
@@ -26,10 +28,10 @@ def exact(rows):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(900)  # ~10 s alone; the per-run reference is the slow half
+@pytest.mark.timeout(900)  # ~6 s alone; the per-run reference is the slow part
 @pytest.mark.parametrize("strategy", ["receiver_only", "flux_reverse", "flux"])
 def test_batch_rows_equal_per_run_rows(strategy):
-    assert sum(len(burial(CONFIG, i)) > 1 for i in range(CONFIG.n)) >= 35  # several transmitters
+    assert sum(len(burial(CONFIG, i)) > 1 for i in range(CONFIG.n)) >= 21  # several transmitters (27 of 30)
     tasks = [(strategy, 1.0, 0.2, i) for i in range(CONFIG.n)]
     reference, _ = run_chunk(replace(CONFIG, engine="run"), tasks)
     batched, _ = run_chunk(CONFIG, tasks)
@@ -67,8 +69,9 @@ def test_batch_equals_per_run_on_a_dem_with_range_noise():
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_sweep_engines_give_the_same_rows():
-    """Mixed batches: every strategy and two gains in one BatchLoop."""
-    cfg = SweepConfig(n=6, seed=2, t_max=900.0, k_c=(0.1, 0.4), chunk=36)
+    """Mixed batches: every strategy and two gains in one BatchLoop (24 runs, 60 rows:
+    52 located, 14 ending at t_max)."""
+    cfg = SweepConfig(n=4, seed=2, t_max=900.0, k_c=(0.1, 0.4), chunk=36)
     a = sweep(cfg, workers=1)
     b = sweep(replace(cfg, engine="run"), workers=1)
     assert exact(a.rows) == exact(b.rows) and a.scene_s == b.scene_s

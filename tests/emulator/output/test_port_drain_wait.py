@@ -53,27 +53,29 @@ def test_a_reader_seen_draining_loses_nothing_through_a_long_pause():
     fd = os.open(port.path, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
     got = bytearray()
 
-    def read_for(seconds: float) -> None:
+    def read_for(seconds: float, until: int | None = None) -> None:
+        """Read for ``seconds``, or until ``until`` bytes are in (then any extra byte
+        would be in ``got`` too: each read takes all there is)."""
         end = time.monotonic() + seconds
         poller = select.poll()
         poller.register(fd, select.POLLIN)
-        while time.monotonic() < end:
+        while time.monotonic() < end and (until is None or len(got) < until):
             if poller.poll(50):
                 got.extend(os.read(fd, 65536))
 
     data = CHUNK * 400  # 43,200 bytes: twice the pty's buffer
     try:
         port.set_drain_wait(5.0)
-        reader = threading.Thread(target=read_for, args=(1.5,))
+        reader = threading.Thread(target=read_for, args=(5.0, len(data)))
         reader.start()
         assert port.write(data) == len(data)  # drained while waiting: the reader is seen
         reader.join(timeout=10)
         assert port._writer.reader_seen and bytes(got) == data
-        later = threading.Timer(1.0, read_for, args=(3.0,))  # a 1 s pause, then reading again
+        later = threading.Timer(1.0, read_for, args=(5.0, 2 * len(data)))  # a 1 s pause, then reading again
         later.start()
         assert port.write(data) == len(data)
         later.join(timeout=10)
-        read_for(0.3)
+        read_for(0.3)  # nothing more comes
         assert bytes(got) == data * 2 and port.bytes_dropped == 0
     finally:
         os.close(fd)
