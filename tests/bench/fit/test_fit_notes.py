@@ -112,10 +112,9 @@ def test_a_sigma_without_measurable_curvature_is_held_for_the_others():
 
 
 def test_a_step_that_replaces_the_fit_keeps_the_notes_of_the_steps_before_it(monkeypatch):
-    """fit() runs its steps in order (the first fit, which may fall back to the fit without
-    GPS outliers, the attitude held, exact poses, the clock offset, dropout); each that
-    replaces the fit brings a fresh result with only its own notes, so fit() puts the
-    earlier steps' first notes back, in order."""
+    """fit() runs its steps in order (the fit without GPS outliers, the attitude held, exact
+    poses, the clock offset, dropout); each that replaces the fit brings a fresh result
+    with only its own notes, so fit() puts the earlier steps' first notes back, in order."""
     import numpy as np
 
     from bench.fit import estimate
@@ -134,15 +133,15 @@ def test_a_step_that_replaces_the_fit_keeps_the_notes_of_the_steps_before_it(mon
     def keeps(table, options, res):
         return res, options
 
-    # the first fit fell back to the one without GPS outliers (estimate.fit_continued)
-    no_outliers = f"{estimate.OUTLIERS_FAILED} (why); these are the numbers without it"
-    monkeypatch.setattr(estimate, "fit_continued", lambda table, options: (result(no_outliers, "first fit"), options))
-    # estimate.STEPS: the attitude held, the floors, exact poses, the clock offset, dropout
-    steps = [replacing("attitude held"), keeps, replacing("exact poses"), replacing("offset fitted"), keeps]
+    monkeypatch.setattr(estimate, "fit_restarted", lambda table, options: result("first fit"))
+    # estimate.STEPS: the outlier fallback (twice), the attitude held, the floors, exact poses,
+    # the clock offset, dropout
+    steps = [replacing("no outliers"), replacing("attitude held"), keeps, keeps, replacing("exact poses"),
+             replacing("offset fitted"), keeps]
     monkeypatch.setattr(estimate, "STEPS", tuple(steps))
     res = estimate.fit(None, estimate.FitOptions())
-    assert res.notes == [no_outliers, "attitude held", "exact poses", "offset fitted", "its own routine note"]
-    steps[3] = keeps  # no offset: the last replacing step's own notes follow
+    assert res.notes == ["no outliers", "attitude held", "exact poses", "offset fitted", "its own routine note"]
+    steps[5] = keeps  # no offset: the last replacing step's own notes follow
     monkeypatch.setattr(estimate, "STEPS", tuple(steps))
     res = estimate.fit(None, estimate.FitOptions())
-    assert res.notes == [no_outliers, "attitude held", "exact poses", "its own routine note"]
+    assert res.notes == ["no outliers", "attitude held", "exact poses", "its own routine note"]
