@@ -101,17 +101,21 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
     offset by more than :data:`OFFSET_GAIN` nats, fits again with ``time_offset`` free;
     either way one note says what the scan found (:data:`STEPS`). A step that replaces the fit
     by another (the fit without GPS outliers, the attitude held, exact poses, the offset
-    fitted, with a dropout probability) puts its note first, and the notes of the steps
-    before it stay, in order."""
+    fitted, with a dropout probability) puts its note first, and the first notes of the
+    steps before it stay, in order; the notes of a step that kept the fit stay last."""
     options = FitOptions() if options is None else options
     res = fit_restarted(table, options)
     steps: list[str] = []  # the first note of each step that replaced the fit
+    added: list[str] = []  # the notes of the steps that kept it (no time offset found)
     for step in STEPS:
+        n = len(res.notes)
         new, options = step(table, options, res)
         if new is not res and new.notes[0] not in steps:
             steps.append(new.notes[0])
+        added += new.notes[n:] if new is res else []
         res = new
     res.notes[:0] = [n for n in steps if n not in res.notes]
+    res.notes += [n for n in added if n not in res.notes]
     return res
 
 
@@ -362,6 +366,7 @@ def held_pose_sigma(table: Table, exact: FitResult, options: FitOptions, as_give
     held = fit_restarted(table, replace(held_options, start=replace(exact.params, pose_sigma=EXACT_POSE_SIGMA)))
     bound = f"its bound {BOUNDS['pose_sigma'][0]:g}"
     if not held.converged:
+        exact.add_cost(held)
         exact.notes.append(f"pose_sigma stays on {bound}: the fit with it held at {EXACT_POSE_SIGMA:g} did not converge "
                            f"({held.message}), so r_en may be high (the bound smooths the noise edge)")
         return exact, options, as_given
@@ -384,13 +389,17 @@ def without_outliers_if_stuck(table: Table, options: FitOptions, res: FitResult)
         options, free=tuple(m for m in options.free if m not in OUTLIER), base=replace(options.base, gps_outlier=0.0)
     )
     plain = fit_restarted(table, plain_options)
-    return chosen(res, options, plain, plain_options, plain.converged,
-                  f"the fit with heavy-tailed GPS error (--fit gps_outlier) did not converge ({res.message}); "
-                  "these are the numbers without it (no share of wider GPS errors)")
+    return chosen(
+        res, options, plain, plain_options, plain.converged,
+        f"the fit with heavy-tailed GPS error (--fit gps_outlier) did not converge ({res.message}); "
+        "these are the numbers without it (no share of wider GPS errors)",
+    )  # fmt: skip
 
 
-def chosen(res: FitResult, options: FitOptions, new: FitResult, new_options: FitOptions, take: bool, note: str,
-           fail_note: str | None = None) -> tuple[FitResult, FitOptions]:
+def chosen(
+    res: FitResult, options: FitOptions, new: FitResult, new_options: FitOptions, take: bool, note: str,
+    fail_note: str | None = None,
+) -> tuple[FitResult, FitOptions]:
     """A step's choice: ``new`` and ``new_options`` with ``note`` first and ``res``'s cost when
     ``take``, else ``res`` and ``options`` with ``new``'s cost (and ``fail_note`` last)."""
     if not take:

@@ -317,5 +317,5 @@ def _terrain(rd: TableReader, v: VehicleTable, path: str, scene_dir: Path | None
         raise rd.fail(p("terrain"), f"a DEM file must be .npy or .csv, got {v.terrain!r}")
     try:
         return GridTerrain.load(file, list(v.terrain_origin), list(v.terrain_spacing))
-    except ValueError as exc:  # (FileRefused too: its reason, without the path)
+    except (ValueError, EOFError) as exc:  # (FileRefused: its reason, not the path; EOFError: an empty .npy)
         raise rd.fail(p("terrain"), f"{str(file)!r}: {getattr(exc, 'reason', exc)}") from None

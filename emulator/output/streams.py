@@ -25,7 +25,8 @@ class Stream:
 class ArvaStream(Stream):
     """The receiver's ``$PARVA`` (and optional ``$PARVH``) sentences from ``source``, a
     :class:`~emulator.receiver.receiver.Receiver` or a closed loop: its ``next_batch(count)``
-    gives the channel-selected epochs ``next_k ..`` strictly in order (an ``EpochBatch``)."""
+    gives the channel-selected epochs ``next_k ..`` strictly in order (an ``EpochBatch``), and
+    its ``receiver.channels`` how many it selects."""
 
     def __init__(self, label: str, rate_hz: float, source) -> None:
         super().__init__(label, rate_hz)

@@ -174,9 +174,10 @@ def test_unplugged_receiver_is_retried_and_resumes(tmp_path):
     seqs = [r["seq"] for r in read_jsonl(out / "arva.jsonl") if "seq" in r]
     # Outage from scene time 30 s to 40 s (0.5 s of wall time at 20x): epochs 30..39
     # never reach the logger; it retries with backoff 0.1, 0.2, 0.4, 0.8 s, so it is back
-    # at most 0.8 s (16 epochs) after the device.
+    # at most 0.8 s (16 epochs) after the device, and logs every epoch from there to the
+    # stream's end (5 epochs, 0.25 s, of slack for the last ones: the logger runs 1 s longer).
     first_after = min(s for s in seqs if s > outage - 1)
-    assert outage - 1 in seqs and outage + 10 <= first_after <= outage + 10 + 16 and max(seqs) >= frames - 20
+    assert outage - 1 in seqs and outage + 10 <= first_after <= outage + 10 + 16 and max(seqs) >= frames - 5
     assert seqs == sorted(seqs) and set(range(first_after, max(seqs) + 1)) <= set(seqs)
     gps = [r for r in read_jsonl(out / "gps-rx.jsonl") if r.get("sentence") == "GGA"]
     assert len(gps) >= frames - 10  # the other devices kept logging through the outage

@@ -558,7 +558,8 @@ def test_replay_source_with_a_corrupt_log_shows_every_link_down_with_the_line(tm
     src.join(10)
     assert not src.is_alive()
     down = [(m.device, m.reason) for m in post.of(LinkStatus) if m.state == "down"]
-    why = f"{tmp_path / 's' / 'arva.raw'}: line 5: not a raw record (not enough values to unpack (expected 3, got 1))"
+    why = f"{tmp_path / 's' / 'arva.raw'}: line 5: not a raw record " \
+          "(not enough values to unpack (expected 3, got 1))"
     assert down == [("arva", why), ("attitude-rx", why)]
     assert post.of(EpochReceived) == []
 

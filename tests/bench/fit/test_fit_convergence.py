@@ -79,7 +79,8 @@ def test_an_attitude_error_the_passes_invented_on_exact_poses_is_dropped(fit_onc
     res = fit(table, FitOptions(free=EIV_FREE))
     before_options, before = fit_once_calls[0]  # fit's first search: fit_once on the same table and options
     assert before_options == FitOptions(free=EIV_FREE)
-    assert before.converged and before.params.gps_sigma == 0.005 and 0.8 < np.degrees(before.params.attitude_sigma) < 0.9
+    assert before.converged and before.params.gps_sigma == 0.005
+    assert 0.8 < np.degrees(before.params.attitude_sigma) < 0.9
     m = re.fullmatch(
         r"the fit kept an attitude error of 0\.85 deg with no GPS error visible, but searched from the floors it fits "
         r"(\d+) nats better with none: that attitude error was where the passes settled, not what the data show",

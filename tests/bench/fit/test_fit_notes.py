@@ -133,15 +133,22 @@ def test_a_step_that_replaces_the_fit_keeps_the_notes_of_the_steps_before_it(mon
     def keeps(table, options, res):
         return res, options
 
+    def adds(note):  # a step that keeps the fit and adds a note (no offset found)
+        return lambda table, options, res: (res.notes.append(note), (res, options))[1]
+
+    def notes(*steps):
+        monkeypatch.setattr(estimate, "STEPS", steps)
+        return estimate.fit(None, estimate.FitOptions()).notes
+
     monkeypatch.setattr(estimate, "fit_restarted", lambda table, options: result("first fit"))
-    # estimate.STEPS: the outlier fallback (twice), the attitude held, the floors, exact poses,
-    # the clock offset, dropout
-    steps = [replacing("no outliers"), replacing("attitude held"), keeps, keeps, replacing("exact poses"),
-             replacing("offset fitted"), keeps]
-    monkeypatch.setattr(estimate, "STEPS", tuple(steps))
-    res = estimate.fit(None, estimate.FitOptions())
-    assert res.notes == ["no outliers", "attitude held", "exact poses", "offset fitted", "its own routine note"]
-    steps[5] = keeps  # no offset: the last replacing step's own notes follow
-    monkeypatch.setattr(estimate, "STEPS", tuple(steps))
-    res = estimate.fit(None, estimate.FitOptions())
-    assert res.notes == ["no outliers", "attitude held", "exact poses", "its own routine note"]
+    # estimate.STEPS: the outlier fallback (twice: the second one's note is not repeated), the
+    # attitude held, the floors, exact poses, the clock offset, dropout
+    no_outliers, held, exact = replacing("no outliers"), replacing("attitude held"), replacing("exact poses")
+    assert notes(no_outliers, held, no_outliers, keeps, exact, replacing("offset fitted"), keeps) == [
+        "no outliers", "attitude held", "exact poses", "offset fitted", "its own routine note"]
+    # no offset: the last replacing step's own notes follow, then what the offset step added
+    assert notes(no_outliers, held, no_outliers, keeps, exact, adds("no offset"), keeps) == [
+        "no outliers", "attitude held", "exact poses", "its own routine note", "no offset"]
+    # a step that replaces the fit after it keeps what the offset step said, last
+    assert notes(no_outliers, held, no_outliers, keeps, exact, adds("no offset"), replacing("dropout")) == [
+        "no outliers", "attitude held", "exact poses", "dropout", "its own routine note", "no offset"]

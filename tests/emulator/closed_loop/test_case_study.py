@@ -145,6 +145,6 @@ def test_an_unknown_controller_is_one_line_before_flying(capsys, value, item):
     out, err = capsys.readouterr()
     assert (exc.value.code, out) == (2, "")
     assert err == (
-        f"python -m emulator.closed_loop.case_study: error: argument --controllers: unknown controller {item} "
-        "(choose from flux, receiver_only)\n"
+        "python -m emulator.closed_loop.case_study: error: argument --controllers: "
+        f"unknown controller {item} (choose from flux, receiver_only)\n"
     )

@@ -181,23 +181,25 @@ def test_dem_path_is_relative_to_the_scene_file(tmp_path):
     assert s.receiver.trajectory.positions[0].tolist() == [0.0, 0.0, 8.0]
     missing = tmp_path / "m.toml"
     missing.write_text(vehicle_text('terrain = "nope.csv"\nterrain_origin = [0, 0]\nterrain_spacing = [1, 1]'))
-    with pytest.raises(SceneError, match=r"receiver\.vehicle\.terrain: '.*nope\.csv': cannot read: No such file"):
+    with pytest.raises(SceneError, match=r"vehicle\.terrain: '.*nope\.csv': cannot read: No such file"):
         load_scene(missing)
 
 
-def test_a_dem_that_is_a_named_pipe_is_refused_not_waited_on(tmp_path):
-    """A FIFO named like a DEM would block the read for ever: one line naming the key and the file."""
-    os.mkfifo(tmp_path / "x.csv")
+@pytest.mark.parametrize("name, make, why", [
+    # a FIFO named like a DEM would block the read for ever
+    ("x.csv", os.mkfifo, "a named pipe, not a regular file: only regular files are read as a terrain file"),
+    ("x.npy", lambda path: path.write_bytes(b""), "No data left in file"),  # (numpy's EOFError)
+])
+def test_a_dem_that_is_a_named_pipe_or_empty_is_one_line(tmp_path, name, make, why):
+    make(tmp_path / name)
     scene_file = tmp_path / "s.toml"
-    scene_file.write_text(vehicle_text('terrain = "x.csv"\nterrain_origin = [0, 0]\nterrain_spacing = [1, 1]'))
+    dem = f'terrain = "{name}"\nterrain_origin = [0, 0]\nterrain_spacing = [1, 1]'
+    scene_file.write_text(vehicle_text(dem))
     from emulator.scene.reader import load_scene
 
     with pytest.raises(SceneError) as exc:
         load_scene(scene_file)
-    assert str(exc.value) == (
-        f"{scene_file}: receiver.vehicle.terrain: '{tmp_path / 'x.csv'}': a named pipe, not a regular file: "
-        "only regular files are read as a terrain file"
-    )
+    assert str(exc.value) == f"{scene_file}: receiver.vehicle.terrain: '{tmp_path / name}': {why}"
 
 
 # --------------------------------------------------------------------------- height hold
