@@ -63,14 +63,19 @@ def test_a_reader_seen_draining_loses_nothing_through_a_long_pause():
             if poller.poll(50):
                 got.extend(os.read(fd, 65536))
 
-    data = CHUNK * 400  # 43,200 bytes: twice the pty's buffer
+    data = CHUNK * 1600  # 172,800 bytes: eight times the pty's buffer
     try:
         port.set_drain_wait(5.0)
-        reader = threading.Thread(target=read_for, args=(5.0, len(data)))
+        # The reader starts once the first write has filled the buffer: one reading all along
+        # can let a single write take it all (seen under load), and then no wait sees it. The
+        # first wait is longer than PTY_FIRST_WAIT so that a late start under load still counts.
+        port._writer.first_wait = 2.0
+        reader = threading.Timer(0.1, read_for, args=(5.0, len(data)))
         reader.start()
         assert port.write(data) == len(data)  # drained while waiting: the reader is seen
         reader.join(timeout=10)
         assert port._writer.reader_seen and bytes(got) == data
+        port._writer.first_wait = PTY_FIRST_WAIT  # (what a reader not seen would get: 1 s is longer)
         later = threading.Timer(1.0, read_for, args=(5.0, 2 * len(data)))  # a 1 s pause, then reading again
         later.start()
         assert port.write(data) == len(data)
