@@ -10,7 +10,9 @@ seeds. Prints one row per seed and a summary per parameter: mean and s.d. of z, 
 many |z| are above 2 and 3 (a normal z gives 4.6 % and 0.27 %). ``--our-model``: the
 control, the same statistic on outcomes drawn from the fit's own model
 (``likelihood.simulate``) for each campaign's geometry, so what is the statistic's own
-finite-sample shape shows there too. About 1 s per seed.
+finite-sample shape shows there too. ``--draws N`` (with ``--our-model``): N draws per
+seed, and the raw r_en score sum's mean over them in its standard errors (0 where the
+likelihood is the model's) beside the mean z. About 1 s per seed and draw.
 
 Usage: python tests/perf/score_at_truth.py [--condition far-exact] [--seeds N] [--our-model]
 """
@@ -41,10 +43,10 @@ FREE = ("kappa_eq", "r_en")
 STEP = 1e-4  # in the optimiser's log scale
 
 
-def scores(cond: sc.Condition, seed: int, pose_sigma: float, ours: bool = False):
+def scores(cond: sc.Condition, seed: int, pose_sigma: float, ours: bool = False, draw: int = 0):
     """(rows, heard rows, the per-row score (rows, 2) in log kappa_eq and log r_en at the
     truth, the relative pose error held at ``pose_sigma``); ``ours``: the outcomes drawn
-    from the fit's model at the truth instead of the generator's."""
+    from the fit's model at the truth instead of the generator's (``draw``: which draw)."""
     camp = sc.campaign(cond, seed)
     table = parse_csv(camp.csv_text(), f"{cond.name}-{seed}")
     t = camp.truth
@@ -52,7 +54,7 @@ def scores(cond: sc.Condition, seed: int, pose_sigma: float, ours: bool = False)
                    pose_sigma=pose_sigma)
     rows = usable(check_table(table, FitOptions(free=FREE, base=truth)))
     if ours:
-        drawn = simulate(rows.geo, replace(truth, pose_sigma=0.0), np.random.default_rng(seed))
+        drawn = simulate(rows.geo, replace(truth, pose_sigma=0.0), np.random.default_rng([seed, draw]))
         rows = replace(rows, k=drawn)
     like = Likelihood(rows)
     like.choose_regimes(truth)
@@ -74,7 +76,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=50, help="tuning seeds from 0")
     ap.add_argument("--pose-sigma", type=float, default=EXACT_POSE_SIGMA, help="the relative pose error held")
     ap.add_argument("--our-model", action="store_true", help="outcomes from the fit's model (the control)")
+    ap.add_argument("--draws", type=int, default=0, help="with --our-model: N draws per seed (raw sums)")
     args = ap.parse_args(argv)
+    if args.draws:
+        for seed in range(args.seeds):
+            cond = sc.CONDITIONS[args.condition]
+            runs = [scores(cond, seed, args.pose_sigma, True, k)[2] for k in range(args.draws)]
+            sums = np.array([s[:, 1].sum() for s in runs])
+            z = np.mean([s[:, 1].sum() / np.sqrt((s[:, 1] ** 2).sum()) for s in runs])
+            mean_se = sums.mean() / (sums.std(ddof=1) / np.sqrt(len(sums)))
+            print(f"seed {seed}: r_en raw score sum mean / se {mean_se:+.2f}; mean z {z:+.2f}", flush=True)
+        return 0
     cond = sc.CONDITIONS[args.condition]
     zs: list[np.ndarray] = []
     print("| seed | rows | heard | z kappa_eq | z r_en |")
