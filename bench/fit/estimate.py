@@ -108,14 +108,14 @@ def fit(table: Table, options: FitOptions | None = None) -> FitResult:
     steps: list[str] = []  # the first note of each step that replaced the fit
     added: list[str] = []  # the notes of the steps that kept it (no time offset found)
     for step in STEPS:
-        n = len(res.notes)
+        said = len(res.notes)
         new, options = step(table, options, res)
         if new is not res and new.notes[0] not in steps:
             steps.append(new.notes[0])
-        added += new.notes[n:] if new is res else []
+        added += new.notes[said:] if new is res else []
         res = new
-    res.notes[:0] = [n for n in steps if n not in res.notes]
-    res.notes += [n for n in added if n not in res.notes]
+    res.notes[:0] = [note for note in steps if note not in res.notes]
+    res.notes += [note for note in added if note not in res.notes]
     return res
 
 
