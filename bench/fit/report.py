@@ -174,7 +174,8 @@ def markdown(result: FitResult, diag: Diagnostics, png: str | None) -> str:
     if result.hac_lag == result.hac_lag:
         out += [
             "Standard errors: sandwich covariance with a time-block (Newey-West) meat, bandwidth "
-            f"{result.hac_lag:.0f} s, robust to pose errors correlated in time.",
+            f"{result.hac_lag:.0f} s, robust to pose errors correlated in time, scaled so that +-1.96 s.e. "
+            "is a 95 % interval at that bandwidth (fixed-b).",
         ]
     if "gps_sigma" in result.free or p.gps_sigma > 0:
         out += [f"GPS error {p.gps_sigma:.3g} m horizontal, {p.gps_ratio * p.gps_sigma:.3g} m vertical (1 sigma)."]

@@ -33,7 +33,7 @@ def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible(fit_once_
     """Radial walk with tilted holds, exact poses (tuning seed 0): the default fit puts
     both pose-error sigmas on their floors, where the model still smooths the noise edge
     by 0.05 deg and 5 mm; its r_en was 2.6 s.e. above the truth (the study's report seeds:
-    9 silent misses of 50). Now it says the poses look exact and fits them as such; the
+    9 silent misses of 50; 2.3 with the sandwich's fixed-b scale). Now it says the poses look exact and fits them as such; the
     fit of exact poses puts pose_sigma on its bound 1e-4, which smooths the edge too, so it
     is held at 1e-5 (searched from the bound's estimate), r_en within 1.96 s.e."""
     camp, table = study_table("radial-exact", 0)
@@ -60,7 +60,7 @@ def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible(fit_once_
         assert res.se[name] == held.se[name], name
     truth = camp.truth
     assert floors.estimate["r_en"] == float(m.group(1)) or abs(floors.estimate["r_en"] / float(m.group(1)) - 1) < 1e-5
-    assert (floors.estimate["r_en"] - truth.r_en) / floors.se["r_en"] > 2.5  # its interval missed
+    assert (floors.estimate["r_en"] - truth.r_en) / floors.se["r_en"] > 2.3  # its interval missed
     z = {name: (res.estimate[name] - getattr(truth, name)) / res.se[name] for name in ("kappa_eq", "r_en")}
     assert all(abs(v) < 1.96 for v in z.values()), z
     # on the bound r_en is further up than held at 1e-5

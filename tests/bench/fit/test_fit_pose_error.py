@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from bench.fit.csvio import parse_csv
 import bench.fit.covariance as covariance_module
-from bench.fit.covariance import common_height_rows, time_block_meat, with_common_height
+from bench.fit.covariance import common_height_rows, fixed_b_scale, time_block_meat, with_common_height
 from bench.fit.estimate import fit_table
 from bench.fit.result import EIV_FREE, FitOptions
 from bench.fit.likelihood import Params
@@ -153,6 +153,25 @@ def test_time_block_meat_sees_a_small_correlated_part_under_white_noise():
     long_run = 1.0 + 0.04 * (1 + rho) / (1 - rho)  # 3.4: the white part alone would say 1
     meat, _lag = time_block_meat(x, t)
     assert meat[0, 0] / 20_000 == pytest.approx(long_run, rel=0.25)
+
+
+def test_fixed_b_scale_makes_the_interval_95_percent():
+    """3,000 white score series of 900 s (bandwidth 120 s, b = 0.133): +-1.96 of the
+    time-block s.e. covers 90.9 %, the fixed-b scale's interval 95.0 % (seeded)."""
+    rng = np.random.default_rng(0)
+    t = np.arange(900.0) + 0.25
+    hits = np.zeros(2, dtype=int)
+    for _ in range(3000):
+        x = rng.standard_normal((900, 1))
+        meat, lag = time_block_meat(x, t)
+        z = abs(x.sum()) / math.sqrt(meat[0, 0])
+        hits += [z < 1.96, z < 1.96 * math.sqrt(fixed_b_scale(lag, t))]
+    b = 120.0 / 900.0
+    assert lag == 120.0 and fixed_b_scale(lag, t) == ((1.96 + 2.9694 * b + 0.4160 * b**2 - 0.5324 * b**3) / 1.96) ** 2
+    assert hits.tolist() == [2726, 2850]
+    # a day's pause counts as MEAT_GAP seconds, as in the meat; no bandwidth, no scale
+    assert fixed_b_scale(600.0, np.array([0.0, 100.0, 100.0 + 86_400])) == fixed_b_scale(600.0, np.array([0.0, 100.0, 3700.0]))
+    assert fixed_b_scale(0.0, t) == 1.0
 
 
 def test_time_block_meat_sums_rows_of_the_same_second():

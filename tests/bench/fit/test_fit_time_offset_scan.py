@@ -39,7 +39,8 @@ def test_a_one_second_offset_is_found_and_fitted():
     assert res.converged
     assert res.free == ("kappa_eq", "r_en", "time_offset")
     off, se = res.estimate["time_offset"], res.se["time_offset"]
-    assert abs(off - 1.0) < 3 * se and se < 0.2, (off, se)
+    # s.e. 0.206 s (0.19 s before the sandwich's fixed-b scale, covariance.fixed_b_scale)
+    assert abs(off - 1.0) < 3 * se and se < 0.25, (off, se)
     assert res.notes[0].startswith("time offset: on ") and " rows the poses fit " in res.notes[0]
     assert "so it was fitted; --time-offset SEC gives it instead" in res.notes[0]
     assert abs(res.estimate["kappa_eq"] / 1.542 - 1) < 0.02
