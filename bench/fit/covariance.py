@@ -26,7 +26,9 @@ from .table import Table
 #: Fewer bandwidths of data than this under the time-block meat, and the fit says its
 #: standard errors run short: the long-run variance is then estimated from a handful of
 #: windows (10-minute campaigns, ~6 of them, covered 80-83 % of kappa_eq in
-#: docs/accuracy.md (b); 30 minutes, ~11, 88-95 %).
+#: docs/accuracy.md (b); 30 minutes, ~11, 88-95 %). Measured before :func:`fixed_b_scale`,
+#: which widens a 10-minute log's intervals by ~25 % and a 30-minute log's by ~14 %; not
+#: measured since.
 FEW_WINDOWS = 8
 
 
