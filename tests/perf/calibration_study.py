@@ -256,6 +256,8 @@ def describe(label: str) -> str:
     parts = [cond.walk, cond.error, *cond.junk]
     if cond.minutes != 60.0:
         parts.append(f"{cond.minutes / 60:g} h")
+    if cond.attitude_deg != 2.0 and cond.error != "exact":
+        parts.append(f"attitude {cond.attitude_deg:g} deg")
     return ", ".join(parts)
 
 

@@ -26,7 +26,8 @@ Pose-error models (what the log holds instead of the true pose):
 
 * ``exact``: none.
 * ``gm``: Gauss-Markov GPS, 1 m horizontal and 1.5 m vertical per axis, tau 30 s;
-  Gauss-Markov attitude 2 deg per axis, tau 5 s.
+  Gauss-Markov attitude 2 deg per axis, tau 5 s (``-att05`` and ``-att5`` conditions: 0.5 and
+  5 deg, to test the fit's rule that holds an undetermined attitude error at 2 deg).
 * ``heavy``: ``gm`` plus multipath jumps: on average one every 2 minutes, a
   horizontal offset of 3-5 m in a random direction lasting 10-60 s.
 * ``student``: ``gm`` whose horizontal innovations are Student-t with 3 degrees of
@@ -77,6 +78,9 @@ class Condition:
     error: str = "exact"
     junk: tuple[str, ...] = ()
     minutes: float = 60.0
+    #: the attitude error's s.d. per axis (deg) of every error but ``exact``: 2, a consumer
+    #: IMU's grade, which the fit's held_attitude rule holds it at; other values test that rule
+    attitude_deg: float = 2.0
 
 
 @dataclass
@@ -272,7 +276,7 @@ def gauss_markov(n, dt, sigma, tau, rng, dims, innovations=None):
 MOUNT_DEG = (3.0, -2.0)
 
 
-def pose_error(kind: str, t, pos, rot, fine, rng: np.random.Generator):
+def pose_error(kind: str, t, pos, rot, fine, rng: np.random.Generator, attitude_deg: float = 2.0):
     """Logged (positions, Rotation) for true ones at 1 Hz times ``t``."""
     if kind == "exact":
         return pos, rot
@@ -300,7 +304,7 @@ def pose_error(kind: str, t, pos, rot, fine, rng: np.random.Generator):
             err[k : k + length, 0] += mag * math.cos(ang)
             err[k : k + length, 1] += mag * math.sin(ang)
             k += length
-    att = Rotation.from_rotvec(gauss_markov(n, dt, math.radians(2.0), 5.0, rng, 3))
+    att = Rotation.from_rotvec(gauss_markov(n, dt, math.radians(attitude_deg), 5.0, rng, 3))
     logged_rot = rot * att  # a body-frame error rotation
     if kind == "mount":
         logged_rot = logged_rot * Rotation.from_euler("ZYX", [0.0, *MOUNT_DEG], degrees=True)
@@ -331,7 +335,7 @@ def campaign(cond: Condition, seed: int) -> Campaign:
     tx_quat = np.broadcast_to(tx_q, (n, 4))
     w = ball_noise(n, truth, _rng(seed, 4))
     d, delta = receiver_model(pos, quat_wxyz(rot), tx_pos, tx_quat, truth, noise_w=w)
-    lpos, lrot = pose_error(cond.error, t, pos, rot, fine, _rng(seed, 5))
+    lpos, lrot = pose_error(cond.error, t, pos, rot, fine, _rng(seed, 5), cond.attitude_deg)
     lq = quat_wxyz(lrot)
     seq = np.arange(n) % 65536
     ids = np.where(d >= 0, 1, -1)
@@ -361,6 +365,8 @@ CONDITIONS = {
         Condition("radial-gm", "radial", "gm"),
         Condition("level-exact", "level_rw"),
         Condition("level-gm", "level_rw", "gm"),
+        Condition("level-gm-att05", "level_rw", "gm", attitude_deg=0.5),
+        Condition("level-gm-att5", "level_rw", "gm", attitude_deg=5.0),
         Condition("level-heavy", "level_rw", "heavy"),
         Condition("level-student", "level_rw", "student"),
         Condition("level-mount", "level_rw", "mount"),
