@@ -287,7 +287,8 @@ def summary(result) -> str:
         lines.append(f"{'q':<11} = {', '.join(f'{v:.4g}' for v in p.q)}   (q_y/q_x +- {result.se.get('q', float('nan')):.3g})")
     if result.hac_lag == result.hac_lag:
         lines.append(
-            f"standard errors: sandwich with time blocks (Newey-West, {result.hac_lag:.0f} s), robust to pose errors correlated in time"
+            f"standard errors: sandwich with time blocks (Newey-West, {result.hac_lag:.0f} s, "
+            "fixed-b scaled), robust to pose errors correlated in time"
         )
     status = "converged" if result.converged else f"DID NOT CONVERGE ({result.message})"
     lines.append(f"log-likelihood {result.log_likelihood:.2f}; {status}; {result.iterations} iterations, {result.seconds:.2f} s")

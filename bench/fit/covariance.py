@@ -176,7 +176,7 @@ def boundary_nuisance_cov(like, base, free, theta, h, keep, floor, hess_keep, sc
         slope = np.concatenate([score_height_slope(like, base, free, theta, h, keep, scores_keep, sample),
                                 scale * (s_v_up - s_v[idx].sum(axis=0)) / HEIGHT_STEP])
     inv = np.linalg.inv(big)
-    meat, lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
+    meat, lag = sandwich_meat(scores, like.rows.t, height, slope)
     cov = inv @ meat @ inv
     k = len(keep)
     return inv[:k, :k], cov[:k, :k], lag
@@ -250,6 +250,15 @@ def with_common_height(scores, t, height, slope):
     return np.concatenate([scores, np.outer(w, slope)]), np.concatenate([np.asarray(t, dtype=np.float64), t_rows])
 
 
+def sandwich_meat(scores, t, height, slope) -> tuple[NDArray[np.float64], float]:
+    """The sandwich's meat: :func:`time_block_meat` of the scores and times (the common
+    height's rows appended: :func:`with_common_height`) times :func:`fixed_b_scale` for
+    that bandwidth and those times; and the bandwidth (s)."""
+    scores, t = with_common_height(scores, t, height, slope)
+    meat, lag = time_block_meat(scores, t)
+    return meat * fixed_b_scale(lag, t), lag
+
+
 #: |correlation| of r_en with a pose-error sigma above which the two are not told apart.
 SEPARATION_CORR = 0.9
 
@@ -304,8 +313,9 @@ def fixed_b_scale(lag: float, t: NDArray[np.float64]) -> float:
     Why: with b not small (60 minutes: 240 / 3600) the long-run variance is estimated
     from a few windows, so it is noisy and, with the Bartlett weights, low; the t statistic
     is then wider than normal. Simulated white scores (T = 3600, L = 240, 6,000 series)
-    covered 92.7 % at 1.96 and 95.1 % at c(b); white plus Gauss-Markov (tau 30 s) parts
-    90.5-92.4 % and 93.1-94.7 % (docs/calibration.md, section 5)."""
+    covered 92.8 % at 1.96 and 95.2 % at c(b); white plus Gauss-Markov (tau 30 s) parts
+    90.7-91.4 % and 93.2-94.2 % (``tests/perf/fixed_b_check.py``; docs/calibration.md,
+    section 5). (b counts the L lags, not the L + 1 of the Bartlett window: < 0.1 % here.)"""
     b = min(lag / (int(seconds_axis(t).max()) + 1.0), 1.0)
     return ((1.96 + 2.9694 * b + 0.4160 * b * b - 0.5324 * b**3) / 1.96) ** 2
 
@@ -420,7 +430,7 @@ def standard_errors(like, res, base, free, newton_free, theta_n, active, estimat
                     nuisance_floor = [newton_free[i] for i in floor]
                 else:
                     slope = None if height is None else score_height_slope(like, base, newton_free, at, res.steps, keep, scores)
-                    meat, hac_lag = time_block_meat(*with_common_height(scores, like.rows.t, height, slope))
+                    meat, hac_lag = sandwich_meat(scores, like.rows.t, height, slope)
                     sub_cov = model_cov @ meat @ model_cov
             for a_, i in enumerate(keep):
                 name = newton_free[i]
@@ -431,13 +441,13 @@ def standard_errors(like, res, base, free, newton_free, theta_n, active, estimat
         except np.linalg.LinAlgError:
             failed = "the likelihood has no curvature in some direction: a parameter cannot be estimated from these rows"
         if hac_lag == hac_lag:
-            cov *= fixed_b_scale(hac_lag, like.rows.t)
             span = float(np.ptp(like.rows.t)) + 1.0  # s of receiver time the meat saw
             if span < FEW_WINDOWS * hac_lag:
                 notes.append(
                     f"the time-block standard errors rest on {span:.0f} s of data, {span / hac_lag:.1f} times their "
-                    f"{hac_lag:.0f} s bandwidth: with fewer than {FEW_WINDOWS} they run short (docs/accuracy.md (b)); "
-                    "log longer before trusting the interval"
+                    f"{hac_lag:.0f} s bandwidth: with fewer than {FEW_WINDOWS} they ran short before the "
+                    "fixed-b scale and are not measured since (docs/accuracy.md (b)); log longer before "
+                    "trusting the interval"
                 )
         for i in keep:
             name = newton_free[i]

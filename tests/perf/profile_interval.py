@@ -51,8 +51,8 @@ def one(cond: sc.Condition, seed: int, ours: bool) -> dict | None:
         table.d[:] = simulate(rows.geo, truth, np.random.default_rng([seed, 77]))
     first = fit(table, FitOptions(free=NAMES + ("pose_sigma",)))
     base = Params(pose_sigma=EXACT_POSE_SIGMA)
-    full = fit_restarted(table, FitOptions(free=NAMES, base=base, start=replace(first.params, pose_sigma=EXACT_POSE_SIGMA),
-                                           expected_se=True))
+    start = replace(first.params, pose_sigma=EXACT_POSE_SIGMA)
+    full = fit_restarted(table, FitOptions(free=NAMES, base=base, start=start, expected_se=True))
     if not full.converged:
         return {"seed": seed, "converged": False}
     cov = np.linalg.inv(full.expected_information)
@@ -62,13 +62,15 @@ def one(cond: sc.Condition, seed: int, ours: bool) -> dict | None:
     for name in NAMES:
         other = tuple(n for n in NAMES if n != name)
         at = replace(base, **{name: getattr(t, name)})
-        prof = fit_restarted(table, FitOptions(free=other, base=at, start=replace(full.params, **{name: getattr(t, name)})))
+        start = replace(full.params, **{name: getattr(t, name)})
+        prof = fit_restarted(table, FitOptions(free=other, base=at, start=start))
         rec[f"lr_{name}"] = 2.0 * (full.log_likelihood - prof.log_likelihood)
     return rec
 
 
 def table(paths: list[str]) -> None:
-    print("| runs | parameter | fits | Wald covers | Wald mean z | Wald RMS z | LR covers | signed-root RMS | expected-information covers |")
+    print("| runs | parameter | fits | Wald covers | Wald mean z | Wald RMS z | LR covers | signed-root RMS "
+          "| expected-information covers |")
     print("|---|---|---|---|---|---|---|---|---|")
     for path in paths:
         recs = [r for r in map(json.loads, Path(path).read_text().splitlines()) if r.get("converged")]
@@ -77,8 +79,9 @@ def table(paths: list[str]) -> None:
             ze = np.array([(r["estimate"][n] - r["truth"][n]) / r["se_expected"][n] for r in recs])
             lr = np.array([r[f"lr_{n}"] for r in recs])
             root = np.sign(z) * np.sqrt(np.maximum(lr, 0.0))
-            print(f"| {Path(path).stem} | {n} | {len(recs)} | {np.mean(abs(z) < 1.96):.0%} | {z.mean():+.2f} | "
-                  f"{np.sqrt(np.mean(z * z)):.2f} | {np.mean(lr < 3.841):.0%} | {np.sqrt(np.mean(root**2)):.2f} | "
+            print(f"| {Path(path).stem} | {n} | {len(recs)} | {np.mean(abs(z) < 1.96):.0%} | "
+                  f"{z.mean():+.2f} | {np.sqrt(np.mean(z * z)):.2f} | {np.mean(lr < 3.841):.0%} | "
+                  f"{np.sqrt(np.mean(root**2)):.2f} | "
                   f"{np.mean(abs(ze) < 1.96):.0%} |")
 
 
@@ -86,8 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     exact = sorted(n for n in sc.CONDITIONS if n.endswith("-exact"))
     ap.add_argument("--condition", choices=exact, default="far-exact")
-    ap.add_argument("--seeds", type=int, nargs=2, default=(0, 50), metavar=("FIRST", "END"), help="tuning seeds [FIRST, END)")
-    ap.add_argument("--our-model", action="store_true", help="outcomes drawn from the fit's model at the truth (control)")
+    ap.add_argument("--seeds", type=int, nargs=2, default=(0, 50), metavar=("FIRST", "END"),
+                    help="tuning seeds [FIRST, END)")
+    ap.add_argument("--our-model", action="store_true",
+                    help="outcomes drawn from the fit's model at the truth (control)")
     ap.add_argument("--out", help="append one JSON line per seed here")
     ap.add_argument("--table", nargs="+", metavar="JSONL", help="print the table of these runs; fit nothing")
     args = ap.parse_args(argv)

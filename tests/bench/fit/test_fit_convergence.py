@@ -32,9 +32,10 @@ def study_table(condition: str, seed: int):
 def test_exact_poses_are_fitted_as_exact_when_no_pose_error_is_visible(fit_once_calls):
     """Radial walk with tilted holds, exact poses (tuning seed 0): the default fit puts
     both pose-error sigmas on their floors, where the model still smooths the noise edge
-    by 0.05 deg and 5 mm; its r_en was 2.6 s.e. above the truth (the study's report seeds:
-    9 silent misses of 50; 2.3 with the sandwich's fixed-b scale). Now it says the poses look exact and fits them as such; the
-    fit of exact poses puts pose_sigma on its bound 1e-4, which smooths the edge too, so it
+    by 0.05 deg and 5 mm; its r_en was 2.6 s.e. above the truth (2.3 with the sandwich's
+    fixed-b scale; the study's report seeds: 9 silent misses of 50). Now it says the poses
+    look exact and fits them as such; the fit of exact poses puts pose_sigma on its bound
+    1e-4, which smooths the edge too, so it
     is held at 1e-5 (searched from the bound's estimate), r_en within 1.96 s.e."""
     camp, table = study_table("radial-exact", 0)
     res = fit(table, FitOptions(free=EIV_FREE))

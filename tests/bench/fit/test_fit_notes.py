@@ -40,8 +40,9 @@ def test_ten_minutes_get_the_note_with_their_own_numbers():
     assert res.hac_lag == pytest.approx(4.0 * math.sqrt(span))  # the bandwidth's floor, 98 s
     assert note == (
         f"the time-block standard errors rest on {span} s of data, {span / res.hac_lag:.1f} times their "
-        f"{res.hac_lag:.0f} s bandwidth: with fewer than {FEW_WINDOWS} they run short (docs/accuracy.md (b)); "
-        "log longer before trusting the interval"
+        f"{res.hac_lag:.0f} s bandwidth: with fewer than {FEW_WINDOWS} they ran short before the "
+        "fixed-b scale and are not measured since (docs/accuracy.md (b)); log longer before "
+        "trusting the interval"
     )
     assert "6.1 times their 98 s bandwidth" in note
 

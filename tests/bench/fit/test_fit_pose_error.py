@@ -167,11 +167,49 @@ def test_fixed_b_scale_makes_the_interval_95_percent():
         z = abs(x.sum()) / math.sqrt(meat[0, 0])
         hits += [z < 1.96, z < 1.96 * math.sqrt(fixed_b_scale(lag, t))]
     b = 120.0 / 900.0
-    assert lag == 120.0 and fixed_b_scale(lag, t) == ((1.96 + 2.9694 * b + 0.4160 * b**2 - 0.5324 * b**3) / 1.96) ** 2
+    c = 1.96 + 2.9694 * b + 0.4160 * b**2 - 0.5324 * b**3
+    assert lag == 120.0 and fixed_b_scale(lag, t) == pytest.approx((c / 1.96) ** 2, rel=1e-12)
     assert hits.tolist() == [2726, 2850]
     # a day's pause counts as MEAT_GAP seconds, as in the meat; no bandwidth, no scale
-    assert fixed_b_scale(600.0, np.array([0.0, 100.0, 100.0 + 86_400])) == fixed_b_scale(600.0, np.array([0.0, 100.0, 3700.0]))
+    day = np.array([0.0, 100.0, 100.0 + 86_400])
+    assert fixed_b_scale(600.0, day) == fixed_b_scale(600.0, np.array([0.0, 100.0, 3700.0]))
     assert fixed_b_scale(0.0, t) == 1.0
+
+
+def test_the_sandwich_takes_the_fixed_b_scale_once_and_the_inverse_hessian_never(monkeypatch):
+    """fixed_b_scale replaced by a spy returning 1 or 4: the sandwich's s.e. double, on the
+    plain time-block path (sigmas given) and on the path with the sigmas at their floors
+    (nuisance variances); exact poses (inverse Hessian) never ask for it."""
+    calls: list[float] = []
+
+    def spy(scale):
+        def scaled(lag, t):
+            calls.append(lag)
+            return scale
+
+        return scaled
+
+    noisy = emulate_campaign(10, TRUTH, seed=5, pose_error=TARGET_ERROR)
+    gps_only = emulate_campaign(10, TRUTH, seed=5, pose_error=PoseError(gps_h=1.0, gps_v=1.5, gps_tau=30.0))
+    given = FitOptions(free=("kappa_eq", "r_en"), scan_offset=False,
+                       base=Params(gps_sigma=1.0, gps_ratio=1.5, attitude_sigma=math.radians(2.0)))
+    free = FitOptions(free=EIV_FREE, scan_offset=False)  # on gps_only: the attitude error on its floor
+    for table, opts, nuisance in ((noisy, given, False), (gps_only, free, True)):
+        se = {}
+        for scale in (1.0, 4.0):
+            monkeypatch.setattr(covariance_module, "fixed_b_scale", spy(scale))
+            calls.clear()
+            res = estimate_module.fit_once(table, opts)
+            assert res.converged and len(calls) == 1 and res.hac_lag == calls[0]
+            assert any("nuisance parameter there" in n for n in res.notes) == nuisance
+            se[scale] = res.se
+        for name in ("kappa_eq", "r_en"):
+            assert se[4.0][name] == pytest.approx(2.0 * se[1.0][name], rel=1e-9), name
+    calls.clear()
+    res = estimate_module.fit_once(emulate_campaign(10, TRUTH, seed=5), FitOptions())
+    assert res.converged and calls == []
+    names = ("kappa_eq", "r_en")
+    assert [res.se[name] for name in names] == [res.se_model[name] for name in names]
 
 
 def test_time_block_meat_sums_rows_of_the_same_second():
