@@ -103,6 +103,7 @@ REPORT_RUNS = (
     ReportRun("calibration_study_student_outlier_report20_94214b2.jsonl", "94214b2"),
     ReportRun("calibration_study_fixedb_report50_c417b9f.jsonl", "c417b9f"),
     ReportRun("calibration_study_fixedb2_report50_c417b9f.jsonl", "c417b9f"),
+    ReportRun("calibration_study_att_report50_aca882e.jsonl", "aca882e"),
 )
 OUT = ROOT / "tests/perf/out"
 DOCS = (ROOT / "docs/calibration.md", ROOT / "docs/accuracy.md")
