@@ -104,6 +104,8 @@ REPORT_RUNS = (
     ReportRun("calibration_study_fixedb_report50_c417b9f.jsonl", "c417b9f"),
     ReportRun("calibration_study_fixedb2_report50_c417b9f.jsonl", "c417b9f"),
     ReportRun("calibration_study_att_report50_aca882e.jsonl", "aca882e"),
+    ReportRun("calibration_study_variants_report20_aca882e.jsonl", "aca882e"),
+    ReportRun("calibration_study_dropout_report50_aca882e.jsonl", "aca882e"),
 )
 OUT = ROOT / "tests/perf/out"
 DOCS = (ROOT / "docs/calibration.md", ROOT / "docs/accuracy.md")
