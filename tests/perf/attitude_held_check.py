@@ -25,13 +25,14 @@ from bench.fit.csvio import parse_csv  # noqa: E402
 from bench.fit.estimate import fit  # noqa: E402
 from bench.fit.params import Params  # noqa: E402
 from bench.fit.result import EIV_FREE, FitOptions  # noqa: E402
+from emulator.cli_types import real, seed  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--condition", default="drone-gm", choices=sorted(sc.CONDITIONS))
-    ap.add_argument("--seed", type=int, default=1_000_007)
-    ap.add_argument("--deg", type=float, nargs="+", default=[0.5, 1.0, 2.0],
+    ap.add_argument("--seed", type=seed, default=1_000_007)
+    ap.add_argument("--deg", type=real(0.0, 90.0, lo_open=True), nargs="+", default=[0.5, 1.0, 2.0],
                     help="attitude errors to hold (deg)")
     args = ap.parse_args(argv)
     camp = sc.campaign(sc.CONDITIONS[args.condition], args.seed)
@@ -43,8 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     default = fit(table, FitOptions(free=EIV_FREE))
     fits = [(f"fitted: {math.degrees(default.params.attitude_sigma):.2f} deg", default)]
     for deg in args.deg:
-        held = FitOptions(free=("kappa_eq", "r_en", "gps_sigma"), base=Params(attitude_sigma=math.radians(deg)),
-                          scan_offset=False)
+        base = Params(attitude_sigma=math.radians(deg))
+        held = FitOptions(free=("kappa_eq", "r_en", "gps_sigma"), base=base, scan_offset=False)
         fits.append((f"held at {deg:g} deg", fit(table, held)))
     for label, res in fits:
         z = (res.estimate["r_en"] - truth) / res.se["r_en"]

@@ -24,13 +24,15 @@ from scipy.signal import lfilter
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from bench.fit.covariance import fixed_b_scale, time_block_meat  # noqa: E402
+from emulator.cli_types import integer, positive_int, real  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seconds", type=int, default=3600)
-    ap.add_argument("--series", type=int, default=6000)
-    ap.add_argument("--tau", type=float, default=30.0, help="the correlated part's time constant (s)")
+    ap.add_argument("--seconds", type=integer(16, 10**7), default=3600)
+    ap.add_argument("--series", type=positive_int, default=6000)
+    ap.add_argument("--tau", type=real(0.0, 1e6, lo_open=True), default=30.0,
+                    help="the correlated part's time constant (s)")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(2)
     t = np.arange(float(args.seconds))

@@ -35,6 +35,7 @@ from bench.fit.estimate import EXACT_POSE_SIGMA, check_table, fit, fit_restarted
 from bench.fit.likelihood import simulate  # noqa: E402
 from bench.fit.params import Params  # noqa: E402
 from bench.fit.result import FitOptions  # noqa: E402
+from emulator.cli_types import non_negative_int  # noqa: E402
 
 NAMES = ("kappa_eq", "r_en")
 
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     exact = sorted(n for n in sc.CONDITIONS if n.endswith("-exact"))
     ap.add_argument("--condition", choices=exact, default="far-exact")
-    ap.add_argument("--seeds", type=int, nargs=2, default=(0, 50), metavar=("FIRST", "END"),
+    ap.add_argument("--seeds", type=non_negative_int, nargs=2, default=(0, 50), metavar=("FIRST", "END"),
                     help="tuning seeds [FIRST, END)")
     ap.add_argument("--our-model", action="store_true",
                     help="outcomes drawn from the fit's model at the truth (control)")

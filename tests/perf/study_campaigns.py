@@ -276,8 +276,9 @@ def gauss_markov(n, dt, sigma, tau, rng, dims, innovations=None):
 MOUNT_DEG = (3.0, -2.0)
 
 
-def pose_error(kind: str, t, pos, rot, fine, rng: np.random.Generator, attitude_deg: float = 2.0):
-    """Logged (positions, Rotation) for true ones at 1 Hz times ``t``."""
+def pose_error(kind: str, t, pos, rot, fine, rng: np.random.Generator, attitude_deg: float):
+    """Logged (positions, Rotation) for true ones at 1 Hz times ``t`` (``attitude_deg``: the
+    attitude error's s.d. per axis, :attr:`Condition.attitude_deg`)."""
     if kind == "exact":
         return pos, rot
     if kind == "offset":  # the pose stream 0.4 s late: the pose logged at t is the truth at t - 0.4
