@@ -315,7 +315,9 @@ def fixed_b_scale(lag: float, t: NDArray[np.float64]) -> float:
     is then wider than normal. Simulated white scores (T = 3600, L = 240, 6,000 series)
     covered 92.8 % at 1.96 and 95.2 % at c(b); white plus Gauss-Markov (tau 30 s) parts
     90.7-91.4 % and 93.2-94.2 % (``tests/perf/fixed_b_check.py``; docs/calibration.md,
-    section 5). (b counts the L lags, not the L + 1 of the Bartlett window: < 0.1 % here.)"""
+    section 5). (b counts the L lags, not the L + 1 of the Bartlett window: < 0.1 % here.)
+    Written here: statsmodels' HAC covariance (our meat's test oracle) has no fixed-b
+    critical values (searched in the installed 0.15.0 sources, 2026-12-05)."""
     b = min(lag / (int(seconds_axis(t).max()) + 1.0), 1.0)
     return ((1.96 + 2.9694 * b + 0.4160 * b * b - 0.5324 * b**3) / 1.96) ** 2
 
